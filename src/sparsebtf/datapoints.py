@@ -1,0 +1,170 @@
+"""4D data points (paper §3.1): non-overlapping p×p spatial patches with all lights and views.
+
+A data point of channel c is the tensor X[i1, i2, light, view] of shape (p, p, L, V): modes
+(row-in-patch, col-in-patch, light, view). Patches are numbered as in the release
+(``official-release-format.md`` §1)::
+
+    point = row_block + n_row_blocks * col_block,   i1 = row % p,   i2 = col % p
+
+:class:`PatchGrid` holds that geometry; :func:`iter_points` streams standardised log-YUV data
+points of a BTF in batches (memory bounded by the batch); :func:`sample_points` draws a seeded
+fraction of the data points of several BTFs (the paper trains on 10% of 18 BTFs).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .data.btf import BTF
+from .data.validate import check_finite
+from .errors import BTFInputError
+from .preprocessing import Preprocessor
+
+__all__ = ["PatchGrid", "assemble", "extract", "iter_points", "sample_points"]
+
+
+@dataclass(frozen=True)
+class PatchGrid:
+    """Tiling of an H×W texture into p×p patches numbered ``rb + n_row_blocks * cb``."""
+
+    height: int
+    width: int
+    patch: int = 10
+
+    def __post_init__(self) -> None:
+        if self.patch < 1:
+            raise BTFInputError(f"patch size must be >= 1, got {self.patch}")
+        if self.height % self.patch or self.width % self.patch:
+            raise BTFInputError(
+                f"spatial size {self.height}x{self.width} is not a multiple of the patch size "
+                f"{self.patch}; crop it (e.g. --crop 0:{self.height - self.height % self.patch},"
+                f"0:{self.width - self.width % self.patch}) or choose another patch size"
+            )
+
+    @classmethod
+    def for_btf(cls, btf: BTF, patch: int = 10) -> PatchGrid:
+        return cls(btf.height, btf.width, patch)
+
+    @property
+    def n_row_blocks(self) -> int:
+        return self.height // self.patch
+
+    @property
+    def n_col_blocks(self) -> int:
+        return self.width // self.patch
+
+    @property
+    def n_points(self) -> int:
+        return self.n_row_blocks * self.n_col_blocks
+
+    def index(self, row_block: np.ndarray | int, col_block: np.ndarray | int) -> np.ndarray:
+        """Point number of patch (row_block, col_block)."""
+        return np.asarray(row_block) + self.n_row_blocks * np.asarray(col_block)
+
+    def blocks(self, point: np.ndarray | int) -> tuple[np.ndarray, np.ndarray]:
+        """(row_block, col_block) of a point number."""
+        p = np.asarray(point)
+        return p % self.n_row_blocks, p // self.n_row_blocks
+
+    def origin(self, point: int) -> tuple[int, int]:
+        """Top-left texel (row, col) of a point."""
+        rb, cb = self.blocks(point)
+        return int(rb) * self.patch, int(cb) * self.patch
+
+    def locate(self, row: np.ndarray | int, col: np.ndarray | int) -> tuple[np.ndarray, ...]:
+        """Texel (row, col) → (point, i1, i2); texture coordinates wrap (tiling)."""
+        r = np.asarray(row) % self.height
+        c = np.asarray(col) % self.width
+        return self.index(r // self.patch, c // self.patch), r % self.patch, c % self.patch
+
+
+def extract(block: np.ndarray, patch: int) -> np.ndarray:
+    """Cut an (h, w, ...) array into (n, p, p, ...) patches in release order (row block fastest)."""
+    h, w = block.shape[:2]
+    grid = PatchGrid(h, w, patch)
+    rest = block.shape[2:]
+    x = block.reshape(grid.n_row_blocks, patch, grid.n_col_blocks, patch, *rest)
+    # (rb, i1, cb, i2, ...) → (cb, rb, i1, i2, ...): flattening (cb, rb) gives rb + nrb·cb.
+    x = np.moveaxis(x, 2, 0)
+    return x.reshape(grid.n_points, patch, patch, *rest)
+
+
+def assemble(points: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Inverse of :func:`extract`: (n, p, p, ...) patches → (height, width, ...)."""
+    patch = points.shape[1]
+    grid = PatchGrid(height, width, patch)
+    if points.shape[0] != grid.n_points or points.shape[2] != patch:
+        raise BTFInputError(
+            f"{points.shape[0]} patches of {points.shape[1]}x{points.shape[2]} do not tile "
+            f"{height}x{width}"
+        )
+    rest = points.shape[3:]
+    x = points.reshape(grid.n_col_blocks, grid.n_row_blocks, patch, patch, *rest)
+    x = np.moveaxis(x, 0, 2)  # (rb, i1, cb, i2, ...)
+    return x.reshape(height, width, *rest)
+
+
+def iter_points(
+    btf: BTF,
+    pre: Preprocessor,
+    patch: int = 10,
+    points: Sequence[int] | np.ndarray | None = None,
+    batch: int = 4,
+    dtype: type = np.float32,
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Stream standardised log-YUV data points of ``btf`` in batches.
+
+    Yields ``(indices, X)`` with X of shape (b, p, p, L, V, 3), b <= ``batch``. Points are
+    read one spatial patch at a time (a patch holds every direction), so memory stays at
+    ``batch`` data points whatever the BTF size. NaN/Inf raise with their location; negative
+    values are clamped to 0 (counted by :func:`~sparsebtf.preprocessing.gather_statistics`).
+    """
+    grid = PatchGrid.for_btf(btf, patch)
+    if (pre.stats.n_lights, pre.stats.n_views) != btf.shape[2:4]:
+        raise BTFInputError(
+            f"{btf.name}: statistics are for {pre.stats.n_lights}x{pre.stats.n_views} directions "
+            f"but the BTF has {btf.shape[2]}x{btf.shape[3]}"
+        )
+    idx = np.arange(grid.n_points) if points is None else np.asarray(points, dtype=np.int64)
+    if idx.size and (idx.min() < 0 or idx.max() >= grid.n_points):
+        bad = int(idx[(idx < 0) | (idx >= grid.n_points)][0])
+        raise BTFInputError(f"{btf.name}: data point {bad} is out of range [0, {grid.n_points})")
+    if batch < 1:
+        raise BTFInputError(f"batch must be >= 1, got {batch}")
+    _, _, nl, nv, _ = btf.shape
+    for start in range(0, idx.size, batch):
+        chunk = idx[start : start + batch]
+        out = np.empty((chunk.size, patch, patch, nl, nv, 3), dtype=dtype)
+        for j, p in enumerate(chunk):
+            r0, c0 = grid.origin(int(p))
+            rgb = btf.patch(r0, c0, patch)
+            check_finite(rgb, btf.name, offset=(r0, c0))
+            out[j] = pre.forward(np.maximum(rgb, 0), dtype=dtype)
+        yield chunk, out
+
+
+def sample_points(
+    n_points: Sequence[int], fraction: float, seed: int = 0
+) -> list[tuple[int, np.ndarray]]:
+    """A seeded random fraction of the data points of several BTFs.
+
+    Parameters
+    ----------
+    n_points : number of data points of each BTF.
+    fraction : in (0, 1]; each BTF contributes max(1, round(fraction · n)) points.
+
+    Returns
+    -------
+    One (btf index, sorted point indices) pair per BTF.
+    """
+    if not 0 < fraction <= 1:
+        raise BTFInputError(f"sample fraction must be in (0, 1], got {fraction}")
+    rng = np.random.default_rng(seed)
+    out = []
+    for b, n in enumerate(n_points):
+        k = max(1, round(fraction * n))
+        out.append((b, np.sort(rng.choice(n, size=k, replace=False))))
+    return out

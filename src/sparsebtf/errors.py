@@ -1,0 +1,19 @@
+"""Exceptions raised for bad input: each says *what* is wrong and *where*."""
+
+from __future__ import annotations
+
+
+class SparseBTFError(ValueError):
+    """Base class of every error this library raises on purpose."""
+
+
+class BTFInputError(SparseBTFError):
+    """A BTF, an array or a parameter given by the user is unusable (shape, rank, values)."""
+
+
+class FileFormatError(SparseBTFError):
+    """A file is not of the expected format, truncated, corrupted, or of an unsupported version."""
+
+
+class ModelMismatchError(SparseBTFError):
+    """A coded file is used with a model (or another coded file) it does not belong with."""

@@ -1,0 +1,219 @@
+"""BTF-specific preprocessing (paper §3.1): log, BT.601 YUV, per-angular-image standardisation.
+
+Forward, for linear RGB ``x`` at angular image j = (light, view)::
+
+    y   = ln(x + 1e-5)                       dynamic-range reduction (release: eps 1e-5)
+    yuv = M · y                              analog BT.601, on log values
+    z_c = (yuv_c − μ_j,c) / σ_j,c            standardisation of every angular image
+
+Two standardisation conventions are provided:
+
+* ``"shared"`` — the release's (``official-release-format.md`` §3): one μ_j = mean of the three
+  channel means, one σ_j = mean of the three channel standard deviations, each taken about the
+  shared μ_j with an n−1 denominator. Normalised U and V are then not zero-mean.
+* ``"per_channel"`` — each channel its own mean and n−1 standard deviation.
+
+The inverse is exact (``np.linalg.inv`` of the forward matrix): the float64 round trip is at
+rounding level. :data:`YUV_TO_RGB_RELEASE` holds the rounded inverse of the release's shader
+for renderers that must match it bit for bit.
+
+Statistics are gathered in one streaming pass over view blocks (:func:`gather_statistics`).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+
+from ._progress import progress as _progress
+from .data.btf import BTF, Index, as_index
+from .data.validate import check_finite
+from .errors import BTFInputError
+
+__all__ = [
+    "EPS",
+    "RGB_TO_YUV",
+    "YUV_TO_RGB",
+    "YUV_TO_RGB_RELEASE",
+    "Preprocessor",
+    "Standardization",
+    "from_log_yuv",
+    "gather_statistics",
+    "log_transform",
+    "inverse_log_transform",
+    "rgb_to_yuv",
+    "to_log_yuv",
+    "yuv_to_rgb",
+]
+
+EPS = 1e-5
+StdMode = Literal["shared", "per_channel"]
+
+#: Analog BT.601 RGB → YUV, applied to log values (release: ``DataBTF4D.inl``).
+RGB_TO_YUV = np.array(
+    [
+        [0.299, 0.587, 0.114],
+        [-0.14713, -0.28886, 0.436],
+        [0.615, -0.51499, -0.10001],
+    ]
+)
+#: Exact inverse of :data:`RGB_TO_YUV`.
+YUV_TO_RGB = np.linalg.inv(RGB_TO_YUV)
+#: The release shader's rounded inverse (|inv·fwd − I| ≤ 1.6e-5).
+YUV_TO_RGB_RELEASE = np.array(
+    [
+        [1.0, 0.0, 1.13983],
+        [1.0, -0.39465, -0.5806],
+        [1.0, 2.03211, 0.0],
+    ]
+)
+
+
+def log_transform(rgb: np.ndarray, eps: float = EPS) -> np.ndarray:
+    """ln(x + eps): the dynamic-range reduction of §3.1."""
+    return np.log(rgb + eps)
+
+
+def inverse_log_transform(y: np.ndarray, eps: float = EPS) -> np.ndarray:
+    """exp(y) − eps, the inverse of :func:`log_transform` (no clamping, as in the release)."""
+    return np.exp(y) - eps
+
+
+def rgb_to_yuv(x: np.ndarray) -> np.ndarray:
+    """Colour transform on the last axis (size 3)."""
+    return x @ RGB_TO_YUV.T.astype(x.dtype, copy=False)
+
+
+def yuv_to_rgb(x: np.ndarray, release_matrix: bool = False) -> np.ndarray:
+    """Inverse colour transform on the last axis; ``release_matrix`` uses the shader's rounding."""
+    m = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
+    return x @ m.T.astype(x.dtype, copy=False)
+
+
+def to_log_yuv(rgb: np.ndarray, eps: float = EPS) -> np.ndarray:
+    """Linear RGB → log-YUV (no standardisation)."""
+    return rgb_to_yuv(log_transform(rgb, eps))
+
+
+def from_log_yuv(yuv: np.ndarray, eps: float = EPS, release_matrix: bool = False) -> np.ndarray:
+    """Log-YUV → linear RGB."""
+    return inverse_log_transform(yuv_to_rgb(yuv, release_matrix), eps)
+
+
+@dataclass(frozen=True, eq=False)
+class Standardization:
+    """Per-angular-image statistics of one BTF in the log-YUV domain.
+
+    Attributes
+    ----------
+    mode : "shared" (the release's: one μ, σ for Y, U and V) or "per_channel".
+    mean, std : (L, V, C) float64 with C = 1 (shared) or 3 (per channel). σ = 0 (a constant
+        angular image) is stored as 1 so the forward map stays finite.
+    eps : the log offset used.
+    """
+
+    mode: StdMode
+    mean: np.ndarray
+    std: np.ndarray
+    eps: float = EPS
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("shared", "per_channel"):
+            raise BTFInputError(f"standardisation mode must be 'shared' or 'per_channel', got {self.mode!r}")
+        if self.mean.shape != self.std.shape or self.mean.ndim != 3:
+            raise BTFInputError(
+                f"mean and std must both be (L, V, C); got {self.mean.shape} and {self.std.shape}"
+            )
+        c = 1 if self.mode == "shared" else 3
+        if self.mean.shape[2] != c:
+            raise BTFInputError(f"{self.mode} statistics need C = {c}, got {self.mean.shape[2]}")
+
+    @property
+    def n_lights(self) -> int:
+        return int(self.mean.shape[0])
+
+    @property
+    def n_views(self) -> int:
+        return int(self.mean.shape[1])
+
+    def select(self, lights: Index, views: Index) -> tuple[np.ndarray, np.ndarray]:
+        """μ, σ at the outer product of light and view indices: (l, v, C) each."""
+        li = as_index(lights, self.n_lights, "light")
+        vi = as_index(views, self.n_views, "view")
+        return self.mean[np.ix_(li, vi)], self.std[np.ix_(li, vi)]
+
+    def apply(self, yuv: np.ndarray, lights: Index = slice(None), views: Index = slice(None)) -> np.ndarray:
+        """Standardise a log-YUV block (..., l, v, 3)."""
+        mu, sd = self.select(lights, views)
+        return (yuv - mu) / sd
+
+    def invert(self, z: np.ndarray, lights: Index = slice(None), views: Index = slice(None)) -> np.ndarray:
+        """Undo :meth:`apply`."""
+        mu, sd = self.select(lights, views)
+        return z * sd + mu
+
+
+class Preprocessor:
+    """Linear RGB ⇄ standardised log-YUV for one BTF, given its :class:`Standardization`."""
+
+    def __init__(self, stats: Standardization) -> None:
+        self.stats = stats
+
+    def forward(
+        self, rgb: np.ndarray, lights: Index = slice(None), views: Index = slice(None),
+        dtype: type = np.float64,
+    ) -> np.ndarray:
+        """(..., l, v, 3) linear RGB → standardised log-YUV. Negative inputs must be clamped first."""
+        y = to_log_yuv(np.asarray(rgb, dtype=dtype), self.stats.eps)
+        return self.stats.apply(y, lights, views).astype(dtype, copy=False)
+
+    def inverse(
+        self, z: np.ndarray, lights: Index = slice(None), views: Index = slice(None),
+        release_matrix: bool = False,
+    ) -> np.ndarray:
+        """Standardised log-YUV (..., l, v, 3) → linear RGB."""
+        return from_log_yuv(self.stats.invert(z, lights, views), self.stats.eps, release_matrix)
+
+
+def gather_statistics(
+    btf: BTF,
+    mode: StdMode = "shared",
+    eps: float = EPS,
+    progress: bool | None = None,
+) -> Standardization:
+    """μ and σ of every angular image of ``btf`` in log-YUV, in one pass over view blocks.
+
+    Memory is one view block (H·W·L·3 values). NaN/Inf abort with their count and first
+    location; negative values are clamped to 0 with one warning giving the total count.
+    """
+    if mode not in ("shared", "per_channel"):
+        raise BTFInputError(f"standardisation mode must be 'shared' or 'per_channel', got {mode!r}")
+    h, w, nl, nv, _ = btf.shape
+    n = h * w
+    if n < 2:
+        raise BTFInputError(f"{btf.name}: standardisation needs at least 2 texels, got {n}")
+    s1 = np.zeros((nl, nv, 3))
+    s2 = np.zeros((nl, nv, 3))
+    negatives = 0
+    for v, block in _progress(btf.iter_view_blocks(), total=nv, desc="statistics", enabled=progress):
+        check_finite(block, btf.name, offset=(0, 0, 0, v))
+        neg = block < 0
+        negatives += int(neg.sum())
+        x = to_log_yuv(np.where(neg, 0.0, block.astype(np.float64)), eps).reshape(n, nl, 3)
+        s1[:, v] = x.sum(axis=0)
+        s2[:, v] = np.einsum("nlc,nlc->lc", x, x)
+    if negatives:
+        warnings.warn(f"{btf.name}: clamped {negatives} negative values to 0", stacklevel=2)
+    if mode == "shared":
+        mean = s1.mean(axis=2, keepdims=True) / n
+        # Σ(x − μ)² = Σx² − 2μΣx + nμ², per channel, about the shared μ (release convention).
+        ss = s2 - 2 * mean * s1 + n * mean**2
+        std = np.sqrt(np.maximum(ss, 0) / (n - 1)).mean(axis=2, keepdims=True)
+    else:
+        mean = s1 / n
+        std = np.sqrt(np.maximum(s2 - n * mean**2, 0) / (n - 1))
+    std = np.where(std > 0, std, 1.0)
+    return Standardization(mode=mode, mean=mean, std=std, eps=eps)
