@@ -9,6 +9,9 @@ Everything streams: statistics by view block, data points by patch, decoding by 
 
 from __future__ import annotations
 
+import contextlib
+import shutil
+import tempfile
 import time
 from collections.abc import Iterator, Sequence
 from importlib import metadata
@@ -20,18 +23,23 @@ from ._progress import bar
 from .data.btf import BTF, Index, as_index
 from .datapoints import PatchGrid, iter_points, sample_points
 from .errors import BTFInputError, ModelMismatchError
-from .learning.coding import SparseCodes, sparse_code
+from .learning.coding import SparseCodes, sparse_code_levels
 from .learning.ensemble import DictionaryEnsemble
 from .learning.tensor import reconstruct
 from .model import CHANNELS, CodedBTF, Model
 from .preprocessing import Preprocessor, StdMode, gather_statistics
+
+#: Up to this many (light, view) pairs a read uses Eq. 5 (sparse sums), above it Eq. 4.
+EQ5_MAX_DIRECTIONS = 16
 
 __all__ = [
     "BTFPointSource",
     "DecodedBTF",
     "coded_btf_view",
     "decode_points",
+    "decode_points_eq5",
     "encode",
+    "encode_levels",
     "parse_tau",
     "train",
 ]
@@ -116,6 +124,70 @@ class BTFPointSource:
         return out
 
 
+class StagedPoints:
+    """Training points preprocessed once into a temporary HDF5 file, one dataset per channel.
+
+    Training makes K + 4 passes per iteration per channel; reading contiguous float32 points
+    back is far cheaper than re-reading and re-preprocessing the BTFs each time. Memory stays
+    at one batch: points are written and read one batch at a time.
+    """
+
+    def __init__(self, path: str, source: BTFPointSource, channels: Sequence[str],
+                 batch_size: int = 4, progress: bool | None = None) -> None:
+        import h5py
+
+        self.path = path
+        self._file = h5py.File(path, "w")
+        n = source.n_points
+        shape = (source.patch, source.patch, *source.mode_sizes[2:4])
+        full = (*shape, 3) if channels == ("YUV",) else shape
+        self._ds = {
+            ch: self._file.create_dataset(ch, shape=(n, *full), dtype="float32",
+                                          chunks=(1, *full))
+            for ch in channels
+        }
+        raw = BTFPointSource(source.items, source.patch, None)
+        with bar(n, "stage points", "pt", progress) as pb:
+            for g, x in raw.batches(batch_size):
+                lo, hi = int(g[0]), int(g[-1]) + 1
+                for c, ch in enumerate(channels):
+                    self._ds[ch][lo:hi] = x if ch == "YUV" else x[..., c]
+                pb.update(hi - lo)
+
+    def source(self, channel: str) -> _StagedChannel:
+        return _StagedChannel(self._ds[channel])
+
+    def close(self) -> None:
+        self._file.close()
+
+
+class _StagedChannel:
+    """:class:`~sparsebtf.learning.ensemble.PointSource` over one staged dataset."""
+
+    def __init__(self, ds: Any) -> None:
+        self._ds = ds
+
+    @property
+    def n_points(self) -> int:
+        return int(self._ds.shape[0])
+
+    @property
+    def mode_sizes(self) -> tuple[int, ...]:
+        return tuple(int(v) for v in self._ds.shape[1:])
+
+    def batches(self, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for s in range(0, self.n_points, batch_size):
+            e = min(s + batch_size, self.n_points)
+            yield np.arange(s, e), self._ds[s:e]
+
+    def take(self, indices: np.ndarray) -> np.ndarray:
+        return np.stack([self._ds[int(i)] for i in np.asarray(indices)])
+
+
+#: Training points are staged on disk when they need at most this many bytes.
+STAGE_LIMIT_BYTES = 32 * 2**30
+
+
 def _check_same_directions(btfs: Sequence[BTF]) -> None:
     ref = btfs[0]
     for b in btfs[1:]:
@@ -124,6 +196,39 @@ def _check_same_directions(btfs: Sequence[BTF]) -> None:
                 f"{b.name}: its direction tables ({len(b.lights)} lights, {len(b.views)} views) "
                 f"differ from {ref.name}'s; one model needs one angular sampling"
             )
+
+
+def _train_channels(
+    channels: Sequence[str], taus: dict[str, int], items: list, patch: int, colour_mode: bool,
+    staged: StagedPoints | None, dictionaries: dict[str, list[np.ndarray]],
+    training: dict[str, dict[str, Any]], *, n_dictionaries: int, max_iter: int, tol: float,
+    init: str, batch_size: int, dtype: str, seed: int, checkpoint_dir: str | None,
+    progress: bool | None,
+) -> None:
+    for c, ch in enumerate(channels):
+        ens = DictionaryEnsemble(
+            n_dictionaries=n_dictionaries,
+            tau=taus[ch],
+            max_iter=max_iter,
+            tol=tol,
+            init=init,
+            batch_size=batch_size,
+            dtype=dtype,
+            random_state=seed + c,
+            checkpoint=None if checkpoint_dir is None else f"{checkpoint_dir}/train_{ch}.npz",
+            progress=progress,
+        )
+        src = (staged.source(ch) if staged is not None
+               else BTFPointSource(items, patch, None if colour_mode else c))
+        ens.fit(src, desc=f"train {ch}")
+        dictionaries[ch] = ens.dictionaries_
+        training[ch] = {
+            "objective": [float(v) for v in ens.objective_],
+            "membership_counts": [int(v) for v in ens.counts_],
+            "n_iter": int(ens.n_iter_),
+            "seconds": float(ens.fit_seconds_),
+            "n_points": int(src.n_points),
+        }
 
 
 def train(
@@ -142,6 +247,8 @@ def train(
     dtype: str = "float32",
     seed: int = 0,
     checkpoint_dir: str | None = None,
+    stage: bool | None = None,
+    stage_dir: str | None = None,
     progress: bool | None = None,
 ) -> Model:
     """Learn a model from BTFs (paper §3.2): one ensemble per YUV channel, or one 5D ensemble.
@@ -149,6 +256,9 @@ def train(
     ``sample`` is the fraction of each BTF's data points used (paper: 10% of 18 BTFs).
     ``colour_mode`` trains one ensemble on 5D points (p, p, L, V, 3), the paper's Table 6.
     With ``checkpoint_dir`` each channel resumes from its last completed iteration.
+    ``stage`` preprocesses the sampled points once into a temporary file in ``stage_dir``
+    (default: when they need at most :data:`STAGE_LIMIT_BYTES` and half the free disk);
+    otherwise every pass streams them from the BTFs.
     """
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
@@ -162,29 +272,22 @@ def train(
     items = [(btfs[b], pres[b], idx) for b, idx in samples]
     dictionaries: dict[str, list[np.ndarray]] = {}
     training: dict[str, dict[str, Any]] = {}
-    for c, ch in enumerate(channels):
-        ens = DictionaryEnsemble(
-            n_dictionaries=n_dictionaries,
-            tau=taus[ch],
-            max_iter=max_iter,
-            tol=tol,
-            init=init,
-            batch_size=batch_size,
-            dtype=dtype,
-            random_state=seed + c,
-            checkpoint=None if checkpoint_dir is None else f"{checkpoint_dir}/train_{ch}.npz",
-            progress=progress,
-        )
-        src = BTFPointSource(items, patch, None if colour_mode else c)
-        ens.fit(src, desc=f"train {ch}")
-        dictionaries[ch] = ens.dictionaries_
-        training[ch] = {
-            "objective": [float(v) for v in ens.objective_],
-            "membership_counts": [int(v) for v in ens.counts_],
-            "n_iter": int(ens.n_iter_),
-            "seconds": float(ens.fit_seconds_),
-            "n_points": int(src.n_points),
-        }
+    raw = BTFPointSource(items, patch, None)
+    need = raw.n_points * int(np.prod(raw.mode_sizes)) * 4
+    if stage is None:
+        stage = need <= STAGE_LIMIT_BYTES and need < shutil.disk_usage(stage_dir or
+                                                                       tempfile.gettempdir()).free // 2
+    with contextlib.ExitStack() as stack:
+        staged = None
+        if stage:
+            tmp = stack.enter_context(tempfile.TemporaryDirectory(dir=stage_dir,
+                                                                  prefix="sparsebtf-stage-"))
+            staged = StagedPoints(f"{tmp}/points.h5", raw, channels, batch_size, progress)
+            stack.callback(staged.close)
+        _train_channels(channels, taus, items, patch, colour_mode, staged, dictionaries,
+                        training, n_dictionaries=n_dictionaries, max_iter=max_iter, tol=tol,
+                        init=init, batch_size=batch_size, dtype=dtype, seed=seed,
+                        checkpoint_dir=checkpoint_dir, progress=progress)
     params = {
         "n_dictionaries": n_dictionaries,
         "tau_train": taus,
@@ -226,6 +329,25 @@ def encode(
     ``eps`` is the mean-squared-residual threshold. τ_t < τ_l is refused (the paper requires
     τ_t >= τ_l) unless ``allow_below_training``.
     """
+    return encode_levels(
+        btf, model, [tau], eps=eps, std_mode=std_mode, batch_size=batch_size, dtype=dtype,
+        allow_below_training=allow_below_training, progress=progress,
+    )[0]
+
+
+def encode_levels(
+    btf: BTF,
+    model: Model,
+    taus: Sequence[int | str | Sequence[int]],
+    *,
+    eps: float = 1e-5,
+    std_mode: StdMode | None = None,
+    batch_size: int = 4,
+    dtype: str = "float32",
+    allow_below_training: bool = False,
+    progress: bool | None = None,
+) -> list[CodedBTF]:
+    """:func:`encode` at several sparsity levels from one pass (projections are shared)."""
     if not (btf.lights.equals(model.lights) and btf.views.equals(model.views)):
         raise ModelMismatchError(
             f"{btf.name}: {len(btf.lights)} lights x {len(btf.views)} views do not match the "
@@ -233,35 +355,43 @@ def encode(
         )
     grid = PatchGrid.for_btf(btf, model.patch)
     channels = model.channels
-    taus = parse_tau(tau, channels)
+    levels = [parse_tau(t, channels) for t in taus]
     tau_train = model.params.get("tau_train", {})
-    for ch in channels:
-        if ch in tau_train and taus[ch] < int(tau_train[ch]) and not allow_below_training:
-            raise BTFInputError(
-                f"channel {ch}: testing sparsity tau_t = {taus[ch]} is below the training "
-                f"sparsity tau_l = {tau_train[ch]}; the paper requires tau_t >= tau_l "
-                "(pass allow_below_training / --allow-below-training to force it)"
-            )
+    for taus_c in levels:
+        for ch in channels:
+            if ch in tau_train and taus_c[ch] < int(tau_train[ch]) and not allow_below_training:
+                raise BTFInputError(
+                    f"channel {ch}: testing sparsity tau_t = {taus_c[ch]} is below the training "
+                    f"sparsity tau_l = {tau_train[ch]}; the paper requires tau_t >= tau_l "
+                    "(pass allow_below_training / --allow-below-training to force it)"
+                )
     if eps < 0:
         raise BTFInputError(f"eps must be >= 0, got {eps}")
     mode = std_mode or model.params.get("std_mode", "shared")
     stats = gather_statistics(btf, mode, progress=progress)
     pre = Preprocessor(stats)
     dt = np.dtype(dtype).type
-    parts: dict[str, list[SparseCodes]] = {ch: [] for ch in channels}
+    parts: list[dict[str, list[SparseCodes]]] = [{ch: [] for ch in channels} for _ in levels]
     with bar(grid.n_points, f"encode {btf.name}", "pt", progress) as pb:
         for _, x in iter_points(btf, pre, model.patch, None, batch_size):
             for c, ch in enumerate(channels):
                 xc = x if ch == "YUV" else np.ascontiguousarray(x[..., c])
-                parts[ch].append(sparse_code(xc, model.dictionaries[ch], taus[ch], eps, dt))
+                coded = sparse_code_levels(
+                    xc, model.dictionaries[ch], [lv[ch] for lv in levels], eps, dt
+                )
+                for j, sc in enumerate(coded):
+                    parts[j][ch].append(sc)
             pb.update(x.shape[0])
-    codes = {ch: SparseCodes.concatenate(parts[ch]) for ch in channels}
-    params = {"tau": taus, "eps": eps, "std_mode": mode, "dtype": dtype}
-    coded = CodedBTF(
-        codes, stats, btf.height, btf.width, model.patch, btf.lights, btf.views,
-        model.content_hash, params, btf.name, dict(btf.attrs),
-    )
-    return coded.attach(model)
+    out = []
+    for j, taus_c in enumerate(levels):
+        codes = {ch: SparseCodes.concatenate(parts[j][ch]) for ch in channels}
+        params = {"tau": taus_c, "eps": eps, "std_mode": mode, "dtype": dtype}
+        coded_btf = CodedBTF(
+            codes, stats, btf.height, btf.width, model.patch, btf.lights, btf.views,
+            model.content_hash, params, btf.name, dict(btf.attrs),
+        )
+        out.append(coded_btf.attach(model))
+    return out
 
 
 def decode_points(
@@ -281,6 +411,8 @@ def decode_points(
     li = as_index(lights, len(coded.lights), "light")
     vi = as_index(views, len(coded.views), "view")
     idx = np.asarray(points, dtype=np.int64)
+    if li.size * vi.size <= EQ5_MAX_DIRECTIONS:
+        return decode_points_eq5(coded, channel, idx, li, vi)
     out = np.empty((idx.size, coded.patch, coded.patch, li.size, vi.size, *codes.mode_sizes[4:]))
     dicts = model.dictionaries[channel]
     for j, i in enumerate(idx):
@@ -293,6 +425,44 @@ def decode_points(
         mats[3] = mats[3][vi]
         out[j] = reconstruct(s, mats)[0]
     return out
+
+
+def decode_points_eq5(
+    coded: CodedBTF,
+    channel: str,
+    points: Sequence[int] | np.ndarray,
+    lights: Index = slice(None),
+    views: Index = slice(None),
+) -> np.ndarray:
+    """Eq. 5 for chosen points: Σ_s v_s U1[i1,l1] U2[i2,l2] U3[light,l3] U4[view,l4].
+
+    Sums the sparse coefficients directly (no dense coefficient tensor): the cost is
+    p²·l·v·τ per point, so this is the path for a few directions. Points are batched by
+    padding every point to the largest count with zero coefficients.
+    """
+    model = coded.require_model()
+    codes = coded.codes[channel]
+    li = as_index(lights, len(coded.lights), "light")
+    vi = as_index(views, len(coded.views), "view")
+    idx = np.asarray(points, dtype=np.int64)
+    dicts = model.dictionaries[channel]
+    o = codes.offsets
+    cnt = codes.counts[idx]
+    width = int(cnt.max()) if idx.size else 0
+    pos = o[idx][:, None] + np.arange(width)[None, :]
+    valid = np.arange(width)[None, :] < cnt[:, None]
+    pos = np.where(valid, pos, 0)
+    val = np.where(valid, codes.values[pos], 0.0).astype(np.float64)
+    loc = codes.locations[pos]  # (n, width, N)
+    k = codes.membership[idx][:, None]
+    a1 = dicts[0][k, :, loc[..., 0]]  # (n, width, p)
+    a2 = dicts[1][k, :, loc[..., 1]]
+    a3 = dicts[2][k[..., None], li[None, None, :], loc[..., 2][..., None]]  # (n, width, l)
+    a4 = dicts[3][k[..., None], vi[None, None, :], loc[..., 3][..., None]]
+    if len(dicts) == 5:  # colour mode
+        a5 = dicts[4][k, :, loc[..., 4]]
+        return np.einsum("nw,nwa,nwb,nwc,nwd,nwe->nabcde", val, a1, a2, a3, a4, a5, optimize=True)
+    return np.einsum("nw,nwa,nwb,nwc,nwd->nabcd", val, a1, a2, a3, a4, optimize=True)
 
 
 class DecodedBTF(BTF):

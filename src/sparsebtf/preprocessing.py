@@ -42,8 +42,8 @@ __all__ = [
     "Standardization",
     "from_log_yuv",
     "gather_statistics",
-    "log_transform",
     "inverse_log_transform",
+    "log_transform",
     "rgb_to_yuv",
     "to_log_yuv",
     "yuv_to_rgb",
@@ -148,6 +148,8 @@ class Standardization:
     def apply(self, yuv: np.ndarray, lights: Index = slice(None), views: Index = slice(None)) -> np.ndarray:
         """Standardise a log-YUV block (..., l, v, 3)."""
         mu, sd = self.select(lights, views)
+        if yuv.dtype == np.float32:  # no float64 temporaries for float32 data points
+            mu, sd = mu.astype(np.float32), sd.astype(np.float32)
         return (yuv - mu) / sd
 
     def invert(self, z: np.ndarray, lights: Index = slice(None), views: Index = slice(None)) -> np.ndarray:
@@ -199,7 +201,7 @@ def gather_statistics(
     s2 = np.zeros((nl, nv, 3))
     negatives = 0
     for v, block in _progress(btf.iter_view_blocks(), total=nv, desc="statistics", enabled=progress):
-        check_finite(block, btf.name, offset=(0, 0, 0, v))
+        check_finite(block[:, :, :, None, :], btf.name, offset=(0, 0, 0, v))
         neg = block < 0
         negatives += int(neg.sum())
         x = to_log_yuv(np.where(neg, 0.0, block.astype(np.float64)), eps).reshape(n, nl, 3)

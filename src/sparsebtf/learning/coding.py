@@ -26,7 +26,7 @@ import numpy as np
 from ..errors import BTFInputError
 from .tensor import project
 
-__all__ = ["SparseCodes", "sparse_code", "topk_abs"]
+__all__ = ["SparseCodes", "sparse_code", "sparse_code_levels", "topk_abs"]
 
 
 def topk_abs(c: np.ndarray, k: int) -> np.ndarray:
@@ -189,6 +189,21 @@ def sparse_code(
     eps : error threshold ε on the mean squared residual per entry (0: always use τ).
     dtype : arithmetic of the projections (float32 is ~2× faster; energies stay float64).
     """
+    return sparse_code_levels(batch, dictionaries, [tau], eps, dtype)[0]
+
+
+def sparse_code_levels(
+    batch: np.ndarray,
+    dictionaries: Sequence[np.ndarray],
+    taus: Sequence[int],
+    eps: float = 0.0,
+    dtype: type = np.float32,
+) -> list[SparseCodes]:
+    """:func:`sparse_code` at several caps τ from one projection per (point, dictionary).
+
+    The projections do not depend on τ, so a quality–storage curve costs one encoding.
+    Returns one :class:`SparseCodes` per τ, identical to separate :func:`sparse_code` calls.
+    """
     x = np.asarray(batch)
     shape = tuple(int(s) for s in x.shape[1:])
     if len(dictionaries) != len(shape):
@@ -198,43 +213,51 @@ def sparse_code(
     for n, (d, m) in enumerate(zip(dictionaries, shape, strict=True)):
         if d.ndim != 3 or d.shape[1:] != (m, m):
             raise BTFInputError(f"mode {n + 1}: dictionaries {d.shape} do not fit mode size {m}")
-    if tau < 1:
-        raise BTFInputError(f"sparsity tau must be >= 1, got {tau}")
+    if not taus or min(taus) < 1:
+        raise BTFInputError(f"sparsity tau must be >= 1, got {list(taus)}")
     n_dict = dictionaries[0].shape[0]
     size = int(np.prod(shape))
-    tau = min(tau, size)
+    levels = [min(int(t), size) for t in taus]
+    tmax = max(levels)
     b = x.shape[0]
+    nl = len(levels)
     xc = np.ascontiguousarray(x, dtype=dtype)
     flat = xc.reshape(b, -1)
     energy = np.einsum("ij,ij->i", flat, flat, dtype=np.float64)
 
-    counts = np.empty((b, n_dict), dtype=np.int64)
-    errs = np.empty((b, n_dict))
-    best_idx: list[np.ndarray | None] = [None] * b
-    best_val: list[np.ndarray | None] = [None] * b
-    best_key: list[tuple[int, float] | None] = [None] * b
+    counts = np.empty((nl, b, n_dict), dtype=np.int64)
+    errs = np.empty((nl, b, n_dict))
+    best: list[list[tuple[tuple[int, float], np.ndarray, np.ndarray] | None]] = [
+        [None] * b for _ in range(nl)
+    ]
     for k in range(n_dict):
         mats = [np.asarray(d[k], dtype=dtype) for d in dictionaries]
         s = project(xc, mats).reshape(b, -1)
         for i in range(b):
-            idx = topk_abs(s[i], tau)
+            idx = topk_abs(s[i], tmax)
             vals = s[i, idx]
-            n, e = _count_and_error(vals.astype(np.float64) ** 2, energy[i], size, tau, eps)
-            counts[i, k], errs[i, k] = n, e
-            key = (n, e)
-            # Sparsest first, then least error; strict comparison keeps the first on full ties.
-            if best_key[i] is None or key < best_key[i]:
-                best_key[i] = key
-                best_idx[i], best_val[i] = idx[:n], vals[:n]
-    member = np.array([int(np.lexsort((errs[i], counts[i]))[0]) for i in range(b)], dtype=np.int64)
-    chosen_counts = counts[np.arange(b), member]
-    idx_all = np.concatenate(best_idx) if b else np.empty(0, dtype=np.int64)
-    locs = np.stack(np.unravel_index(idx_all, shape), axis=1).astype(np.int32)
-    return SparseCodes(
-        shape,
-        member,
-        chosen_counts,
-        np.concatenate(best_val).astype(np.float32) if b else np.empty(0, np.float32),
-        locs,
-        errs[np.arange(b), member],
-    )
+            sq = vals.astype(np.float64) ** 2
+            for j, tau in enumerate(levels):
+                n, e = _count_and_error(sq, energy[i], size, tau, eps)
+                counts[j, i, k], errs[j, i, k] = n, e
+                key = (n, e)
+                cur = best[j][i]
+                # Sparsest first, then least error; strict comparison keeps the first on ties.
+                if cur is None or key < cur[0]:
+                    best[j][i] = (key, idx[:n], vals[:n])
+    out = []
+    for j in range(nl):
+        member = np.array(
+            [int(np.lexsort((errs[j, i], counts[j, i]))[0]) for i in range(b)], dtype=np.int64
+        )
+        chosen = [best[j][i] for i in range(b)]
+        idx_all = (np.concatenate([c[1] for c in chosen]) if b  # type: ignore[index]
+                   else np.empty(0, dtype=np.int64))
+        vals_all = (np.concatenate([c[2] for c in chosen]).astype(np.float32) if b  # type: ignore[index]
+                    else np.empty(0, np.float32))
+        locs = np.stack(np.unravel_index(idx_all, shape), axis=1).astype(np.int32)
+        out.append(SparseCodes(
+            shape, member, counts[j, np.arange(b), member], vals_all, locs,
+            errs[j, np.arange(b), member],
+        ))
+    return out

@@ -99,9 +99,12 @@ def random_orthonormal(m: int, rng: np.random.Generator) -> np.ndarray:
 def hosvd_bases(point: np.ndarray) -> list[np.ndarray]:
     """Per-mode left singular vectors of one data point (complete square bases)."""
     bases = []
-    for n in range(point.ndim):
-        u, _, _ = np.linalg.svd(unfold(np.asarray(point, dtype=np.float64), n), full_matrices=True)
-        bases.append(u)
+    x = np.asarray(point, dtype=np.float64)
+    for n in range(x.ndim):
+        xn = unfold(x, n)
+        # Eigenvectors of the m×m Gram matrix: the left singular vectors, without the huge V.
+        w, u = np.linalg.eigh(xn @ xn.T)
+        bases.append(u[:, np.argsort(-w, kind="stable")])
     return bases
 
 

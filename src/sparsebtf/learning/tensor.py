@@ -29,11 +29,12 @@ def fold(matrix: np.ndarray, mode: int, shape: Sequence[int]) -> np.ndarray:
 def _apply(x: np.ndarray, m: np.ndarray, axis: int) -> np.ndarray:
     """Contract ``axis`` of x with the second index of m: out[..., j, ...] = Σ_i m[j, i] x[..., i, ...]."""
     if axis == x.ndim - 1 or axis == -1:
-        return x @ m.T
+        return x @ np.ascontiguousarray(m.T)
     shape = x.shape
     pre = int(np.prod(shape[:axis], dtype=np.int64))
     post = int(np.prod(shape[axis + 1 :], dtype=np.int64))
-    out = np.matmul(m, x.reshape(pre, shape[axis], post))
+    # A contiguous left operand keeps numpy's stacked matmul on BLAS GEMM.
+    out = np.matmul(np.ascontiguousarray(m), x.reshape(pre, shape[axis], post))
     return out.reshape(*shape[:axis], m.shape[0], *shape[axis + 1 :])
 
 

@@ -1,0 +1,82 @@
+"""Open any BTF a user names: our dense file, a coded file (decoded lazily), or a synthetic spec.
+
+Accepted sources:
+
+* ``PATH.h5`` with ``format = "sparsebtf-dense"`` — :class:`DenseFileBTF`;
+* ``PATH.h5`` with ``format = "sparsebtf-coded"`` — decoded on demand (needs its model);
+* ``synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]`` — a cached synthetic material, e.g.
+  ``synth:stone:64:1:ubo2014``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import h5py
+
+from ..errors import FileFormatError
+from .btf import BTF
+from .dense_file import FORMAT as DENSE_FORMAT
+from .dense_file import DenseFileBTF
+
+__all__ = ["file_format", "open_btf", "parse_synth_spec"]
+
+
+def file_format(path: str | os.PathLike[str]) -> str:
+    """The ``format`` attribute of one of our HDF5 files ("sparsebtf-dense", -model, -coded)."""
+    p = Path(path)
+    if not p.exists():
+        raise FileFormatError(f"{p}: no such file")
+    try:
+        with h5py.File(p, "r") as f:
+            fmt = f.attrs.get("format")
+    except OSError as e:
+        raise FileFormatError(f"{p}: not a readable HDF5 file ({e})") from None
+    fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
+    if not isinstance(fmt, str):
+        raise FileFormatError(f"{p}: no 'format' attribute; not a SparseBTF file")
+    return fmt
+
+
+def parse_synth_spec(spec: str) -> dict[str, object]:
+    """``synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]`` → keyword arguments of ``synth.cached``."""
+    parts = spec.split(":")[1:]
+    if not parts or not parts[0]:
+        raise FileFormatError(f"{spec!r}: expected synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]")
+    out: dict[str, object] = {"material": parts[0]}
+    try:
+        if len(parts) > 1:
+            out["size"] = int(parts[1])
+        if len(parts) > 2:
+            out["seed"] = int(parts[2])
+    except ValueError:
+        raise FileFormatError(f"{spec!r}: SIZE and SEED must be integers") from None
+    if len(parts) > 3:
+        out["directions"] = parts[3]
+    return out
+
+
+def open_btf(
+    source: str | os.PathLike[str], model_path: str | os.PathLike[str] | None = None,
+    progress: bool | None = None,
+) -> BTF:
+    """Open ``source`` as a :class:`BTF` (see the module docstring for what is accepted)."""
+    s = str(source)
+    if s.startswith("synth:"):
+        from .synth import cached
+
+        return cached(**parse_synth_spec(s), progress=progress)  # type: ignore[arg-type]
+    fmt = file_format(s)
+    if fmt == DENSE_FORMAT:
+        return DenseFileBTF(s)
+    if fmt == "sparsebtf-coded":
+        from ..codec import coded_btf_view
+        from ..storage import load_coded, load_model
+
+        coded = load_coded(s)
+        mpath = model_path or coded.params.get("model_file")
+        if not mpath:
+            raise FileFormatError(f"{s}: a coded file needs its model; pass --model")
+        return coded_btf_view(coded.attach(load_model(mpath)))
+    raise FileFormatError(f"{s}: format {fmt!r} is not a BTF (dense or coded) file")

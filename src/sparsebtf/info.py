@@ -1,0 +1,106 @@
+"""``sparsebtf info``: what a file holds, as a flat dictionary (also the ``--json`` object)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .data.btf import BTF
+from .data.io import file_format, open_btf
+
+__all__ = ["describe", "describe_btf"]
+
+
+def _directions(btf: BTF) -> dict[str, Any]:
+    return {
+        "lights": {"name": btf.lights.name, "count": len(btf.lights)},
+        "views": {"name": btf.views.name, "count": len(btf.views)},
+    }
+
+
+def describe_btf(btf: BTF, scan: bool = True) -> dict[str, Any]:
+    """Shape, directions and (streaming over view blocks) the value range of a BTF."""
+    h, w, nl, nv, _ = btf.shape
+    out: dict[str, Any] = {
+        "kind": "btf",
+        "name": btf.name,
+        "shape": [h, w, nl, nv, 3],
+        "texels": f"{h}x{w}",
+        "directions": _directions(btf),
+        "raw_bytes_fp16": btf.n_values * 2,
+    }
+    if scan:
+        lo, hi, total, nonfinite = np.inf, -np.inf, 0.0, 0
+        for _, block in btf.iter_view_blocks():
+            finite = np.isfinite(block)
+            nonfinite += int((~finite).sum())
+            vals = block[finite]
+            if vals.size:
+                lo, hi = min(lo, float(vals.min())), max(hi, float(vals.max()))
+                total += float(vals.sum(dtype=np.float64))
+        out["value_range"] = [lo, hi]
+        out["mean"] = total / btf.n_values
+        out["nonfinite"] = nonfinite
+    if btf.attrs:
+        out["attrs"] = btf.attrs
+    return out
+
+
+def describe(path: str | os.PathLike[str], model_path: str | None = None,
+             scan: bool = True) -> dict[str, Any]:
+    """Describe a dense BTF, model or coded file (or a ``synth:`` spec)."""
+    s = str(path)
+    if s.startswith("synth:"):
+        return describe_btf(open_btf(s), scan)
+    fmt = file_format(s)
+    size = Path(s).stat().st_size
+    if fmt == "sparsebtf-dense":
+        out = describe_btf(open_btf(s), scan)
+        out.update(format=fmt, file_bytes=size)
+        return out
+    if fmt == "sparsebtf-model":
+        from .storage import load_model
+
+        m = load_model(s)
+        return {
+            "kind": "model",
+            "format": fmt,
+            "content_hash": m.content_hash,
+            "channels": list(m.channels),
+            "n_dictionaries": {ch: m.n_dictionaries(ch) for ch in m.channels},
+            "mode_sizes": list(m.mode_sizes),
+            "patch": m.patch,
+            "directions": {"lights": {"name": m.lights.name, "count": len(m.lights)},
+                           "views": {"name": m.views.name, "count": len(m.views)}},
+            "params": m.params,
+            "training": m.training,
+            "provenance": m.provenance,
+            "file_bytes": size,
+        }
+    if fmt == "sparsebtf-coded":
+        from .storage import load_coded, load_model, storage_report
+
+        coded = load_coded(s)
+        model = None
+        mpath = model_path or coded.params.get("model_file")
+        if mpath and Path(mpath).exists():
+            model = load_model(mpath)
+            coded.attach(model)
+        report = storage_report(coded, model, s)
+        return {
+            "kind": "coded",
+            "format": fmt,
+            "name": coded.name,
+            "shape": [coded.height, coded.width, len(coded.lights), len(coded.views), 3],
+            "patch": coded.patch,
+            "channels": list(coded.channels),
+            "model_hash": coded.model_hash,
+            "params": coded.params,
+            "directions": {"lights": {"name": coded.lights.name, "count": len(coded.lights)},
+                           "views": {"name": coded.views.name, "count": len(coded.views)}},
+            **{k: v for k, v in report.items() if not isinstance(v, dict) or k == "nnz"},
+        }
+    return {"kind": "unknown", "format": fmt, "file_bytes": size}

@@ -1,0 +1,51 @@
+"""Shared fixtures: small BTFs (4x4 patches, 13 directions) and the authors' release files."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sparsebtf.data.btf import ArrayBTF
+from sparsebtf.data.directions import tiny
+
+
+def shared_dir() -> Path | None:
+    """``../shared`` of the checkout, or $SPARSEBTF_SHARED (set by .ci/run)."""
+    env = os.environ.get("SPARSEBTF_SHARED")
+    cand = Path(env) if env else Path(__file__).resolve().parents[2] / "shared"
+    return cand if (cand / "official").is_dir() else None
+
+
+@pytest.fixture
+def official() -> Path:
+    d = shared_dir()
+    if d is None:
+        pytest.skip("the authors' release (shared/official) is not available; set SPARSEBTF_SHARED")
+    return d / "official"
+
+
+@pytest.fixture(autouse=True)
+def _cache_dir(tmp_path_factory, monkeypatch):
+    """Synthetic-material cache in a per-session temporary folder."""
+    monkeypatch.setenv("SPARSEBTF_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
+    monkeypatch.setenv("SPARSEBTF_PROGRESS", "0")
+
+
+def smooth_btf(seed: int, size: int = 8, n_dirs: int = 13, name: str | None = None) -> ArrayBTF:
+    """A small positive BTF with spatial texture and smooth angular behaviour."""
+    rng = np.random.default_rng(seed)
+    d = tiny(n_dirs)
+    base = rng.uniform(0.05, 0.8, (size, size, 1, 1, 3))
+    cl, cv = d.xyz[:, 2], d.xyz[:, 2]
+    ang = (0.3 + cl)[:, None] * (0.5 + cv)[None, :]
+    noise = 1 + 0.1 * rng.standard_normal((size, size, n_dirs, n_dirs, 3))
+    data = base * ang[None, None, :, :, None] * np.clip(noise, 0.5, None)
+    return ArrayBTF(data.astype(np.float32), d, d, name=name or f"smooth{seed}")
+
+
+@pytest.fixture
+def small_btfs() -> list[ArrayBTF]:
+    return [smooth_btf(s) for s in range(3)]

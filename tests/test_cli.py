@@ -1,0 +1,102 @@
+"""The command line end to end on tiny shapes (13 directions, 8x8 texels, 4x4 patches)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from sparsebtf.cli.main import main
+from sparsebtf.data.dense_file import DenseFileBTF, write_dense
+
+from .conftest import smooth_btf
+
+
+@pytest.fixture
+def files(tmp_path):
+    paths = []
+    for s in range(3):
+        p = tmp_path / f"m{s}.h5"
+        write_dense(p, smooth_btf(s))
+        paths.append(str(p))
+    return tmp_path, paths
+
+
+def run(argv, capsys):
+    code = main([str(a) for a in argv])
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_train_encode_decode_eval_info(files, capsys):
+    tmp, paths = files
+    model = tmp / "model.h5"
+    code, out, _ = run(["train", *paths[:2], "-o", model, "--dicts", "2", "--tau-train", "16,4,4",
+                        "--patch", "4", "--sample", "1", "--iters", "2", "--json"], capsys)
+    assert code == 0
+    summary = json.loads(out)
+    assert summary["channels"] == ["Y", "U", "V"] and summary["mode_sizes"] == [4, 4, 13, 13]
+
+    coded = tmp / "c.h5"
+    code, out, _ = run(["encode", paths[2], "-m", model, "-o", coded, "--tau", "32,8,8", "--json"],
+                       capsys)
+    assert code == 0
+    rep = json.loads(out)
+    assert rep["nnz"] == {"Y": 4 * 32, "U": 4 * 8, "V": 4 * 8}
+
+    code, out, _ = run(["eval", coded, "--reference", paths[2], "--json", "--ssim-images", "4"],
+                       capsys)
+    assert code == 0
+    ev = json.loads(out)
+    for key in ("mse_rgb", "psnr_rgb", "ssim", "mse_log", "nnz", "bytes_coefficients",
+                "bytes_dictionaries", "bytes_stats", "bytes_total", "compression_ratio",
+                "file_bytes"):
+        assert key in ev
+    assert 0 < ev["mse_rgb"] < 0.05 and 0 < ev["ssim"] <= 1
+
+    recon = tmp / "r.h5"
+    code, out, _ = run(["decode", coded, "-o", recon, "--images", "0:0,5:7", "--png", tmp / "png"],
+                       capsys)
+    assert code == 0
+    assert len(list((tmp / "png").glob("*.png"))) == 2
+    with DenseFileBTF(recon) as r:
+        rec = r.to_array()
+    ref = smooth_btf(2).to_array()
+    assert np.mean((rec - ref) ** 2) == pytest.approx(ev["mse_rgb"], rel=1e-3)
+
+    for f, kind in ((paths[0], "btf"), (model, "model"), (coded, "coded")):
+        code, out, _ = run(["info", f, "--json"], capsys)
+        assert code == 0 and json.loads(out)["kind"] == kind
+    code, out, _ = run(["info", paths[0]], capsys)
+    assert "value_range" in out and "13" in out
+
+
+def test_synth_command_and_info(tmp_path, capsys):
+    out_h5 = tmp_path / "stone.h5"
+    png = tmp_path / "stone.png"
+    code, out, _ = run(["synth", "--class", "stone", "--size", "12", "--directions", "tiny13",
+                        "-o", out_h5, "--preview", png], capsys)
+    assert code == 0 and out_h5.exists() and png.exists()
+    code, out, _ = run(["info", out_h5, "--json"], capsys)
+    info = json.loads(out)
+    assert info["shape"] == [12, 12, 13, 13, 3]
+    assert info["directions"]["lights"]["name"] == "tiny13"
+    lo, hi = info["value_range"]
+    assert 0 <= lo < hi
+
+
+def test_errors_are_one_line(files, capsys):
+    tmp, paths = files
+    code, _, err = run(["info", tmp / "missing.h5"], capsys)
+    assert code == 2 and err.startswith("sparsebtf: error:") and "no such file" in err
+    code, _, err = run(["synth", "--class", "velvet", "-o", tmp / "x.h5"], capsys)
+    assert code == 2 and "unknown material class" in err
+    model = tmp / "model.h5"
+    run(["train", *paths[:2], "-o", model, "--dicts", "2", "--tau-train", "16,4,4", "--patch", "4",
+         "--sample", "1", "--iters", "1"], capsys)
+    code, _, err = run(["encode", paths[2], "-m", model, "-o", tmp / "c.h5", "--tau", "8,4,4"],
+                       capsys)
+    assert code == 2 and "below the training sparsity" in err
+    code, _, err = run(["train", paths[0], "-o", tmp / "bad_model.h5", "--crop", "0:5,0:8", "--patch", "4"],
+                       capsys)
+    assert code == 2 and "not a multiple of the patch size" in err
+    assert not (tmp / "bad_model.h5").exists()
