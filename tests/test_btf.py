@@ -18,14 +18,19 @@ def test_accessors_agree(tmp_path):
     assert np.array_equal(btf.view_block(4), arr[:, :, :, 4])
     assert np.array_equal(btf.patch(2, 4, 3), arr[2:5, 4:7])
     assert np.array_equal(btf.abrdf(7, 1), arr[7, 1])
-    assert np.array_equal(btf.read([1, 8], [0, 9], [2, 12], [5]), arr[np.ix_([1, 8], [0, 9], [2, 12], [5], [0, 1, 2])])
+    assert np.array_equal(
+        btf.read([1, 8], [0, 9], [2, 12], [5]), arr[np.ix_([1, 8], [0, 9], [2, 12], [5], [0, 1, 2])]
+    )
 
     path = write_dense(tmp_path / "b.h5", btf)
     with DenseFileBTF(path) as f:
         assert f.shape == btf.shape and f.lights.equals(btf.lights)
         assert np.array_equal(f.angular_image(3, 5), arr[:, :, 3, 5])
         assert np.array_equal(f.patch(2, 4, 3), arr[2:5, 4:7])
-        assert np.array_equal(f.read([1, 8], [0, 9], [2, 12], [5]), arr[np.ix_([1, 8], [0, 9], [2, 12], [5], [0, 1, 2])])
+        assert np.array_equal(
+            f.read([1, 8], [0, 9], [2, 12], [5]),
+            arr[np.ix_([1, 8], [0, 9], [2, 12], [5], [0, 1, 2])],
+        )
         assert np.array_equal(f.to_array(), arr)
 
     fn = FunctionBTF((10, 10), btf.lights, btf.views, lambda v: arr[:, :, :, v], name="fn")
@@ -69,7 +74,10 @@ def test_dense_file_streams_large_btf_lazily(tmp_path):
         (lambda d: ArrayBTF(np.zeros((2, 2, 7, 7, 4)), d, d), "3 colour channels"),
         (lambda d: ArrayBTF(np.zeros((2, 2, 6, 7, 3)), d, d), "6 lights but the light table has 7"),
         (lambda d: ArrayBTF(np.zeros((2, 2, 7, 5, 3)), d, d), "5 views but the view table has 7"),
-        (lambda d: ArrayBTF(np.zeros((2, 2, 7, 7, 3)), d, d).read([5], [0], [0], [0]), "row index 5"),
+        (
+            lambda d: ArrayBTF(np.zeros((2, 2, 7, 7, 3)), d, d).read([5], [0], [0], [0]),
+            "row index 5",
+        ),
         (lambda d: ArrayBTF(np.zeros((2, 2, 7, 7, 3)), d, d).patch(1, 0, 2), "leaves"),
         (lambda d: FactorBTF(np.zeros((5, 2)), np.zeros((49, 2)), 2, 2, d, d), "expected H\\*W"),
         (lambda d: FactorBTF(np.zeros((4, 2)), np.zeros((49, 3)), 2, 2, d, d), "ranks differ"),
@@ -86,7 +94,9 @@ def test_dense_file_errors(tmp_path):
     bad[1, 2, 3, 4, 0] = np.nan
     bad[0, 0, 0, 6, 1] = np.inf
     target = tmp_path / "nan.h5"
-    with pytest.raises(BTFInputError, match="2 NaN/Inf values.*first at row 0, col 0, light 0, view 6, channel 1"):
+    with pytest.raises(
+        BTFInputError, match=r"2 NaN/Inf values.*first at row 0, col 0, light 0, view 6, channel 1"
+    ):
         write_dense(target, ArrayBTF(bad, btf.lights, btf.views, name="nanbtf"))
     assert not target.exists() and not list(tmp_path.iterdir())
     with pytest.raises(FileFormatError, match="no such file"):

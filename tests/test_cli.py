@@ -30,32 +30,63 @@ def run(argv, capsys):
 def test_train_encode_decode_eval_info(files, capsys):
     tmp, paths = files
     model = tmp / "model.h5"
-    code, out, _ = run(["train", *paths[:2], "-o", model, "--dicts", "2", "--tau-train", "16,4,4",
-                        "--patch", "4", "--sample", "1", "--iters", "2", "--json"], capsys)
+    code, out, _ = run(
+        [
+            "train",
+            *paths[:2],
+            "-o",
+            model,
+            "--dicts",
+            "2",
+            "--tau-train",
+            "16,4,4",
+            "--patch",
+            "4",
+            "--sample",
+            "1",
+            "--iters",
+            "2",
+            "--json",
+        ],
+        capsys,
+    )
     assert code == 0
     summary = json.loads(out)
     assert summary["channels"] == ["Y", "U", "V"] and summary["mode_sizes"] == [4, 4, 13, 13]
 
     coded = tmp / "c.h5"
-    code, out, _ = run(["encode", paths[2], "-m", model, "-o", coded, "--tau", "32,8,8", "--json"],
-                       capsys)
+    code, out, _ = run(
+        ["encode", paths[2], "-m", model, "-o", coded, "--tau", "32,8,8", "--json"], capsys
+    )
     assert code == 0
     rep = json.loads(out)
     assert rep["nnz"] == {"Y": 4 * 32, "U": 4 * 8, "V": 4 * 8}
 
-    code, out, _ = run(["eval", coded, "--reference", paths[2], "--json", "--ssim-images", "4"],
-                       capsys)
+    code, out, _ = run(
+        ["eval", coded, "--reference", paths[2], "--json", "--ssim-images", "4"], capsys
+    )
     assert code == 0
     ev = json.loads(out)
-    for key in ("mse_rgb", "psnr_rgb", "ssim", "mse_log", "nnz", "bytes_coefficients",
-                "bytes_dictionaries", "bytes_stats", "bytes_total", "compression_ratio",
-                "file_bytes"):
+    for key in (
+        "mse_rgb",
+        "psnr_rgb",
+        "ssim",
+        "mse_log",
+        "nnz",
+        "bytes_coefficients",
+        "bytes_dictionaries",
+        "bytes_stats",
+        "bytes_total",
+        "compression_ratio",
+        "file_bytes",
+    ):
         assert key in ev
     assert 0 < ev["mse_rgb"] < 0.05 and 0 < ev["ssim"] <= 1
 
     recon = tmp / "r.h5"
-    code, out, _ = run(["decode", coded, "-o", recon, "--images", "0:0,5:7", "--png", tmp / "png"],
-                       capsys)
+    code, out, _ = run(
+        ["decode", coded, "-o", recon, "--images", "0:0,5:7", "--png", tmp / "png"], capsys
+    )
     assert code == 0
     assert len(list((tmp / "png").glob("*.png"))) == 2
     with DenseFileBTF(recon) as r:
@@ -73,8 +104,22 @@ def test_train_encode_decode_eval_info(files, capsys):
 def test_synth_command_and_info(tmp_path, capsys):
     out_h5 = tmp_path / "stone.h5"
     png = tmp_path / "stone.png"
-    code, out, _ = run(["synth", "--class", "stone", "--size", "12", "--directions", "tiny13",
-                        "-o", out_h5, "--preview", png], capsys)
+    code, out, _ = run(
+        [
+            "synth",
+            "--class",
+            "stone",
+            "--size",
+            "12",
+            "--directions",
+            "tiny13",
+            "-o",
+            out_h5,
+            "--preview",
+            png,
+        ],
+        capsys,
+    )
     assert code == 0 and out_h5.exists() and png.exists()
     code, out, _ = run(["info", out_h5, "--json"], capsys)
     info = json.loads(out)
@@ -91,12 +136,31 @@ def test_errors_are_one_line(files, capsys):
     code, _, err = run(["synth", "--class", "velvet", "-o", tmp / "x.h5"], capsys)
     assert code == 2 and "unknown material class" in err
     model = tmp / "model.h5"
-    run(["train", *paths[:2], "-o", model, "--dicts", "2", "--tau-train", "16,4,4", "--patch", "4",
-         "--sample", "1", "--iters", "1"], capsys)
-    code, _, err = run(["encode", paths[2], "-m", model, "-o", tmp / "c.h5", "--tau", "8,4,4"],
-                       capsys)
+    run(
+        [
+            "train",
+            *paths[:2],
+            "-o",
+            model,
+            "--dicts",
+            "2",
+            "--tau-train",
+            "16,4,4",
+            "--patch",
+            "4",
+            "--sample",
+            "1",
+            "--iters",
+            "1",
+        ],
+        capsys,
+    )
+    code, _, err = run(
+        ["encode", paths[2], "-m", model, "-o", tmp / "c.h5", "--tau", "8,4,4"], capsys
+    )
     assert code == 2 and "below the training sparsity" in err
-    code, _, err = run(["train", paths[0], "-o", tmp / "bad_model.h5", "--crop", "0:5,0:8", "--patch", "4"],
-                       capsys)
+    code, _, err = run(
+        ["train", paths[0], "-o", tmp / "bad_model.h5", "--crop", "0:5,0:8", "--patch", "4"], capsys
+    )
     assert code == 2 and "not a multiple of the patch size" in err
     assert not (tmp / "bad_model.h5").exists()

@@ -22,8 +22,15 @@ from .conftest import smooth_btf
 @pytest.fixture(scope="module")
 def model():
     btfs = [smooth_btf(s) for s in range(3)]
-    return train(btfs, n_dictionaries=3, tau_train=(16, 4, 4), patch=4, sample=1.0, max_iter=3,
-                 progress=False)
+    return train(
+        btfs,
+        n_dictionaries=3,
+        tau_train=(16, 4, 4),
+        patch=4,
+        sample=1.0,
+        max_iter=3,
+        progress=False,
+    )
 
 
 def test_training_records_monotone_objective(model):
@@ -67,8 +74,10 @@ def test_eq4_equals_eq5_and_direct_sum(model):
         loc, val = coded.codes[ch].point(3)
         k = coded.codes[ch].membership[3]
         u = [d[k] for d in model.dictionaries[ch]]
-        direct = sum(v * u[0][2, a] * u[1][1, b] * u[2][7, c] * u[3][12, d]
-                     for v, (a, b, c, d) in zip(val, loc, strict=True))
+        direct = sum(
+            v * u[0][2, a] * u[1][1, b] * u[2][7, c] * u[3][12, d]
+            for v, (a, b, c, d) in zip(val, loc, strict=True)
+        )
         assert eq4[1, 2, 1, 1, 2] == pytest.approx(direct, abs=1e-12)
 
 
@@ -84,8 +93,16 @@ def test_decoded_btf_reads_consistently(model):
 
 def test_colour_mode_5d(tmp_path):
     btfs = [smooth_btf(s) for s in range(2)]
-    m5 = train(btfs, n_dictionaries=2, tau_train=24, patch=4, sample=1.0, max_iter=2,
-               colour_mode=True, progress=False)
+    m5 = train(
+        btfs,
+        n_dictionaries=2,
+        tau_train=24,
+        patch=4,
+        sample=1.0,
+        max_iter=2,
+        colour_mode=True,
+        progress=False,
+    )
     assert m5.channels == ("YUV",) and m5.mode_sizes == (4, 4, 13, 13, 3)
     coded = encode(smooth_btf(5), m5, tau=300, eps=0.0, progress=False)
     rec = coded_btf_view(coded).to_array()
@@ -114,8 +131,9 @@ def test_encode_bad_input(model):
 
 def test_staged_training_equals_streamed_training(tmp_path):
     btfs = [smooth_btf(s) for s in range(2)]
-    kw = dict(n_dictionaries=2, tau_train=(16, 4, 4), patch=4, sample=1.0, max_iter=2,
-              progress=False)
+    kw = dict(
+        n_dictionaries=2, tau_train=(16, 4, 4), patch=4, sample=1.0, max_iter=2, progress=False
+    )
     a = train(btfs, stage=True, stage_dir=str(tmp_path), **kw)
     b = train(btfs, stage=False, **kw)
     assert a.content_hash == b.content_hash

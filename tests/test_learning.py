@@ -77,7 +77,7 @@ def test_coding_rule_sparsest_wins():
 def test_coding_rule_tie_goes_to_least_error():
     rng = np.random.default_rng(4)
     x = rng.standard_normal(16)
-    worse = np.r_[3.0, 3.0, 0.02 * np.ones(14)]   # count 2, larger residual
+    worse = np.r_[3.0, 3.0, 0.02 * np.ones(14)]  # count 2, larger residual
     better = np.r_[3.0, 3.0, 0.001 * np.ones(14)]  # count 2, smaller residual
     dicts = _ensemble_for(x, [worse, better])
     e = np.linalg.norm(x) ** 2
@@ -151,7 +151,9 @@ def test_sparse_code_bad_input():
     with pytest.raises(BTFInputError, match="tau must be >= 1"):
         sparse_code(np.zeros((1, 3, 4)), dicts, 0)
     with pytest.raises(BTFInputError, match="counts"):
-        SparseCodes((3,), np.zeros(1, int), np.array([2]), np.zeros(1), np.zeros((1, 1), int), np.zeros(1))
+        SparseCodes(
+            (3,), np.zeros(1, int), np.array([2]), np.zeros(1), np.zeros((1, 1), int), np.zeros(1)
+        )
 
 
 def test_procrustes_maximises_trace():
@@ -195,8 +197,16 @@ def _mixture(seed: int, n: int = 48, shape=(3, 3, 6, 6)):
 @pytest.mark.parametrize("init", ["points", "random"])
 def test_objective_never_increases(init):
     x = _mixture(10)
-    ens = DictionaryEnsemble(n_dictionaries=3, tau=8, max_iter=8, tol=0, init=init,
-                             dtype="float64", random_state=1, progress=False).fit(x)
+    ens = DictionaryEnsemble(
+        n_dictionaries=3,
+        tau=8,
+        max_iter=8,
+        tol=0,
+        init=init,
+        dtype="float64",
+        random_state=1,
+        progress=False,
+    ).fit(x)
     obj = np.array(ens.objective_)
     assert len(obj) == 9
     assert np.all(np.diff(obj) <= 1e-12 * obj[0])
@@ -216,20 +226,25 @@ def test_training_is_seeded_and_resumable(tmp_path):
     kw = dict(n_dictionaries=3, tau=8, tol=0, dtype="float64", random_state=2, progress=False)
     full = DictionaryEnsemble(max_iter=4, **kw).fit(x)
     again = DictionaryEnsemble(max_iter=4, **kw).fit(x)
-    assert all(np.array_equal(a, b) for a, b in zip(full.dictionaries_, again.dictionaries_, strict=True))
+    assert all(
+        np.array_equal(a, b) for a, b in zip(full.dictionaries_, again.dictionaries_, strict=True)
+    )
     ck = tmp_path / "ck.npz"
     DictionaryEnsemble(max_iter=2, checkpoint=ck, **kw).fit(x)
     resumed = DictionaryEnsemble(max_iter=4, checkpoint=ck, **kw).fit(x)
     assert np.allclose(resumed.objective_, full.objective_)
-    assert all(np.allclose(a, b) for a, b in zip(full.dictionaries_, resumed.dictionaries_, strict=True))
+    assert all(
+        np.allclose(a, b) for a, b in zip(full.dictionaries_, resumed.dictionaries_, strict=True)
+    )
     with pytest.raises(BTFInputError, match="other training parameters"):
         DictionaryEnsemble(max_iter=4, checkpoint=ck, **{**kw, "tau": 9}).fit(x)
 
 
 def test_empty_dictionary_is_reseeded():
     x = _mixture(12, n=12)
-    ens = DictionaryEnsemble(n_dictionaries=6, tau=8, max_iter=3, tol=0, init="random",
-                             dtype="float64", progress=False).fit(x)
+    ens = DictionaryEnsemble(
+        n_dictionaries=6, tau=8, max_iter=3, tol=0, init="random", dtype="float64", progress=False
+    ).fit(x)
     assert np.all(np.diff(ens.objective_) <= 1e-12)
     assert (ens.counts_ > 0).sum() >= 2
 

@@ -40,7 +40,9 @@ def test_statistics_conventions():
     flat = yuv.reshape(-1, 13, 13, 3)
     shared = gather_statistics(btf, "shared")
     mu = flat.mean(axis=(0, 3))
-    sd = np.mean([np.sqrt(((flat[..., c] - mu) ** 2).sum(0) / (flat.shape[0] - 1)) for c in range(3)], axis=0)
+    sd = np.mean(
+        [np.sqrt(((flat[..., c] - mu) ** 2).sum(0) / (flat.shape[0] - 1)) for c in range(3)], axis=0
+    )
     assert np.allclose(shared.mean[..., 0], mu) and np.allclose(shared.std[..., 0], sd)
     per = gather_statistics(btf, "per_channel")
     assert np.allclose(per.mean, flat.mean(axis=0))
@@ -62,7 +64,9 @@ def test_negative_values_clamped_with_warning_and_nan_rejected():
     with pytest.warns(UserWarning, match="clamped 2 negative values"):
         gather_statistics(ArrayBTF(data, btf.lights, btf.views, name="neg"))
     data[2, 3, 4, 5, 2] = np.nan
-    with pytest.raises(BTFInputError, match=r"1 NaN/Inf values; first at row 2, col 3, light 4, view 5"):
+    with pytest.raises(
+        BTFInputError, match=r"1 NaN/Inf values; first at row 2, col 3, light 4, view 5"
+    ):
         gather_statistics(ArrayBTF(data, btf.lights, btf.views, name="nan"))
 
 
@@ -116,7 +120,7 @@ def test_sampling_is_seeded():
 
 
 def test_grid_size_errors():
-    with pytest.raises(BTFInputError, match="not a multiple of the patch size 10.*crop"):
+    with pytest.raises(BTFInputError, match=r"not a multiple of the patch size 10.*crop"):
         PatchGrid(45, 40, 10)
     with pytest.raises(BTFInputError, match="standardisation mode"):
         gather_statistics(smooth_btf(0), "global")  # type: ignore[arg-type]

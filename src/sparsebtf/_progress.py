@@ -33,6 +33,10 @@ def progress(
 def bar(total: int, desc: str = "", unit: str = "it", enabled: bool | None = None) -> tqdm:
     """A manual progress bar (``.update(n)``); disabled bars cost nothing."""
     return tqdm(
-        total=total, desc=desc, unit=unit, dynamic_ncols=True, leave=False,
+        total=total,
+        desc=desc,
+        unit=unit,
+        dynamic_ncols=True,
+        leave=False,
         disable=not _enabled(enabled),
     )

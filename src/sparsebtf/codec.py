@@ -25,6 +25,7 @@ from .datapoints import PatchGrid, iter_points, sample_points
 from .errors import BTFInputError, ModelMismatchError
 from .learning.coding import SparseCodes, sparse_code_levels
 from .learning.ensemble import DictionaryEnsemble
+from .learning.parallel import parallel_map
 from .learning.tensor import reconstruct
 from .model import CHANNELS, CodedBTF, Model
 from .preprocessing import Preprocessor, StdMode, gather_statistics
@@ -132,8 +133,14 @@ class StagedPoints:
     at one batch: points are written and read one batch at a time.
     """
 
-    def __init__(self, path: str, source: BTFPointSource, channels: Sequence[str],
-                 batch_size: int = 4, progress: bool | None = None) -> None:
+    def __init__(
+        self,
+        path: str,
+        source: BTFPointSource,
+        channels: Sequence[str],
+        batch_size: int = 4,
+        progress: bool | None = None,
+    ) -> None:
         import h5py
 
         self.path = path
@@ -142,8 +149,7 @@ class StagedPoints:
         shape = (source.patch, source.patch, *source.mode_sizes[2:4])
         full = (*shape, 3) if channels == ("YUV",) else shape
         self._ds = {
-            ch: self._file.create_dataset(ch, shape=(n, *full), dtype="float32",
-                                          chunks=(1, *full))
+            ch: self._file.create_dataset(ch, shape=(n, *full), dtype="float32", chunks=(1, *full))
             for ch in channels
         }
         raw = BTFPointSource(source.items, source.patch, None)
@@ -199,10 +205,23 @@ def _check_same_directions(btfs: Sequence[BTF]) -> None:
 
 
 def _train_channels(
-    channels: Sequence[str], taus: dict[str, int], items: list, patch: int, colour_mode: bool,
-    staged: StagedPoints | None, dictionaries: dict[str, list[np.ndarray]],
-    training: dict[str, dict[str, Any]], *, n_dictionaries: int, max_iter: int, tol: float,
-    init: str, batch_size: int, dtype: str, seed: int, checkpoint_dir: str | None,
+    channels: Sequence[str],
+    taus: dict[str, int],
+    items: list,
+    patch: int,
+    colour_mode: bool,
+    staged: StagedPoints | None,
+    dictionaries: dict[str, list[np.ndarray]],
+    training: dict[str, dict[str, Any]],
+    *,
+    n_dictionaries: int,
+    max_iter: int,
+    tol: float,
+    init: str,
+    batch_size: int,
+    dtype: str,
+    seed: int,
+    checkpoint_dir: str | None,
     progress: bool | None,
 ) -> None:
     for c, ch in enumerate(channels):
@@ -218,8 +237,11 @@ def _train_channels(
             checkpoint=None if checkpoint_dir is None else f"{checkpoint_dir}/train_{ch}.npz",
             progress=progress,
         )
-        src = (staged.source(ch) if staged is not None
-               else BTFPointSource(items, patch, None if colour_mode else c))
+        src = (
+            staged.source(ch)
+            if staged is not None
+            else BTFPointSource(items, patch, None if colour_mode else c)
+        )
         ens.fit(src, desc=f"train {ch}")
         dictionaries[ch] = ens.dictionaries_
         training[ch] = {
@@ -275,19 +297,37 @@ def train(
     raw = BTFPointSource(items, patch, None)
     need = raw.n_points * int(np.prod(raw.mode_sizes)) * 4
     if stage is None:
-        stage = need <= STAGE_LIMIT_BYTES and need < shutil.disk_usage(stage_dir or
-                                                                       tempfile.gettempdir()).free // 2
+        stage = (
+            need <= STAGE_LIMIT_BYTES
+            and need < shutil.disk_usage(stage_dir or tempfile.gettempdir()).free // 2
+        )
     with contextlib.ExitStack() as stack:
         staged = None
         if stage:
-            tmp = stack.enter_context(tempfile.TemporaryDirectory(dir=stage_dir,
-                                                                  prefix="sparsebtf-stage-"))
+            tmp = stack.enter_context(
+                tempfile.TemporaryDirectory(dir=stage_dir, prefix="sparsebtf-stage-")
+            )
             staged = StagedPoints(f"{tmp}/points.h5", raw, channels, batch_size, progress)
             stack.callback(staged.close)
-        _train_channels(channels, taus, items, patch, colour_mode, staged, dictionaries,
-                        training, n_dictionaries=n_dictionaries, max_iter=max_iter, tol=tol,
-                        init=init, batch_size=batch_size, dtype=dtype, seed=seed,
-                        checkpoint_dir=checkpoint_dir, progress=progress)
+        _train_channels(
+            channels,
+            taus,
+            items,
+            patch,
+            colour_mode,
+            staged,
+            dictionaries,
+            training,
+            n_dictionaries=n_dictionaries,
+            max_iter=max_iter,
+            tol=tol,
+            init=init,
+            batch_size=batch_size,
+            dtype=dtype,
+            seed=seed,
+            checkpoint_dir=checkpoint_dir,
+            progress=progress,
+        )
     params = {
         "n_dictionaries": n_dictionaries,
         "tau_train": taus,
@@ -330,8 +370,15 @@ def encode(
     τ_t >= τ_l) unless ``allow_below_training``.
     """
     return encode_levels(
-        btf, model, [tau], eps=eps, std_mode=std_mode, batch_size=batch_size, dtype=dtype,
-        allow_below_training=allow_below_training, progress=progress,
+        btf,
+        model,
+        [tau],
+        eps=eps,
+        std_mode=std_mode,
+        batch_size=batch_size,
+        dtype=dtype,
+        allow_below_training=allow_below_training,
+        progress=progress,
     )[0]
 
 
@@ -387,8 +434,17 @@ def encode_levels(
         codes = {ch: SparseCodes.concatenate(parts[j][ch]) for ch in channels}
         params = {"tau": taus_c, "eps": eps, "std_mode": mode, "dtype": dtype}
         coded_btf = CodedBTF(
-            codes, stats, btf.height, btf.width, model.patch, btf.lights, btf.views,
-            model.content_hash, params, btf.name, dict(btf.attrs),
+            codes,
+            stats,
+            btf.height,
+            btf.width,
+            model.patch,
+            btf.lights,
+            btf.views,
+            model.content_hash,
+            params,
+            btf.name,
+            dict(btf.attrs),
         )
         out.append(coded_btf.attach(model))
     return out
@@ -415,8 +471,10 @@ def decode_points(
         return decode_points_eq5(coded, channel, idx, li, vi)
     out = np.empty((idx.size, coded.patch, coded.patch, li.size, vi.size, *codes.mode_sizes[4:]))
     dicts = model.dictionaries[channel]
-    for j, i in enumerate(idx):
-        loc, val = codes.point(int(i))
+
+    def task(j: int) -> None:
+        i = int(idx[j])
+        loc, val = codes.point(i)
         k = int(codes.membership[i])
         s = np.zeros((1, *codes.mode_sizes))
         s[(0, *loc.T)] = val
@@ -424,6 +482,9 @@ def decode_points(
         mats[2] = mats[2][li]
         mats[3] = mats[3][vi]
         out[j] = reconstruct(s, mats)[0]
+
+    for _ in parallel_map(task, range(idx.size)):
+        pass
     return out
 
 
@@ -478,8 +539,9 @@ class DecodedBTF(BTF):
             raise BTFInputError(
                 f"{coded.name}: only channels {coded.channels} are coded; RGB needs Y, U and V"
             )
-        super().__init__(coded.height, coded.width, coded.lights, coded.views,
-                         coded.name, dict(coded.attrs))
+        super().__init__(
+            coded.height, coded.width, coded.lights, coded.views, coded.name, dict(coded.attrs)
+        )
         self.coded = coded
         self.grid = PatchGrid(coded.height, coded.width, coded.patch)
         self.pre = Preprocessor(coded.stats)
@@ -499,15 +561,16 @@ class DecodedBTF(BTF):
             vals = decode_points(self.coded, ch, pts, li, vi)
             # (cb, rb, i1, i2, ...) → (rb, i1, cb, i2, ...)
             vals = vals.reshape(cb.size, rb.size, p, p, li.size, vi.size, *vals.shape[5:])
-            vals = np.moveaxis(vals, 0, 2).reshape(rb.size * p, cb.size * p, li.size, vi.size,
-                                                   *vals.shape[6:])
+            vals = np.moveaxis(vals, 0, 2).reshape(
+                rb.size * p, cb.size * p, li.size, vi.size, *vals.shape[6:]
+            )
             if ch == "YUV":
                 z[...] = vals
             else:
                 z[..., ch_i] = vals
         # Map requested rows/cols into the decoded block.
-        row_pos = (np.searchsorted(rb, r // p) * p + r % p)
-        col_pos = (np.searchsorted(cb, c // p) * p + c % p)
+        row_pos = np.searchsorted(rb, r // p) * p + r % p
+        col_pos = np.searchsorted(cb, c // p) * p + c % p
         z = z[np.ix_(row_pos, col_pos, np.arange(li.size), np.arange(vi.size), np.arange(3))]
         return self.pre.inverse(z, li, vi).astype(np.float32)
 

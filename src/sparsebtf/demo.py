@@ -31,7 +31,11 @@ class DemoConfig:
     """Sizes of the demo run (the defaults finish in a few minutes on 2 cores)."""
 
     train_materials: tuple[tuple[str, int], ...] = (
-        ("carpet", 1), ("fabric", 1), ("leather", 1), ("stone", 1), ("wood", 1),
+        ("carpet", 1),
+        ("fabric", 1),
+        ("leather", 1),
+        ("stone", 1),
+        ("wood", 1),
     )
     test_materials: tuple[tuple[str, int], ...] = (("felt", 7), ("wallpaper", 7))
     train_size: int = 40
@@ -42,7 +46,10 @@ class DemoConfig:
     sample: float = 0.5
     iters: int = 3
     taus: tuple[tuple[int, int, int], ...] = (
-        (256, 32, 32), (512, 48, 48), (885, 64, 64), (1770, 128, 128),
+        (256, 32, 32),
+        (512, 48, 48),
+        (885, 64, 64),
+        (1770, 128, 128),
     )
     ssim_images: int = 16
 
@@ -51,20 +58,27 @@ class DemoConfig:
         return cls(
             train_materials=(("carpet", 1), ("stone", 1), ("wood", 1)),
             test_materials=(("felt", 7),),
-            train_size=20, test_size=30, n_dictionaries=3, iters=2,
-            taus=((256, 32, 32), (885, 64, 64)), ssim_images=8,
+            train_size=20,
+            test_size=30,
+            n_dictionaries=3,
+            iters=2,
+            taus=((256, 32, 32), (885, 64, 64)),
+            ssim_images=8,
         )
 
 
 def _pairs(btf: Any) -> list[tuple[int, int]]:
     """The paper's figure configurations, snapped to the nearest sampled directions."""
+
     def d(theta: float, phi: float) -> np.ndarray:
         t, p = np.radians(theta), np.radians(phi)
         return np.array([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])
 
-    wanted = [((23.5, 270.0), (11.0, 15.0)),   # Figures 4 and 6
-              ((45.0, 0.0), (60.0, 15.0)),     # Figure 5 (view elevation 30°)
-              ((60.0, 90.0), (30.0, 195.0))]   # a grazing light, the other side
+    wanted = [
+        ((23.5, 270.0), (11.0, 15.0)),  # Figures 4 and 6
+        ((45.0, 0.0), (60.0, 15.0)),  # Figure 5 (view elevation 30°)
+        ((60.0, 90.0), (30.0, 195.0)),
+    ]  # a grazing light, the other side
     out = []
     for (lt, lp), (vt, vp) in wanted:
         li = int(btf.lights.nearest(d(lt, lp))[0][0])
@@ -73,27 +87,48 @@ def _pairs(btf: Any) -> list[tuple[int, int]]:
     return out
 
 
-def run_demo(out: Path, quick: bool = False, seed: int = 0, as_json: bool = False,
-             config: DemoConfig | None = None) -> dict[str, Any]:
+def run_demo(
+    out: Path,
+    quick: bool = False,
+    seed: int = 0,
+    as_json: bool = False,
+    config: DemoConfig | None = None,
+) -> dict[str, Any]:
     """Run the demo into folder ``out``; returns (and writes) the results object."""
     cfg = config or (DemoConfig.quick() if quick else DemoConfig())
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    print(f"[1/4] synthesising {len(cfg.train_materials)} training and "
-          f"{len(cfg.test_materials)} test materials ({cfg.directions} directions)")
-    train_btfs = [cached(m, cfg.train_size, cfg.directions, s + seed, progress=None)
-                  for m, s in cfg.train_materials]
-    test_btfs = [cached(m, cfg.test_size, cfg.directions, s + seed, progress=None)
-                 for m, s in cfg.test_materials]
-    print(f"[2/4] training K={cfg.n_dictionaries} dictionaries per channel, "
-          f"tau_train={cfg.tau_train}, {cfg.iters} iterations")
-    model = train(train_btfs, n_dictionaries=cfg.n_dictionaries, tau_train=cfg.tau_train,
-                  sample=cfg.sample, max_iter=cfg.iters, seed=seed)
+    print(
+        f"[1/4] synthesising {len(cfg.train_materials)} training and "
+        f"{len(cfg.test_materials)} test materials ({cfg.directions} directions)"
+    )
+    train_btfs = [
+        cached(m, cfg.train_size, cfg.directions, s + seed, progress=None)
+        for m, s in cfg.train_materials
+    ]
+    test_btfs = [
+        cached(m, cfg.test_size, cfg.directions, s + seed, progress=None)
+        for m, s in cfg.test_materials
+    ]
+    print(
+        f"[2/4] training K={cfg.n_dictionaries} dictionaries per channel, "
+        f"tau_train={cfg.tau_train}, {cfg.iters} iterations"
+    )
+    model = train(
+        train_btfs,
+        n_dictionaries=cfg.n_dictionaries,
+        tau_train=cfg.tau_train,
+        sample=cfg.sample,
+        max_iter=cfg.iters,
+        seed=seed,
+    )
     save_model(model, out / "model.h5")
     for ch, t in model.training.items():
-        print(f"      {ch}: objective {t['objective'][0]:.4f} -> {t['objective'][-1]:.4f} "
-              f"(mean squared error per value, standardised), membership "
-              f"{t['membership_counts']}")
+        print(
+            f"      {ch}: objective {t['objective'][0]:.4f} -> {t['objective'][-1]:.4f} "
+            f"(mean squared error per value, standardised), membership "
+            f"{t['membership_counts']}"
+        )
     print(f"[3/4] encoding unseen materials at tau = {', '.join(map(str, cfg.taus))}")
     rows: list[dict[str, Any]] = []
     for btf in test_btfs:
@@ -107,29 +142,51 @@ def run_demo(out: Path, quick: bool = False, seed: int = 0, as_json: bool = Fals
             view = coded_btf_view(coded)
             m = compare(btf, view, stats=coded.stats, ssim_images=cfg.ssim_images)
             rep = storage_report(coded, model, path)
-            rows.append({
-                "material": btf.name, "tau": label, **{k: m[k] for k in
-                ("mse_rgb", "psnr_rgb", "ssim", "mse_log", "mse_std")},
-                **{k: rep[k] for k in ("nnz", "bytes_coefficients", "bytes_dictionaries",
-                                        "bytes_total", "bytes_raw", "compression_ratio",
-                                        "file_bytes")},
-                "ratio_coefficients_only": rep["bytes_raw"] / rep["bytes_coefficients"],
-            })
+            rows.append(
+                {
+                    "material": btf.name,
+                    "tau": label,
+                    **{k: m[k] for k in ("mse_rgb", "psnr_rgb", "ssim", "mse_log", "mse_std")},
+                    **{
+                        k: rep[k]
+                        for k in (
+                            "nnz",
+                            "bytes_coefficients",
+                            "bytes_dictionaries",
+                            "bytes_total",
+                            "bytes_raw",
+                            "compression_ratio",
+                            "file_bytes",
+                        )
+                    },
+                    "ratio_coefficients_only": rep["bytes_raw"] / rep["bytes_coefficients"],
+                }
+            )
             recs[f"tau {label}"] = view
-        grid = comparison_grid(btf, {k: recs[k] for k in list(recs)[::max(1, len(recs) // 2)]},
-                               _pairs(btf), out / f"{btf.name}_comparison.png")
+        grid = comparison_grid(
+            btf,
+            {k: recs[k] for k in list(recs)[:: max(1, len(recs) // 2)]},
+            _pairs(btf),
+            out / f"{btf.name}_comparison.png",
+        )
         print(f"      wrote {grid}")
     plot = quality_plot(rows, out / "quality_vs_storage.png", x="bytes_coefficients")
-    print("[4/4] results (MSE on linear RGB; bytes as the paper's Table 4; the ensembles, "
-          "shared by every material, are counted in bytes_total)")
-    header = (f"{'material':<24} {'tau (Y/U/V)':<14} {'coef bytes':>11} {'total bytes':>12} "
-              f"{'ratio':>8} {'MSE':>10} {'PSNR dB':>8} {'SSIM':>6}")
+    print(
+        "[4/4] results (MSE on linear RGB; bytes as the paper's Table 4; the ensembles, "
+        "shared by every material, are counted in bytes_total)"
+    )
+    header = (
+        f"{'material':<24} {'tau (Y/U/V)':<14} {'coef bytes':>11} {'total bytes':>12} "
+        f"{'ratio':>8} {'MSE':>10} {'PSNR dB':>8} {'SSIM':>6}"
+    )
     print(header)
     print("-" * len(header))
     for r in rows:
-        print(f"{r['material']:<24} {r['tau']:<14} {r['bytes_coefficients']:>11,d} "
-              f"{r['bytes_total']:>12,d} {r['compression_ratio']:>8.1f} {r['mse_rgb']:>10.3e} "
-              f"{r['psnr_rgb']:>8.2f} {r['ssim']:>6.3f}")
+        print(
+            f"{r['material']:<24} {r['tau']:<14} {r['bytes_coefficients']:>11,d} "
+            f"{r['bytes_total']:>12,d} {r['compression_ratio']:>8.1f} {r['mse_rgb']:>10.3e} "
+            f"{r['psnr_rgb']:>8.2f} {r['ssim']:>6.3f}"
+        )
     result = {
         "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
         "model_hash": model.content_hash,

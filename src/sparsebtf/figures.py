@@ -15,11 +15,11 @@ from typing import Any
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from ._atomic import atomic_output  # noqa: E402
-from .data.btf import BTF  # noqa: E402
+from ._atomic import atomic_output
+from .data.btf import BTF
 
 __all__ = [
     "comparison_grid",
@@ -36,8 +36,9 @@ def tone_map(rgb: np.ndarray, a: float = 1.3, gamma: float = 1.8) -> np.ndarray:
     return np.clip(a * np.maximum(rgb, 0) ** (1.0 / gamma), 0.0, 1.0)
 
 
-def error_image(reference: np.ndarray, reconstruction: np.ndarray, scale: float = 2.0,
-                norm: float | None = None) -> np.ndarray:
+def error_image(
+    reference: np.ndarray, reconstruction: np.ndarray, scale: float = 2.0, norm: float | None = None
+) -> np.ndarray:
     """False-colour |reference − reconstruction| (mean over RGB), normalised, ×``scale``."""
     err = np.abs(reference.astype(np.float64) - reconstruction).mean(axis=-1)
     norm = norm if norm is not None else max(float(reference.max()), 1e-12)
@@ -54,12 +55,15 @@ def save_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:
 
 def _label(btf: BTF, light: int, view: int) -> str:
     li, vi = btf.lights, btf.views
-    return (f"light θ={np.degrees(li.theta[light]):.1f}° φ={np.degrees(li.phi[light]):.1f}°, "
-            f"view θ={np.degrees(vi.theta[view]):.1f}° φ={np.degrees(vi.phi[view]):.1f}°")
+    return (
+        f"light θ={np.degrees(li.theta[light]):.1f}° φ={np.degrees(li.phi[light]):.1f}°, "
+        f"view θ={np.degrees(vi.theta[view]):.1f}° φ={np.degrees(vi.phi[view]):.1f}°"
+    )
 
 
-def save_angular_images(btf: BTF, pairs: Sequence[tuple[int, int]],
-                        folder: str | os.PathLike[str]) -> list[Path]:
+def save_angular_images(
+    btf: BTF, pairs: Sequence[tuple[int, int]], folder: str | os.PathLike[str]
+) -> list[Path]:
     """One tone-mapped PNG per (light, view) pair: ``<name>_l<L>_v<V>.png``."""
     out = []
     for light, view in pairs:
@@ -69,14 +73,18 @@ def save_angular_images(btf: BTF, pairs: Sequence[tuple[int, int]],
 
 
 def comparison_grid(
-    reference: BTF, reconstructions: dict[str, BTF], pairs: Sequence[tuple[int, int]],
-    path: str | os.PathLike[str], zoom: int = 4,
+    reference: BTF,
+    reconstructions: dict[str, BTF],
+    pairs: Sequence[tuple[int, int]],
+    path: str | os.PathLike[str],
+    zoom: int = 4,
 ) -> Path:
     """Rows = (light, view) pairs; columns = reference, then per reconstruction the image and
     its false-colour error ×2 (like the paper's Figures 4 and 5)."""
     cols = 1 + 2 * len(reconstructions)
-    fig, axes = plt.subplots(len(pairs), cols, figsize=(2.2 * cols, 2.4 * len(pairs)),
-                             squeeze=False)
+    fig, axes = plt.subplots(
+        len(pairs), cols, figsize=(2.2 * cols, 2.4 * len(pairs)), squeeze=False
+    )
     for r, (light, view) in enumerate(pairs):
         ref = reference.angular_image(light, view)
         peak = max(float(ref.max()), 1e-12)
@@ -100,8 +108,13 @@ def comparison_grid(
     return target
 
 
-def quality_plot(rows: Sequence[dict[str, Any]], path: str | os.PathLike[str],
-                 x: str = "bytes_total", y: str = "mse_rgb", label: str = "material") -> Path:
+def quality_plot(
+    rows: Sequence[dict[str, Any]],
+    path: str | os.PathLike[str],
+    x: str = "bytes_total",
+    y: str = "mse_rgb",
+    label: str = "material",
+) -> Path:
     """Log–log quality vs storage, one line per ``label`` value (like the paper's Figure 3)."""
     fig, ax = plt.subplots(figsize=(6, 4))
     groups: dict[str, list[dict[str, Any]]] = {}
@@ -112,8 +125,13 @@ def quality_plot(rows: Sequence[dict[str, Any]], path: str | os.PathLike[str],
         ax.plot([r[x] for r in g], [r[y] for r in g], marker="o", label=name)
         for r in g:
             if "tau" in r:
-                ax.annotate(str(r["tau"]), (r[x], r[y]), fontsize=6, xytext=(3, 3),
-                            textcoords="offset points")
+                ax.annotate(
+                    str(r["tau"]),
+                    (r[x], r[y]),
+                    fontsize=6,
+                    xytext=(3, 3),
+                    textcoords="offset points",
+                )
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel(x.replace("_", " ") + (" (paper accounting)" if x.startswith("bytes") else ""))

@@ -49,8 +49,9 @@ def describe_btf(btf: BTF, scan: bool = True) -> dict[str, Any]:
     return out
 
 
-def describe(path: str | os.PathLike[str], model_path: str | None = None,
-             scan: bool = True) -> dict[str, Any]:
+def describe(
+    path: str | os.PathLike[str], model_path: str | None = None, scan: bool = True
+) -> dict[str, Any]:
     """Describe a dense BTF, model or coded file (or a ``synth:`` spec)."""
     s = str(path)
     if s.startswith("synth:"):
@@ -73,8 +74,10 @@ def describe(path: str | os.PathLike[str], model_path: str | None = None,
             "n_dictionaries": {ch: m.n_dictionaries(ch) for ch in m.channels},
             "mode_sizes": list(m.mode_sizes),
             "patch": m.patch,
-            "directions": {"lights": {"name": m.lights.name, "count": len(m.lights)},
-                           "views": {"name": m.views.name, "count": len(m.views)}},
+            "directions": {
+                "lights": {"name": m.lights.name, "count": len(m.lights)},
+                "views": {"name": m.views.name, "count": len(m.views)},
+            },
             "params": m.params,
             "training": m.training,
             "provenance": m.provenance,
@@ -99,8 +102,10 @@ def describe(path: str | os.PathLike[str], model_path: str | None = None,
             "channels": list(coded.channels),
             "model_hash": coded.model_hash,
             "params": coded.params,
-            "directions": {"lights": {"name": coded.lights.name, "count": len(coded.lights)},
-                           "views": {"name": coded.views.name, "count": len(coded.views)}},
+            "directions": {
+                "lights": {"name": coded.lights.name, "count": len(coded.lights)},
+                "views": {"name": coded.views.name, "count": len(coded.views)},
+            },
             **{k: v for k, v in report.items() if not isinstance(v, dict) or k == "nnz"},
         }
     return {"kind": "unknown", "format": fmt, "file_bytes": size}

@@ -53,9 +53,7 @@ def ssim_angular(
     for light, view in pairs:
         a = reference.angular_image(light, view).astype(np.float64)
         b = reconstruction.angular_image(light, view).astype(np.float64)
-        values.append(
-            structural_similarity(a, b, data_range=peak, channel_axis=2, win_size=win)
-        )
+        values.append(structural_similarity(a, b, data_range=peak, channel_axis=2, win_size=win))
     return float(np.mean(values))
 
 
@@ -78,8 +76,10 @@ def compare(
             f"cannot compare {reference.name} {reference.shape} with "
             f"{reconstruction.name} {reconstruction.shape}"
         )
-    if not (reference.lights.equals(reconstruction.lights)
-            and reference.views.equals(reconstruction.views)):
+    if not (
+        reference.lights.equals(reconstruction.lights)
+        and reference.views.equals(reconstruction.views)
+    ):
         raise BTFInputError(
             f"{reference.name} and {reconstruction.name} have different direction tables"
         )

@@ -4,7 +4,8 @@
   5D variant with colour as a mode), the data-point geometry (patch size, direction tables) and
   the training parameters and provenance. It is trained once and serves every BTF (paper
   criterion d); coded files name it by :attr:`Model.content_hash`.
-* A **coded BTF** holds per channel the sparse codes (:class:`~sparsebtf.learning.coding.SparseCodes`),
+* A **coded BTF** holds per channel the sparse codes
+  (:class:`~sparsebtf.learning.coding.SparseCodes`),
   the standardisation statistics of the material, its size and directions, the coding
   parameters, and the hash of its model.
 
@@ -74,7 +75,9 @@ class Model:
                 raise BTFInputError(f"channel {ch}: modes disagree on the number of dictionaries")
             for n, m in enumerate(mats):
                 if m.ndim != 3 or m.shape[1] != m.shape[2]:
-                    raise BTFInputError(f"channel {ch}, mode {n + 1}: expected (K, m, m), got {m.shape}")
+                    raise BTFInputError(
+                        f"channel {ch}, mode {n + 1}: expected (K, m, m), got {m.shape}"
+                    )
         self._hash: str | None = None
 
     @property

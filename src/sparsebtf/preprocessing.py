@@ -122,7 +122,9 @@ class Standardization:
 
     def __post_init__(self) -> None:
         if self.mode not in ("shared", "per_channel"):
-            raise BTFInputError(f"standardisation mode must be 'shared' or 'per_channel', got {self.mode!r}")
+            raise BTFInputError(
+                f"standardisation mode must be 'shared' or 'per_channel', got {self.mode!r}"
+            )
         if self.mean.shape != self.std.shape or self.mean.ndim != 3:
             raise BTFInputError(
                 f"mean and std must both be (L, V, C); got {self.mean.shape} and {self.std.shape}"
@@ -145,14 +147,18 @@ class Standardization:
         vi = as_index(views, self.n_views, "view")
         return self.mean[np.ix_(li, vi)], self.std[np.ix_(li, vi)]
 
-    def apply(self, yuv: np.ndarray, lights: Index = slice(None), views: Index = slice(None)) -> np.ndarray:
+    def apply(
+        self, yuv: np.ndarray, lights: Index = slice(None), views: Index = slice(None)
+    ) -> np.ndarray:
         """Standardise a log-YUV block (..., l, v, 3)."""
         mu, sd = self.select(lights, views)
         if yuv.dtype == np.float32:  # no float64 temporaries for float32 data points
             mu, sd = mu.astype(np.float32), sd.astype(np.float32)
         return (yuv - mu) / sd
 
-    def invert(self, z: np.ndarray, lights: Index = slice(None), views: Index = slice(None)) -> np.ndarray:
+    def invert(
+        self, z: np.ndarray, lights: Index = slice(None), views: Index = slice(None)
+    ) -> np.ndarray:
         """Undo :meth:`apply`."""
         mu, sd = self.select(lights, views)
         return z * sd + mu
@@ -165,15 +171,21 @@ class Preprocessor:
         self.stats = stats
 
     def forward(
-        self, rgb: np.ndarray, lights: Index = slice(None), views: Index = slice(None),
+        self,
+        rgb: np.ndarray,
+        lights: Index = slice(None),
+        views: Index = slice(None),
         dtype: type = np.float64,
     ) -> np.ndarray:
-        """(..., l, v, 3) linear RGB → standardised log-YUV. Negative inputs must be clamped first."""
+        """(..., l, v, 3) linear RGB → standardised log-YUV (clamp negative inputs first)."""
         y = to_log_yuv(np.asarray(rgb, dtype=dtype), self.stats.eps)
         return self.stats.apply(y, lights, views).astype(dtype, copy=False)
 
     def inverse(
-        self, z: np.ndarray, lights: Index = slice(None), views: Index = slice(None),
+        self,
+        z: np.ndarray,
+        lights: Index = slice(None),
+        views: Index = slice(None),
         release_matrix: bool = False,
     ) -> np.ndarray:
         """Standardised log-YUV (..., l, v, 3) → linear RGB."""
@@ -200,7 +212,9 @@ def gather_statistics(
     s1 = np.zeros((nl, nv, 3))
     s2 = np.zeros((nl, nv, 3))
     negatives = 0
-    for v, block in _progress(btf.iter_view_blocks(), total=nv, desc="statistics", enabled=progress):
+    for v, block in _progress(
+        btf.iter_view_blocks(), total=nv, desc="statistics", enabled=progress
+    ):
         check_finite(block[:, :, :, None, :], btf.name, offset=(0, 0, 0, v))
         neg = block < 0
         negatives += int(neg.sum())

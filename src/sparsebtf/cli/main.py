@@ -76,8 +76,10 @@ def cmd_synth(args: argparse.Namespace) -> int:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --preview OUT.png")
     if args.output:
         write_dense(args.output, btf, dtype=args.dtype, progress=None)
-        print(f"wrote {args.output}: {btf.shape[0]}x{btf.shape[1]} texels, "
-              f"{len(btf.lights)} lights x {len(btf.views)} views ({btf.lights.name})")
+        print(
+            f"wrote {args.output}: {btf.shape[0]}x{btf.shape[1]} texels, "
+            f"{len(btf.lights)} lights x {len(btf.views)} views ({btf.lights.name})"
+        )
         if args.preview:
             btf = _open(args.output)
     if args.preview:
@@ -131,9 +133,11 @@ def cmd_train(args: argparse.Namespace) -> int:
         _print_json(summary)
     else:
         for ch, t in model.training.items():
-            print(f"{ch}: {t['n_points']} points, {t['n_iter']} iterations, objective "
-                  f"{t['objective'][0]:.4g} -> {t['objective'][-1]:.4g}, membership "
-                  f"{t['membership_counts']}, {t['seconds']:.1f} s")
+            print(
+                f"{ch}: {t['n_points']} points, {t['n_iter']} iterations, objective "
+                f"{t['objective'][0]:.4g} -> {t['objective'][-1]:.4g}, membership "
+                f"{t['membership_counts']}, {t['seconds']:.1f} s"
+            )
         print(f"wrote {args.output} (model {model.content_hash[:12]})")
     return 0
 
@@ -144,17 +148,26 @@ def cmd_encode(args: argparse.Namespace) -> int:
 
     model = load_model(args.model)
     btf = _open(args.btf, crop=args.crop)
-    coded = encode(btf, model, tau=args.tau, eps=args.eps, std_mode=args.std_mode,
-                   batch_size=args.batch, allow_below_training=args.allow_below_training)
+    coded = encode(
+        btf,
+        model,
+        tau=args.tau,
+        eps=args.eps,
+        std_mode=args.std_mode,
+        batch_size=args.batch,
+        allow_below_training=args.allow_below_training,
+    )
     coded.params["model_file"] = str(Path(args.model).resolve())
     save_coded(coded, args.output)
     report = storage_report(coded, model, args.output)
     if args.json:
         _print_json(report)
     else:
-        print(f"wrote {args.output}: nnz {coded.nnz()}, {report['bytes_total'] / 2**20:.3f} MiB "
-              f"(paper accounting), ratio {report['compression_ratio']:.1f}, file "
-              f"{report['file_bytes'] / 2**20:.3f} MiB")
+        print(
+            f"wrote {args.output}: nnz {coded.nnz()}, {report['bytes_total'] / 2**20:.3f} MiB "
+            f"(paper accounting), ratio {report['compression_ratio']:.1f}, file "
+            f"{report['file_bytes'] / 2**20:.3f} MiB"
+        )
     return 0
 
 
@@ -203,15 +216,29 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
     coded = _load_coded(args.coded, args.model)
     reference = _open(args.reference, crop=args.crop)
-    metrics = compare(reference, coded_btf_view(coded), stats=coded.stats,
-                      ssim_images=args.ssim_images)
+    metrics = compare(
+        reference, coded_btf_view(coded), stats=coded.stats, ssim_images=args.ssim_images
+    )
     metrics["mse_std_codes"] = float(
         np.mean([coded.codes[ch].errors.mean() for ch in coded.channels])
     )
     report = storage_report(coded, coded.model, args.coded)
-    out = {**metrics, **{k: report[k] for k in (
-        "nnz", "bytes_coefficients", "bytes_dictionaries", "bytes_stats", "bytes_total",
-        "bytes_raw", "compression_ratio", "file_bytes")}}
+    out = {
+        **metrics,
+        **{
+            k: report[k]
+            for k in (
+                "nnz",
+                "bytes_coefficients",
+                "bytes_dictionaries",
+                "bytes_stats",
+                "bytes_total",
+                "bytes_raw",
+                "compression_ratio",
+                "file_bytes",
+            )
+        },
+    }
     if args.json:
         _print_json(out)
     else:
@@ -236,11 +263,18 @@ def build_parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     s = sub.add_parser("synth", help="render a synthetic material (dense BTF file, preview PNG)")
-    s.add_argument("--class", dest="material", required=True,
-                   help="carpet, fabric, felt, leather, stone, wallpaper or wood")
+    s.add_argument(
+        "--class",
+        dest="material",
+        required=True,
+        help="carpet, fabric, felt, leather, stone, wallpaper or wood",
+    )
     s.add_argument("--size", type=int, default=64, help="texels per side (default 64)")
-    s.add_argument("--directions", default="ubo2014",
-                   help="ubo2014 (151), ubo2003 (81), tiny7/13/19 (default ubo2014)")
+    s.add_argument(
+        "--directions",
+        default="ubo2014",
+        help="ubo2014 (151), ubo2003 (81), tiny7/13/19 (default ubo2014)",
+    )
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--dtype", choices=["float32", "float16"], default="float32")
     s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")
@@ -258,18 +292,36 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("btfs", nargs="+", metavar="BTF")
     s.add_argument("-o", "--output", required=True, help="model file to write (.h5)")
     s.add_argument("--dicts", type=int, default=8, help="dictionaries per ensemble K (default 8)")
-    s.add_argument("--tau-train", default="256,32,32",
-                   help="training sparsity per channel Y,U,V (default 256,32,32)")
+    s.add_argument(
+        "--tau-train",
+        default="256,32,32",
+        help="training sparsity per channel Y,U,V (default 256,32,32)",
+    )
     s.add_argument("--patch", type=int, default=10, help="spatial patch size p (default 10)")
-    s.add_argument("--sample", type=float, default=0.1,
-                   help="fraction of each BTF's data points used (default 0.1)")
+    s.add_argument(
+        "--sample",
+        type=float,
+        default=0.1,
+        help="fraction of each BTF's data points used (default 0.1)",
+    )
     s.add_argument("--iters", type=int, default=10, help="maximum iterations (default 10)")
-    s.add_argument("--tol", type=float, default=1e-4,
-                   help="stop below this relative objective decrease (default 1e-4)")
-    s.add_argument("--std-mode", choices=["shared", "per_channel"], default="shared",
-                   help="standardisation: the release's shared mean/std, or per channel")
-    s.add_argument("--colour-mode", action="store_true",
-                   help="one 5D ensemble with colour as a mode (paper Table 6)")
+    s.add_argument(
+        "--tol",
+        type=float,
+        default=1e-4,
+        help="stop below this relative objective decrease (default 1e-4)",
+    )
+    s.add_argument(
+        "--std-mode",
+        choices=["shared", "per_channel"],
+        default="shared",
+        help="standardisation: the release's shared mean/std, or per channel",
+    )
+    s.add_argument(
+        "--colour-mode",
+        action="store_true",
+        help="one 5D ensemble with colour as a mode (paper Table 6)",
+    )
     s.add_argument("--batch", type=int, default=4, help="data points per batch (memory bound)")
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--crop", help="use only rows R0:R1 and columns C0:C1 of every BTF")
@@ -281,14 +333,18 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("btf", metavar="BTF")
     s.add_argument("-m", "--model", required=True)
     s.add_argument("-o", "--output", required=True, help="coded file to write (.h5)")
-    s.add_argument("--tau", default="885,64,64", help="sparsity cap per channel (default 885,64,64)")
+    s.add_argument(
+        "--tau", default="885,64,64", help="sparsity cap per channel (default 885,64,64)"
+    )
     s.add_argument("--eps", type=float, default=1e-5, help="residual MSE threshold (default 1e-5)")
-    s.add_argument("--std-mode", choices=["shared", "per_channel"], default=None,
-                   help="default: the model's")
+    s.add_argument(
+        "--std-mode", choices=["shared", "per_channel"], default=None, help="default: the model's"
+    )
     s.add_argument("--batch", type=int, default=4)
     s.add_argument("--crop", help="encode only rows R0:R1 and columns C0:C1")
-    s.add_argument("--allow-below-training", action="store_true",
-                   help="accept tau below the training sparsity")
+    s.add_argument(
+        "--allow-below-training", action="store_true", help="accept tau below the training sparsity"
+    )
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_encode)
 
@@ -305,8 +361,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--reference", required=True, metavar="BTF")
     s.add_argument("-m", "--model")
     s.add_argument("--crop", help="crop the reference like the coded BTF was cropped")
-    s.add_argument("--ssim-images", type=int, default=16,
-                   help="angular images sampled for SSIM (default 16)")
+    s.add_argument(
+        "--ssim-images", type=int, default=16, help="angular images sampled for SSIM (default 16)"
+    )
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_eval)
 

@@ -126,10 +126,11 @@ class BTF(abc.ABC):
         return self.read(rows, cols, slice(None), slice(None))
 
     def patch(self, row0: int, col0: int, size: int) -> np.ndarray:
-        """The spatial patch [row0:row0+size, col0:col0+size] with all directions: (p, p, L, V, 3)."""
+        """Patch [row0:row0+size, col0:col0+size] with all directions: (p, p, L, V, 3)."""
         if row0 < 0 or col0 < 0 or row0 + size > self.height or col0 + size > self.width:
             raise BTFInputError(
-                f"patch at ({row0}, {col0}) of size {size} leaves the {self.height}x{self.width} BTF"
+                f"patch at ({row0}, {col0}) of size {size} leaves the "
+                f"{self.height}x{self.width} BTF"
             )
         return self.region(slice(row0, row0 + size), slice(col0, col0 + size))
 
@@ -167,7 +168,8 @@ class ArrayBTF(BTF):
         arr = np.asarray(data)
         if arr.ndim != 5:
             raise BTFInputError(
-                f"BTF array must have rank 5 (row, col, light, view, channel), got shape {arr.shape}"
+                "BTF array must have rank 5 (row, col, light, view, channel), "
+                f"got shape {arr.shape}"
             )
         if arr.shape[4] != 3:
             raise BTFInputError(f"BTF array must have 3 colour channels, got {arr.shape[4]}")

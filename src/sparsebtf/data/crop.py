@@ -19,8 +19,14 @@ class CroppedBTF(BTF):
                 f"{base.name}: crop rows {rows.start}:{rows.stop}, cols {cols.start}:{cols.stop} "
                 f"is empty or strided inside {base.height}x{base.width}"
             )
-        super().__init__(r.size, c.size, base.lights, base.views, base.name,
-                         {**base.attrs, "crop": [int(r[0]), int(r[-1]) + 1, int(c[0]), int(c[-1]) + 1]})
+        super().__init__(
+            r.size,
+            c.size,
+            base.lights,
+            base.views,
+            base.name,
+            {**base.attrs, "crop": [int(r[0]), int(r[-1]) + 1, int(c[0]), int(c[-1]) + 1]},
+        )
         self.base = base
         self._r0, self._c0 = int(r[0]), int(c[0])
 

@@ -29,7 +29,7 @@ from ..errors import BTFInputError, FileFormatError
 from .btf import BTF, Index, as_index
 from .directions import DirectionSet, from_vectors
 
-__all__ = ["DEFAULT_CHUNK", "DenseFileBTF", "write_dense", "FORMAT", "SCHEMA_VERSION"]
+__all__ = ["DEFAULT_CHUNK", "FORMAT", "SCHEMA_VERSION", "DenseFileBTF", "write_dense"]
 
 FORMAT = "sparsebtf-dense"
 SCHEMA_VERSION = 1
@@ -135,7 +135,9 @@ class DenseFileBTF(BTF):
         ds = f["btf"]
         if ds.ndim != 5 or ds.shape[4] != 3:
             f.close()
-            raise FileFormatError(f"{self.path}/btf: expected shape (H, W, L, V, 3), got {ds.shape}")
+            raise FileFormatError(
+                f"{self.path}/btf: expected shape (H, W, L, V, 3), got {ds.shape}"
+            )
         lights = read_directions(f["lights"], f"{self.path}/lights")
         views = read_directions(f["views"], f"{self.path}/views")
         if (len(lights), len(views)) != ds.shape[2:4]:
@@ -178,6 +180,9 @@ class DenseFileBTF(BTF):
         box = tuple(slice(int(ix.min()), int(ix.max()) + 1) for ix in idx)
         data = np.asarray(self._ds[box], dtype=np.float32)
         rel = [ix - ix.min() for ix in idx]
-        if all(r.size == (b.stop - b.start) and np.all(np.diff(r) == 1) for r, b in zip(rel, box, strict=True)):
+        if all(
+            r.size == (b.stop - b.start) and np.all(np.diff(r) == 1)
+            for r, b in zip(rel, box, strict=True)
+        ):
             return data
         return data[np.ix_(*rel, np.arange(3))]

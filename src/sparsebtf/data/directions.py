@@ -99,7 +99,7 @@ class DirectionSet:
         order = np.lexsort((part, pd), axis=1)
         idx = np.take_along_axis(part, order, axis=1)
         dist = np.sqrt(np.take_along_axis(pd, order, axis=1))
-        shape = q.shape[:-1] + (k,)
+        shape = (*q.shape[:-1], k)
         return idx.reshape(shape), dist.reshape(shape)
 
 

@@ -58,7 +58,8 @@ def parse_synth_spec(spec: str) -> dict[str, object]:
 
 
 def open_btf(
-    source: str | os.PathLike[str], model_path: str | os.PathLike[str] | None = None,
+    source: str | os.PathLike[str],
+    model_path: str | os.PathLike[str] | None = None,
     progress: bool | None = None,
 ) -> BTF:
     """Open ``source`` as a :class:`BTF` (see the module docstring for what is accepted)."""

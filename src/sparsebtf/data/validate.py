@@ -21,7 +21,9 @@ def check_finite(block: np.ndarray, where: str, offset: tuple[int, ...] = ()) ->
         return
     first = [int(x[0]) for x in np.nonzero(bad)]
     off = list(offset) + [0] * (len(first) - len(offset))
-    loc = ", ".join(f"{AXES[i] if i < len(AXES) else i} {first[i] + off[i]}" for i in range(len(first)))
+    loc = ", ".join(
+        f"{AXES[i] if i < len(AXES) else i} {first[i] + off[i]}" for i in range(len(first))
+    )
     raise BTFInputError(f"{where}: {int(bad.sum())} NaN/Inf values; first at {loc}")
 
 

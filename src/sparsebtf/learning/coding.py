@@ -24,6 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BTFInputError
+from .parallel import parallel_map
 from .tensor import project
 
 __all__ = ["SparseCodes", "sparse_code", "sparse_code_levels", "topk_abs"]
@@ -124,9 +125,11 @@ class SparseCodes:
             raise BTFInputError(f"truncation needs tau >= 1, got {tau}")
         o = self.offsets
         new_counts = np.minimum(self.counts, tau)
-        keep = np.concatenate(
-            [np.arange(o[i], o[i] + new_counts[i]) for i in range(self.n_points)]
-        ) if self.n_points else np.empty(0, dtype=np.int64)
+        keep = (
+            np.concatenate([np.arange(o[i], o[i] + new_counts[i]) for i in range(self.n_points)])
+            if self.n_points
+            else np.empty(0, dtype=np.int64)
+        )
         dropped = np.zeros(self.n_points)
         mask = np.ones(self.nnz, dtype=bool)
         mask[keep] = False
@@ -230,34 +233,50 @@ def sparse_code_levels(
     best: list[list[tuple[tuple[int, float], np.ndarray, np.ndarray] | None]] = [
         [None] * b for _ in range(nl)
     ]
-    for k in range(n_dict):
-        mats = [np.asarray(d[k], dtype=dtype) for d in dictionaries]
-        s = project(xc, mats).reshape(b, -1)
-        for i in range(b):
-            idx = topk_abs(s[i], tmax)
-            vals = s[i, idx]
-            sq = vals.astype(np.float64) ** 2
-            for j, tau in enumerate(levels):
-                n, e = _count_and_error(sq, energy[i], size, tau, eps)
-                counts[j, i, k], errs[j, i, k] = n, e
-                key = (n, e)
-                cur = best[j][i]
-                # Sparsest first, then least error; strict comparison keeps the first on ties.
-                if cur is None or key < cur[0]:
-                    best[j][i] = (key, idx[:n], vals[:n])
+    mats_k = [[np.asarray(d[k], dtype=dtype) for d in dictionaries] for k in range(n_dict)]
+
+    def task(ik: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+        i, k = ik
+        s = project(xc[i : i + 1], mats_k[k]).reshape(-1)
+        idx = topk_abs(s, tmax)
+        return idx, s[idx]
+
+    pairs = [(i, k) for k in range(n_dict) for i in range(b)]
+    for (i, k), (idx, vals) in zip(pairs, parallel_map(task, pairs), strict=True):
+        sq = vals.astype(np.float64) ** 2
+        for j, tau in enumerate(levels):
+            n, e = _count_and_error(sq, energy[i], size, tau, eps)
+            counts[j, i, k], errs[j, i, k] = n, e
+            key = (n, e)
+            cur = best[j][i]
+            # Sparsest first, then least error; strict comparison keeps the first on ties.
+            if cur is None or key < cur[0]:
+                best[j][i] = (key, idx[:n], vals[:n])
     out = []
     for j in range(nl):
         member = np.array(
             [int(np.lexsort((errs[j, i], counts[j, i]))[0]) for i in range(b)], dtype=np.int64
         )
         chosen = [best[j][i] for i in range(b)]
-        idx_all = (np.concatenate([c[1] for c in chosen]) if b  # type: ignore[index]
-                   else np.empty(0, dtype=np.int64))
-        vals_all = (np.concatenate([c[2] for c in chosen]).astype(np.float32) if b  # type: ignore[index]
-                    else np.empty(0, np.float32))
+        idx_all = (
+            np.concatenate([c[1] for c in chosen])
+            if b  # type: ignore[index]
+            else np.empty(0, dtype=np.int64)
+        )
+        vals_all = (
+            np.concatenate([c[2] for c in chosen]).astype(np.float32)
+            if b  # type: ignore[index]
+            else np.empty(0, np.float32)
+        )
         locs = np.stack(np.unravel_index(idx_all, shape), axis=1).astype(np.int32)
-        out.append(SparseCodes(
-            shape, member, counts[j, np.arange(b), member], vals_all, locs,
-            errs[j, np.arange(b), member],
-        ))
+        out.append(
+            SparseCodes(
+                shape,
+                member,
+                counts[j, np.arange(b), member],
+                vals_all,
+                locs,
+                errs[j, np.arange(b), member],
+            )
+        )
     return out

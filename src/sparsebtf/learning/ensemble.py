@@ -32,6 +32,7 @@ from .._atomic import atomic_output
 from .._progress import bar
 from ..errors import BTFInputError
 from .coding import SparseCodes, sparse_code
+from .parallel import parallel_map
 from .tensor import project, reconstruct, unfold
 
 __all__ = [
@@ -70,7 +71,9 @@ class ArraySource:
 
     def __init__(self, data: np.ndarray) -> None:
         if data.ndim < 2:
-            raise BTFInputError(f"data points must be an (N, m_1, ..., m_N) array, got {data.shape}")
+            raise BTFInputError(
+                f"data points must be an (N, m_1, ..., m_N) array, got {data.shape}"
+            )
         self.data = data
 
     @property
@@ -115,7 +118,10 @@ def procrustes(z: np.ndarray) -> np.ndarray:
 
 
 def code_step(
-    batch: np.ndarray, dictionaries: Sequence[np.ndarray], tau: int, eps: float = 0.0,
+    batch: np.ndarray,
+    dictionaries: Sequence[np.ndarray],
+    tau: int,
+    eps: float = 0.0,
     dtype: type = np.float32,
 ) -> SparseCodes:
     """Map step 1: sparse coding and membership of one batch (Eq. 3, hard thresholding)."""
@@ -139,19 +145,26 @@ def cross_products(
     m = dictionaries[mode].shape[1]
     z = np.zeros((n_dict, m, m))
     offsets = codes.offsets
-    for b in range(batch.shape[0]):
+
+    def task(b: int) -> tuple[int, np.ndarray] | None:
         k = int(codes.membership[b])
         lo, hi = offsets[b], offsets[b + 1]
         if hi == lo:
-            continue
+            return None
         mats = [np.asarray(d[k], dtype=dtype) for d in dictionaries]
         p = project(np.asarray(batch[b : b + 1], dtype=dtype), mats, skip=mode)[0]
         p = np.moveaxis(p, mode, -1)
         loc = codes.locations[lo:hi]
         other = tuple(loc[:, q] for q in range(loc.shape[1]) if q != mode)
         fibres = p[other].astype(np.float64) * codes.values[lo:hi, None].astype(np.float64)
+        part = np.zeros((m, m))
         # Z[:, l_n] += v · fibre, accumulated by target column.
-        np.add.at(z[k].T, loc[:, mode], fibres)
+        np.add.at(part.T, loc[:, mode], fibres)
+        return k, part
+
+    for res in parallel_map(task, range(batch.shape[0])):
+        if res is not None:
+            z[res[0]] += res[1]
     return z
 
 
@@ -253,11 +266,15 @@ class DictionaryEnsemble:
             self._reseed(src, dicts, codes, used_for_reseed)
             for mode in range(len(dicts)):
                 z = np.zeros((self.n_dictionaries, dicts[mode].shape[1], dicts[mode].shape[1]))
-                with bar(src.n_points, f"{desc} it{it + 1} mode{mode + 1}", "pt", self.progress) as pb:
+                with bar(
+                    src.n_points, f"{desc} it{it + 1} mode{mode + 1}", "pt", self.progress
+                ) as pb:
                     for idx, xb in src.batches(self.batch_size):
                         z += cross_products(xb, _slice_codes(codes, idx), dicts, mode, dt)
                         pb.update(len(idx))
-                for k in np.flatnonzero(np.bincount(codes.membership, minlength=self.n_dictionaries)):
+                for k in np.flatnonzero(
+                    np.bincount(codes.membership, minlength=self.n_dictionaries)
+                ):
                     dicts[mode][k] = procrustes(z[k])
             codes = self._code_all(src, dicts, dt, f"{desc} it{it + 1} code")
             objective.append(float(codes.errors.mean()))
@@ -325,7 +342,9 @@ class DictionaryEnsemble:
                 dicts[mode][j] = random_orthonormal(m, rng)
         return dicts
 
-    def _code_all(self, src: PointSource, dicts: list[np.ndarray], dt: type, desc: str) -> SparseCodes:
+    def _code_all(
+        self, src: PointSource, dicts: list[np.ndarray], dt: type, desc: str
+    ) -> SparseCodes:
         parts = []
         with bar(src.n_points, desc, "pt", self.progress) as pb:
             for _, xb in src.batches(self.batch_size):
@@ -352,8 +371,13 @@ class DictionaryEnsemble:
     def _params_key(self, src: PointSource) -> str:
         return json.dumps(
             {
-                "K": self.n_dictionaries, "tau": self.tau, "eps": self.eps, "init": self.init,
-                "seed": self.random_state, "dtype": self.dtype, "n": src.n_points,
+                "K": self.n_dictionaries,
+                "tau": self.tau,
+                "eps": self.eps,
+                "init": self.init,
+                "seed": self.random_state,
+                "dtype": self.dtype,
+                "n": src.n_points,
                 "shape": list(src.mode_sizes),
             },
             sort_keys=True,
@@ -366,7 +390,10 @@ class DictionaryEnsemble:
         with atomic_output(path) as tmp:
             with open(tmp, "wb") as f:
                 np.savez(
-                    f, iteration=it, objective=np.array(objective), key=self._key,
+                    f,
+                    iteration=it,
+                    objective=np.array(objective),
+                    key=self._key,
                     **{f"mode{n}": d for n, d in enumerate(dicts)},
                 )
 

@@ -27,7 +27,7 @@ def fold(matrix: np.ndarray, mode: int, shape: Sequence[int]) -> np.ndarray:
 
 
 def _apply(x: np.ndarray, m: np.ndarray, axis: int) -> np.ndarray:
-    """Contract ``axis`` of x with the second index of m: out[..., j, ...] = Σ_i m[j, i] x[..., i, ...]."""
+    """Contract ``axis`` of x with m's second index: out[.., j, ..] = Σ_i m[j, i] x[.., i, ..]."""
     if axis == x.ndim - 1 or axis == -1:
         return x @ np.ascontiguousarray(m.T)
     shape = x.shape
@@ -61,7 +61,9 @@ def multi_mode_dot(
     return out
 
 
-def project(batch: np.ndarray, matrices: Sequence[np.ndarray], skip: int | None = None) -> np.ndarray:
+def project(
+    batch: np.ndarray, matrices: Sequence[np.ndarray], skip: int | None = None
+) -> np.ndarray:
     """Eq. 3 on a batch: S_b = X_b ×_1 U1ᵀ ×_2 U2ᵀ … for data points X_b = batch[b].
 
     ``batch`` has shape (B, m_1, …, m_N); ``matrices`` are the N orthonormal (m_n, m_n) bases.

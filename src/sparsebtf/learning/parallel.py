@@ -1,0 +1,53 @@
+"""Run independent projections side by side: one BLAS thread per worker, one worker per core.
+
+A projection is a chain of GEMMs on one data point (151×151 matrices against 15,100-column
+slabs). Splitting each small GEMM over two BLAS threads costs more in synchronisation than it
+gains, and collapses when another process holds a core; giving each core its own data point
+keeps every GEMM single-threaded and the cores busy. Numpy releases the GIL inside BLAS and
+large array operations, so threads suffice (no copies between processes).
+``SPARSEBTF_THREADS`` sets the number of workers (default: the cores this process may use).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from typing import TypeVar
+
+from threadpoolctl import threadpool_limits
+
+T = TypeVar("T")
+R = TypeVar("R")
+
+__all__ = ["n_workers", "parallel_map"]
+
+_POOL: ThreadPoolExecutor | None = None
+
+
+def n_workers() -> int:
+    env = os.environ.get("SPARSEBTF_THREADS")
+    if env and env.isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    global _POOL
+    if _POOL is None or _POOL._max_workers != n:  # type: ignore[attr-defined]
+        _POOL = ThreadPoolExecutor(max_workers=n, thread_name_prefix="sparsebtf")
+    return _POOL
+
+
+def parallel_map(fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+    """``map(fn, items)`` over the worker threads with single-threaded BLAS, in order."""
+    items = list(items)
+    n = n_workers()
+    if n == 1 or len(items) == 1:
+        with threadpool_limits(limits=1, user_api="blas"):
+            return iter([fn(x) for x in items])
+    with threadpool_limits(limits=1, user_api="blas"):
+        return iter(list(_pool(n).map(fn, items)))
