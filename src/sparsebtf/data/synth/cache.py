@@ -1,0 +1,91 @@
+"""Render a synthetic material once into our dense HDF5 file and reopen it afterwards.
+
+The cache key hashes everything that determines the values — class, seed, size, the exact
+direction vectors and :data:`~sparsebtf.data.synth.materials.GENERATOR_VERSION` — so a change
+to any of them renders a new file instead of returning stale data.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..btf import BTF
+from ..dense_file import DenseFileBTF, write_dense
+from ..directions import DirectionSet
+from .materials import (
+    GENERATOR_VERSION,
+    check_material,
+    check_seed,
+    check_size,
+    resolve_directions,
+    synthesize,
+)
+
+__all__ = ["cache_key", "cache_path", "cached", "resolve_cache_dir"]
+
+
+def resolve_cache_dir(path: str | os.PathLike[str] | None = None) -> Path:
+    """The cache folder: ``path``, else ``$SPARSEBTF_CACHE``, else ``~/.cache/sparsebtf``."""
+    if path is not None:
+        return Path(path)
+    env = os.environ.get("SPARSEBTF_CACHE")
+    if env:
+        return Path(env)
+    return Path.home() / ".cache" / "sparsebtf"
+
+
+def cache_key(material: str, size: tuple[int, int], seed: int, directions: DirectionSet) -> str:
+    """Hex SHA-256 of everything that determines a synthetic BTF's values."""
+    head = json.dumps(
+        {
+            "material": material,
+            "size": list(size),
+            "seed": seed,
+            "generator_version": GENERATOR_VERSION,
+        },
+        sort_keys=True,
+    ).encode()
+    xyz = np.ascontiguousarray(directions.xyz, dtype="<f8").tobytes()
+    return hashlib.sha256(head + b"\0" + xyz).hexdigest()
+
+
+def cache_path(
+    material: str,
+    size: int | tuple[int, int] = 64,
+    directions: str | DirectionSet = "ubo2014",
+    seed: int = 0,
+    cache_dir: str | os.PathLike[str] | None = None,
+) -> Path:
+    """Where :func:`cached` keeps (or would keep) this material's file."""
+    mat = check_material(material)
+    hw = check_size(size)
+    sd = check_seed(seed)
+    dirs = resolve_directions(directions)
+    key = cache_key(mat, hw, sd, dirs)
+    name = f"synth-{mat}-{hw[0]}x{hw[1]}-s{sd}-{dirs.name}-{key[:16]}.h5"
+    return resolve_cache_dir(cache_dir) / name
+
+
+def cached(
+    material: str,
+    size: int | tuple[int, int] = 64,
+    directions: str | DirectionSet = "ubo2014",
+    seed: int = 0,
+    cache_dir: str | os.PathLike[str] | None = None,
+    progress: bool = False,
+) -> BTF:
+    """The synthetic BTF as a file-backed :class:`DenseFileBTF`, rendering it on first use.
+
+    The file (float32) is written atomically, so an interrupted render leaves no partial
+    file behind and concurrent callers at worst render twice.
+    """
+    path = cache_path(material, size, directions, seed, cache_dir)
+    if not path.exists():
+        btf = synthesize(material, size, directions, seed)
+        write_dense(path, btf, dtype="float32", attrs={"cache_key": path.stem}, progress=progress)
+    return DenseFileBTF(path)
