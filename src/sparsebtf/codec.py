@@ -432,7 +432,13 @@ def encode_levels(
     out = []
     for j, taus_c in enumerate(levels):
         codes = {ch: SparseCodes.concatenate(parts[j][ch]) for ch in channels}
-        params = {"tau": taus_c, "eps": eps, "std_mode": mode, "dtype": dtype}
+        params = {
+            "tau": taus_c,
+            "eps": eps,
+            "std_mode": mode,
+            "dtype": dtype,
+            "n_dictionaries": {ch: model.n_dictionaries(ch) for ch in channels},
+        }
         coded_btf = CodedBTF(
             codes,
             stats,
@@ -456,6 +462,7 @@ def decode_points(
     points: Sequence[int] | np.ndarray,
     lights: Index = slice(None),
     views: Index = slice(None),
+    dtype: type = np.float64,
 ) -> np.ndarray:
     """Eq. 4 for chosen points of one channel, restricted to chosen lights and views.
 
@@ -468,17 +475,19 @@ def decode_points(
     vi = as_index(views, len(coded.views), "view")
     idx = np.asarray(points, dtype=np.int64)
     if li.size * vi.size <= EQ5_MAX_DIRECTIONS:
-        return decode_points_eq5(coded, channel, idx, li, vi)
-    out = np.empty((idx.size, coded.patch, coded.patch, li.size, vi.size, *codes.mode_sizes[4:]))
+        return decode_points_eq5(coded, channel, idx, li, vi).astype(dtype, copy=False)
+    out = np.empty(
+        (idx.size, coded.patch, coded.patch, li.size, vi.size, *codes.mode_sizes[4:]), dtype=dtype
+    )
     dicts = model.dictionaries[channel]
 
     def task(j: int) -> None:
         i = int(idx[j])
         loc, val = codes.point(i)
         k = int(codes.membership[i])
-        s = np.zeros((1, *codes.mode_sizes))
+        s = np.zeros((1, *codes.mode_sizes), dtype=dtype)
         s[(0, *loc.T)] = val
-        mats = [d[k] for d in dicts]
+        mats = [np.asarray(d[k], dtype=dtype) for d in dicts]
         mats[2] = mats[2][li]
         mats[3] = mats[3][vi]
         out[j] = reconstruct(s, mats)[0]
@@ -556,9 +565,10 @@ class DecodedBTF(BTF):
         rb = np.unique(r // p)
         cb = np.unique(c // p)
         pts = self.grid.index(rb[:, None], cb[None, :]).T.ravel()  # col-block major order
-        z = np.empty((rb.size * p, cb.size * p, li.size, vi.size, 3))
+        z = np.empty((rb.size * p, cb.size * p, li.size, vi.size, 3), dtype=np.float32)
         for ch_i, ch in enumerate(self.coded.channels):
-            vals = decode_points(self.coded, ch, pts, li, vi)
+            # float32 decoding: its rounding (~1e-7) is far below any coding error.
+            vals = decode_points(self.coded, ch, pts, li, vi, dtype=np.float32)
             # (cb, rb, i1, i2, ...) → (rb, i1, cb, i2, ...)
             vals = vals.reshape(cb.size, rb.size, p, p, li.size, vi.size, *vals.shape[5:])
             vals = np.moveaxis(vals, 0, 2).reshape(
@@ -571,8 +581,11 @@ class DecodedBTF(BTF):
         # Map requested rows/cols into the decoded block.
         row_pos = np.searchsorted(rb, r // p) * p + r % p
         col_pos = np.searchsorted(cb, c // p) * p + c % p
-        z = z[np.ix_(row_pos, col_pos, np.arange(li.size), np.arange(vi.size), np.arange(3))]
-        return self.pre.inverse(z, li, vi).astype(np.float32)
+        if not np.array_equal(row_pos, np.arange(z.shape[0])):
+            z = z[row_pos]
+        if not np.array_equal(col_pos, np.arange(z.shape[1])):
+            z = z[:, col_pos]
+        return self.pre.inverse(z, li, vi).astype(np.float32, copy=False)
 
 
 def coded_btf_view(coded: CodedBTF) -> DecodedBTF:

@@ -161,6 +161,8 @@ class Standardization:
     ) -> np.ndarray:
         """Undo :meth:`apply`."""
         mu, sd = self.select(lights, views)
+        if z.dtype == np.float32:
+            mu, sd = mu.astype(np.float32), sd.astype(np.float32)
         return z * sd + mu
 
 

@@ -36,7 +36,8 @@ SCHEMA_VERSION = 1
 DEFAULT_CHUNK = (20, 20, 8, 8, 3)
 
 
-def _write_directions(group: h5py.Group, d: DirectionSet) -> None:
+def write_directions(group: h5py.Group, d: DirectionSet) -> None:
+    """Write a direction table (name attr, xyz, theta, phi) into ``group``."""
     group.attrs["name"] = d.name
     group.create_dataset("xyz", data=d.xyz)
     group.create_dataset("theta", data=d.theta)
@@ -44,7 +45,7 @@ def _write_directions(group: h5py.Group, d: DirectionSet) -> None:
 
 
 def read_directions(group: h5py.Group, where: str) -> DirectionSet:
-    """Read a direction table written by :func:`_write_directions`; errors name the file field."""
+    """Read a direction table written by :func:`write_directions`; errors name the file field."""
     if "xyz" not in group:
         raise FileFormatError(f"{where}: missing dataset 'xyz'")
     xyz = np.asarray(group["xyz"], dtype=np.float64)
@@ -88,8 +89,8 @@ def write_dense(
             f.attrs["name"] = btf.name
             f.attrs["attrs_json"] = json.dumps(meta, sort_keys=True, default=str)
             ds = f.create_dataset("btf", shape=shape, dtype=dtype, chunks=chunk)
-            _write_directions(f.create_group("lights"), btf.lights)
-            _write_directions(f.create_group("views"), btf.views)
+            write_directions(f.create_group("lights"), btf.lights)
+            write_directions(f.create_group("views"), btf.views)
             starts = range(0, nv, step)
             for v0 in _progress(starts, total=len(starts), desc="write", enabled=progress):
                 views = list(range(v0, min(v0 + step, nv)))

@@ -1,0 +1,43 @@
+"""Model and coded-BTF files (HDF5) and the paper's storage accounting (Table 4).
+
+* :func:`save_model` / :func:`load_model` — the trained dictionaries, float64, content-hashed.
+* :func:`save_coded` / :func:`load_coded` — one material's sparse codes (binary16 values,
+  3-byte packed locations), statistics and directions; checked against its model's hash.
+* :func:`storage_report` / :func:`paper_storage` — bytes as counted by ``btf4Dcomp``.
+
+Every write is atomic; every read error is a :class:`~sparsebtf.errors.FileFormatError` or
+:class:`~sparsebtf.errors.ModelMismatchError` naming the file and field. Layouts:
+``docs/format.md``.
+"""
+
+from __future__ import annotations
+
+from .accounting import MIB, channel_storage, paper_storage, storage_report
+from .coded_file import (
+    CODED_FORMAT,
+    CODED_SCHEMA_VERSION,
+    load_coded,
+    location_width,
+    pack_locations,
+    save_coded,
+    unpack_locations,
+)
+from .model_file import MODEL_FORMAT, MODEL_SCHEMA_VERSION, load_model, save_model
+
+__all__ = [
+    "CODED_FORMAT",
+    "CODED_SCHEMA_VERSION",
+    "MIB",
+    "MODEL_FORMAT",
+    "MODEL_SCHEMA_VERSION",
+    "channel_storage",
+    "load_coded",
+    "load_model",
+    "location_width",
+    "pack_locations",
+    "paper_storage",
+    "save_coded",
+    "save_model",
+    "storage_report",
+    "unpack_locations",
+]

@@ -1,0 +1,419 @@
+"""Coded BTF file: the sparse coefficients of one material, in HDF5 (schema in ``docs/format.md``).
+
+Layout (``format="sparsebtf-coded"``, ``schema_version=1``)::
+
+    /                       attrs: format, schema_version, model_hash, library_version, name,
+                            height, width, patch, channels (JSON list), params_json, attrs_json
+    /codes/<CH>             attrs: mode_sizes (N,) int64, n_points, nnz, location_bytes (3|4),
+                            n_dictionaries (K; only when known at write time)
+    /codes/<CH>/membership  (P,) uint8 (K <= 255) or uint16     dictionary of each point (m)
+    /codes/<CH>/counts      (P,) uint16 (or uint32 if a count > 65535)   coefficients per point (z)
+    /codes/<CH>/values      (NNZ,) float16 (float32 only if a value overflows binary16)
+    /codes/<CH>/locations   (NNZ, 3) uint8, or (NNZ, 4) when ∏m >= 2^24: little-endian bytes
+                            of the column-major linear index l1 + m1·l2 + m1·m2·l3 + …
+    /codes/<CH>/errors      (P,) float32    residual MSE per tensor entry (diagnostic)
+    /stats/mean, /stats/std (L, V, C) float32; attrs mode ("shared" | "per_channel"), eps
+    /lights, /views         direction tables, as in the dense file
+
+Points are in release order (``point = row_block + n_row_blocks·col_block``); within a point
+the coefficients keep their order, by decreasing magnitude, so truncating τ is a prefix read.
+Location packing follows the 3-bytes-per-coefficient accounting of the paper's Table 4.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import warnings
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from .._atomic import atomic_output
+from ..data.dense_file import read_directions, write_directions
+from ..errors import BTFInputError, FileFormatError, ModelMismatchError
+from ..learning.coding import SparseCodes
+from ..model import CodedBTF, Model
+from ..preprocessing import Standardization
+from ._common import (
+    as_str,
+    check_geometry,
+    library_version,
+    open_checked,
+    read_array,
+    read_int_attr,
+    read_json_attr,
+    read_str_attr,
+    require,
+    to_json,
+)
+
+__all__ = [
+    "CODED_FORMAT",
+    "CODED_SCHEMA_VERSION",
+    "load_coded",
+    "location_width",
+    "pack_locations",
+    "save_coded",
+    "unpack_locations",
+]
+
+CODED_FORMAT = "sparsebtf-coded"
+CODED_SCHEMA_VERSION = 1
+_SUPPORTED = (1,)
+_FP16_MAX = float(np.finfo(np.float16).max)
+
+
+# --------------------------------------------------------------------------- location packing
+
+
+def location_width(mode_sizes: tuple[int, ...] | list[int]) -> int:
+    """Bytes per packed location: 3 when ∏ m_n < 2^24 (Table 4's 3 B), else 4."""
+    total = int(np.prod([int(m) for m in mode_sizes], dtype=object))
+    if total <= 0:
+        raise BTFInputError(f"mode sizes must be positive, got {tuple(mode_sizes)}")
+    if total <= 1 << 24:
+        return 3
+    if total <= 1 << 32:
+        return 4
+    raise BTFInputError(
+        f"data points of {total} entries (modes {tuple(mode_sizes)}) exceed the 32-bit "
+        f"location index of this format"
+    )
+
+
+def pack_locations(locations: np.ndarray, mode_sizes: tuple[int, ...] | list[int]) -> np.ndarray:
+    """Pack (NNZ, N) multi-indices into (NNZ, w) uint8, w = :func:`location_width`.
+
+    The packed value is the column-major linear index ``l1 + m1·l2 + m1·m2·l3 + …`` (the
+    release's storage order, MATLAB's ``sub2ind``), written as w little-endian bytes.
+    """
+    sizes = tuple(int(m) for m in mode_sizes)
+    loc = np.asarray(locations)
+    if loc.ndim != 2 or loc.shape[1] != len(sizes):
+        raise BTFInputError(f"locations must have shape (NNZ, {len(sizes)}), got {loc.shape}")
+    width = location_width(sizes)
+    if loc.shape[0] == 0:
+        return np.zeros((0, width), dtype=np.uint8)
+    loc = loc.astype(np.int64, copy=False)
+    bad = (loc < 0) | (loc >= np.array(sizes, dtype=np.int64))
+    if bad.any():
+        row, col = (int(x[0]) for x in np.nonzero(bad))
+        raise BTFInputError(
+            f"location {row} has index {int(loc[row, col])} on mode {col + 1}, outside "
+            f"[0, {sizes[col]})"
+        )
+    strides = np.cumprod((1, *sizes[:-1]), dtype=np.int64)
+    linear = (loc @ strides).astype("<u4")
+    return np.ascontiguousarray(linear.view(np.uint8).reshape(-1, 4)[:, :width])
+
+
+def unpack_locations(packed: np.ndarray, mode_sizes: tuple[int, ...] | list[int]) -> np.ndarray:
+    """Inverse of :func:`pack_locations`: (NNZ, w) uint8 → (NNZ, N) int32 multi-indices."""
+    sizes = tuple(int(m) for m in mode_sizes)
+    b = np.asarray(packed)
+    width = location_width(sizes)
+    if b.ndim != 2 or b.shape[1] != width or b.dtype != np.uint8:
+        raise BTFInputError(
+            f"packed locations for modes {sizes} must be (NNZ, {width}) uint8, got "
+            f"{b.shape} {b.dtype}"
+        )
+    full = np.zeros((b.shape[0], 4), dtype=np.uint8)
+    full[:, :width] = b
+    linear = full.view("<u4").reshape(-1).astype(np.int64)
+    total = int(np.prod(sizes, dtype=np.int64))
+    if linear.size and int(linear.max()) >= total:
+        i = int(np.argmax(linear >= total))
+        raise BTFInputError(
+            f"packed location {i} decodes to linear index {int(linear[i])}, outside the "
+            f"{total} entries of a data point"
+        )
+    idx = np.unravel_index(linear, sizes, order="F")
+    return np.stack(idx, axis=1).astype(np.int32) if sizes else np.zeros((b.shape[0], 0), np.int32)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+def _known_k(coded: CodedBTF, ch: str) -> int | None:
+    """K of a channel: from the attached model, else ``params["n_dictionaries"]`` (int or dict)."""
+    if coded.model is not None and ch in coded.model.dictionaries:
+        return coded.model.n_dictionaries(ch)
+    k: Any = coded.params.get("n_dictionaries")
+    if isinstance(k, dict):
+        k = k.get(ch)
+    if isinstance(k, (int, np.integer)) and not isinstance(k, bool) and k > 0:
+        return int(k)
+    return None
+
+
+def _check_coded(coded: CodedBTF) -> None:
+    """Refuse (before anything is written) what :func:`load_coded` would refuse."""
+    name = coded.name
+    if not coded.channels:
+        raise BTFInputError(f"{name}: no coded channels to save")
+    p = coded.patch
+    if p < 1 or coded.height % p or coded.width % p:
+        raise BTFInputError(
+            f"{name}: size {coded.height}x{coded.width} is not a multiple of the patch {p}"
+        )
+    nl, nv = len(coded.lights), len(coded.views)
+    if coded.stats.mean.shape[:2] != (nl, nv):
+        raise BTFInputError(
+            f"{name}: statistics are {coded.stats.mean.shape[:2]} (lights, views) but the "
+            f"direction tables have {nl} x {nv}"
+        )
+    for ch in coded.channels:
+        c = coded.codes[ch]
+        check_geometry(c.mode_sizes, p, nl, nv, f"{name}, channel {ch}", BTFInputError)
+        if c.n_points != coded.n_points:
+            raise BTFInputError(
+                f"{name}, channel {ch}: {c.n_points} coded points, but a {coded.height}x"
+                f"{coded.width} texture in {p}x{p} patches has {coded.n_points}"
+            )
+        if c.n_points and (int(c.membership.min()) < 0 or int(c.counts.min()) < 0):
+            raise BTFInputError(f"{name}, channel {ch}: negative membership or count")
+        k = _known_k(coded, ch)
+        if k is not None and c.n_points and int(c.membership.max()) >= k:
+            raise BTFInputError(
+                f"{name}, channel {ch}: membership {int(c.membership.max())} but only {k} "
+                f"dictionaries"
+            )
+        if not np.all(np.isfinite(c.values)):
+            raise BTFInputError(
+                f"{name}, channel {ch}: {int((~np.isfinite(c.values)).sum())} NaN/Inf values"
+            )
+
+
+def save_coded(coded: CodedBTF, path: str | os.PathLike[str]) -> Path:
+    """Write ``coded`` to ``path`` (HDF5, atomically: an interrupted write leaves no file).
+
+    Values are rounded to binary16 (round-to-nearest-even, as the release's ``.bin`` files);
+    a channel with a finite value beyond ±65504 is kept in float32 instead, with a warning.
+    Locations are packed to 3 bytes (4 when ∏m ≥ 2^24). Returns the path written.
+    """
+    _check_coded(coded)
+    target = Path(path)
+    with atomic_output(target) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["format"] = CODED_FORMAT
+        f.attrs["schema_version"] = CODED_SCHEMA_VERSION
+        f.attrs["model_hash"] = coded.model_hash
+        f.attrs["library_version"] = library_version()
+        f.attrs["name"] = coded.name
+        f.attrs["height"] = int(coded.height)
+        f.attrs["width"] = int(coded.width)
+        f.attrs["patch"] = int(coded.patch)
+        f.attrs["channels"] = json.dumps(list(coded.channels))
+        f.attrs["params_json"] = to_json(coded.params)
+        f.attrs["attrs_json"] = to_json(coded.attrs)
+        root = f.create_group("codes")
+        for ch in coded.channels:
+            k = _known_k(coded, ch)
+            _write_codes(root.create_group(ch), coded.codes[ch], k, coded.name, ch)
+        st = f.create_group("stats")
+        st.attrs["mode"] = coded.stats.mode
+        st.attrs["eps"] = float(coded.stats.eps)
+        st.create_dataset("mean", data=np.asarray(coded.stats.mean, dtype="<f4"))
+        st.create_dataset("std", data=np.asarray(coded.stats.std, dtype="<f4"))
+        write_directions(f.create_group("lights"), coded.lights)
+        write_directions(f.create_group("views"), coded.views)
+    return target
+
+
+def _write_codes(g: h5py.Group, c: SparseCodes, k: int | None, name: str, ch: str) -> None:
+    sizes = tuple(int(m) for m in c.mode_sizes)
+    g.attrs["mode_sizes"] = np.array(sizes, dtype=np.int64)
+    g.attrs["n_points"] = c.n_points
+    g.attrs["nnz"] = c.nnz
+    g.attrs["location_bytes"] = location_width(sizes)
+    if k is not None:
+        g.attrs["n_dictionaries"] = k
+    k_eff = k if k is not None else (int(c.membership.max()) + 1 if c.n_points else 1)
+    m_dtype = "<u1" if k_eff <= 255 else "<u2" if k_eff <= 65535 else "<u4"
+    g.create_dataset("membership", data=np.asarray(c.membership).astype(m_dtype))
+    big = c.n_points and int(c.counts.max()) > 65535
+    g.create_dataset("counts", data=np.asarray(c.counts).astype("<u4" if big else "<u2"))
+    vals = np.asarray(c.values)
+    if vals.size and float(np.max(np.abs(vals))) > _FP16_MAX:
+        warnings.warn(
+            f"{name}, channel {ch}: values up to {float(np.max(np.abs(vals))):.4g} overflow "
+            f"binary16; storing this channel's values in float32",
+            stacklevel=3,
+        )
+        g.create_dataset("values", data=vals.astype("<f4"))
+    else:
+        g.create_dataset("values", data=vals.astype("<f2"))
+    g.create_dataset("locations", data=pack_locations(c.locations, sizes))
+    g.create_dataset("errors", data=np.asarray(c.errors).astype("<f4"))
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> CodedBTF:
+    """Read a coded file written by :func:`save_coded`; attach ``model`` if given.
+
+    Values come back as float32 (the stored binary16 values, exactly), locations as int32
+    multi-indices in the stored per-point order (decreasing magnitude), errors as float64.
+
+    Raises
+    ------
+    FileFormatError
+        Not HDF5 or truncated; wrong ``format``; unsupported ``schema_version``; a missing
+        dataset (named); counts not summing to the number of values; inconsistent shapes;
+        memberships beyond the model's K or mode sizes differing from the given model's.
+    ModelMismatchError
+        ``model`` is not the model the file was coded with (both hashes are named).
+    """
+    p = Path(path)
+    where = str(p)
+    with open_checked(p, CODED_FORMAT, _SUPPORTED) as f:
+        model_hash = read_str_attr(f, "model_hash", where)
+        name = as_str(f.attrs.get("name", p.stem))
+        height = read_int_attr(f, "height", where)
+        width = read_int_attr(f, "width", where)
+        patch = read_int_attr(f, "patch", where)
+        params = read_json_attr(f, "params_json", where)
+        attrs = read_json_attr(f, "attrs_json", where)
+        root = require(f, "codes", where)
+        channels = _channels(f, root, where)
+        if patch < 1 or height % patch or width % patch:
+            raise FileFormatError(
+                f"{where}: size {height}x{width} is not a multiple of the patch {patch}"
+            )
+        n_points = (height // patch) * (width // patch)
+        codes: dict[str, SparseCodes] = {}
+        ks: dict[str, int] = {}
+        for ch in channels:
+            g = require(root, ch, f"{where}/codes")
+            codes[ch], k = _read_codes(g, f"{where}/codes/{ch}", n_points)
+            if k is not None:
+                ks[ch] = k
+        stats = _read_stats(require(f, "stats", where), f"{where}/stats")
+        lights = read_directions(require(f, "lights", where), f"{where}/lights")
+        views = read_directions(require(f, "views", where), f"{where}/views")
+
+    nl, nv = len(lights), len(views)
+    if stats.mean.shape[:2] != (nl, nv):
+        raise FileFormatError(
+            f"{where}/stats: (lights, views) = {stats.mean.shape[:2]} but the direction tables "
+            f"have {nl} x {nv}"
+        )
+    for ch, c in codes.items():
+        check_geometry(c.mode_sizes, patch, nl, nv, f"{where}/codes/{ch}", FileFormatError)
+        _check_membership(c, ks.get(ch), f"{where}/codes/{ch}", "the file's n_dictionaries")
+    coded = CodedBTF(
+        codes=codes, stats=stats, height=height, width=width, patch=patch, lights=lights,
+        views=views, model_hash=model_hash, params=params, name=name, attrs=attrs,
+    )
+    if model is not None:
+        _attach(coded, model, where)
+    return coded
+
+
+def _attach(coded: CodedBTF, model: Model, where: str) -> None:
+    if model.content_hash != coded.model_hash:
+        raise ModelMismatchError(
+            f"{where}: coded with model {coded.model_hash[:12]}…, but the given model is "
+            f"{model.content_hash[:12]}…; load the model file this BTF was coded with"
+        )
+    for ch, c in coded.codes.items():
+        if ch not in model.dictionaries:
+            raise FileFormatError(
+                f"{where}: channel {ch} is coded, but its model has only {model.channels}"
+            )
+        model_sizes = tuple(int(m.shape[1]) for m in model.dictionaries[ch])
+        if tuple(int(m) for m in c.mode_sizes) != model_sizes:
+            raise FileFormatError(
+                f"{where}/codes/{ch}: mode sizes {tuple(c.mode_sizes)} disagree with the model's "
+                f"{model_sizes}"
+            )
+        _check_membership(c, model.n_dictionaries(ch), f"{where}/codes/{ch}", "the model's K")
+    coded.attach(model)
+
+
+def _check_membership(c: SparseCodes, k: int | None, where: str, source: str) -> None:
+    if k is not None and c.n_points and int(c.membership.max()) >= k:
+        bad = int(np.argmax(c.membership >= k))
+        raise FileFormatError(
+            f"{where}/membership: point {bad} uses dictionary {int(c.membership[bad])}, but "
+            f"{source} is {k}"
+        )
+
+
+def _channels(f: h5py.File, root: h5py.Group, where: str) -> list[str]:
+    if "channels" not in f.attrs:
+        return list(root.keys())
+    try:
+        channels = json.loads(as_str(f.attrs["channels"]))
+    except ValueError:
+        raise FileFormatError(f"{where}: attribute 'channels' is not a JSON list") from None
+    if (
+        not isinstance(channels, list) or not channels
+        or not all(isinstance(c, str) for c in channels)
+    ):
+        raise FileFormatError(f"{where}: attribute 'channels' must be a non-empty list of names")
+    return channels
+
+
+def _read_codes(g: h5py.Group, where: str, n_points: int) -> tuple[SparseCodes, int | None]:
+    if "mode_sizes" not in g.attrs:
+        raise FileFormatError(f"{where}: missing attribute 'mode_sizes'")
+    sizes = tuple(int(m) for m in np.asarray(g.attrs["mode_sizes"]).reshape(-1))
+    k = read_int_attr(g, "n_dictionaries", where) if "n_dictionaries" in g.attrs else None
+    membership = read_array(g, "membership", where)
+    counts = read_array(g, "counts", where)
+    values = read_array(g, "values", where)
+    packed = read_array(g, "locations", where)
+    errors = read_array(g, "errors", where)
+    for label, arr in (("membership", membership), ("counts", counts), ("errors", errors)):
+        if arr.shape != (n_points,):
+            raise FileFormatError(
+                f"{where}/{label}: expected shape ({n_points},) (one entry per point), got "
+                f"{arr.shape}"
+            )
+    for label, arr in (("membership", membership), ("counts", counts)):
+        if arr.dtype.kind != "u":
+            raise FileFormatError(
+                f"{where}/{label}: expected an unsigned integer type, got {arr.dtype}"
+            )
+    if values.ndim != 1 or values.dtype.kind != "f":
+        raise FileFormatError(
+            f"{where}/values: expected a 1D float array, got {values.shape} {values.dtype}"
+        )
+    total = int(counts.sum(dtype=np.int64))
+    if total != values.shape[0]:
+        raise FileFormatError(
+            f"{where}: counts sum to {total} coefficients but 'values' holds {values.shape[0]}"
+        )
+    if packed.shape[:1] != values.shape:
+        raise FileFormatError(
+            f"{where}/locations: {packed.shape[0] if packed.ndim else 0} locations for "
+            f"{values.shape[0]} values"
+        )
+    try:
+        locations = unpack_locations(packed, sizes)
+        codes = SparseCodes(
+            sizes,
+            membership.astype(np.int64),
+            counts.astype(np.int64),
+            values.astype(np.float32),
+            locations,
+            errors.astype(np.float64),
+        )
+    except BTFInputError as e:
+        raise FileFormatError(f"{where}: {e}") from None
+    return codes, k
+
+
+def _read_stats(g: h5py.Group, where: str) -> Standardization:
+    mean = read_array(g, "mean", where).astype(np.float64)
+    std = read_array(g, "std", where).astype(np.float64)
+    mode = read_str_attr(g, "mode", where)
+    eps = float(np.asarray(g.attrs.get("eps", 1e-5)).item())
+    try:
+        return Standardization(mode=mode, mean=mean, std=std, eps=eps)  # type: ignore[arg-type]
+    except BTFInputError as e:
+        raise FileFormatError(f"{where}: {e}") from None

@@ -1,0 +1,162 @@
+"""Model file: the K orthonormal dictionaries per channel, in HDF5 (schema in ``docs/format.md``).
+
+Layout (``format="sparsebtf-model"``, ``schema_version=1``)::
+
+    /                         attrs: format, schema_version, content_hash, library_version,
+                              patch, channels (JSON list), params_json, provenance_json,
+                              training_json
+    /dictionaries/<CH>        attrs: n_dictionaries (K), mode_sizes (N,) int64
+    /dictionaries/<CH>/modeN  (K, m_n, m_n) float64; [k, row, col]: row = sample index
+                              (texel offset or direction), col = atom index (paper Eq. 4/5)
+    /lights, /views           direction tables (xyz, theta, phi), as in the dense file
+
+Dictionaries are stored in float64 so :attr:`Model.content_hash` — the address coded files
+refer to — is recomputed exactly on load; a mismatch means the file was corrupted. (The
+release stores binary16 dictionaries; Table 4 of the paper counts 2 bytes per entry, which
+:mod:`sparsebtf.storage.accounting` follows regardless of the file's dtype.)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import h5py
+import numpy as np
+
+from .._atomic import atomic_output
+from ..data.dense_file import read_directions, write_directions
+from ..errors import BTFInputError, FileFormatError
+from ..model import Model, dictionaries_hash
+from ._common import (
+    as_str,
+    check_geometry,
+    library_version,
+    open_checked,
+    read_array,
+    read_int_attr,
+    read_json_attr,
+    read_str_attr,
+    require,
+    to_json,
+)
+
+__all__ = ["MODEL_FORMAT", "MODEL_SCHEMA_VERSION", "load_model", "save_model"]
+
+MODEL_FORMAT = "sparsebtf-model"
+MODEL_SCHEMA_VERSION = 1
+_SUPPORTED = (1,)
+
+
+def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
+    """Write ``model`` to ``path`` (HDF5, atomically: an interrupted write leaves no file).
+
+    Every ensemble is stored in float64, so the content hash that coded files refer to is
+    preserved exactly. Returns the path written.
+    """
+    target = Path(path)
+    for ch in model.channels:
+        sizes = tuple(int(m.shape[1]) for m in model.dictionaries[ch])
+        check_geometry(
+            sizes, model.patch, len(model.lights), len(model.views), f"model channel {ch}",
+            BTFInputError,
+        )
+    with atomic_output(target) as tmp, h5py.File(tmp, "w") as f:
+        f.attrs["format"] = MODEL_FORMAT
+        f.attrs["schema_version"] = MODEL_SCHEMA_VERSION
+        f.attrs["content_hash"] = model.content_hash
+        f.attrs["library_version"] = library_version()
+        f.attrs["patch"] = int(model.patch)
+        f.attrs["channels"] = json.dumps(list(model.channels))
+        f.attrs["params_json"] = to_json(model.params)
+        f.attrs["provenance_json"] = to_json(model.provenance)
+        f.attrs["training_json"] = to_json(model.training)
+        root = f.create_group("dictionaries")
+        for ch in model.channels:
+            mats = model.dictionaries[ch]
+            g = root.create_group(ch)
+            g.attrs["n_dictionaries"] = model.n_dictionaries(ch)
+            g.attrs["mode_sizes"] = np.array([m.shape[1] for m in mats], dtype=np.int64)
+            for n, m in enumerate(mats, start=1):
+                g.create_dataset(f"mode{n}", data=np.asarray(m, dtype="<f8"))
+        write_directions(f.create_group("lights"), model.lights)
+        write_directions(f.create_group("views"), model.views)
+    return target
+
+
+def load_model(path: str | os.PathLike[str]) -> Model:
+    """Read a model file written by :func:`save_model`.
+
+    Raises :class:`~sparsebtf.errors.FileFormatError` (naming the file and field) for a file
+    that is not HDF5 or is truncated, has the wrong ``format``, an unsupported
+    ``schema_version``, a missing or misshapen dataset, or dictionaries whose recomputed
+    content hash differs from the stored one (corruption).
+    """
+    p = Path(path)
+    with open_checked(p, MODEL_FORMAT, _SUPPORTED) as f:
+        where = str(p)
+        stored_hash = read_str_attr(f, "content_hash", where)
+        patch = read_int_attr(f, "patch", where)
+        root = require(f, "dictionaries", where)
+        channels = _channel_list(f, root, where)
+        dictionaries: dict[str, list[np.ndarray]] = {}
+        for ch in channels:
+            g = require(root, ch, f"{where}/dictionaries")
+            gw = f"{where}/dictionaries/{ch}"
+            names = sorted(
+                (k for k in g if k.startswith("mode") and k[4:].isdigit()), key=lambda k: int(k[4:])
+            )
+            if [int(k[4:]) for k in names] != list(range(1, len(names) + 1)) or not names:
+                raise FileFormatError(
+                    f"{gw}: expected datasets mode1..modeN, found {sorted(g.keys())}"
+                )
+            mats = []
+            for k in names:
+                arr = read_array(g, k, gw).astype(np.float64)
+                if arr.ndim != 3 or arr.shape[1] != arr.shape[2]:
+                    raise FileFormatError(f"{gw}/{k}: expected shape (K, m, m), got {arr.shape}")
+                mats.append(arr)
+            if len({m.shape[0] for m in mats}) != 1:
+                raise FileFormatError(
+                    f"{gw}: modes disagree on the number of dictionaries "
+                    f"{[m.shape[0] for m in mats]}"
+                )
+            dictionaries[ch] = mats
+        lights = read_directions(require(f, "lights", where), f"{where}/lights")
+        views = read_directions(require(f, "views", where), f"{where}/views")
+        params = read_json_attr(f, "params_json", where)
+        provenance = read_json_attr(f, "provenance_json", where)
+        training = read_json_attr(f, "training_json", where)
+
+    for ch, mats in dictionaries.items():
+        check_geometry(
+            tuple(m.shape[1] for m in mats), patch, len(lights), len(views),
+            f"{where}/dictionaries/{ch}", FileFormatError,
+        )
+    found = dictionaries_hash(dictionaries)
+    if found != stored_hash:
+        raise FileFormatError(
+            f"{where}: dictionaries are corrupted: their content hash is {found[:12]}…, but the "
+            f"file records {stored_hash[:12]}…"
+        )
+    try:
+        return Model(
+            dictionaries=dictionaries, patch=patch, lights=lights, views=views,
+            params=params, provenance=provenance, training=training,
+        )
+    except BTFInputError as e:
+        raise FileFormatError(f"{where}: {e}") from None
+
+
+def _channel_list(f: h5py.File, root: h5py.Group, where: str) -> list[str]:
+    """Channels in the stored order (attr ``channels``), else the groups under the root."""
+    if "channels" in f.attrs:
+        try:
+            channels = json.loads(as_str(f.attrs["channels"]))
+        except ValueError:
+            raise FileFormatError(f"{where}: attribute 'channels' is not a JSON list") from None
+        if not isinstance(channels, list) or not all(isinstance(c, str) for c in channels):
+            raise FileFormatError(f"{where}: attribute 'channels' is not a JSON list of names")
+        return channels
+    return list(root.keys())
