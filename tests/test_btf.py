@@ -115,3 +115,14 @@ def test_dense_file_errors(tmp_path):
         f.attrs["schema_version"] = 99
     with pytest.raises(FileFormatError, match="schema_version 99"):
         DenseFileBTF(good)
+
+
+def test_write_dense_by_regions_equals_by_views(tmp_path):
+    btf = smooth_btf(2, size=24)
+    a = write_dense(tmp_path / "a.h5", btf, by="views")
+    b = write_dense(tmp_path / "b.h5", btf, by="regions")
+    with DenseFileBTF(a) as fa, DenseFileBTF(b) as fb:
+        assert np.array_equal(fa.to_array(), fb.to_array())
+        assert np.array_equal(fa.to_array(), btf.data)
+    with pytest.raises(BTFInputError, match="'views' or 'regions'"):
+        write_dense(tmp_path / "c.h5", btf, by="texels")

@@ -195,7 +195,7 @@ def cmd_decode(args: argparse.Namespace) -> int:
         for path in save_angular_images(view, pairs, outdir):
             print(f"wrote {path}")
     if args.output:
-        write_dense(args.output, view, progress=None)
+        write_dense(args.output, view, progress=None, by="regions")
         print(f"wrote {args.output}")
     if not args.output and not args.images:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --images L:V,...")

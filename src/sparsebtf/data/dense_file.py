@@ -67,12 +67,18 @@ def write_dense(
     chunks: tuple[int, int, int, int, int] | None = None,
     attrs: dict[str, Any] | None = None,
     progress: bool | None = False,
+    by: str = "views",
 ) -> Path:
-    """Write ``btf`` to ``path`` in our dense format, streaming groups of view blocks.
+    """Write ``btf`` to ``path`` in our dense format, streaming.
 
-    Values must be finite; a NaN or Inf aborts with its count and first location, leaving no
-    file. Memory is bounded by one group of view blocks (H·W·L·chunk_views·3 values).
+    ``by="views"`` streams groups of view blocks (memory H·W·L·8·3 values; the natural order
+    of measured and synthetic sources); ``by="regions"`` streams spatial tiles of the chunk
+    size with all directions (memory 20·20·L·V·3 values; the natural order of decoded BTFs,
+    whose data points each hold every direction). Values must be finite; a NaN or Inf aborts
+    with its count and first location, leaving no file.
     """
+    if by not in ("views", "regions"):
+        raise BTFInputError(f"write_dense streams by 'views' or 'regions', not {by!r}")
     if dtype not in ("float32", "float16"):
         raise BTFInputError(f"dense files store float32 or float16, not {dtype!r}")
     shape = btf.shape
@@ -91,19 +97,32 @@ def write_dense(
             ds = f.create_dataset("btf", shape=shape, dtype=dtype, chunks=chunk)
             write_directions(f.create_group("lights"), btf.lights)
             write_directions(f.create_group("views"), btf.views)
-            starts = range(0, nv, step)
-            for v0 in _progress(starts, total=len(starts), desc="write", enabled=progress):
-                views = list(range(v0, min(v0 + step, nv)))
-                block = btf.read(slice(None), slice(None), slice(None), views)
+            if by == "views":
+                blocks = [
+                    (slice(None), slice(None), slice(v0, min(v0 + step, nv)))
+                    for v0 in range(0, nv, step)
+                ]
+            else:
+                blocks = [
+                    (slice(r0, min(r0 + chunk[0], shape[0])),
+                     slice(c0, min(c0 + chunk[1], shape[1])), slice(None))
+                    for c0 in range(0, shape[1], chunk[1])
+                    for r0 in range(0, shape[0], chunk[0])
+                ]
+            for rows, cols, views in _progress(blocks, total=len(blocks), desc="write",
+                                               enabled=progress):
+                block = btf.read(rows, cols, slice(None), views)
                 bad = ~np.isfinite(block)
                 if bad.any():
                     r, c, li, vj, ch = (int(x[0]) for x in np.nonzero(bad))
+                    r += rows.start or 0
+                    c += cols.start or 0
+                    vj += views.start or 0
                     raise BTFInputError(
-                        f"{btf.name}: {int(bad.sum())} NaN/Inf values in views {views[0]}.."
-                        f"{views[-1]}; first at row {r}, col {c}, light {li}, view {v0 + vj}, "
-                        f"channel {ch}"
+                        f"{btf.name}: {int(bad.sum())} NaN/Inf values; first at row {r}, "
+                        f"col {c}, light {li}, view {vj}, channel {ch}"
                     )
-                ds[:, :, :, v0 : v0 + len(views), :] = block
+                ds[rows, cols, :, views, :] = block
     return target
 
 
