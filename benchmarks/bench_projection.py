@@ -12,11 +12,10 @@ same process. Target: projection >= 50% of GEMM.
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
 
-from _common import gemm_gflops, machine, report
+from _common import best_of, gemm_gflops, machine, report
 from sparsebtf.learning.coding import sparse_code
 from sparsebtf.learning.ensemble import random_orthonormal
 from sparsebtf.learning.parallel import n_workers, parallel_map
@@ -46,16 +45,10 @@ def main() -> None:
     def one(i: int) -> None:
         project(x[i : i + 1], mats)
 
-    list(parallel_map(one, range(a.points)))  # warm-up
-    t = time.perf_counter()
-    list(parallel_map(one, range(a.points)))
-    proj_s = (time.perf_counter() - t) / a.points
+    proj_s = best_of(lambda: list(parallel_map(one, range(a.points)))) / a.points
     proj_gf = flop / proj_s / 1e9
 
-    sparse_code(x[:2], dicts, 885, 1e-5)  # warm-up
-    t = time.perf_counter()
-    sparse_code(x, dicts, 885, 1e-5)
-    code_s = (time.perf_counter() - t) / (a.points * a.dicts)
+    code_s = best_of(lambda: sparse_code(x, dicts, 885, 1e-5)) / (a.points * a.dicts)
     code_gf = flop / code_s / 1e9
     gemm_after = gemm_gflops()
     gemm_ref = max(gemm, gemm_after)

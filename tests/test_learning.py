@@ -257,3 +257,19 @@ def test_ensemble_parameter_errors():
         DictionaryEnsemble(init="kmeans").fit(x)
     with pytest.raises(BTFInputError, match="not fitted"):
         DictionaryEnsemble().transform(x)
+
+
+def test_prefetch_keeps_order_and_reraises():
+    from sparsebtf.learning.parallel import parallel_map, prefetch
+
+    assert list(prefetch(iter(range(50)), depth=2)) == list(range(50))
+
+    def broken():
+        yield 1
+        raise ValueError("producer failed at item 2")
+
+    it = prefetch(broken())
+    assert next(it) == 1
+    with pytest.raises(ValueError, match="producer failed"):
+        next(it)
+    assert list(parallel_map(lambda v: v * v, range(10))) == [v * v for v in range(10)]

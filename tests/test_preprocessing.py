@@ -48,8 +48,9 @@ def test_statistics_conventions():
     assert np.allclose(per.mean, flat.mean(axis=0))
     assert np.allclose(per.std, flat.std(axis=0, ddof=1))
     # standardised per-channel data has zero mean and unit std in every angular image
+    # statistics use float32 transforms with float64 accumulators: float32-level accuracy
     z = Preprocessor(per).forward(x).reshape(-1, 13, 13, 3)
-    assert np.allclose(z.mean(0), 0, atol=1e-9) and np.allclose(z.std(0, ddof=1), 1)
+    assert np.allclose(z.mean(0), 0, atol=1e-6) and np.allclose(z.std(0, ddof=1), 1, atol=1e-6)
 
 
 def test_release_inverse_matrix_is_close():

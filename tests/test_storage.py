@@ -272,7 +272,7 @@ def test_failed_model_write_leaves_no_file(
     def failing(*args: object) -> None:
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(model_mod, "_write_directions", failing)
+    monkeypatch.setattr(model_mod, "write_directions", failing)
     with pytest.raises(KeyboardInterrupt):
         save_model(model, tmp_path / "m.h5")
     assert list(tmp_path.iterdir()) == []

@@ -25,7 +25,7 @@ from .datapoints import PatchGrid, iter_points, sample_points
 from .errors import BTFInputError, ModelMismatchError
 from .learning.coding import SparseCodes, sparse_code_levels
 from .learning.ensemble import DictionaryEnsemble
-from .learning.parallel import parallel_map
+from .learning.parallel import parallel_map, prefetch
 from .learning.tensor import reconstruct
 from .model import CHANNELS, CodedBTF, Model
 from .preprocessing import Preprocessor, StdMode, gather_statistics
@@ -420,7 +420,7 @@ def encode_levels(
     dt = np.dtype(dtype).type
     parts: list[dict[str, list[SparseCodes]]] = [{ch: [] for ch in channels} for _ in levels]
     with bar(grid.n_points, f"encode {btf.name}", "pt", progress) as pb:
-        for _, x in iter_points(btf, pre, model.patch, None, batch_size):
+        for _, x in prefetch(iter_points(btf, pre, model.patch, None, batch_size)):
             for c, ch in enumerate(channels):
                 xc = x if ch == "YUV" else np.ascontiguousarray(x[..., c])
                 coded = sparse_code_levels(

@@ -142,7 +142,8 @@ def iter_points(
             r0, c0 = grid.origin(int(p))
             rgb = btf.patch(r0, c0, patch)
             check_finite(rgb, btf.name, offset=(r0, c0))
-            out[j] = pre.forward(np.maximum(rgb, 0), dtype=dtype)
+            np.maximum(rgb, 0, out=rgb)
+            out[j] = pre.forward(rgb, dtype=dtype)
         yield chunk, out
 
 

@@ -147,23 +147,38 @@ class Standardization:
         vi = as_index(views, self.n_views, "view")
         return self.mean[np.ix_(li, vi)], self.std[np.ix_(li, vi)]
 
+    def _full(
+        self, lights: Index, views: Index, dtype: np.dtype, invert_std: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """μ and σ (or 1/σ) as contiguous (l, v, 3) arrays of ``dtype``.
+
+        A trailing axis of 1 against the data's trailing 3 would make numpy loop over
+        3-element rows; full contiguous operands keep the arithmetic vectorised.
+        """
+        mu, sd = self.select(lights, views)
+        dt = np.float32 if np.dtype(dtype) == np.float32 else np.float64
+        shape = (*mu.shape[:2], 3)
+        mu = np.ascontiguousarray(np.broadcast_to(mu, shape), dtype=dt)
+        sd = np.ascontiguousarray(np.broadcast_to(1.0 / sd if invert_std else sd, shape), dtype=dt)
+        return mu, sd
+
     def apply(
         self, yuv: np.ndarray, lights: Index = slice(None), views: Index = slice(None)
     ) -> np.ndarray:
         """Standardise a log-YUV block (..., l, v, 3)."""
-        mu, sd = self.select(lights, views)
-        if yuv.dtype == np.float32:  # no float64 temporaries for float32 data points
-            mu, sd = mu.astype(np.float32), sd.astype(np.float32)
-        return (yuv - mu) / sd
+        mu, inv = self._full(lights, views, yuv.dtype, invert_std=True)
+        out = yuv - mu
+        out *= inv
+        return out
 
     def invert(
         self, z: np.ndarray, lights: Index = slice(None), views: Index = slice(None)
     ) -> np.ndarray:
         """Undo :meth:`apply`."""
-        mu, sd = self.select(lights, views)
-        if z.dtype == np.float32:
-            mu, sd = mu.astype(np.float32), sd.astype(np.float32)
-        return z * sd + mu
+        mu, sd = self._full(lights, views, z.dtype, invert_std=False)
+        out = z * sd
+        out += mu
+        return out
 
 
 class Preprocessor:
@@ -213,6 +228,7 @@ def gather_statistics(
         raise BTFInputError(f"{btf.name}: standardisation needs at least 2 texels, got {n}")
     s1 = np.zeros((nl, nv, 3))
     s2 = np.zeros((nl, nv, 3))
+    shift = np.zeros((nl, nv, 3))
     negatives = 0
     for v, block in _progress(
         btf.iter_view_blocks(), total=nv, desc="statistics", enabled=progress
@@ -220,18 +236,25 @@ def gather_statistics(
         check_finite(block[:, :, :, None, :], btf.name, offset=(0, 0, 0, v))
         neg = block < 0
         negatives += int(neg.sum())
-        x = to_log_yuv(np.where(neg, 0.0, block.astype(np.float64)), eps).reshape(n, nl, 3)
-        s1[:, v] = x.sum(axis=0)
-        s2[:, v] = np.einsum("nlc,nlc->lc", x, x)
+        # float32 transforms (the release computed its statistics in single precision),
+        # float64 accumulators.
+        x = to_log_yuv(np.maximum(block, 0, dtype=np.float32), np.float32(eps)).reshape(n, nl, 3)
+        # Shifted sums (about the first texel) keep Σ(x − μ)² accurate in float32.
+        shift[:, v] = x[0]
+        x -= x[0]
+        s1[:, v] = x.sum(axis=0, dtype=np.float64)
+        s2[:, v] = np.square(x).sum(axis=0, dtype=np.float64)
     if negatives:
         warnings.warn(f"{btf.name}: clamped {negatives} negative values to 0", stacklevel=2)
+    # With y = x − K: Σ(x − μ)² = Σy² + 2(K − μ)Σy + n(K − μ)².
     if mode == "shared":
-        mean = s1.mean(axis=2, keepdims=True) / n
-        # Σ(x − μ)² = Σx² − 2μΣx + nμ², per channel, about the shared μ (release convention).
-        ss = s2 - 2 * mean * s1 + n * mean**2
+        mean = (shift + s1 / n).mean(axis=2, keepdims=True)
+        # per channel, about the shared μ (release convention)
+        d = shift - mean
+        ss = s2 + 2 * d * s1 + n * d**2
         std = np.sqrt(np.maximum(ss, 0) / (n - 1)).mean(axis=2, keepdims=True)
     else:
-        mean = s1 / n
-        std = np.sqrt(np.maximum(s2 - n * mean**2, 0) / (n - 1))
+        mean = shift + s1 / n
+        std = np.sqrt(np.maximum(s2 - s1**2 / n, 0) / (n - 1))
     std = np.where(std > 0, std, 1.0)
     return Standardization(mode=mode, mean=mean, std=std, eps=eps)

@@ -32,7 +32,7 @@ from .._atomic import atomic_output
 from .._progress import bar
 from ..errors import BTFInputError
 from .coding import SparseCodes, sparse_code
-from .parallel import parallel_map
+from .parallel import parallel_map, prefetch
 from .tensor import project, reconstruct, unfold
 
 __all__ = [
@@ -269,7 +269,7 @@ class DictionaryEnsemble:
                 with bar(
                     src.n_points, f"{desc} it{it + 1} mode{mode + 1}", "pt", self.progress
                 ) as pb:
-                    for idx, xb in src.batches(self.batch_size):
+                    for idx, xb in prefetch(src.batches(self.batch_size)):
                         z += cross_products(xb, _slice_codes(codes, idx), dicts, mode, dt)
                         pb.update(len(idx))
                 for k in np.flatnonzero(
@@ -347,7 +347,7 @@ class DictionaryEnsemble:
     ) -> SparseCodes:
         parts = []
         with bar(src.n_points, desc, "pt", self.progress) as pb:
-            for _, xb in src.batches(self.batch_size):
+            for _, xb in prefetch(src.batches(self.batch_size)):
                 parts.append(code_step(xb, dicts, self.tau, self.eps, dt))
                 pb.update(xb.shape[0])
         return SparseCodes.concatenate(parts)

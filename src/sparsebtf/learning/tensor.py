@@ -29,7 +29,13 @@ def fold(matrix: np.ndarray, mode: int, shape: Sequence[int]) -> np.ndarray:
 def _apply(x: np.ndarray, m: np.ndarray, axis: int) -> np.ndarray:
     """Contract ``axis`` of x with m's second index: out[.., j, ..] = Σ_i m[j, i] x[.., i, ..]."""
     if axis == x.ndim - 1 or axis == -1:
-        return x @ np.ascontiguousarray(m.T)
+        mt = np.ascontiguousarray(m.T)
+        if x.ndim >= 2:
+            # Stacked (m_{N-1} × m_N) GEMMs run faster in OpenBLAS than one tall, thin GEMM
+            # with a 151-wide inner dimension (measured: 11.2 vs 13.6 ms per data point).
+            rows = x.shape[-2]
+            return (x.reshape(-1, rows, x.shape[-1]) @ mt).reshape(*x.shape[:-1], m.shape[0])
+        return x @ mt
     shape = x.shape
     pre = int(np.prod(shape[:axis], dtype=np.int64))
     post = int(np.prod(shape[axis + 1 :], dtype=np.int64))
