@@ -289,7 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_info)
 
     s = sub.add_parser("train", help="learn a model (three dictionary ensembles) from BTFs")
-    s.add_argument("btfs", nargs="+", metavar="BTF")
+    s.add_argument("btfs", nargs="+", metavar="BTF",
+                   help="training BTFs: dense .h5 files or synth:CLASS[:SIZE[:SEED]]")
     s.add_argument("-o", "--output", required=True, help="model file to write (.h5)")
     s.add_argument("--dicts", type=int, default=8, help="dictionaries per ensemble K (default 8)")
     s.add_argument(
@@ -330,8 +331,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_train)
 
     s = sub.add_parser("encode", help="code one BTF on a model")
-    s.add_argument("btf", metavar="BTF")
-    s.add_argument("-m", "--model", required=True)
+    s.add_argument("btf", metavar="BTF", help="the BTF to code (.h5 or synth:...)")
+    s.add_argument("-m", "--model", required=True, help="model file from 'sparsebtf train'")
     s.add_argument("-o", "--output", required=True, help="coded file to write (.h5)")
     s.add_argument(
         "--tau", default="885,64,64", help="sparsity cap per channel (default 885,64,64)"
@@ -349,7 +350,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_encode)
 
     s = sub.add_parser("decode", help="reconstruct a coded BTF (dense file and/or PNG images)")
-    s.add_argument("coded")
+    s.add_argument("coded", help="coded file from 'sparsebtf encode'")
     s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
     s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")
     s.add_argument("--images", help="angular images to write as PNG, e.g. 0:0,10:42 (light:view)")
@@ -357,9 +358,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.set_defaults(func=cmd_decode)
 
     s = sub.add_parser("eval", help="quality and storage of a coded BTF against its reference")
-    s.add_argument("coded")
-    s.add_argument("--reference", required=True, metavar="BTF")
-    s.add_argument("-m", "--model")
+    s.add_argument("coded", help="coded file from 'sparsebtf encode'")
+    s.add_argument("--reference", required=True, metavar="BTF", help="the original BTF")
+    s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
     s.add_argument("--crop", help="crop the reference like the coded BTF was cropped")
     s.add_argument(
         "--ssim-images", type=int, default=16, help="angular images sampled for SSIM (default 16)"
