@@ -556,11 +556,7 @@ class DecodedBTF(BTF):
         self.pre = Preprocessor(coded.stats)
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
-        h, w, nl, nv, _ = self.shape
-        r = as_index(rows, h, "row")
-        c = as_index(cols, w, "col")
-        li = as_index(lights, nl, "light")
-        vi = as_index(views, nv, "view")
+        r, c, li, vi = self.indices(rows, cols, lights, views)
         p = self.coded.patch
         rb = np.unique(r // p)
         cb = np.unique(c // p)

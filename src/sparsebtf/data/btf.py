@@ -108,6 +108,18 @@ class BTF(abc.ABC):
         h, w, l, v, _ = self.shape
         return f"{type(self).__name__}(name={self.name!r}, {h}x{w} texels, {l} lights x {v} views)"
 
+    def indices(
+        self, rows: Index, cols: Index, lights: Index, views: Index
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Validated int64 index arrays of a read request (errors name the axis)."""
+        h, w, nl, nv, _ = self.shape
+        return (
+            as_index(rows, h, "row"),
+            as_index(cols, w, "col"),
+            as_index(lights, nl, "light"),
+            as_index(views, nv, "view"),
+        )
+
     # -- access ----------------------------------------------------------------------------
     @abc.abstractmethod
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
@@ -185,11 +197,7 @@ class ArrayBTF(BTF):
         self.data = arr
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
-        h, w, nl, nv, _ = self.shape
-        r = as_index(rows, h, "row")
-        c = as_index(cols, w, "col")
-        li = as_index(lights, nl, "light")
-        vi = as_index(views, nv, "view")
+        r, c, li, vi = self.indices(rows, cols, lights, views)
         sel = tuple((_span(ix) or ix) for ix in (r, c, li, vi))
         out = self.data
         # Index one axis at a time: outer-product indexing without fancy-index broadcasting.
@@ -232,11 +240,7 @@ class FunctionBTF(BTF):
         return block
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
-        h, w, nl, nv, _ = self.shape
-        r = as_index(rows, h, "row")
-        c = as_index(cols, w, "col")
-        li = as_index(lights, nl, "light")
-        vi = as_index(views, nv, "view")
+        r, c, li, vi = self.indices(rows, cols, lights, views)
         out = np.empty((r.size, c.size, li.size, vi.size, 3), dtype=np.float32)
         for j, v in enumerate(vi):
             out[:, :, :, j, :] = self.view_block(int(v))[np.ix_(r, c, li)]
@@ -294,11 +298,8 @@ class FactorBTF(BTF):
         return int(self.spatial.shape[-1])
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
-        h, w, nl, nv, _ = self.shape
-        r = as_index(rows, h, "row")
-        c = as_index(cols, w, "col")
-        li = as_index(lights, nl, "light")
-        vi = as_index(views, nv, "view")
+        r, c, li, vi = self.indices(rows, cols, lights, views)
+        w, nv = self.width, len(self.views)
         pix = (r[:, None] * w + c[None, :]).ravel()
         ang = (li[:, None] * nv + vi[None, :]).ravel()
         dt = np.result_type(self.spatial.dtype, self.angular.dtype, np.float32)

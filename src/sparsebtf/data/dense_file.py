@@ -26,7 +26,7 @@ import numpy as np
 from .._atomic import atomic_output
 from .._progress import progress as _progress
 from ..errors import BTFInputError, FileFormatError
-from .btf import BTF, Index, as_index
+from .btf import BTF, Index
 from .directions import DirectionSet, from_vectors
 
 __all__ = ["DEFAULT_CHUNK", "FORMAT", "SCHEMA_VERSION", "DenseFileBTF", "write_dense"]
@@ -187,13 +187,7 @@ class DenseFileBTF(BTF):
         self.close()
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
-        h, w, nl, nv, _ = self.shape
-        idx = [
-            as_index(rows, h, "row"),
-            as_index(cols, w, "col"),
-            as_index(lights, nl, "light"),
-            as_index(views, nv, "view"),
-        ]
+        idx = list(self.indices(rows, cols, lights, views))
         if any(ix.size == 0 for ix in idx):
             return np.empty((*(ix.size for ix in idx), 3), dtype=np.float32)
         # HDF5 reads hyperslabs: read the bounding box, then pick the requested entries.
