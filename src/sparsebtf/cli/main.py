@@ -246,6 +246,46 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_import_release(args: argparse.Namespace) -> int:
+    from ..formats.release import import_release
+    from ..storage import save_coded, save_model
+
+    model, coded, notes = import_release(args.folder, prefer=args.prefer)
+    save_model(model, args.output)
+    out_dir = Path(args.coded_dir) if args.coded_dir else Path(args.output).resolve().parent
+    written = {}
+    for name, c in coded.items():
+        c.params["model_file"] = str(Path(args.output).resolve())
+        path = out_dir / f"{name}.coded.h5"
+        save_coded(c, path)
+        written[name] = str(path)
+    if args.json:
+        _print_json({"model": args.output, "content_hash": model.content_hash,
+                     "coded": written, "notes": notes})
+    else:
+        for n in notes:
+            print(n)
+        print(f"wrote {args.output} (model {model.content_hash[:12]})")
+        for path in written.values():
+            print(f"wrote {path}")
+    return 0
+
+
+def cmd_lookup(args: argparse.Namespace) -> int:
+    from ..lookup import lookup
+
+    try:
+        r, c = (int(v) for v in args.texel.split(","))
+    except ValueError:
+        raise SparseBTFError(f"--texel must look like R,C, got {args.texel!r}") from None
+    out = lookup(args.file, r, c, args.light, args.view, model_path=args.model)
+    if args.json:
+        _print_json(out)
+    else:
+        print(_table([(k, json.dumps(v, default=_json_default)) for k, v in out.items()]))
+    return 0
+
+
 def cmd_demo(args: argparse.Namespace) -> int:
     from ..demo import run_demo
 
@@ -367,6 +407,26 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_eval)
+
+    s = sub.add_parser("import-release",
+                       help="the authors' released dictionaries/coefficients as our files")
+    s.add_argument("folder", help="folder with DictEnsOrth4D{Y,U,V}.bin/.mat, Coeffs_*.bin, "
+                   "*_mean_std.bin, bonn_angles.bin")
+    s.add_argument("-o", "--output", required=True, help="model file to write (.h5)")
+    s.add_argument("--coded-dir", help="folder for <material>.coded.h5 (default: beside -o)")
+    s.add_argument("--prefer", choices=["mat", "bin"], default="mat",
+                   help="dictionaries from the fp64 .mat (exact, default) or the fp16 .bin")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_import_release)
+
+    s = sub.add_parser("lookup", help="one value of a coded or dense BTF, in every domain")
+    s.add_argument("file", help="coded or dense .h5 file")
+    s.add_argument("--texel", required=True, help="R,C (row, column; the release's convention)")
+    s.add_argument("--light", type=int, required=True, help="sampled light index")
+    s.add_argument("--view", type=int, required=True, help="sampled view index")
+    s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=cmd_lookup)
 
     s = sub.add_parser("demo", help="synthesise, train, encode at several tau, report and plot")
     s.add_argument("--out", default="sparsebtf-demo", help="output folder (default sparsebtf-demo)")

@@ -1,0 +1,253 @@
+"""The authors' SparseBTF release (behnazkavoosi/SparseBTF, MIT) as our model and coded files.
+
+Byte layouts are in ``shared/specs/official-release-format.md`` §2:
+
+* ``DictEnsOrth4D{Y,U,V}.bin`` — fp16, four blocks in mode order, each K column-major n×n
+  matrices (``U_k[row, col]`` at ``row + n·col + n²·k``); ``.mat`` (HDF5 v7.3) holds the same
+  in fp64 as ``DictDim1..4`` (read by h5py as (K, col, row)), plus ``EnsHist`` and ``TrainTime``.
+* ``Coeffs_BTF_<mat>_<eps>_<CH>.bin`` — 16-bit words: int16 dims (4), uint16 LNZ (4 per
+  non-zero, 0-based, l1 fastest), int16 membership M (P), int16 NNZ (P), fp16 values (N).
+  The file has no point count: P comes from the BTF size (400×400 / 10² = 1600).
+* ``<mat>_mean_std.bin`` — float64 means then stds, index ``view·151 + light``, one mean and
+  std shared by Y, U and V (our "shared" standardisation).
+* ``bonn_angles.bin`` — float64 rows φ, elevation, index (radians).
+
+The release's patch numbering and texel convention equal ours. Coefficients are stored in
+column-major scan order there; we sort each point's by decreasing magnitude on import.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import h5py
+import numpy as np
+
+from ..data.directions import DirectionSet, from_angles, ubo2014
+from ..errors import FileFormatError
+from ..learning.coding import SparseCodes
+from ..model import CodedBTF, Model
+from ..preprocessing import Standardization
+
+__all__ = [
+    "import_release",
+    "read_angles",
+    "read_coefficients",
+    "read_dictionaries",
+    "read_mean_std",
+]
+
+RELEASE = "behnazkavoosi/SparseBTF (MIT), HEAD bc5d927"
+MODE_SIZES = (10, 10, 151, 151)
+COEFF_RE = re.compile(r"^Coeffs_BTF_(?P<mat>.+)_(?P<eps>[0-9.eE+-]+)_(?P<ch>[YUV])\.bin$")
+
+
+def read_dictionaries(
+    path: str | os.PathLike[str],
+    n_dictionaries: int = 8,
+    mode_sizes: tuple[int, ...] = MODE_SIZES,
+) -> tuple[list[np.ndarray], dict[str, Any]]:
+    """One channel's ensemble from ``.bin`` (fp16) or ``.mat`` (fp64): (K, n, n) per mode.
+
+    Returns the matrices (``[k, row, col]``, float64) and what else the file says
+    (``EnsHist``, ``TrainTime`` from a ``.mat``).
+    """
+    p = Path(path)
+    k = n_dictionaries
+    if p.suffix == ".mat":
+        try:
+            with h5py.File(p, "r") as f:
+                mats = []
+                for n, m in enumerate(mode_sizes, start=1):
+                    name = f"DictDim{n}"
+                    if name not in f:
+                        raise FileFormatError(f"{p}: missing variable {name!r}")
+                    a = np.asarray(f[name], dtype=np.float64)
+                    if a.shape != (k, m, m):
+                        raise FileFormatError(
+                            f"{p}: {name} has shape {a.shape}, expected {(k, m, m)}"
+                        )
+                    mats.append(np.ascontiguousarray(a.transpose(0, 2, 1)))
+                extra = {}
+                if "EnsHist" in f:
+                    extra["EnsHist"] = [int(v) for v in np.asarray(f["EnsHist"]).ravel()]
+                if "TrainTime" in f:
+                    extra["TrainTime"] = float(np.asarray(f["TrainTime"]).ravel()[0])
+                return mats, extra
+        except OSError as e:
+            raise FileFormatError(f"{p}: not a readable MATLAB v7.3 (HDF5) file ({e})") from None
+    expected = 2 * k * sum(m * m for m in mode_sizes)
+    size = p.stat().st_size if p.exists() else -1
+    if size != expected:
+        raise FileFormatError(
+            f"{p}: {size} bytes, expected {expected} (fp16, K = {k}, modes {mode_sizes})"
+        )
+    words = np.fromfile(p, dtype="<f2").astype(np.float64)
+    if not np.all(np.isfinite(words)):
+        raise FileFormatError(f"{p}: {int((~np.isfinite(words)).sum())} non-finite values")
+    mats, off = [], 0
+    for m in mode_sizes:
+        block = words[off : off + k * m * m]
+        off += k * m * m
+        # column-major per matrix: element (row, col) at row + m·col
+        mats.append(np.ascontiguousarray(block.reshape(k, m, m).transpose(0, 2, 1)))
+    return mats, {}
+
+
+def read_coefficients(
+    path: str | os.PathLike[str], n_points: int = 1600, n_dictionaries: int = 8
+) -> SparseCodes:
+    """One channel's codes; each point's coefficients sorted by decreasing magnitude."""
+    p = Path(path)
+    if not p.exists():
+        raise FileFormatError(f"{p}: no such file")
+    raw = np.fromfile(p, dtype="<u2")
+    if raw.size < 4:
+        raise FileFormatError(f"{p}: {p.stat().st_size} bytes, too short for the dims header")
+    dims = tuple(int(v) for v in raw[:4].view("<i2"))
+    if any(d <= 0 for d in dims):
+        raise FileFormatError(f"{p}: header dims {dims} are not positive")
+    rest = raw.size - 4 - 2 * n_points
+    if rest < 0 or rest % 5:
+        raise FileFormatError(
+            f"{p}: {raw.size} words do not fit 4 + 5·N + 2·P with P = {n_points} points"
+        )
+    n = rest // 5
+    lnz = raw[4 : 4 + 4 * n].reshape(n, 4).astype(np.int32)
+    member = raw[4 + 4 * n : 4 + 4 * n + n_points].view("<i2").astype(np.int64)
+    counts = raw[4 + 4 * n + n_points : 4 + 4 * n + 2 * n_points].view("<i2").astype(np.int64)
+    values = raw[4 + 4 * n + 2 * n_points :].view("<f2").astype(np.float32)
+    if int(counts.sum()) != n or np.any(counts < 0):
+        raise FileFormatError(f"{p}: NNZ sums to {int(counts.sum())}, but the file holds {n}")
+    bad = (member < 0) | (member >= n_dictionaries)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise FileFormatError(
+            f"{p}: membership M[{i}] = {member[i]} is outside [0, {n_dictionaries})"
+        )
+    over = lnz >= np.array(dims)
+    if over.any():
+        i, j = (int(v[0]) for v in np.nonzero(over))
+        raise FileFormatError(f"{p}: LNZ[{i}] mode {j + 1} = {lnz[i, j]} >= dims {dims[j]}")
+    # sort each point's coefficients by decreasing |v| (ties: storage order)
+    owner = np.repeat(np.arange(n_points), counts)
+    order = np.lexsort((np.arange(n), -np.abs(values), owner))
+    errors = np.full(n_points, np.nan)  # unknown: the release does not store residuals
+    return SparseCodes(dims, member, counts, values[order], lnz[order], errors)
+
+
+def read_mean_std(
+    path: str | os.PathLike[str], n_lights: int = 151, n_views: int = 151
+) -> Standardization:
+    """The release's shared standardisation (index ``view·L + light``)."""
+    p = Path(path)
+    j = n_lights * n_views
+    size = p.stat().st_size if p.exists() else -1
+    if size != 16 * j:
+        raise FileFormatError(f"{p}: {size} bytes, expected {16 * j} (2 × {j} float64)")
+    a = np.fromfile(p, dtype="<f8")
+    mean = a[:j].reshape(n_views, n_lights).T[..., None]
+    std = a[j:].reshape(n_views, n_lights).T[..., None]
+    if np.any(std <= 0) or not np.all(np.isfinite(a)):
+        raise FileFormatError(f"{p}: standard deviations must be positive and finite")
+    return Standardization("shared", np.ascontiguousarray(mean), np.ascontiguousarray(std))
+
+
+def read_angles(path: str | os.PathLike[str]) -> DirectionSet:
+    """``bonn_angles.bin``: φ and elevation (radians) of the 151 directions."""
+    p = Path(path)
+    a = np.fromfile(p, dtype="<f8")
+    if a.size % 3:
+        raise FileFormatError(f"{p}: {a.size} doubles, expected 3 rows")
+    phi, elev, _ = a.reshape(3, -1)
+    return from_angles(np.pi / 2 - elev, phi, name="ubo2014")
+
+
+def import_release(
+    directory: str | os.PathLike[str], prefer: str = "mat", height: int = 400, width: int = 400
+) -> tuple[Model, dict[str, CodedBTF], list[str]]:
+    """The release in ``directory`` as (model, coded BTFs by material, notes for the user)."""
+    d = Path(directory)
+    if not d.is_dir():
+        raise FileFormatError(f"{d}: not a folder")
+    notes: list[str] = []
+    dicts: dict[str, list[np.ndarray]] = {}
+    training: dict[str, dict[str, Any]] = {}
+    for ch in ("Y", "U", "V"):
+        cands = [d / f"DictEnsOrth4D{ch}.{ext}" for ext in ((prefer, "bin", "mat"))]
+        src = next((c for c in cands if c.exists()), None)
+        if src is None:
+            notes.append(f"no dictionaries for channel {ch}")
+            continue
+        mats, extra = read_dictionaries(src)
+        dicts[ch] = mats
+        training[ch] = {"source_file": src.name}
+        if "EnsHist" in extra:
+            training[ch]["membership_counts"] = extra["EnsHist"]
+        if "TrainTime" in extra:
+            training[ch]["seconds"] = extra["TrainTime"]
+        notes.append(f"channel {ch}: dictionaries from {src.name}")
+    if not dicts:
+        raise FileFormatError(f"{d}: no DictEnsOrth4D{{Y,U,V}}.bin/.mat files")
+    directions = (
+        read_angles(d / "bonn_angles.bin") if (d / "bonn_angles.bin").exists() else ubo2014()
+    )
+    model = Model(
+        dicts,
+        10,
+        directions,
+        directions,
+        params={"n_dictionaries": 8, "std_mode": "shared", "source": "release"},
+        provenance={"release": RELEASE, "licence": "MIT (LICENSE-SparseBTF)", "folder": str(d)},
+        training=training,
+    )
+    groups: dict[str, dict[str, tuple[Path, float]]] = {}
+    for f in sorted(d.glob("Coeffs_BTF_*.bin")):
+        m = COEFF_RE.match(f.name)
+        if m:
+            groups.setdefault(m["mat"], {})[m["ch"]] = (f, float(m["eps"]))
+    coded: dict[str, CodedBTF] = {}
+    n_points = (height // 10) * (width // 10)
+    for mat, files in groups.items():
+        stats_file = d / f"{mat}_mean_std.bin"
+        if not stats_file.exists():
+            notes.append(f"{mat}: skipped, {stats_file.name} is missing")
+            continue
+        stats = read_mean_std(stats_file)
+        codes = {}
+        for ch in ("Y", "U", "V"):
+            if ch not in files:
+                notes.append(f"{mat}: no {ch} coefficients in the release; imported without {ch}")
+                continue
+            if ch not in dicts:
+                notes.append(f"{mat}: {ch} coefficients skipped, no {ch} dictionaries")
+                continue
+            codes[ch] = read_coefficients(files[ch][0], n_points)
+        if not codes:
+            continue
+        eps = next(iter(files.values()))[1]
+        c = CodedBTF(
+            codes,
+            stats,
+            height,
+            width,
+            10,
+            directions,
+            directions,
+            model.content_hash,
+            params={
+                "tau": {ch: int(codes[ch].counts.max()) for ch in codes},
+                "eps": eps,
+                "std_mode": "shared",
+                "n_dictionaries": {ch: 8 for ch in codes},
+                "source": "release",
+            },
+            name=mat,
+            attrs={"release": RELEASE, "files": [files[ch][0].name for ch in codes]},
+        )
+        coded[mat] = c.attach(model)
+        notes.append(f"{mat}: channels {', '.join(codes)} ({n_points} points)")
+    return model, coded, notes

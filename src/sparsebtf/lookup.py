@@ -1,0 +1,83 @@
+"""``sparsebtf lookup``: one BTF value in every domain, for checking a shader against ours.
+
+For texel (row, col) (the release's convention: ``point = row//p + (H/p)·(col//p)``), light
+index l and view index v, reports per channel the ``standardized`` value (Eq. 5 on the codes),
+the ``log`` value (x·σ + μ, the log-YUV domain) and ``rgb`` (exp(YUV⁻¹·log) − 1e-5), or null
+when a channel is missing (the release ships no Y coefficients).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from .data.io import file_format, open_btf
+from .datapoints import PatchGrid
+from .errors import BTFInputError
+from .preprocessing import EPS, gather_statistics, to_log_yuv, yuv_to_rgb
+
+__all__ = ["lookup"]
+
+
+def _check(r: int, c: int, light: int, view: int, shape: tuple[int, ...]) -> None:
+    h, w, nl, nv = shape[:4]
+    for name, val, n in (("row", r, h), ("col", c, w), ("light", light, nl), ("view", view, nv)):
+        if not 0 <= val < n:
+            raise BTFInputError(f"{name} {val} is out of range [0, {n})")
+
+
+def lookup(
+    path: str | os.PathLike[str],
+    row: int,
+    col: int,
+    light: int,
+    view: int,
+    model_path: str | None = None,
+) -> dict[str, Any]:
+    """The value at (row, col, light, view) of a coded or dense file, in every domain."""
+    fmt = file_format(path)
+    out: dict[str, Any] = {"texel": [row, col], "light": light, "view": view}
+    if fmt == "sparsebtf-coded":
+        from .codec import decode_points_eq5
+        from .storage import load_coded, load_model
+
+        coded = load_coded(path)
+        mpath = model_path or coded.params.get("model_file")
+        if not mpath:
+            raise BTFInputError(f"{path}: pass --model (the coded file names no model file)")
+        coded.attach(load_model(mpath))
+        _check(
+            row, col, light, view, (coded.height, coded.width, len(coded.lights), len(coded.views))
+        )
+        grid = PatchGrid(coded.height, coded.width, coded.patch)
+        p, i1, i2 = (int(v) for v in grid.locate(row, col))
+        mu, sd = coded.stats.select([light], [view])
+        std, log = {}, {}
+        for ch_i, ch in enumerate(coded.channels):
+            z = decode_points_eq5(coded, ch, [p], [light], [view])[0, i1, i2, 0, 0]
+            c = min(ch_i, mu.shape[2] - 1)
+            std[ch] = float(z)
+            log[ch] = float(z * sd[0, 0, c] + mu[0, 0, c])
+        out.update(point=p, in_patch=[i1, i2], standardized=std, log=log)
+        if all(ch in log for ch in ("Y", "U", "V")):
+            rgb = np.exp(yuv_to_rgb(np.array([log["Y"], log["U"], log["V"]]))) - EPS
+            out["rgb"] = [float(v) for v in rgb]
+        else:
+            out["rgb"] = None
+        return out
+    btf = open_btf(path, model_path)
+    _check(row, col, light, view, btf.shape)
+    rgb = btf.read([row], [col], [light], [view])[0, 0, 0, 0].astype(np.float64)
+    logv = to_log_yuv(np.maximum(rgb, 0))
+    stats = gather_statistics(btf, "shared", progress=False)
+    mu, sd = stats.select([light], [view])
+    out.update(
+        standardized={
+            ch: float((logv[i] - mu[0, 0, 0]) / sd[0, 0, 0]) for i, ch in enumerate("YUV")
+        },
+        log={ch: float(logv[i]) for i, ch in enumerate("YUV")},
+        rgb=[float(v) for v in rgb],
+    )
+    return out
