@@ -164,3 +164,38 @@ def test_errors_are_one_line(files, capsys):
     )
     assert code == 2 and "not a multiple of the patch size" in err
     assert not (tmp / "bad_model.h5").exists()
+
+
+def test_ubo2014_btf_file_through_the_cli(tmp_path, capsys):
+    from sparsebtf.data.directions import tiny
+    from sparsebtf.formats.ubo2014 import write_ubo2014
+
+    rng = np.random.default_rng(0)
+    d = tiny(7)
+    h = w = 8
+    sp = [rng.standard_normal((h * w, 2)).astype(np.float32) * 0.1 for _ in range(3)]
+    an = [rng.standard_normal((49, 2)).astype(np.float32) * 0.1 for _ in range(3)]
+    path = tmp_path / "tiny.btf"
+    write_ubo2014(path, sp, an, h, w, d, d, "DFMF", "float")
+    code, out, _ = run(["info", path, "--json"], capsys)
+    assert code == 0
+    info = json.loads(out)
+    assert info["shape"] == [8, 8, 7, 7, 3] and info["format"] == "ubo2014-btf"
+    dense = tmp_path / "tiny.h5"
+    from sparsebtf.data.io import open_btf
+
+    btf = open_btf(path)
+    write_dense(dense, btf)
+    with DenseFileBTF(dense) as f:
+        assert np.allclose(f.to_array(), btf.to_array())
+
+
+def test_convert_with_crop(files, capsys):
+    tmp, paths = files
+    out = tmp / "crop.h5"
+    code, _, _ = run(["convert", paths[0], "-o", out, "--crop", "2:6,0:4"], capsys)
+    assert code == 0
+    with DenseFileBTF(out) as f:
+        assert np.array_equal(f.to_array(), smooth_btf(0).data[2:6, 0:4])
+    code, _, err = run(["convert", paths[0], "-o", tmp / "bad.h5", "--crop", "2-6"], capsys)
+    assert code == 2 and "R0:R1,C0:C1" in err

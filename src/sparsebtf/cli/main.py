@@ -246,6 +246,16 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_convert(args: argparse.Namespace) -> int:
+    from ..data.dense_file import write_dense
+
+    btf = _open(args.input, crop=args.crop)
+    write_dense(args.output, btf, dtype=args.dtype, progress=None)
+    print(f"wrote {args.output}: {btf.height}x{btf.width} texels, {len(btf.lights)} lights x "
+          f"{len(btf.views)} views")
+    return 0
+
+
 def cmd_import_release(args: argparse.Namespace) -> int:
     from ..formats.release import import_release
     from ..storage import save_coded, save_model
@@ -407,6 +417,13 @@ def build_parser() -> argparse.ArgumentParser:
     )
     s.add_argument("--json", action="store_true")
     s.set_defaults(func=cmd_eval)
+
+    s = sub.add_parser("convert", help="any BTF (.btf, .h5, synth:...) to our dense file")
+    s.add_argument("input", metavar="IN", help="a .btf, dense/coded .h5, or synth:CLASS[:SIZE]")
+    s.add_argument("-o", "--output", required=True, help="dense BTF file to write (.h5)")
+    s.add_argument("--crop", help="keep rows R0:R1 and columns C0:C1")
+    s.add_argument("--dtype", choices=["float32", "float16"], default="float32")
+    s.set_defaults(func=cmd_convert)
 
     s = sub.add_parser("import-release",
                        help="the authors' released dictionaries/coefficients as our files")

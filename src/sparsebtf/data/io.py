@@ -4,6 +4,7 @@ Accepted sources:
 
 * ``PATH.h5`` with ``format = "sparsebtf-dense"`` — :class:`DenseFileBTF`;
 * ``PATH.h5`` with ``format = "sparsebtf-coded"`` — decoded on demand (needs its model);
+* ``PATH.btf`` — a Bonn UBO2014 file (DFMF or FMF), reconstructed lazily from its factors;
 * ``synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]`` — a cached synthetic material, e.g.
   ``synth:stone:64:1:ubo2014``.
 """
@@ -68,6 +69,10 @@ def open_btf(
         from .synth import cached
 
         return cached(**parse_synth_spec(s), progress=progress)  # type: ignore[arg-type]
+    if s.lower().endswith(".btf"):
+        from ..formats.ubo2014 import read_ubo2014
+
+        return read_ubo2014(s)
     fmt = file_format(s)
     if fmt == DENSE_FORMAT:
         return DenseFileBTF(s)
