@@ -199,3 +199,12 @@ def test_convert_with_crop(files, capsys):
         assert np.array_equal(f.to_array(), smooth_btf(0).data[2:6, 0:4])
     code, _, err = run(["convert", paths[0], "-o", tmp / "bad.h5", "--crop", "2-6"], capsys)
     assert code == 2 and "R0:R1,C0:C1" in err
+
+
+def test_synth_preview_of_any_btf(files, capsys):
+    tmp, paths = files
+    png = tmp / "sheet.png"
+    code, _, _ = run(["synth", "--from", paths[1], "--preview", png], capsys)
+    assert code == 0 and png.exists() and png.stat().st_size > 1000
+    code, _, err = run(["synth", "--preview", png], capsys)
+    assert code == 2 and "--class" in err

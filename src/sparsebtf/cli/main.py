@@ -71,7 +71,13 @@ def cmd_synth(args: argparse.Namespace) -> int:
     from ..data.dense_file import write_dense
     from ..data.synth import contact_sheet, synthesize
 
-    btf = synthesize(args.material, args.size, args.directions, args.seed)
+    if args.source:
+        # Preview (or convert) any BTF the user has: .btf, our .h5, synth:...
+        btf = _open(args.source)
+    elif args.material:
+        btf = synthesize(args.material, args.size, args.directions, args.seed)
+    else:
+        raise SparseBTFError("give --class CLASS to synthesise, or --from BTF to preview a BTF")
     if not args.output and not args.preview:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --preview OUT.png")
     if args.output:
@@ -316,8 +322,13 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument(
         "--class",
         dest="material",
-        required=True,
         help="carpet, fabric, felt, leather, stone, wallpaper or wood",
+    )
+    s.add_argument(
+        "--from",
+        dest="source",
+        metavar="BTF",
+        help="instead of synthesising, preview/convert this BTF (.btf, .h5, synth:...)",
     )
     s.add_argument("--size", type=int, default=64, help="texels per side (default 64)")
     s.add_argument(
