@@ -208,3 +208,22 @@ def test_synth_preview_of_any_btf(files, capsys):
     assert code == 0 and png.exists() and png.stat().st_size > 1000
     code, _, err = run(["synth", "--preview", png], capsys)
     assert code == 2 and "--class" in err
+
+
+def test_ubo2003_zip_through_the_cli(tmp_path, capsys):
+    from sparsebtf.data.directions import from_angles
+    from sparsebtf.formats.ubo2003 import write_ubo2003_zip
+
+    d = from_angles(np.radians([0, 30, 30]), np.radians([0, 0, 180]))
+    data = smooth_btf(1, size=8).data[:, :, :3, :3] * 0.5 + 0.1
+    path = tmp_path / "tiny.zip"
+    write_ubo2003_zip(path, data, d, d, kind="hdr")
+    code, out, _ = run(["info", path, "--json"], capsys)
+    assert code == 0
+    info = json.loads(out)
+    assert info["shape"] == [8, 8, 3, 3, 3] and info["format"] == "ubo2003-zip"
+    dense = tmp_path / "z.h5"
+    code, _, _ = run(["convert", path, "-o", dense], capsys)
+    assert code == 0
+    with DenseFileBTF(dense) as f:
+        assert np.allclose(f.to_array(), data, rtol=0.02, atol=1e-3)

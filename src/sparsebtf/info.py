@@ -54,10 +54,11 @@ def describe(
 ) -> dict[str, Any]:
     """Describe a dense BTF, model or coded file (or a ``synth:`` spec)."""
     s = str(path)
-    if s.startswith("synth:") or s.lower().endswith(".btf"):
+    if s.startswith("synth:") or s.lower().endswith((".btf", ".zip")):
         out = describe_btf(open_btf(s), scan)
         if not s.startswith("synth:"):
-            out.update(format="ubo2014-btf", file_bytes=Path(s).stat().st_size)
+            kind = "ubo2014-btf" if s.lower().endswith(".btf") else "ubo2003-zip"
+            out.update(format=kind, file_bytes=Path(s).stat().st_size)
         return out
     fmt = file_format(s)
     size = Path(s).stat().st_size

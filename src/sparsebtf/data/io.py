@@ -5,6 +5,7 @@ Accepted sources:
 * ``PATH.h5`` with ``format = "sparsebtf-dense"`` — :class:`DenseFileBTF`;
 * ``PATH.h5`` with ``format = "sparsebtf-coded"`` — decoded on demand (needs its model);
 * ``PATH.btf`` — a Bonn UBO2014 file (DFMF or FMF), reconstructed lazily from its factors;
+* ``PATH.zip`` — a UBO2003 / ATRIUM archive of JPEG or Radiance HDR angular images;
 * ``synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]`` — a cached synthetic material, e.g.
   ``synth:stone:64:1:ubo2014``.
 """
@@ -73,6 +74,10 @@ def open_btf(
         from ..formats.ubo2014 import read_ubo2014
 
         return read_ubo2014(s)
+    if s.lower().endswith(".zip"):
+        from ..formats.ubo2003 import read_ubo2003_zip
+
+        return read_ubo2003_zip(s)
     fmt = file_format(s)
     if fmt == DENSE_FORMAT:
         return DenseFileBTF(s)
