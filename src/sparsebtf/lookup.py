@@ -41,13 +41,9 @@ def lookup(
     out: dict[str, Any] = {"texel": [row, col], "light": light, "view": view}
     if fmt == "sparsebtf-coded":
         from .codec import decode_points_eq5
-        from .storage import load_coded, load_model
+        from .storage import load_coded_with_model
 
-        coded = load_coded(path)
-        mpath = model_path or coded.params.get("model_file")
-        if not mpath:
-            raise BTFInputError(f"{path}: pass --model (the coded file names no model file)")
-        coded.attach(load_model(mpath))
+        coded = load_coded_with_model(path, model_path)
         _check(
             row, col, light, view, (coded.height, coded.width, len(coded.lights), len(coded.views))
         )

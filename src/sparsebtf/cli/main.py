@@ -177,21 +177,12 @@ def cmd_encode(args: argparse.Namespace) -> int:
     return 0
 
 
-def _load_coded(path: str, model: str | None):
-    from ..storage import load_coded, load_model
-
-    coded = load_coded(path)
-    mpath = model or coded.params.get("model_file")
-    if not mpath:
-        raise SparseBTFError(f"{path}: pass --model MODEL.h5 (the coded file names no model file)")
-    return coded.attach(load_model(mpath))
-
-
 def cmd_decode(args: argparse.Namespace) -> int:
     from ..codec import coded_btf_view
     from ..data.dense_file import write_dense
+    from ..storage import load_coded_with_model
 
-    coded = _load_coded(args.coded, args.model)
+    coded = load_coded_with_model(args.coded, args.model)
     view = coded_btf_view(coded)
     if args.images:
         from ..figures import save_angular_images
@@ -218,9 +209,9 @@ def _parse_pairs(text: str) -> list[tuple[int, int]]:
 def cmd_eval(args: argparse.Namespace) -> int:
     from ..codec import coded_btf_view
     from ..metrics import compare
-    from ..storage import storage_report
+    from ..storage import load_coded_with_model, storage_report
 
-    coded = _load_coded(args.coded, args.model)
+    coded = load_coded_with_model(args.coded, args.model)
     reference = _open(args.reference, crop=args.crop)
     metrics = compare(
         reference, coded_btf_view(coded), stats=coded.stats, ssim_images=args.ssim_images

@@ -83,11 +83,7 @@ def open_btf(
         return DenseFileBTF(s)
     if fmt == "sparsebtf-coded":
         from ..codec import coded_btf_view
-        from ..storage import load_coded, load_model
+        from ..storage import load_coded_with_model
 
-        coded = load_coded(s)
-        mpath = model_path or coded.params.get("model_file")
-        if not mpath:
-            raise FileFormatError(f"{s}: a coded file needs its model; pass --model")
-        return coded_btf_view(coded.attach(load_model(mpath)))
+        return coded_btf_view(load_coded_with_model(s, model_path))
     raise FileFormatError(f"{s}: format {fmt!r} is not a BTF (dense or coded) file")

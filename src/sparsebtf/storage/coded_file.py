@@ -305,8 +305,17 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         check_geometry(c.mode_sizes, patch, nl, nv, f"{where}/codes/{ch}", FileFormatError)
         _check_membership(c, ks.get(ch), f"{where}/codes/{ch}", "the file's n_dictionaries")
     coded = CodedBTF(
-        codes=codes, stats=stats, height=height, width=width, patch=patch, lights=lights,
-        views=views, model_hash=model_hash, params=params, name=name, attrs=attrs,
+        codes=codes,
+        stats=stats,
+        height=height,
+        width=width,
+        patch=patch,
+        lights=lights,
+        views=views,
+        model_hash=model_hash,
+        params=params,
+        name=name,
+        attrs=attrs,
     )
     if model is not None:
         _attach(coded, model, where)
@@ -351,7 +360,8 @@ def _channels(f: h5py.File, root: h5py.Group, where: str) -> list[str]:
     except ValueError:
         raise FileFormatError(f"{where}: attribute 'channels' is not a JSON list") from None
     if (
-        not isinstance(channels, list) or not channels
+        not isinstance(channels, list)
+        or not channels
         or not all(isinstance(c, str) for c in channels)
     ):
         raise FileFormatError(f"{where}: attribute 'channels' must be a non-empty list of names")
@@ -417,3 +427,22 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
         return Standardization(mode=mode, mean=mean, std=std, eps=eps)  # type: ignore[arg-type]
     except BTFInputError as e:
         raise FileFormatError(f"{where}: {e}") from None
+
+
+def load_coded_with_model(
+    path: str | os.PathLike[str], model_path: str | os.PathLike[str] | None = None
+) -> CodedBTF:
+    """Read a coded file with its model attached: ``model_path``, else the model file it names.
+
+    Encoding records the model's path in ``params["model_file"]``; the model's content hash is
+    checked either way (:class:`~sparsebtf.errors.ModelMismatchError` for the wrong model).
+    """
+    from .model_file import load_model
+
+    coded = load_coded(path)
+    mpath = model_path or coded.params.get("model_file")
+    if not mpath:
+        raise ModelMismatchError(
+            f"{path}: pass --model MODEL.h5 (the coded file names no model file)"
+        )
+    return coded.attach(load_model(mpath))
