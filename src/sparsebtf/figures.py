@@ -20,6 +20,7 @@ import numpy as np
 
 from ._atomic import atomic_output
 from .data.btf import BTF
+from .display import tone_map
 
 __all__ = [
     "comparison_grid",
@@ -29,11 +30,6 @@ __all__ = [
     "save_png",
     "tone_map",
 ]
-
-
-def tone_map(rgb: np.ndarray, a: float = 1.3, gamma: float = 1.8) -> np.ndarray:
-    """The paper's display mapping a·I^(1/γ), clipped to [0, 1]."""
-    return np.clip(a * np.maximum(rgb, 0) ** (1.0 / gamma), 0.0, 1.0)
 
 
 def error_image(

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from ..._atomic import atomic_output
+from ...display import tone_map
 from ...errors import BTFInputError
 from ..btf import BTF
 from ..directions import DirectionSet
@@ -23,12 +24,6 @@ __all__ = ["DEFAULT_LIGHT_TARGETS", "DEFAULT_VIEW_TARGETS", "contact_sheet", "to
 #: (θ, φ) in degrees of the directions shown by default; the nearest sampled ones are used.
 DEFAULT_VIEW_TARGETS = ((0.0, 0.0), (30.0, 0.0), (60.0, 0.0), (75.0, 90.0))
 DEFAULT_LIGHT_TARGETS = ((0.0, 0.0), (30.0, 180.0), (60.0, 0.0), (60.0, 90.0), (75.0, 180.0))
-
-
-def tone_map(image: np.ndarray, a: float = 1.3, gamma: float = 1.8) -> np.ndarray:
-    """Display mapping a·I^(1/γ), clipped to [0, 1] (negative and NaN inputs map to 0)."""
-    x = np.nan_to_num(np.asarray(image, dtype=np.float64), nan=0.0, posinf=0.0, neginf=0.0)
-    return np.clip(a * np.maximum(x, 0.0) ** (1.0 / gamma), 0.0, 1.0)
 
 
 def _nearest(dirs: DirectionSet, targets: Sequence[tuple[float, float]]) -> list[int]:
