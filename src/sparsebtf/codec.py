@@ -130,7 +130,8 @@ class StagedPoints:
 
     Training makes K + 4 passes per iteration per channel; reading contiguous float32 points
     back is far cheaper than re-reading and re-preprocessing the BTFs each time. Memory stays
-    at one batch: points are written and read one batch at a time.
+    at one batch: points are written and read one batch at a time. ``source`` yields all three
+    colour channels (``channel=None``); each staged dataset keeps one of them, or all for 5D.
     """
 
     def __init__(
@@ -152,9 +153,8 @@ class StagedPoints:
             ch: self._file.create_dataset(ch, shape=(n, *full), dtype="float32", chunks=(1, *full))
             for ch in channels
         }
-        raw = BTFPointSource(source.items, source.patch, None)
         with bar(n, "stage points", "pt", progress) as pb:
-            for g, x in raw.batches(batch_size):
+            for g, x in source.batches(batch_size):
                 lo, hi = int(g[0]), int(g[-1]) + 1
                 for c, ch in enumerate(channels):
                     self._ds[ch][lo:hi] = x if ch == "YUV" else x[..., c]
