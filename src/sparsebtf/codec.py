@@ -14,11 +14,11 @@ import shutil
 import tempfile
 import time
 from collections.abc import Iterator, Sequence
-from importlib import metadata
 from typing import Any
 
 import numpy as np
 
+from . import library_version
 from ._progress import bar
 from .data.btf import BTF, Index, as_index
 from .datapoints import PatchGrid, iter_points, sample_points
@@ -44,13 +44,6 @@ __all__ = [
     "parse_tau",
     "train",
 ]
-
-
-def _version() -> str:
-    try:
-        return metadata.version("sparsebtf")
-    except metadata.PackageNotFoundError:  # pragma: no cover - source checkout without install
-        return "unknown"
 
 
 def parse_tau(tau: int | str | Sequence[int], channels: Sequence[str] = CHANNELS) -> dict[str, int]:
@@ -342,7 +335,7 @@ def train(
         "dtype": dtype,
     }
     provenance = {
-        "library": f"sparsebtf {_version()}",
+        "library": f"sparsebtf {library_version()}",
         "materials": [b.name for b in btfs],
         "material_attrs": [b.attrs for b in btfs],
         "seconds": time.perf_counter() - t0,

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from ..errors import BTFInputError
@@ -25,16 +23,3 @@ def check_finite(block: np.ndarray, where: str, offset: tuple[int, ...] = ()) ->
         f"{AXES[i] if i < len(AXES) else i} {first[i] + off[i]}" for i in range(len(first))
     )
     raise BTFInputError(f"{where}: {int(bad.sum())} NaN/Inf values; first at {loc}")
-
-
-def clamp_negative(block: np.ndarray, where: str) -> np.ndarray:
-    """Clamp negative values to 0 with a warning that gives their count.
-
-    Measured BTFs carry small negative noise; the log transform needs x + 1e-5 > 0.
-    """
-    neg = block < 0
-    n = int(neg.sum())
-    if n:
-        warnings.warn(f"{where}: clamped {n} negative values to 0", stacklevel=3)
-        block = np.where(neg, 0, block).astype(block.dtype, copy=False)
-    return block

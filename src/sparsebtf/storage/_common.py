@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import contextlib
-import importlib.metadata
 import json
 import os
 from collections.abc import Iterator
@@ -20,14 +19,6 @@ _HDF5_ERRORS = (
     OSError, KeyError, RuntimeError, TypeError, ValueError, IndexError, OverflowError,
     MemoryError,
 )
-
-
-def library_version() -> str:
-    """The installed ``sparsebtf`` version, or ``"unknown"`` when not installed."""
-    try:
-        return importlib.metadata.version("sparsebtf")
-    except importlib.metadata.PackageNotFoundError:
-        return "unknown"
 
 
 def _json_default(obj: Any) -> Any:

@@ -31,6 +31,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from .. import library_version
 from .._atomic import atomic_output
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
@@ -40,7 +41,6 @@ from ..preprocessing import Standardization
 from ._common import (
     as_str,
     check_geometry,
-    library_version,
     open_checked,
     read_array,
     read_int_attr,

@@ -25,6 +25,7 @@ from pathlib import Path
 import h5py
 import numpy as np
 
+from .. import library_version
 from .._atomic import atomic_output
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError
@@ -32,7 +33,6 @@ from ..model import Model, dictionaries_hash
 from ._common import (
     as_str,
     check_geometry,
-    library_version,
     open_checked,
     read_array,
     read_int_attr,
