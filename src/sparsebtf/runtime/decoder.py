@@ -1,0 +1,340 @@
+"""The runtime decoder: BTF values at (texel or uv, ω_i, ω_o) from the sparse codes (paper §3.4).
+
+:class:`RuntimeBTF` answers a batch of queries locally from each query's data point: Eq. 5 at
+measured directions, Eq. 6 (coefficient-space angular interpolation) at any other, then the
+inverse preprocessing (de-standardisation, YUV → RGB, exp). It never reconstructs a data point.
+
+Level of detail: coefficients are stored by decreasing magnitude, so keeping τ' ≤ τ of them is
+a prefix; :meth:`RuntimeBTF.with_tau` truncates at load time (smaller arrays) and the ``tau``
+argument of :meth:`RuntimeBTF.evaluate` caps the sum at run time (the paper's real-time knob).
+
+The flat arrays a GPU or Dr.Jit shader needs come from :meth:`RuntimeBTF.arrays` (layout in
+``docs/format.md``, "Renderer arrays").
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Mapping, Sequence
+from typing import Any, Literal
+
+import numpy as np
+
+from ..errors import BTFInputError
+from ..model import CHANNELS, CodedBTF
+from ..preprocessing import YUV_TO_RGB, YUV_TO_RGB_RELEASE
+from . import kernels
+from .angular import SCHEMES, Scheme, angular_weights, neighbour_table
+
+__all__ = ["Domain", "RuntimeBTF", "texels_from_uv"]
+
+Domain = Literal["standardized", "log"]
+TauSpec = None | int | float | str | Sequence[int] | Mapping[str, int]
+
+
+def texels_from_uv(uv: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
+    """(row, col) of texture coordinates; they wrap, so a texture tiles (uv ≥ 1 and < 0).
+
+    col = ⌊frac(u)·W⌋, row = ⌊frac(v)·H⌋: u runs along columns, v along rows.
+    """
+    uv = np.asarray(uv, dtype=np.float64)
+    if uv.ndim != 2 or uv.shape[1] != 2:
+        raise BTFInputError(f"uv must have shape (n, 2), got {uv.shape}")
+    if not np.all(np.isfinite(uv)):
+        i = int(np.flatnonzero(~np.isfinite(uv).all(axis=1))[0])
+        raise BTFInputError(f"uv {i} is not finite")
+    f = uv - np.floor(uv)
+    col = np.minimum((f[:, 0] * width).astype(np.int64), width - 1)
+    row = np.minimum((f[:, 1] * height).astype(np.int64), height - 1)
+    return row, col
+
+
+def _channel_taus(coded: CodedBTF, tau: TauSpec) -> dict[str, int]:
+    """τ' per channel from None (all), an int, "a,b,c", a sequence, a dict or a fraction."""
+    full = {ch: int(np.max(coded.codes[ch].counts, initial=0)) for ch in coded.channels}
+    if tau is None:
+        return full
+    if isinstance(tau, float) and not float(tau).is_integer():
+        if not 0 < tau <= 1:
+            raise BTFInputError(f"a fractional tau must be in (0, 1], got {tau}")
+        nominal = coded.params.get("tau", {}) or {}
+        return {
+            ch: max(1, math.ceil(tau * int(nominal.get(ch, full[ch])))) for ch in coded.channels
+        }
+    if isinstance(tau, Mapping):
+        missing = [ch for ch in coded.channels if ch not in tau]
+        if missing:
+            raise BTFInputError(f"tau gives no value for channel(s) {missing}")
+        vals = {ch: int(tau[ch]) for ch in coded.channels}
+    else:
+        from ..codec import parse_tau
+
+        vals = parse_tau(int(tau) if isinstance(tau, float) else tau, coded.channels)
+    for ch, v in vals.items():
+        if v < 1:
+            raise BTFInputError(f"channel {ch}: tau must be >= 1, got {v}")
+    return vals
+
+
+class RuntimeBTF:
+    """Local evaluation of a coded BTF for renderers (Eq. 5, Eq. 6).
+
+    Parameters
+    ----------
+    coded : a :class:`~sparsebtf.model.CodedBTF` with its model attached, channels Y, U, V.
+    tau : level of detail τ' per channel: None (all stored coefficients), an int, "885,64,64",
+        a sequence, a {channel: τ'} dict, or a fraction in (0, 1) of the coded τ. Each data
+        point keeps its τ' largest coefficients (a prefix of the stored order).
+    dtype : float32 (renderer precision, default) or float64 for the dictionaries and values.
+
+    Attributes
+    ----------
+    coded : the (truncated) codes; ``tau`` : the τ' per channel; ``meta`` : sizes and flags.
+    """
+
+    def __init__(
+        self, coded: CodedBTF, tau: TauSpec = None, dtype: type = np.float32
+    ) -> None:
+        model = coded.require_model()
+        if tuple(coded.channels) != CHANNELS:
+            raise BTFInputError(
+                f"{coded.name}: the runtime needs channels Y, U and V as separate 4D codes, "
+                f"this file has {coded.channels}"
+            )
+        if getattr(coded.stats, "transform", "log_yuv") != "log_yuv":
+            raise BTFInputError(
+                f"{coded.name}: coded without the log-YUV preprocessing "
+                f"({coded.stats.transform!r}); the runtime decodes log-YUV codes only"
+            )
+        sizes = model.mode_sizes
+        if len(sizes) != 4 or max(sizes) > 256:
+            raise BTFInputError(
+                f"{coded.name}: the runtime needs 4D data points with every mode <= 256 "
+                f"(packed locations), got {sizes}"
+            )
+        self.tau = _channel_taus(coded, tau)
+        codes = {
+            ch: c.truncate(self.tau[ch]) if np.max(c.counts, initial=0) > self.tau[ch] else c
+            for ch, c in coded.codes.items()
+        }
+        self.coded = CodedBTF(
+            codes, coded.stats, coded.height, coded.width, coded.patch, coded.lights,
+            coded.views, coded.model_hash, dict(coded.params), coded.name, dict(coded.attrs),
+            model,
+        )  # fmt: skip
+        self.dtype = np.dtype(dtype)
+        self._channels = {ch: self._channel_arrays(ch) for ch in CHANNELS}
+        st = coded.stats
+        self._mean = np.ascontiguousarray(np.moveaxis(st.mean, 2, 0), dtype=np.float64)
+        self._std = np.ascontiguousarray(np.moveaxis(st.std, 2, 0), dtype=np.float64)
+        self.eps = float(st.eps)
+        self.meta: dict[str, Any] = {
+            "name": coded.name,
+            "height": coded.height,
+            "width": coded.width,
+            "patch": coded.patch,
+            "n_rb": coded.height // coded.patch,
+            "n_points": coded.n_points,
+            "channels": list(CHANNELS),
+            "std_mode": st.mode,
+            "eps": self.eps,
+            "tau": dict(self.tau),
+            "n_lights": len(coded.lights),
+            "n_views": len(coded.views),
+            "n_dictionaries": {ch: model.n_dictionaries(ch) for ch in CHANNELS},
+            "mode_sizes": list(sizes),
+            "nnz": {ch: int(codes[ch].nnz) for ch in CHANNELS},
+        }
+
+    @classmethod
+    def from_file(
+        cls,
+        path: str | os.PathLike[str],
+        model: str | os.PathLike[str] | None = None,
+        tau: TauSpec = None,
+        dtype: type = np.float32,
+    ) -> RuntimeBTF:
+        """Load a coded file (and the model it names, or ``model``) for rendering."""
+        from ..storage import load_coded_with_model
+
+        return cls(load_coded_with_model(path, model), tau, dtype)
+
+    def with_tau(self, tau: TauSpec) -> RuntimeBTF:
+        """A copy truncated to τ' ≤ the current τ per channel (level of detail at load time)."""
+        new = _channel_taus(self.coded, tau)
+        bigger = {ch: v for ch, v in new.items() if v > self.tau[ch]}
+        if bigger:
+            raise BTFInputError(f"cannot raise tau above the loaded level {self.tau}: {bigger}")
+        return RuntimeBTF(self.coded, new, self.dtype.type)
+
+    # -- arrays ---------------------------------------------------------------------------------
+    def _channel_arrays(self, ch: str) -> dict[str, np.ndarray]:
+        c = self.coded.codes[ch]
+        model = self.coded.require_model()
+        loc = c.locations.astype(np.uint32)
+        packed = loc[:, 0] | (loc[:, 1] << 8) | (loc[:, 2] << 16) | (loc[:, 3] << 24)
+        if c.nnz >= 2**31:
+            raise BTFInputError(f"channel {ch}: {c.nnz} coefficients exceed int32 offsets")
+        d = [np.ascontiguousarray(m, dtype=self.dtype) for m in model.dictionaries[ch]]
+        return {
+            "membership": c.membership.astype(np.int32),
+            "offsets": c.offsets.astype(np.int32),
+            "values": np.ascontiguousarray(c.values, dtype=self.dtype),
+            "locations": packed.astype(np.uint32),
+            "dict1": d[0],
+            "dict2": d[1],
+            "dict3": d[2],
+            "dict4": d[3],
+        }
+
+    def arrays(self, neighbours: bool = True) -> dict[str, np.ndarray]:
+        """The flat arrays of a shader implementation (float32 whatever ``dtype``).
+
+        ``lights_xyz``, ``views_xyz`` (N, 3); ``mean``, ``std`` (S, L, V) with S = 1 (shared
+        standardisation) or 3; ``yuv_to_rgb`` (3, 3); per channel c: ``membership_c`` (P,)
+        int32, ``offsets_c`` (P+1,) int32, ``values_c`` (nnz,) float32 by decreasing |v| per
+        point, ``locations_c`` (nnz,) uint32 = l1 | l2<<8 | l3<<16 | l4<<24, ``dict1_c`` …
+        ``dict4_c`` (K, m, m) float32 with dict_n[k, x, l] = U_n^(k)[x, l]; with
+        ``neighbours``, ``neighbours_lights``/``neighbours_views`` (64, 256, 8) int16 candidate
+        tables (:func:`~sparsebtf.runtime.angular.neighbour_table`).
+        """
+        out: dict[str, np.ndarray] = {
+            "lights_xyz": self.coded.lights.xyz.astype(np.float32),
+            "views_xyz": self.coded.views.xyz.astype(np.float32),
+            "mean": self._mean.astype(np.float32),
+            "std": self._std.astype(np.float32),
+            "yuv_to_rgb": YUV_TO_RGB.astype(np.float32),
+        }
+        for ch, arrs in self._channels.items():
+            for name, a in arrs.items():
+                out[f"{name}_{ch}"] = a.astype(np.float32) if a.dtype.kind == "f" else a
+        if neighbours:
+            out["neighbours_lights"] = neighbour_table(self.coded.lights)
+            out["neighbours_views"] = neighbour_table(self.coded.views)
+        return out
+
+    # -- evaluation -----------------------------------------------------------------------------
+    def _texels(self, uv: np.ndarray | None, texel: np.ndarray | None, n: int):
+        h, w, p = self.coded.height, self.coded.width, self.coded.patch
+        if (uv is None) == (texel is None):
+            raise BTFInputError("give exactly one of uv and texel")
+        if uv is not None:
+            row, col = texels_from_uv(uv, h, w)
+        else:
+            t = np.asarray(texel)
+            if t.ndim != 2 or t.shape[1] != 2 or t.dtype.kind not in "iu":
+                raise BTFInputError(f"texel must be (n, 2) integers (row, col), got {t.shape}")
+            row, col = t[:, 0].astype(np.int64), t[:, 1].astype(np.int64)
+            bad = (row < 0) | (row >= h) | (col < 0) | (col >= w)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise BTFInputError(
+                    f"texel {i} = ({row[i]}, {col[i]}) is outside the {h}x{w} texture"
+                )
+        if row.shape[0] != n:
+            raise BTFInputError(f"{row.shape[0]} texels for {n} direction pairs")
+        pts = (row // p + (h // p) * (col // p)).astype(np.int64)
+        return pts, (row % p).astype(np.int64), (col % p).astype(np.int64)
+
+    def _select_backend(self, backend: str) -> str:
+        if backend == "auto":
+            return "numba" if kernels.HAVE_NUMBA else "numpy"
+        if backend not in ("numpy", "numba"):
+            raise BTFInputError(f"backend must be 'auto', 'numpy' or 'numba', got {backend!r}")
+        if backend == "numba" and not kernels.HAVE_NUMBA:
+            raise BTFInputError("backend 'numba' requested but numba is not installed")
+        return backend
+
+    def evaluate(
+        self,
+        wi: np.ndarray,
+        wo: np.ndarray,
+        uv: np.ndarray | None = None,
+        texel: np.ndarray | None = None,
+        interpolation: Scheme | str = "linear",
+        domain: Domain | str = "standardized",
+        k: int | None = None,
+        beta: float = 20.0,
+        tau: TauSpec = None,
+        backend: str = "auto",
+        output: Literal["rgb", "log_yuv"] = "rgb",
+        release_matrix: bool = False,
+    ) -> np.ndarray:
+        """BTF values of a batch of queries, linear RGB (n, 3) float32.
+
+        Parameters
+        ----------
+        wi, wo : (n, 3) light and view directions in the local frame (z = normal, azimuth
+            from +u). They are matched to the sampled directions whatever their elevation;
+            masking below the horizon is the renderer's business.
+        uv or texel : (n, 2) texture coordinates (wrapping) or integer (row, col).
+        interpolation : "nearest", "linear" (release 2-NN), "barycentric" or "gaussian",
+            used for light and view alike (:func:`~sparsebtf.runtime.angular.angular_weights`).
+        domain : "standardized" — Eq. 6: the coefficient-space sum interpolates the
+            standardised values and μ, σ are interpolated with the same weights; "log" — the
+            release shader: Σ_ab wl_a wv_b (σ_ab X_ab + μ_ab), the bilinear blend of the
+            de-standardised log values, from the same single pass over the coefficients.
+            Both equal the blend of separately decoded bins in their domain.
+        tau : run-time cap τ' (≤ the loaded τ) per channel; None = all loaded coefficients.
+        backend : "numba" (compiled, parallel), "numpy", or "auto" (numba when installed).
+        output : "rgb" or "log_yuv" (the de-standardised log-YUV values, before YUV → RGB).
+        release_matrix : use the release shader's rounded YUV → RGB matrix.
+        """
+        if domain not in ("standardized", "log"):
+            raise BTFInputError(f"domain must be 'standardized' or 'log', got {domain!r}")
+        if interpolation not in SCHEMES:
+            raise BTFInputError(
+                f"unknown interpolation {interpolation!r}; choose one of {', '.join(SCHEMES)}"
+            )
+        wi = np.asarray(wi)
+        wo = np.asarray(wo)
+        if wi.shape != wo.shape:
+            raise BTFInputError(f"wi {wi.shape} and wo {wo.shape} must have the same shape")
+        n = wi.shape[0] if wi.ndim == 2 else -1
+        pts, i1, i2 = self._texels(uv, texel, n)
+        caps = self.tau if tau is None else _channel_taus(self.coded, tau)
+        over = {ch: v for ch, v in caps.items() if v > self.tau[ch]}
+        if over:
+            raise BTFInputError(f"run-time tau {over} exceeds the loaded tau {self.tau}")
+        be = self._select_backend(backend)
+        li, lw = angular_weights(self.coded.lights, wi, interpolation, k, beta)
+        vi, vw = angular_weights(self.coded.views, wo, interpolation, k, beta)
+        # Neighbour-pair weights and statistics: (n, kl, kv).
+        w2 = lw[:, :, None] * vw[:, None, :]
+        s = self._mean.shape[0]
+        mu = self._mean[:, li[:, :, None], vi[:, None, :]]  # (S, n, kl, kv)
+        sd = self._std[:, li[:, :, None], vi[:, None, :]]
+        log = np.empty((pts.size, 3), dtype=np.float64)
+        for c, ch in enumerate(CHANNELS):
+            arr = self._channels[ch]
+            si = c if s == 3 else 0
+            if domain == "standardized":
+                x = kernels.separable_sum(arr, pts, i1, i2, li, lw, vi, vw, caps[ch], be)
+                log[:, c] = x * np.einsum("nab,nab->n", w2, sd[si]) + np.einsum(
+                    "nab,nab->n", w2, mu[si]
+                )
+            else:
+                xp = kernels.pair_sums(arr, pts, i1, i2, li, vi, caps[ch], be)
+                log[:, c] = np.einsum("nab,nab->n", w2, sd[si] * xp + mu[si])
+        if output == "log_yuv":
+            return log.astype(np.float32)
+        m = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
+        return (np.exp(log @ m.T) - self.eps).astype(np.float32)
+
+    def image(
+        self,
+        light: np.ndarray,
+        view: np.ndarray,
+        size: tuple[int, int] | None = None,
+        **kwargs: Any,
+    ) -> np.ndarray:
+        """An (H, W, 3) image of the texture at one light and view direction (e.g. a Figure 6
+        tile); ``size`` resamples by uv (tiling beyond 1), default the texture's own size."""
+        h, w = size or (self.coded.height, self.coded.width)
+        v, u = np.meshgrid((np.arange(h) + 0.5) / h, (np.arange(w) + 0.5) / w, indexing="ij")
+        uv = np.stack([u.ravel(), v.ravel()], axis=1)
+        n = uv.shape[0]
+        wi = np.broadcast_to(np.asarray(light, dtype=np.float64), (n, 3))
+        wo = np.broadcast_to(np.asarray(view, dtype=np.float64), (n, 3))
+        return self.evaluate(wi, wo, uv=uv, **kwargs).reshape(h, w, 3)

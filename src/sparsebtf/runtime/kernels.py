@@ -1,0 +1,235 @@
+"""The sparse sums of Eq. 5/6 over a batch of queries: NumPy, and compiled when numba is present.
+
+Both backends take the same flat arrays (see :meth:`RuntimeBTF.arrays`) and per-query inputs:
+
+* ``pts, i1, i2`` — data point and in-patch texel of each query;
+* ``li, lw`` / ``vi, vw`` — (n, k) neighbour indices and weights for light and view;
+* ``tau`` — run-time level of detail: only the first ``tau`` coefficients of each point count
+  (they are stored by decreasing magnitude).
+
+:func:`separable_sum` returns
+X = Σ_s v_s U1[i1,l1] U2[i2,l2] (Σ_a wl_a U3[L_a,l3]) (Σ_b wv_b U4[V_b,l4])
+(Eq. 6 with both angular modes interpolated); :func:`pair_sums` returns the un-weighted
+X(L_a, V_b) for every neighbour pair, which the release's log-domain interpolation weighs
+with per-pair statistics. NumPy is the reference; numba is a loop per query that skips the
+padding NumPy needs for points of different coefficient counts (about 10× faster on 2 cores,
+``benchmarks/bench_runtime.py``).
+"""
+
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+__all__ = ["HAVE_NUMBA", "k_nearest", "pair_sums", "separable_sum"]
+
+try:  # numba is optional: the NumPy path is complete on its own.
+    if os.environ.get("SPARSEBTF_NO_NUMBA"):
+        raise ImportError("disabled by SPARSEBTF_NO_NUMBA")
+    import numba as _nb
+
+    HAVE_NUMBA = True
+except ImportError:  # pragma: no cover - depends on the environment
+    _nb = None
+    HAVE_NUMBA = False
+
+#: Budget of gathered entries per NumPy chunk (queries × coefficients × neighbours).
+_NUMPY_BUDGET = 1 << 22
+
+
+def _unpack(code: np.ndarray) -> tuple[np.ndarray, ...]:
+    return code & 0xFF, (code >> 8) & 0xFF, (code >> 16) & 0xFF, code >> 24
+
+
+def _gather(ch: dict[str, np.ndarray], pts, i1, i2, li, vi, tau: int):
+    """Per-query padded coefficient data: (coef·U1·U2 (n, w), U3 rows (n, w, kl), U4 (n, w, kv))."""
+    off = ch["offsets"]
+    start = off[pts].astype(np.int64)
+    cnt = np.minimum(off[pts + 1] - off[pts], tau)
+    width = int(cnt.max()) if cnt.size else 0
+    col = np.arange(width)
+    valid = col[None, :] < cnt[:, None]
+    pos = np.where(valid, start[:, None] + col[None, :], 0)
+    val = np.where(valid, ch["values"][pos], 0).astype(np.float64)
+    l1, l2, l3, l4 = _unpack(ch["locations"][pos].astype(np.int64))
+    k = ch["membership"][pts][:, None]
+    a = val * ch["dict1"][k, i1[:, None], l1] * ch["dict2"][k, i2[:, None], l2]
+    g3 = ch["dict3"][k[..., None], li[:, None, :], l3[..., None]]
+    g4 = ch["dict4"][k[..., None], vi[:, None, :], l4[..., None]]
+    return a, g3, g4
+
+
+def _chunks(ch: dict[str, np.ndarray], pts: np.ndarray, tau: int, k: int):
+    off = ch["offsets"]
+    widest = int(min(np.max(off[1:] - off[:-1], initial=1), tau))
+    step = max(64, _NUMPY_BUDGET // max(widest * k, 1))
+    for s in range(0, pts.size, step):
+        yield slice(s, s + step)
+
+
+def _separable_numpy(ch, pts, i1, i2, li, lw, vi, vw, tau) -> np.ndarray:
+    out = np.empty(pts.size, dtype=np.float64)
+    for sl in _chunks(ch, pts, tau, max(li.shape[1], vi.shape[1])):
+        a, g3, g4 = _gather(ch, pts[sl], i1[sl], i2[sl], li[sl], vi[sl], tau)
+        s3 = np.einsum("nwa,na->nw", g3, lw[sl])
+        s4 = np.einsum("nwb,nb->nw", g4, vw[sl])
+        out[sl] = np.einsum("nw,nw,nw->n", a, s3, s4)
+    return out
+
+
+def _pairs_numpy(ch, pts, i1, i2, li, vi, tau) -> np.ndarray:
+    out = np.empty((pts.size, li.shape[1], vi.shape[1]), dtype=np.float64)
+    for sl in _chunks(ch, pts, tau, li.shape[1] * vi.shape[1]):
+        a, g3, g4 = _gather(ch, pts[sl], i1[sl], i2[sl], li[sl], vi[sl], tau)
+        out[sl] = np.einsum("nw,nwa,nwb->nab", a, g3, g4)
+    return out
+
+
+if HAVE_NUMBA:
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def _separable_nb(vals, locs, offs, memb, d1, d2, d3, d4, pts, i1, i2, li, lw, vi, vw, tau):
+        n = pts.shape[0]
+        kl = li.shape[1]
+        kv = vi.shape[1]
+        n_l = d3.shape[1]
+        n_v = d4.shape[1]
+        out = np.empty(n, dtype=np.float64)
+        for q in _nb.prange(n):
+            p = pts[q]
+            k = memb[p]
+            s0 = offs[p]
+            s1 = min(offs[p + 1], s0 + tau)
+            # Interpolate the two angular dictionary rows once per query (Eq. 6), then the
+            # sparse sum is four loads per coefficient: 3–5× faster than weighing every term.
+            r3 = np.zeros(n_l)
+            r4 = np.zeros(n_v)
+            for j in range(kl):
+                w = lw[q, j]
+                row = li[q, j]
+                for m in range(n_l):
+                    r3[m] += w * d3[k, row, m]
+            for j in range(kv):
+                w = vw[q, j]
+                row = vi[q, j]
+                for m in range(n_v):
+                    r4[m] += w * d4[k, row, m]
+            acc = 0.0
+            for s in range(s0, s1):
+                c = locs[s]
+                acc += (
+                    np.float64(vals[s])
+                    * d1[k, i1[q], c & 0xFF]
+                    * d2[k, i2[q], (c >> 8) & 0xFF]
+                    * r3[(c >> 16) & 0xFF]
+                    * r4[c >> 24]
+                )
+            out[q] = acc
+        return out
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def _pairs_nb(vals, locs, offs, memb, d1, d2, d3, d4, pts, i1, i2, li, vi, tau):
+        n = pts.shape[0]
+        kl = li.shape[1]
+        kv = vi.shape[1]
+        out = np.zeros((n, kl, kv), dtype=np.float64)
+        for q in _nb.prange(n):
+            p = pts[q]
+            k = memb[p]
+            s0 = offs[p]
+            s1 = min(offs[p + 1], s0 + tau)
+            for s in range(s0, s1):
+                c = locs[s]
+                l3 = (c >> 16) & 0xFF
+                l4 = c >> 24
+                a = np.float64(vals[s]) * d1[k, i1[q], c & 0xFF] * d2[k, i2[q], (c >> 8) & 0xFF]
+                for ja in range(kl):
+                    g = a * d3[k, li[q, ja], l3]
+                    for jb in range(kv):
+                        out[q, ja, jb] += g * d4[k, vi[q, jb], l4]
+        return out
+
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def _knn_nb(xyz, q, k):
+        n = q.shape[0]
+        m = xyz.shape[0]
+        idx = np.empty((n, k), dtype=np.int32)
+        dist = np.empty((n, k), dtype=np.float64)
+        for i in _nb.prange(n):
+            cnt = 0
+            for j in range(m):
+                d = 2.0 - 2.0 * (q[i, 0] * xyz[j, 0] + q[i, 1] * xyz[j, 1] + q[i, 2] * xyz[j, 2])
+                d = max(d, 0.0)
+                if cnt < k:
+                    cnt += 1
+                elif d >= dist[i, k - 1]:
+                    continue
+                # insertion: strict comparison keeps the lower index first on ties
+                pos = cnt - 1
+                while pos > 0 and dist[i, pos - 1] > d:
+                    dist[i, pos] = dist[i, pos - 1]
+                    idx[i, pos] = idx[i, pos - 1]
+                    pos -= 1
+                dist[i, pos] = d
+                idx[i, pos] = j
+        return idx, dist
+
+
+def k_nearest(xyz: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Compiled brute-force k nearest by squared chord distance, or None without numba.
+
+    A scan of the N sampled directions with an insertion list of k beats NumPy's
+    argpartition + sort of an (n, N) distance matrix by ~20× for N = 151.
+    """
+    if not HAVE_NUMBA:
+        return None
+    return _knn_nb(np.ascontiguousarray(xyz), np.ascontiguousarray(q), k)
+
+
+def _args(ch: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:
+    return (
+        ch["values"],
+        ch["locations"],
+        ch["offsets"],
+        ch["membership"],
+        ch["dict1"],
+        ch["dict2"],
+        ch["dict3"],
+        ch["dict4"],
+    )
+
+
+def separable_sum(
+    ch: dict[str, np.ndarray],
+    pts: np.ndarray,
+    i1: np.ndarray,
+    i2: np.ndarray,
+    li: np.ndarray,
+    lw: np.ndarray,
+    vi: np.ndarray,
+    vw: np.ndarray,
+    tau: int,
+    backend: str = "numpy",
+) -> np.ndarray:
+    """Eq. 6 for every query (float64 (n,)): one sparse sum serves all neighbour pairs."""
+    if backend == "numba":
+        return _separable_nb(*_args(ch), pts, i1, i2, li, lw, vi, vw, tau)
+    return _separable_numpy(ch, pts, i1, i2, li, lw, vi, vw, tau)
+
+
+def pair_sums(
+    ch: dict[str, np.ndarray],
+    pts: np.ndarray,
+    i1: np.ndarray,
+    i2: np.ndarray,
+    li: np.ndarray,
+    vi: np.ndarray,
+    tau: int,
+    backend: str = "numpy",
+) -> np.ndarray:
+    """Eq. 5 at every (light neighbour, view neighbour) pair, (n, kl, kv) float64, one pass."""
+    if backend == "numba":
+        return _pairs_nb(*_args(ch), pts, i1, i2, li, vi, tau)
+    return _pairs_numpy(ch, pts, i1, i2, li, vi, tau)
