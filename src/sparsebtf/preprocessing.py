@@ -36,10 +36,12 @@ from .errors import BTFInputError
 __all__ = [
     "EPS",
     "RGB_TO_YUV",
+    "TRANSFORMS",
     "YUV_TO_RGB",
     "YUV_TO_RGB_RELEASE",
     "Preprocessor",
     "Standardization",
+    "Transform",
     "from_log_yuv",
     "gather_statistics",
     "inverse_log_transform",
@@ -51,6 +53,10 @@ __all__ = [
 
 EPS = 1e-5
 StdMode = Literal["shared", "per_channel"]
+#: ``"log_yuv"``: the paper's §3.1 processing. ``"identity"``: none at all — the codes hold raw
+#: linear R, G, B in the channel slots Y, U, V (the [MHU19] baseline of the paper's Table 2).
+Transform = Literal["log_yuv", "identity"]
+TRANSFORMS = ("log_yuv", "identity")
 
 #: Analog BT.601 RGB → YUV, applied to log values (release: ``DataBTF4D.inl``).
 RGB_TO_YUV = np.array(
@@ -113,14 +119,21 @@ class Standardization:
     mean, std : (L, V, C) float64 with C = 1 (shared) or 3 (per channel). σ = 0 (a constant
         angular image) is stored as 1 so the forward map stays finite.
     eps : the log offset used.
+    transform : "log_yuv" (default) or "identity" (no log, no YUV, μ = 0, σ = 1: raw RGB is
+        coded as is, for the [MHU19] baseline; such statistics cannot be saved in a coded file).
     """
 
     mode: StdMode
     mean: np.ndarray
     std: np.ndarray
     eps: float = EPS
+    transform: Transform = "log_yuv"
 
     def __post_init__(self) -> None:
+        if self.transform not in TRANSFORMS:
+            raise BTFInputError(
+                f"preprocessing transform must be one of {TRANSFORMS}, got {self.transform!r}"
+            )
         if self.mode not in ("shared", "per_channel"):
             raise BTFInputError(
                 f"standardisation mode must be 'shared' or 'per_channel', got {self.mode!r}"
@@ -195,6 +208,8 @@ class Preprocessor:
         dtype: type = np.float64,
     ) -> np.ndarray:
         """(..., l, v, 3) linear RGB → standardised log-YUV (clamp negative inputs first)."""
+        if self.stats.transform == "identity":
+            return np.asarray(rgb, dtype=dtype)
         y = to_log_yuv(np.asarray(rgb, dtype=dtype), self.stats.eps)
         return self.stats.apply(y, lights, views).astype(dtype, copy=False)
 
@@ -206,6 +221,8 @@ class Preprocessor:
         release_matrix: bool = False,
     ) -> np.ndarray:
         """Standardised log-YUV (..., l, v, 3) → linear RGB."""
+        if self.stats.transform == "identity":
+            return np.asarray(z)
         return from_log_yuv(self.stats.invert(z, lights, views), self.stats.eps, release_matrix)
 
 
@@ -214,15 +231,27 @@ def gather_statistics(
     mode: StdMode = "shared",
     eps: float = EPS,
     progress: bool | None = None,
+    transform: Transform = "log_yuv",
 ) -> Standardization:
     """μ and σ of every angular image of ``btf`` in log-YUV, in one pass over view blocks.
 
     Memory is one view block (H·W·L·3 values). NaN/Inf abort with their count and first
     location; negative values are clamped to 0 with one warning giving the total count.
+    ``transform="identity"`` reads nothing and returns μ = 0, σ = 1 (no processing at all).
     """
     if mode not in ("shared", "per_channel"):
         raise BTFInputError(f"standardisation mode must be 'shared' or 'per_channel', got {mode!r}")
+    if transform not in TRANSFORMS:
+        raise BTFInputError(
+            f"preprocessing transform must be one of {TRANSFORMS}, got {transform!r}"
+        )
     h, w, nl, nv, _ = btf.shape
+    if transform == "identity":
+        c = 1 if mode == "shared" else 3
+        return Standardization(
+            mode=mode, mean=np.zeros((nl, nv, c)), std=np.ones((nl, nv, c)), eps=eps,
+            transform="identity",
+        )
     n = h * w
     if n < 2:
         raise BTFInputError(f"{btf.name}: standardisation needs at least 2 texels, got {n}")

@@ -159,6 +159,11 @@ def _check_coded(coded: CodedBTF) -> None:
         raise BTFInputError(
             f"{name}: size {coded.height}x{coded.width} is not a multiple of the patch {p}"
         )
+    if getattr(coded.stats, "transform", "log_yuv") != "log_yuv":
+        raise BTFInputError(
+            f"{name}: coded with preprocessing {coded.stats.transform!r}; the coded file format "
+            "stores log-YUV statistics only (that preprocessing is an evaluation baseline)"
+        )
     nl, nv = len(coded.lights), len(coded.views)
     if coded.stats.mean.shape[:2] != (nl, nv):
         raise BTFInputError(

@@ -1,0 +1,62 @@
+"""``sparsebtf bench``: reproduce the paper's comparative evaluation on our benchmark.
+
+``bench quality`` trains the models, codes the benchmark materials with SparseBTF, rate
+control, [MHU19] and PCA at equal storage and writes ``results.json``, Markdown tables,
+plots and ``results.md`` (see :mod:`sparsebtf.evaluation.runner`). ``bench report`` rewrites
+``docs/results.md`` from a finished run. Heavy modules are imported inside the commands.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+__all__ = ["register"]
+
+
+def cmd_bench_quality(args: argparse.Namespace) -> int:
+    from ..evaluation.benchmark_set import BenchConfig
+    from ..evaluation.runner import run_quality
+
+    cfg = getattr(args, "config", None) or (BenchConfig.quick() if args.quick else BenchConfig())
+    result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed)
+    if args.docs:
+        from ..evaluation.report import regenerate
+
+        print(f"wrote {regenerate(args.out, args.docs)}")
+    if args.json:
+        print(json.dumps(result["summary"], indent=2, default=str))
+    return 0
+
+
+def cmd_bench_report(args: argparse.Namespace) -> int:
+    from ..evaluation.report import regenerate
+
+    print(f"wrote {regenerate(args.run, args.docs)}")
+    return 0
+
+
+def register(sub: Any) -> None:
+    """Add the ``bench`` command (subcommands ``quality`` and ``report``)."""
+    b = sub.add_parser("bench", help="quality benchmark: SparseBTF vs baselines at equal storage")
+    bs = b.add_subparsers(dest="bench_command", required=True, metavar="BENCH")
+    q = bs.add_parser(
+        "quality",
+        help="SparseBTF, rate control, [MHU19] and PCA at the paper's storage levels "
+        "(Tables 2, 3, 5, Figure 3; about an hour on 2 cores, --quick under 10 minutes)",
+    )
+    q.add_argument("--out", default="bench-quality", help="output folder (default bench-quality)")
+    q.add_argument("--quick", action="store_true", help="small configuration (< 10 minutes)")
+    q.add_argument("--materials", nargs="+", metavar="BTF",
+                   help="extra test BTFs (.btf, dense .h5, synth:...) at the same directions")
+    q.add_argument("--seed", type=int, default=0, help="shifts every material and training seed")
+    q.add_argument("--docs", metavar="DIR",
+                   help="also write DIR/results.md and DIR/results/*.png from this run")
+    q.add_argument("--json", action="store_true", help="print the verdicts as JSON")
+    q.set_defaults(func=cmd_bench_quality)
+    r = bs.add_parser("report", help="rewrite DOCS/results.md from a finished run's results.json")
+    r.add_argument("run", help="folder of a 'bench quality' run (holds results.json)")
+    r.add_argument("--docs", default="docs", help="docs folder (default docs)")
+    r.set_defaults(func=cmd_bench_report)

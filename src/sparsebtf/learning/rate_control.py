@@ -1,0 +1,191 @@
+"""Rate control: one coefficient budget spread over all data points and channels.
+
+The paper fixes the testing sparsity τ_t per data point (§3.3, Table 3: "we assume that all
+data points have τ_t coefficients"). Points differ a lot in how compressible they are, so at
+equal storage a better rule gives each coefficient to whichever (point, channel) it reduces
+the error most. With orthonormal dictionaries this is exact and cheap: keeping coefficient s
+of a point removes s² from its squared error (Parseval, the identity behind Eq. 3), and every
+coefficient costs the same bytes (Table 4: 2 B value + 3 B location). A knapsack with equal
+item costs is solved exactly by taking the largest gains first, so the allocation below is the
+optimum of the weighted squared error for the chosen dictionaries::
+
+    minimise   Σ_{p,c} w_{p,c} · (‖X_{p,c}‖² − Σ_{s kept} s²)
+    subject to (2 + loc) · NNZ + 2 · P · C  <=  target bytes          (Table 4 per material)
+
+Memory stays bounded: for each point and channel only the top-N candidates of the chosen
+dictionary (sorted by |s|) are kept, never the dense projections. Because the candidates of
+a point are sorted and its weight is constant, the kept set of each point is a prefix, so the
+result is an ordinary :class:`~sparsebtf.learning.coding.SparseCodes` (counts vary per point).
+
+This module holds the array-level algorithm; :func:`sparsebtf.codec.encode_to_size` streams a
+BTF through it.
+"""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BTFInputError
+from .coding import SparseCodes
+
+__all__ = [
+    "PAPER_SPLIT",
+    "ChannelCandidates",
+    "allocate",
+    "material_bytes",
+    "reference_counts",
+]
+
+#: The release's split of coefficients over Y, U, V (τ = 885, 64, 64).
+PAPER_SPLIT = (885, 64, 64)
+
+
+def material_bytes(nnz: int, n_points: int, n_channels: int, location_bytes: int = 3) -> int:
+    """Per-material bytes of Table 4 (dictionaries excluded): values, locations, m and z.
+
+    ``(2 + location_bytes) · NNZ + 2 · P · C``: binary16 values, packed locations, and one
+    membership and one count byte per point and channel (``storage.accounting``).
+    """
+    return (2 + int(location_bytes)) * int(nnz) + 2 * int(n_points) * int(n_channels)
+
+
+def reference_counts(
+    target_bytes: int,
+    n_points: int,
+    channels: Sequence[str],
+    location_bytes: int = 3,
+    split: Sequence[float] | Mapping[str, float] = PAPER_SPLIT,
+    size: int | None = None,
+) -> dict[str, int]:
+    """Mean coefficients per point and channel if ``target_bytes`` were split as ``split``.
+
+    Used to choose each point's dictionary (least error at this count) and the candidate
+    pool. Raises :class:`BTFInputError` if the target cannot hold one coefficient per point
+    and channel.
+    """
+    c = len(channels)
+    need = material_bytes(n_points * c, n_points, c, location_bytes)
+    if target_bytes < need:
+        raise BTFInputError(
+            f"target of {target_bytes} bytes is below the minimum {need} bytes "
+            f"(one coefficient per data point and channel, {n_points} points x {c} channels)"
+        )
+    budget = (int(target_bytes) - 2 * n_points * c) // (2 + location_bytes)
+    if isinstance(split, Mapping):
+        f = np.array([float(split.get(ch, 1.0)) for ch in channels])
+    else:
+        f = np.array([float(v) for v in split][:c]) if len(split) >= c else np.ones(c)
+    if np.any(f <= 0):
+        raise BTFInputError(f"channel split must be positive, got {list(f)}")
+    f = f / f.sum()
+    out = {}
+    for ch, fc in zip(channels, f, strict=True):
+        n = max(1, round(budget * fc / n_points))
+        out[ch] = min(n, size) if size else n
+    return out
+
+
+@dataclass(eq=False)
+class ChannelCandidates:
+    """Top-N coefficients of the chosen dictionary for every point of one channel.
+
+    Attributes
+    ----------
+    mode_sizes : data-point shape.
+    membership : (P,) chosen dictionary.
+    indices : (P, N) C-order linear indices into the coefficient tensor, by decreasing |v|.
+    values : (P, N) the coefficients.
+    energy : (P,) ‖X‖² of each point (float64).
+    weights : (P,) error weight w of each point (see :func:`allocate`).
+    """
+
+    mode_sizes: tuple[int, ...]
+    membership: np.ndarray
+    indices: np.ndarray
+    values: np.ndarray
+    energy: np.ndarray
+    weights: np.ndarray
+
+    @property
+    def n_points(self) -> int:
+        return int(self.membership.shape[0])
+
+
+def allocate(
+    candidates: Mapping[str, ChannelCandidates],
+    target_bytes: int,
+    location_bytes: int = 3,
+) -> tuple[dict[str, SparseCodes], dict[str, object]]:
+    """Spend ``target_bytes`` (per material, Table 4) on the candidates, largest w·s² first.
+
+    Every point and channel keeps at least one coefficient (as the release's coder does); the
+    rest of the budget goes by decreasing gain ``w_{p,c} · s²`` over all points and channels.
+    Returns the codes per channel and a summary (``bytes``, ``nnz``, ``exhausted``: whether
+    the candidate pool ran out before the budget did, leaving the result below target).
+    """
+    chans = list(candidates)
+    if not chans:
+        raise BTFInputError("no channels to allocate")
+    p = candidates[chans[0]].n_points
+    if any(candidates[ch].n_points != p for ch in chans):
+        raise BTFInputError("every channel needs candidates for the same points")
+    c = len(chans)
+    need = material_bytes(p * c, p, c, location_bytes)
+    if target_bytes < need:
+        raise BTFInputError(
+            f"target of {target_bytes} bytes is below the minimum {need} bytes "
+            f"(one coefficient per data point and channel, {p} points x {c} channels)"
+        )
+    budget = (int(target_bytes) - 2 * p * c) // (2 + location_bytes)
+    extra = budget - p * c
+    gains = []
+    for ch in chans:
+        cand = candidates[ch]
+        v = cand.values[:, 1:].astype(np.float64)
+        gains.append((cand.weights[:, None] * v * v).ravel())
+    pool = np.concatenate(gains) if gains else np.empty(0)
+    exhausted = extra >= pool.size
+    if exhausted:
+        chosen = np.ones(pool.size, dtype=bool)
+        if extra > pool.size:
+            warnings.warn(
+                f"rate control: the candidate pool ({pool.size + p * c} coefficients) is "
+                f"smaller than the budget ({budget}); the result is below the target",
+                stacklevel=2,
+            )
+    else:
+        chosen = np.zeros(pool.size, dtype=bool)
+        if extra > 0:
+            chosen[np.argpartition(-pool, extra - 1)[:extra]] = True
+    codes: dict[str, SparseCodes] = {}
+    start = 0
+    total_nnz = 0
+    for ch in chans:
+        cand = candidates[ch]
+        n = cand.values.shape[1]
+        sel = chosen[start : start + p * (n - 1)].reshape(p, n - 1)
+        start += p * (n - 1)
+        # Counts per point; the prefix of that length has gains >= the chosen ones (sorted).
+        counts = 1 + sel.sum(axis=1).astype(np.int64)
+        keep = np.arange(n)[None, :] < counts[:, None]
+        vals = cand.values[keep].astype(np.float32)
+        lin = cand.indices[keep]
+        locs = np.stack(np.unravel_index(lin, cand.mode_sizes), axis=1).astype(np.int32)
+        kept = np.where(keep, cand.values.astype(np.float64) ** 2, 0.0).sum(axis=1)
+        size = float(np.prod(cand.mode_sizes))
+        errors = np.maximum(cand.energy - kept, 0.0) / size
+        codes[ch] = SparseCodes(
+            cand.mode_sizes, cand.membership.astype(np.int64), counts, vals, locs, errors
+        )
+        total_nnz += int(counts.sum())
+    summary: dict[str, object] = {
+        "target_bytes": int(target_bytes),
+        "bytes": material_bytes(total_nnz, p, c, location_bytes),
+        "nnz": {ch: codes[ch].nnz for ch in chans},
+        "exhausted": bool(exhausted and extra > pool.size),
+    }
+    return codes, summary

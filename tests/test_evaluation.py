@@ -1,0 +1,186 @@
+"""The quality benchmark: PCA baseline accounting, levels, runner, report and CLI."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sparsebtf.cli.main import main
+from sparsebtf.errors import BTFInputError
+from sparsebtf.evaluation.baselines import (
+    PCAFit,
+    allocate_ranks,
+    fit_pca,
+    pca_bytes,
+    pca_rank_for_budget,
+    pca_reconstruction,
+)
+from sparsebtf.evaluation.benchmark_set import BenchConfig, level_tau, paper_level_ratio
+from sparsebtf.evaluation.report import regenerate
+from sparsebtf.evaluation.runner import run_quality
+
+from .conftest import smooth_btf
+
+
+def _matrix(btf, log: bool) -> np.ndarray:
+    x = btf.to_array().astype(np.float64)
+    x = x.reshape(btf.height * btf.width, -1, 3)
+    return np.log(x + 1e-5) if log else x
+
+
+def test_pca_bytes_and_rank_for_budget():
+    t, a = 100 * 100, 151 * 151
+    assert pca_bytes((2, 1, 0), t, a) == 2 * 3 * (t + a)
+    assert pca_bytes(4, t, a) == 8 * (t + a)
+    one = 2 * (t + a)
+    assert pca_rank_for_budget(3 * one - 1, t, a) == 2
+    assert pca_rank_for_budget(3 * one, t, a) == 3
+    assert pca_rank_for_budget(one - 1, t, a) == 0
+    # the chosen rank never exceeds its budget, and one more would
+    for budget in (10_000, 507_100, 1_147_157, 2_566_270):
+        r = pca_rank_for_budget(budget, t, a)
+        assert pca_bytes(r, t, a) <= budget < pca_bytes(r + 1, t, a)
+    with pytest.raises(BTFInputError):
+        pca_rank_for_budget(-1, t, a)
+
+
+@pytest.mark.parametrize("domain", ["log", "linear"])
+def test_streamed_pca_matches_dense_svd(domain):
+    btf = smooth_btf(3)
+    # sketch as wide as the 64 texels: exact
+    fit = fit_pca(btf, 4, domain=domain, oversample=60, power_iters=1, tile=3)
+    x = _matrix(btf, domain == "log")
+    for c in range(3):
+        s = np.linalg.svd(x[:, :, c], compute_uv=False)
+        np.testing.assert_allclose(fit.s[c], s[:4], rtol=1e-6)
+    # a narrow sketch on this flat (noisy) spectrum still captures nearly the optimal energy
+    narrow = fit_pca(btf, 4, domain=domain, oversample=6, power_iters=2, tile=3)
+    for c in range(3):
+        s = np.linalg.svd(x[:, :, c], compute_uv=False)
+        assert np.sum(narrow.s[c] ** 2) >= 0.995 * np.sum(s[:4] ** 2)
+    # rank-r reconstruction error equals the discarded energy (fp16 factors: close)
+    rec = pca_reconstruction(fit, (4, 4, 4), btf)
+    xr = _matrix(rec, False) if domain == "linear" else np.log(
+        np.maximum(rec.to_array().astype(np.float64), 0) + 1e-5
+    ).reshape(64, -1, 3)
+    for c in range(3):
+        s = np.linalg.svd(x[:, :, c], compute_uv=False)
+        err = np.sum((x[:, :, c] - xr[:, :, c]) ** 2)
+        assert err == pytest.approx(np.sum(s[4:] ** 2), rel=0.05, abs=1e-3)
+
+
+def test_allocate_ranks_greedy_by_energy():
+    s = np.array([[10.0, 1.0], [5.0, 4.0], [3.0, 0.5]])
+    fit = PCAFit(np.zeros((3, 4, 2)), s, np.zeros((3, 5, 2)), "log", 2, 2)
+    assert allocate_ranks(fit, 3) == (1, 2, 0)
+    assert allocate_ranks(fit, 0) == (0, 0, 0)
+    assert allocate_ranks(fit, 99) == (2, 2, 2)
+
+
+def test_paper_levels():
+    assert paper_level_ratio(32) == pytest.approx(2696.76, rel=1e-4)
+    point = 2 * 10 * 10 * 151 * 151 * 3 / paper_level_ratio(32)
+    assert level_tau(point, minimum=(256, 32, 32)) == (885, 64, 64)
+    assert level_tau(1869.3, minimum=(256, 32, 32)) == (308, 32, 32)
+    # decreasing ratios = increasing storage
+    r = [paper_level_ratio(lv) for lv in (16, 32, 64, 128)]
+    assert r == sorted(r, reverse=True)
+
+
+def tiny_config() -> BenchConfig:
+    return BenchConfig(
+        name="tiny",
+        classes=("carpet", "stone"),
+        train_seeds=(1,),
+        n_train=2,
+        test_seeds=(12,),
+        train_size=8,
+        test_size=8,
+        table5_materials=(("felt", 5),),
+        table5_size=8,
+        directions="tiny13",
+        patch=4,
+        n_dictionaries=2,
+        tau_train=(8, 4, 4),
+        sample=1.0,
+        iters=1,
+        levels=(16, 32),
+        level_ratios=((16, 60.0), (32, 25.0)),
+        curve_taus=((8, 4, 4), (40, 8, 8)),
+        ssim_images=1,
+        grid_levels=(32,),
+    )
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    import os
+
+    out = tmp_path_factory.mktemp("bench")
+    os.environ["SPARSEBTF_CACHE"] = str(out / "cache")
+    os.environ["SPARSEBTF_PROGRESS"] = "0"
+    result = run_quality(out / "run", tiny_config(), log=lambda m: None)
+    return out / "run", result
+
+
+def test_bench_writes_json_tables_and_figures(tiny_run):
+    out, result = tiny_run
+    for name in ("results.json", "results.md", "table2.md", "table3.md", "table5.md",
+                 "figure3.png", "quality_storage.png"):
+        assert (out / name).stat().st_size > 0, name
+    assert result["grids"] and all((out / g).exists() for g in result["grids"])
+    data = json.loads((out / "results.json").read_text())
+    methods = {r["method"] for r in data["rows"]}
+    assert methods == {"sparsebtf", "rate", "per_channel", "raw", "pca_log", "pca_linear"}
+    summary = data["summary"]
+    for key in ("table2_processing", "table3_monotone", "table5_pca", "rate_control",
+                "standardisation", "table4_check"):
+        assert "verdict" in summary[key], key
+    md = (out / "results.md").read_text()
+    assert "## Verdicts" in md and "figure3.png" in md
+
+
+def test_bench_equal_storage(tiny_run):
+    _, result = tiny_run
+    rows = result["rows"]
+    for r in rows:
+        if r["method"] == "rate":
+            fixed = next(x for x in rows if x["method"] == "sparsebtf"
+                         and x["material"] == r["material"] and x["level"] == r["level"])
+            assert r["target_bytes"] == fixed["material_bytes"]
+            assert abs(r["material_bytes"] - r["target_bytes"]) <= 0.01 * r["target_bytes"]
+        if r["method"].startswith("pca"):
+            assert r["material_bytes"] <= r["budget_bytes"]
+            t, a = 8 * 8, 13 * 13
+            assert r["material_bytes"] == pca_bytes(tuple(r["ranks"]), t, a)
+    # every sparse method at a level spends (about) the level's per-material budget
+    for lv, ratio in ((16, 60.0), (32, 25.0)):
+        for m in ("sparsebtf", "per_channel", "raw"):
+            for r in (x for x in rows if x["method"] == m and x["level"] == lv):
+                assert r["ratio_per_material"] == pytest.approx(ratio, rel=0.12)
+
+
+def test_bench_report_regenerates_docs(tiny_run, tmp_path):
+    out, _ = tiny_run
+    target = regenerate(out, tmp_path / "docs")
+    text = target.read_text()
+    assert "results/figure3.png" in text and "bench report" in text
+    assert (tmp_path / "docs" / "results" / "figure3.png").exists()
+
+
+def test_cli_bench_quality_tiny(tmp_path, monkeypatch, capsys):
+    monkeypatch.setattr(BenchConfig, "quick", classmethod(
+        lambda cls: replace(tiny_config(), with_per_channel=False, pca_domains=("log",))))
+    rc = main(["bench", "quality", "--quick", "--out", str(tmp_path / "q"), "--json",
+               "--docs", str(tmp_path / "docs")])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "table3_monotone" in out
+    assert (tmp_path / "docs" / "results.md").exists()
+    rc = main(["bench", "quality", "--quick", "--out", str(tmp_path / "q2"),
+               "--materials", "synth:wood:7:1:tiny13"])  # size 7: not a multiple of the patch
+    assert rc == 2
+    assert "patch" in capsys.readouterr().err
