@@ -1,0 +1,91 @@
+"""``sparsebtf view``: the real-time WebGL2 viewer of a coded BTF (paper Eq. 5/6 per fragment).
+
+    sparsebtf view stone.coded.h5                  # serve on 127.0.0.1 (a free port), open it
+    sparsebtf view stone.coded.h5 --no-browser     # only print the URL; Ctrl-C stops
+    sparsebtf view stone.coded.h5 --export site/   # a static page + data, for any HTTP server
+
+The page needs WebGL2 with 32-bit float and integer textures (every desktop browser since
+2021, and headless Chromium on SwiftShader).
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+from ..errors import BTFInputError
+
+__all__ = ["register"]
+
+
+def _tau(text: str | None) -> Any:
+    """--tau: "885,64,64", one int for all channels, or a fraction such as 0.5."""
+    if text is None:
+        return None
+    t = text.strip()
+    try:
+        if "," not in t and "." in t:
+            return float(t)
+        if "," not in t:
+            return int(t)
+    except ValueError:
+        raise BTFInputError(
+            f"--tau must be 'Y,U,V', an integer or a fraction, got {text!r}"
+        ) from None
+    return t
+
+
+def cmd_view(args: argparse.Namespace) -> int:
+    from ..rendering.viewer import build_bundle, export, serve
+    from ..runtime import RuntimeBTF
+
+    rt = RuntimeBTF.from_file(args.coded, args.model, _tau(args.tau))
+    bundle = build_bundle(rt, neighbours=not args.no_neighbours)
+    mib = bundle.manifest["bytes"] / 2**20
+    if args.export:
+        out = export(bundle, args.export)
+        print(
+            f"wrote {out}/ (index.html, viewer.js, shaders, manifest.json, data.bin: {mib:.1f} "
+            f"MiB of textures); serve it over HTTP, e.g. `python -m http.server -d {out}` "
+            "(browsers refuse to fetch data from file://)"
+        )
+        return 0
+    server = serve(bundle, args.host, args.port)
+    print(f"SparseBTF viewer of {args.coded} ({mib:.1f} MiB of textures) at {server.url}")
+    print("press Ctrl-C to stop")
+    if not args.no_browser:
+        import webbrowser
+
+        if not webbrowser.open(server.url):
+            print("(no browser could be started: open the URL yourself)")
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        print("stopped")
+    finally:
+        server.close()
+    return 0
+
+
+def register(sub: Any) -> None:
+    """Add the ``view`` subcommand to the main parser's subparsers."""
+    s = sub.add_parser("view", help="real-time WebGL2 viewer of a coded BTF (browser)")
+    s.add_argument("coded", help="coded BTF file (.h5 from 'sparsebtf encode')")
+    s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
+    s.add_argument(
+        "--tau",
+        help="load-time level of detail: 'Y,U,V', one integer, or a fraction such as 0.5 "
+        "(default: every stored coefficient; the page's slider lowers it further)",
+    )
+    s.add_argument("--host", default="127.0.0.1", help="address to serve on (default 127.0.0.1)")
+    s.add_argument("--port", type=int, default=0, help="port (default: a free one)")
+    s.add_argument("--no-browser", action="store_true", help="only print the URL")
+    s.add_argument("--export", metavar="DIR", help="write a static page with its data into DIR")
+    s.add_argument(
+        "--no-neighbours",
+        action="store_true",
+        help="scan every direction per fragment instead of the 8-candidate tables",
+    )
+    s.set_defaults(func=cmd_view)

@@ -1,0 +1,288 @@
+// SparseBTF lookup: one BTF value per fragment from the sparse codes (paper Eq. 5 and Eq. 6).
+//
+// GLSL ES 3.00 compatible function set (also valid GLSL 3.30+). The host prepends the
+// #version line and the precision statements (highp float, int, sampler2D, usampler2D,
+// isampler2D), then this file, then its own main(). It mirrors
+// sparsebtf.runtime.RuntimeBTF.evaluate (src/sparsebtf/runtime/decoder.py) exactly:
+//
+//   texel    col = floor(fract(u) W), row = floor(fract(v) H); point p = row/P + (H/P)(col/P),
+//            i1 = row % P, i2 = col % P
+//   angular  k nearest sampled directions by chord distance |q - x| (ties: lower index first)
+//            with the weights of runtime/angular.py (nearest, linear = release 2-NN,
+//            barycentric, gaussian)
+//   Eq. 6    X_c = sum_s v_s U1[i1,l1] U2[i2,l2] (sum_a wl_a U3[L_a,l3]) (sum_b wv_b U4[V_b,l4])
+//            over the first min(count, tau'_c) coefficients (stored by decreasing |v|), then
+//            log_c = X_c sd + mu with mu, sd blended by wl_a wv_b ("standardized" domain), or
+//            log_c = sum_ab wl_a wv_b (sd_ab X_c(L_a,V_b) + mu_ab) ("log" domain, release shader)
+//   colour   rgb = exp(YUV_TO_RGB [log_Y, log_U, log_V]) - eps
+//
+// Texture layout (built by sparsebtf.rendering.viewer.pack_textures): every 1D array of n
+// entries lies in a SB_TEX_WIDTH-wide 2D texture, entry i at texel (i % W, i / W).
+//   sb_values     R32F     values_Y | values_U | values_V
+//   sb_locations  R32UI    packed l1 | l2<<8 | l3<<16 | l4<<24, same order
+//   sb_points     RGBA32I  at c*P + p: (first coefficient in sb_values, count, dictionary k, 0)
+//   sb_dicts      R32F     per channel dict1, dict2, dict3, dict4 (K, m, m) C order;
+//                          sb_dictBase[c] = their four start offsets
+//   sb_stats      R32F     mean (S, L, V) then std (S, L, V); std starts at sb_stdBase
+//   sb_dirs       RGBA32F  lights (xyz) then views
+//   sb_neigh      R32I     optional candidate tables (64 elevation x 256 azimuth x 8), lights
+//                          then views (runtime.angular.neighbour_table)
+
+#define SB_TEX_WIDTH 4096
+#define SB_TEX_SHIFT 12
+#define SB_MAX_NN 4
+#define SB_NEIGH_ELEV 64
+#define SB_NEIGH_PHI 256
+#define SB_NEIGH_K 8
+
+#define SB_NEAREST 0
+#define SB_LINEAR 1
+#define SB_BARYCENTRIC 2
+#define SB_GAUSSIAN 3
+
+uniform sampler2D sb_values;
+uniform usampler2D sb_locations;
+uniform isampler2D sb_points;
+uniform sampler2D sb_dicts;
+uniform sampler2D sb_stats;
+uniform sampler2D sb_dirs;
+uniform isampler2D sb_neigh;
+
+uniform ivec4 sb_size;        // H, W, patch P, n_rb = H / P
+uniform ivec4 sb_counts;      // n_points, n_lights, n_views, S (1 shared or 3 per-channel stats)
+uniform ivec4 sb_dictBase[3]; // start of dict1..dict4 of channel Y, U, V in sb_dicts
+uniform ivec4 sb_dictSize;    // K is per channel, so only m: (P, P, L, V) as stored
+uniform int sb_stdBase;       // start of std in sb_stats
+uniform ivec3 sb_tau;         // run-time level of detail tau' per channel (Y, U, V)
+uniform vec3 sb_yuvToRgb[3];  // rows of the YUV -> RGB matrix
+uniform float sb_eps;         // log offset
+uniform int sb_interp;        // SB_NEAREST .. SB_GAUSSIAN
+uniform int sb_knn;           // neighbours of the gaussian scheme (1..SB_MAX_NN)
+uniform float sb_beta;        // gaussian sharpness
+uniform int sb_domain;        // 0 standardized (Eq. 6), 1 log (release)
+uniform int sb_useNeigh;      // 1: rank the 8 candidates of sb_neigh instead of all directions
+
+ivec2 sb_coord(int i) {
+    return ivec2(i & (SB_TEX_WIDTH - 1), i >> SB_TEX_SHIFT);
+}
+
+float sb_f(sampler2D t, int i) {
+    return texelFetch(t, sb_coord(i), 0).r;
+}
+
+// Insert candidate `i` at squared distance d2 into the ascending list (ties: lower index first,
+// provided candidates arrive by increasing index, as in the full scan).
+void sb_insert(int i, float d2, inout int idx[SB_MAX_NN], inout float dist[SB_MAX_NN]) {
+    if (d2 < dist[SB_MAX_NN - 1] || (d2 == dist[SB_MAX_NN - 1] && i < idx[SB_MAX_NN - 1])) {
+        int j = SB_MAX_NN - 1;
+        while (j > 0 && (d2 < dist[j - 1] || (d2 == dist[j - 1] && i < idx[j - 1]))) {
+            dist[j] = dist[j - 1];
+            idx[j] = idx[j - 1];
+            j--;
+        }
+        dist[j] = d2;
+        idx[j] = i;
+    }
+}
+
+// The SB_MAX_NN nearest of the n directions starting at `base` in sb_dirs (table `table`
+// of sb_neigh when sb_useNeigh is set): indices relative to base, squared chord distances.
+void sb_nearest(vec3 q, int base, int n, int table, out int idx[SB_MAX_NN],
+                out float dist[SB_MAX_NN]) {
+    for (int j = 0; j < SB_MAX_NN; ++j) {
+        idx[j] = 0;
+        dist[j] = 1e30;
+    }
+    if (sb_useNeigh != 0) {
+        float el = asin(clamp(q.z, 0.0, 1.0));
+        float ph = atan(q.y, q.x);
+        int ie = clamp(int(floor(el / 1.5707963267948966 * float(SB_NEIGH_ELEV))), 0,
+                       SB_NEIGH_ELEV - 1);
+        int ia = clamp(int(floor((ph + 3.141592653589793) / 6.283185307179586 *
+                                 float(SB_NEIGH_PHI))), 0, SB_NEIGH_PHI - 1);
+        int cell = ((table * SB_NEIGH_ELEV + ie) * SB_NEIGH_PHI + ia) * SB_NEIGH_K;
+        for (int j = 0; j < SB_NEIGH_K; ++j) {
+            int i = texelFetch(sb_neigh, sb_coord(cell + j), 0).r;
+            vec3 d = q - texelFetch(sb_dirs, sb_coord(base + i), 0).xyz;
+            sb_insert(i, dot(d, d), idx, dist);
+        }
+    } else {
+        for (int i = 0; i < n; ++i) {
+            vec3 d = q - texelFetch(sb_dirs, sb_coord(base + i), 0).xyz;
+            sb_insert(i, dot(d, d), idx, dist);
+        }
+    }
+}
+
+void sb_linear(float d0, float d1, out float w[SB_MAX_NN]) {
+    w[0] = d1 > 0.0 ? 0.5 + 0.5 * (d1 - d0) / d1 : 0.5;
+    w[1] = 1.0 - w[0];
+    w[2] = 0.0;
+    w[3] = 0.0;
+}
+
+// Neighbours and weights of direction q (runtime.angular.angular_weights); returns k.
+int sb_weights(vec3 q, int base, int n, int table, out int idx[SB_MAX_NN],
+               out float w[SB_MAX_NN]) {
+    q = normalize(q);
+    float dist[SB_MAX_NN];
+    sb_nearest(q, base, n, table, idx, dist);
+    for (int j = 0; j < SB_MAX_NN; ++j) w[j] = 0.0;
+    if (sb_interp == SB_NEAREST || n < 2) {
+        w[0] = 1.0;
+        return 1;
+    }
+    if (sb_interp == SB_LINEAR || (sb_interp == SB_BARYCENTRIC && n < 3)) {
+        sb_linear(sqrt(dist[0]), sqrt(dist[1]), w);
+        return 2;
+    }
+    if (sb_interp == SB_BARYCENTRIC) {
+        // central (gnomonic) projection of q onto the neighbours' triangle: solve
+        // [x0 x1 x2] b = q (Cramer), normalise b to sum 1, clip negatives, renormalise;
+        // a degenerate triangle falls back to the 2-NN weights
+        vec3 x0 = texelFetch(sb_dirs, sb_coord(base + idx[0]), 0).xyz;
+        vec3 x1 = texelFetch(sb_dirs, sb_coord(base + idx[1]), 0).xyz;
+        vec3 x2 = texelFetch(sb_dirs, sb_coord(base + idx[2]), 0).xyz;
+        vec3 c12 = cross(x1, x2);
+        float det = dot(x0, c12);
+        bool ok = abs(det) > 1e-9;
+        vec3 b = vec3(dot(q, c12), dot(q, cross(x2, x0)), dot(q, cross(x0, x1))) /
+                 (ok ? det : 1.0);
+        float s = b.x + b.y + b.z;
+        ok = ok && s > 0.0;
+        vec3 bw = max(b / (ok ? s : 1.0), 0.0);
+        float t = bw.x + bw.y + bw.z;
+        ok = ok && t > 0.0;
+        if (ok) {
+            bw /= t;
+            w[0] = bw.x;
+            w[1] = bw.y;
+            w[2] = bw.z;
+        } else {
+            sb_linear(sqrt(dist[0]), sqrt(dist[1]), w);
+        }
+        return 3;
+    }
+    // gaussian: w ~ exp(-beta d^2), shifted by the nearest for range
+    int k = clamp(sb_knn, 1, min(n, SB_MAX_NN));
+    float s = 0.0;
+    for (int j = 0; j < SB_MAX_NN; ++j) {
+        if (j >= k) break;
+        w[j] = exp(-sb_beta * (dist[j] - dist[0]));
+        s += w[j];
+    }
+    for (int j = 0; j < SB_MAX_NN; ++j) w[j] /= s;
+    return k;
+}
+
+// Data point, in-patch row and column of a texture coordinate (wrapping).
+ivec3 sb_texel(vec2 uv) {
+    vec2 f = uv - floor(uv);
+    int col = min(int(f.x * float(sb_size.y)), sb_size.y - 1);
+    int row = min(int(f.y * float(sb_size.x)), sb_size.x - 1);
+    int P = sb_size.z;
+    return ivec3(row / P + sb_size.w * (col / P), row % P, col % P);
+}
+
+// Log-domain value of channel c at point/in-patch texel t (Eq. 5 summed with Eq. 6 weights).
+float sb_channel(int c, ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN], int nv,
+                 int iv[SB_MAX_NN], float wv[SB_MAX_NN]) {
+    int P = sb_size.z, L = sb_dictSize.z, V = sb_dictSize.w;
+    int nL = sb_counts.y, nV = sb_counts.z;
+    ivec4 pt = texelFetch(sb_points, sb_coord(c * sb_counts.x + t.x), 0);
+    int start = pt.x;
+    int count = min(pt.y, sb_tau[c]);
+    int k = pt.z;
+    ivec4 db = sb_dictBase[c];
+    int b1 = db.x + (k * P + t.y) * P;
+    int b2 = db.y + (k * P + t.z) * P;
+    int b3[SB_MAX_NN];
+    int b4[SB_MAX_NN];
+    for (int a = 0; a < SB_MAX_NN; ++a) {
+        b3[a] = db.z + (k * L + il[a]) * L;
+        b4[a] = db.w + (k * V + iv[a]) * V;
+    }
+    int sidx = (sb_counts.w == 3 ? c : 0) * nL * nV;
+    if (sb_domain == 0) {
+        float acc = 0.0;
+        for (int s = 0; s < count; ++s) {
+            int i = start + s;
+            uint code = texelFetch(sb_locations, sb_coord(i), 0).r;
+            int l1 = int(code & 255u), l2 = int((code >> 8) & 255u);
+            int l3 = int((code >> 16) & 255u), l4 = int(code >> 24);
+            float a = sb_f(sb_values, i) * sb_f(sb_dicts, b1 + l1) * sb_f(sb_dicts, b2 + l2);
+            float s3 = 0.0, s4 = 0.0;
+            for (int j = 0; j < SB_MAX_NN; ++j) {
+                if (j >= nl) break;
+                s3 += wl[j] * sb_f(sb_dicts, b3[j] + l3);
+            }
+            for (int j = 0; j < SB_MAX_NN; ++j) {
+                if (j >= nv) break;
+                s4 += wv[j] * sb_f(sb_dicts, b4[j] + l4);
+            }
+            acc += a * s3 * s4;
+        }
+        float mu = 0.0, sd = 0.0;
+        for (int a = 0; a < SB_MAX_NN; ++a) {
+            if (a >= nl) break;
+            for (int b = 0; b < SB_MAX_NN; ++b) {
+                if (b >= nv) break;
+                int j = sidx + il[a] * nV + iv[b];
+                float ww = wl[a] * wv[b];
+                mu += ww * sb_f(sb_stats, j);
+                sd += ww * sb_f(sb_stats, sb_stdBase + j);
+            }
+        }
+        return acc * sd + mu;
+    }
+    // log domain: one accumulator per (light, view) neighbour pair
+    float x[SB_MAX_NN * SB_MAX_NN];
+    for (int j = 0; j < SB_MAX_NN * SB_MAX_NN; ++j) x[j] = 0.0;
+    for (int s = 0; s < count; ++s) {
+        int i = start + s;
+        uint code = texelFetch(sb_locations, sb_coord(i), 0).r;
+        int l1 = int(code & 255u), l2 = int((code >> 8) & 255u);
+        int l3 = int((code >> 16) & 255u), l4 = int(code >> 24);
+        float a = sb_f(sb_values, i) * sb_f(sb_dicts, b1 + l1) * sb_f(sb_dicts, b2 + l2);
+        float g4[SB_MAX_NN];
+        for (int b = 0; b < SB_MAX_NN; ++b) {
+            if (b >= nv) break;
+            g4[b] = sb_f(sb_dicts, b4[b] + l4);
+        }
+        for (int ja = 0; ja < SB_MAX_NN; ++ja) {
+            if (ja >= nl) break;
+            float g = a * sb_f(sb_dicts, b3[ja] + l3);
+            for (int jb = 0; jb < SB_MAX_NN; ++jb) {
+                if (jb >= nv) break;
+                x[ja * SB_MAX_NN + jb] += g * g4[jb];
+            }
+        }
+    }
+    float lg = 0.0;
+    for (int a = 0; a < SB_MAX_NN; ++a) {
+        if (a >= nl) break;
+        for (int b = 0; b < SB_MAX_NN; ++b) {
+            if (b >= nv) break;
+            int j = sidx + il[a] * nV + iv[b];
+            lg += wl[a] * wv[b] *
+                  (sb_f(sb_stats, sb_stdBase + j) * x[a * SB_MAX_NN + b] + sb_f(sb_stats, j));
+        }
+    }
+    return lg;
+}
+
+// Linear RGB of the BTF at texture coordinate uv for light wi and view wo, both in the local
+// frame (z = normal, x = +u / texture columns, y = +v / texture rows). Eq. 5 at sampled
+// directions, Eq. 6 between them. Masking below the horizon is the caller's business.
+vec3 sb_evaluate(vec2 uv, vec3 wi, vec3 wo) {
+    ivec3 t = sb_texel(uv);
+    int il[SB_MAX_NN], iv[SB_MAX_NN];
+    float wl[SB_MAX_NN], wv[SB_MAX_NN];
+    int nl = sb_weights(wi, 0, sb_counts.y, 0, il, wl);
+    int nv = sb_weights(wo, sb_counts.y, sb_counts.z, 1, iv, wv);
+    vec3 lg = vec3(sb_channel(0, t, nl, il, wl, nv, iv, wv),
+                   sb_channel(1, t, nl, il, wl, nv, iv, wv),
+                   sb_channel(2, t, nl, il, wl, nv, iv, wv));
+    vec3 ln = vec3(dot(sb_yuvToRgb[0], lg), dot(sb_yuvToRgb[1], lg), dot(sb_yuvToRgb[2], lg));
+    return exp(ln) - sb_eps;
+}

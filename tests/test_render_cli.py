@@ -1,0 +1,84 @@
+"""``sparsebtf render``: coded vs reference side by side, JSON numbers, clear errors."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+
+import numpy as np
+import pytest
+
+from sparsebtf.cli.main import main
+from sparsebtf.codec import encode, train
+from sparsebtf.rendering import llvm
+
+from .conftest import smooth_btf
+
+if importlib.util.find_spec("mitsuba") is None or importlib.util.find_spec("drjit") is None:
+    pytest.skip("mitsuba/drjit not installed (pip install mitsuba drjit)", allow_module_level=True)
+_status = llvm.configure()
+if not _status.ok:
+    pytest.skip(f"Dr.Jit LLVM backend unusable here: {_status.message()}", allow_module_level=True)
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    from sparsebtf.data.dense_file import write_dense
+    from sparsebtf.storage import save_coded, save_model
+
+    d = tmp_path_factory.mktemp("render")
+    model = train([smooth_btf(s) for s in range(3)], n_dictionaries=3, tau_train=(16, 4, 4),
+                  patch=4, sample=1.0, max_iter=2, progress=False)  # fmt: skip
+    save_model(model, d / "model.h5")
+    btf = smooth_btf(9)
+    coded = encode(btf, model, tau=(100, 20, 20), eps=0.0, progress=False)
+    coded.params["model_file"] = str(d / "model.h5")
+    save_coded(coded, d / "m.coded.h5")
+    write_dense(d / "m.h5", btf, progress=False)
+    write_dense(d / "wrong.h5", smooth_btf(3, size=12), progress=False)
+    return d
+
+
+def test_render_with_reference_writes_png_and_json(files, capsys):
+    out = files / "cmp.png"
+    raw = files / "raw.npz"
+    rc = main(["render", str(files / "m.coded.h5"), "-o", str(out), "--size", "40x32",
+               "--spp", "4", "--reference", str(files / "m.h5"), "--uv-scale", "2",
+               "--interpolation", "barycentric", "--save-raw", str(raw), "--json"])  # fmt: skip
+    assert rc == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["variant"] == "llvm_ad_rgb" and res["size"] == [40, 32]
+    assert 0 < res["mse"] and res["ssim"] > 0.9 and res["psnr"] > 25
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    arrays = np.load(raw)
+    assert arrays["render"].shape == (32, 40, 3) and arrays["reference"].shape == (32, 40, 3)
+    assert np.all(np.isfinite(arrays["render"]))
+    a, b = arrays["render"].astype(np.float64), arrays["reference"].astype(np.float64)
+    assert np.mean((a - b) ** 2) == pytest.approx(res["mse"], rel=1e-6)
+
+
+def test_render_alone_cloth(files, capsys):
+    out = files / "cloth.png"
+    rc = main(["render", str(files / "m.coded.h5"), "-o", str(out), "--scene", "cloth",
+               "--size", "24", "--spp", "2", "--tau", "0.25"])  # fmt: skip
+    assert rc == 0
+    assert "wrote" in capsys.readouterr().out and out.stat().st_size > 0
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--reference", "{d}/m.h5", "--max-gib", "1e-6"], "GiB"),
+        (["--reference", "{d}/wrong.h5"], "does not match"),
+        (["--size", "big"], "--size"),
+        (["--envmap", "{d}/sky.png"], ".exr or .hdr"),
+        (["--tau", "0,1,1"], "tau"),
+    ],
+)
+def test_render_errors_are_clear(files, capsys, extra, message):
+    args = [a.format(d=files) for a in extra]
+    rc = main(["render", str(files / "m.coded.h5"), "-o", str(files / "x.png"), "--size", "8",
+               "--spp", "1", *args])  # fmt: skip
+    assert rc == 2
+    assert message in capsys.readouterr().err
+    assert not (files / "x.png").exists()
