@@ -154,15 +154,23 @@ def cmd_encode(args: argparse.Namespace) -> int:
 
     model = load_model(args.model)
     btf = _open(args.btf, crop=args.crop)
-    coded = encode(
-        btf,
-        model,
-        tau=args.tau,
-        eps=args.eps,
-        std_mode=args.std_mode,
-        batch_size=args.batch,
-        allow_below_training=args.allow_below_training,
-    )
+    if args.target_ratio is not None or args.target_bytes is not None:
+        from ..codec import encode_to_size
+
+        coded = encode_to_size(
+            btf, model, target_bytes=args.target_bytes, target_ratio=args.target_ratio,
+            per_material=args.per_material, std_mode=args.std_mode, batch_size=args.batch,
+        )
+    else:
+        coded = encode(
+            btf,
+            model,
+            tau=args.tau or "885,64,64",
+            eps=args.eps,
+            std_mode=args.std_mode,
+            batch_size=args.batch,
+            allow_below_training=args.allow_below_training,
+        )
     coded.params["model_file"] = str(Path(args.model).resolve())
     save_coded(coded, args.output)
     report = storage_report(coded, model, args.output)
@@ -386,9 +394,16 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("btf", metavar="BTF", help="the BTF to code (.h5 or synth:...)")
     s.add_argument("-m", "--model", required=True, help="model file from 'sparsebtf train'")
     s.add_argument("-o", "--output", required=True, help="coded file to write (.h5)")
-    s.add_argument(
-        "--tau", default="885,64,64", help="sparsity cap per channel (default 885,64,64)"
+    size = s.add_mutually_exclusive_group()
+    size.add_argument(
+        "--tau", default=None, help="sparsity cap per channel (default 885,64,64)"
     )
+    size.add_argument("--target-ratio", type=float, default=None,
+                      help="rate control: reach this compression ratio (paper accounting)")
+    size.add_argument("--target-bytes", type=int, default=None,
+                      help="rate control: reach this size in bytes (paper accounting)")
+    s.add_argument("--per-material", action="store_true",
+                   help="targets exclude the shared dictionaries (per-material ratio/bytes)")
     s.add_argument("--eps", type=float, default=1e-5, help="residual MSE threshold (default 1e-5)")
     s.add_argument(
         "--std-mode", choices=["shared", "per_channel"], default=None, help="default: the model's"
@@ -453,6 +468,12 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--seed", type=int, default=0)
     s.add_argument("--json", action="store_true", help="also print the results as JSON")
     s.set_defaults(func=cmd_demo)
+
+    # Commands defined in their own modules: each has register(sub) adding its subparser.
+    from . import bench, blend, render, view
+
+    for module in (blend, render, view, bench):
+        module.register(sub)
     return p
 
 
