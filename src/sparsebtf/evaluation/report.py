@@ -489,8 +489,9 @@ def regenerate(run_dir: str | os.PathLike[str], docs: str | os.PathLike[str]) ->
     figure3(result, img_dir / "figure3.png")
     quality_storage(result, img_dir / "quality_storage.png")
     for g in result.get("grids", []):
-        if (run / g).exists():
-            shutil.copyfile(run / g, img_dir / g)
+        src, dst = run / g, img_dir / g
+        if src.exists() and not (dst.exists() and src.samefile(dst)):
+            shutil.copyfile(src, dst)
     target = docs / "results.md"
     text = render_markdown(result, summary, img="results/")
     text = text.replace(
