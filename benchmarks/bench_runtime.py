@@ -23,43 +23,8 @@ import time
 
 import numpy as np
 
-from _common import best_of, machine, report
-from sparsebtf.data.directions import ubo2014
-from sparsebtf.learning.coding import SparseCodes
-from sparsebtf.learning.ensemble import random_orthonormal
-from sparsebtf.model import CHANNELS, CodedBTF, Model
-from sparsebtf.preprocessing import Standardization
+from _common import TAU, best_of, machine, report, synthetic_coded
 from sparsebtf.runtime import RuntimeBTF, angular_weights, kernels
-
-TAU = {"Y": 885, "U": 64, "V": 64}
-
-
-def synthetic_coded(size: int = 40, k: int = 8, seed: int = 0) -> CodedBTF:
-    rng = np.random.default_rng(seed)
-    d = ubo2014()
-    shape = (10, 10, 151, 151)
-    dicts = {
-        ch: [np.stack([random_orthonormal(m, rng) for _ in range(k)]) for m in shape]
-        for ch in CHANNELS
-    }
-    model = Model(dicts, 10, d, d)
-    n_pts = (size // 10) ** 2
-    codes = {}
-    for ch in CHANNELS:
-        t = TAU[ch]
-        lin = np.concatenate([rng.choice(int(np.prod(shape)), t, replace=False)
-                              for _ in range(n_pts)])  # fmt: skip
-        mag = np.sort(rng.exponential(1.0, (n_pts, t)), axis=1)[:, ::-1].ravel()
-        vals = (mag * rng.choice([-1, 1], mag.size)).astype(np.float32)
-        codes[ch] = SparseCodes(
-            shape, rng.integers(0, k, n_pts).astype(np.uint8), np.full(n_pts, t),
-            vals, np.stack(np.unravel_index(lin, shape), 1).astype(np.int32), np.zeros(n_pts),
-        )  # fmt: skip
-    stats = Standardization(
-        "shared", rng.uniform(-1.5, -0.5, (151, 151, 1)), rng.uniform(0.3, 0.8, (151, 151, 1))
-    )
-    return CodedBTF(codes, stats, size, size, 10, d, d, model.content_hash, {"tau": TAU},
-                    "synthetic", {}, model)  # fmt: skip
 
 
 def hemisphere(rng: np.random.Generator, n: int) -> np.ndarray:

@@ -22,61 +22,15 @@ from __future__ import annotations
 import argparse
 import time
 
-import numpy as np
-
-from _common import machine, report
-from sparsebtf.data.directions import ubo2014
-from sparsebtf.learning.coding import SparseCodes
-from sparsebtf.learning.ensemble import random_orthonormal
-from sparsebtf.model import CHANNELS, CodedBTF, Model
-from sparsebtf.preprocessing import Standardization
-from sparsebtf.rendering.viewer import build_bundle, serve
+from _common import machine, report, synthetic_coded
+from sparsebtf.model import CHANNELS
+from sparsebtf.rendering.viewer import HEADLESS_CHROMIUM_FLAGS, build_bundle, serve
 from sparsebtf.runtime import RuntimeBTF
 
 FLAGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--use-angle=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--disable-quic",
-    "--hide-scrollbars",
+    *HEADLESS_CHROMIUM_FLAGS,
     "--disable-gpu-watchdog",  # one full-canvas frame at tau = 885 takes seconds on a CPU
 ]
-
-
-def random_coded(size: int, k: int, tau: tuple[int, int, int], seed: int = 0) -> CodedBTF:
-    """Random orthonormal dictionaries and random sparse codes at UBO2014 angular resolution."""
-    rng = np.random.default_rng(seed)
-    d = ubo2014()
-    sizes = (10, 10, 151, 151)
-    dicts = {
-        ch: [np.stack([random_orthonormal(m, rng) for _ in range(k)]) for m in sizes]
-        for ch in CHANNELS
-    }
-    model = Model(dicts, 10, d, d, {"tau_train": dict(zip(CHANNELS, tau, strict=True))})
-    n_points = (size // 10) ** 2
-    codes = {}
-    for ch, t in zip(CHANNELS, tau, strict=True):
-        counts = np.full(n_points, t, dtype=np.int64)
-        n = int(counts.sum())
-        mags = np.sort(rng.exponential(1.0, (n_points, t)), axis=1)[:, ::-1].ravel()
-        values = (mags * rng.choice([-1.0, 1.0], n) / np.sqrt(t)).astype(np.float32)
-        locations = np.stack([rng.integers(0, m, n) for m in sizes], axis=1)
-        codes[ch] = SparseCodes(
-            sizes, rng.integers(0, k, n_points), counts, values, locations, np.zeros(n_points)
-        )
-    mean = rng.normal(-1.5, 0.2, (151, 151, 1))
-    std = rng.uniform(0.2, 0.5, (151, 151, 1))
-    stats = Standardization("shared", mean, std)
-    coded = CodedBTF(
-        codes, stats, size, size, 10, d, d, model.content_hash,
-        {"tau": dict(zip(CHANNELS, tau, strict=True))}, name=f"random{size}",
-    )  # fmt: skip
-    return coded.attach(model)
 
 
 def main() -> None:
@@ -94,7 +48,7 @@ def main() -> None:
 
     tau = tuple(int(x) for x in a.tau.split(","))
     t0 = time.perf_counter()
-    rt = RuntimeBTF(random_coded(a.size, a.dicts, tau))  # type: ignore[arg-type]
+    rt = RuntimeBTF(synthetic_coded(a.size, a.dicts, dict(zip(CHANNELS, tau, strict=True))))
     bundle = build_bundle(rt)
     prep = time.perf_counter() - t0
     results: dict[str, dict] = {}

@@ -30,25 +30,20 @@ import sparsebtf
 from sparsebtf.codec import encode, train
 from sparsebtf.errors import BTFInputError, FileFormatError
 from sparsebtf.rendering import viewer
-from sparsebtf.rendering.viewer import build_bundle, export, pack_textures, serve
+from sparsebtf.rendering.viewer import (
+    HEADLESS_CHROMIUM_FLAGS,
+    build_bundle,
+    export,
+    pack_textures,
+    serve,
+)
 from sparsebtf.runtime import RuntimeBTF
 from sparsebtf.storage import save_coded, save_model
 
 from .conftest import smooth_btf
 
 CHROMIUM = "/usr/bin/chromium"
-FLAGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--use-angle=swiftshader",
-    "--enable-unsafe-swiftshader",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-    "--disable-quic",
-    "--hide-scrollbars",
-]
+FLAGS = list(HEADLESS_CHROMIUM_FLAGS)
 SIZE = 64
 RTOL, ATOL = 1e-4, 1e-5
 WI = np.array([0.3, -0.2, 0.9]) / np.linalg.norm([0.3, -0.2, 0.9])

@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from ...runtime import RuntimeBTF
 
 __all__ = [
+    "HEADLESS_CHROMIUM_FLAGS",
     "MAX_TEX_HEIGHT",
     "TEX_WIDTH",
     "ViewerBundle",
@@ -61,6 +62,20 @@ MANIFEST_FORMAT = "sparsebtf-webgl"
 #: Names of the static files of the page.
 STATIC_FILES = ("index.html", "viewer.js")
 SHADER_FILES = ("sparsebtf_lookup.glsl", "viewer_scene.glsl")
+#: Flags that give headless Debian Chromium WebGL2 on SwiftShader without touching the network
+#: (``shared/specs/rendering-notes.md``); the viewer's tests and benchmark launch it with them.
+HEADLESS_CHROMIUM_FLAGS = (
+    "--no-sandbox",
+    "--disable-gpu",
+    "--use-angle=swiftshader",
+    "--enable-unsafe-swiftshader",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+    "--disable-quic",
+    "--hide-scrollbars",
+)
 _CHANNELS = ("Y", "U", "V")
 _ALIGN = 16
 _TYPES = {"R32F": ("<f4", 1), "R32UI": ("<u4", 1), "R32I": ("<i4", 1), "RGBA32I": ("<i4", 4),
