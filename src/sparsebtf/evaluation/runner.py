@@ -37,6 +37,7 @@ import numpy as np
 
 from .. import library_version
 from .._atomic import atomic_output
+from .._json import json_default
 from ..codec import coded_btf_view, encode_levels, encode_rate_levels, train
 from ..data.btf import BTF
 from ..errors import BTFInputError
@@ -381,19 +382,7 @@ def run_quality(
     stage("report", t0)
     result["timings_seconds"] = timings
     with atomic_output(out / "results.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=2, default=_json_default))
+        tmp.write_text(json.dumps(result, indent=2, default=json_default))
     say(f"wrote {out / 'results.json'} and {out / 'results.md'} "
         f"({result['seconds']:.0f} s)")
     return result
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.integer):
-        return int(o)
-    if isinstance(o, np.floating):
-        return float(o)
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    return str(o)

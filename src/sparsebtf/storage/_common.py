@@ -12,6 +12,7 @@ from typing import Any
 import h5py
 import numpy as np
 
+from .._json import json_default
 from ..errors import FileFormatError, SparseBTFError
 
 #: What h5py raises on damaged files (besides our own errors, which pass through).
@@ -21,21 +22,9 @@ _HDF5_ERRORS = (
 )
 
 
-def _json_default(obj: Any) -> Any:
-    if isinstance(obj, np.ndarray):
-        return obj.tolist()
-    if isinstance(obj, np.generic):
-        return obj.item()
-    if isinstance(obj, (set, frozenset)):
-        return sorted(obj, key=str)
-    if isinstance(obj, os.PathLike):
-        return os.fspath(obj)
-    return str(obj)
-
-
 def to_json(obj: Any) -> str:
     """JSON text of a metadata dict; numpy arrays become lists, numpy scalars Python numbers."""
-    return json.dumps(obj, sort_keys=True, default=_json_default)
+    return json.dumps(obj, sort_keys=True, default=json_default)
 
 
 def as_str(value: Any) -> str:

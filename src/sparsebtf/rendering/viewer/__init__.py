@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..._json import json_default
 from ...errors import BTFInputError, FileFormatError, SparseBTFError
 
 if TYPE_CHECKING:
@@ -258,9 +259,7 @@ class ViewerBundle:
 
 
 def _json_meta(meta: dict[str, Any]) -> dict[str, Any]:
-    return json.loads(
-        json.dumps(meta, default=lambda o: o.item() if hasattr(o, "item") else str(o))
-    )
+    return json.loads(json.dumps(meta, default=json_default))
 
 
 def build_bundle(rt: RuntimeBTF, neighbours: bool = True) -> ViewerBundle:
