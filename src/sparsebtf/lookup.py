@@ -16,7 +16,7 @@ import numpy as np
 from .data.io import file_format, open_btf
 from .datapoints import PatchGrid
 from .errors import BTFInputError
-from .preprocessing import EPS, gather_statistics, to_log_yuv, yuv_to_rgb
+from .preprocessing import from_log_yuv, gather_statistics, to_log_yuv
 
 __all__ = ["lookup"]
 
@@ -58,7 +58,7 @@ def lookup(
             log[ch] = float(z * sd[0, 0, c] + mu[0, 0, c])
         out.update(point=p, in_patch=[i1, i2], standardized=std, log=log)
         if all(ch in log for ch in ("Y", "U", "V")):
-            rgb = np.exp(yuv_to_rgb(np.array([log["Y"], log["U"], log["V"]]))) - EPS
+            rgb = from_log_yuv(np.array([log["Y"], log["U"], log["V"]]))
             out["rgb"] = [float(v) for v in rgb]
         else:
             out["rgb"] = None

@@ -17,13 +17,15 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Mapping, Sequence
+from dataclasses import replace
 from typing import Any, Literal
 
 import numpy as np
 
+from ..datapoints import PatchGrid
 from ..errors import BTFInputError
 from ..model import CHANNELS, CodedBTF
-from ..preprocessing import YUV_TO_RGB, YUV_TO_RGB_RELEASE
+from ..preprocessing import YUV_TO_RGB, from_log_yuv
 from . import kernels
 from .angular import SCHEMES, Scheme, angular_weights, neighbour_table
 
@@ -118,11 +120,9 @@ class RuntimeBTF:
             ch: c.truncate(self.tau[ch]) if np.max(c.counts, initial=0) > self.tau[ch] else c
             for ch, c in coded.codes.items()
         }
-        self.coded = CodedBTF(
-            codes, coded.stats, coded.height, coded.width, coded.patch, coded.lights,
-            coded.views, coded.model_hash, dict(coded.params), coded.name, dict(coded.attrs),
-            model,
-        )  # fmt: skip
+        self.coded = replace(
+            coded, codes=codes, params=dict(coded.params), attrs=dict(coded.attrs)
+        )
         self.dtype = np.dtype(dtype)
         self._channels = {ch: self._channel_arrays(ch) for ch in CHANNELS}
         st = coded.stats
@@ -234,8 +234,8 @@ class RuntimeBTF:
                 )
         if row.shape[0] != n:
             raise BTFInputError(f"{row.shape[0]} texels for {n} direction pairs")
-        pts = (row // p + (h // p) * (col // p)).astype(np.int64)
-        return pts, (row % p).astype(np.int64), (col % p).astype(np.int64)
+        pts, i1, i2 = PatchGrid(h, w, p).locate(row, col)
+        return pts.astype(np.int64), i1.astype(np.int64), i2.astype(np.int64)
 
     def _select_backend(self, backend: str) -> str:
         if backend == "auto":
@@ -319,8 +319,7 @@ class RuntimeBTF:
                 log[:, c] = np.einsum("nab,nab->n", w2, sd[si] * xp + mu[si])
         if output == "log_yuv":
             return log.astype(np.float32)
-        m = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
-        return (np.exp(log @ m.T) - self.eps).astype(np.float32)
+        return from_log_yuv(log, self.eps, release_matrix).astype(np.float32)
 
     def image(
         self,
