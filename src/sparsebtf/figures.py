@@ -27,6 +27,7 @@ __all__ = [
     "error_image",
     "quality_plot",
     "save_angular_images",
+    "save_figure",
     "save_png",
     "tone_map",
 ]
@@ -46,6 +47,16 @@ def save_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:
     target = Path(path)
     with atomic_output(target) as tmp:
         plt.imsave(tmp, (np.clip(image, 0, 1) * 255).round().astype(np.uint8), format="png")
+    return target
+
+
+def save_figure(fig: Any, path: str | os.PathLike[str], dpi: float) -> Path:
+    """Lay out a matplotlib figure, write it as PNG atomically and close it."""
+    fig.tight_layout()
+    target = Path(path)
+    with atomic_output(target) as tmp:
+        fig.savefig(tmp, dpi=dpi, format="png")
+    plt.close(fig)
     return target
 
 
@@ -96,12 +107,7 @@ def comparison_grid(
     for ax in axes.ravel():
         ax.set_xticks([])
         ax.set_yticks([])
-    fig.tight_layout()
-    target = Path(path)
-    with atomic_output(target) as tmp:
-        fig.savefig(tmp, dpi=60 + 20 * zoom, format="png")
-    plt.close(fig)
-    return target
+    return save_figure(fig, path, dpi=60 + 20 * zoom)
 
 
 def quality_plot(
@@ -135,9 +141,4 @@ def quality_plot(
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     ax.set_title("SparseBTF: quality vs storage")
-    fig.tight_layout()
-    target = Path(path)
-    with atomic_output(target) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return target
+    return save_figure(fig, path, dpi=110)

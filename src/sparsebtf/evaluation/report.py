@@ -29,6 +29,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .._atomic import atomic_output
+from ..figures import save_figure
 from ..storage.accounting import paper_storage
 
 __all__ = ["regenerate", "summarise", "write_report"]
@@ -313,11 +314,7 @@ def figure3(result: dict[str, Any], path: Path) -> Path:
     ax.set_title(f"SparseBTF: error vs sparsity, {len(mats)} unseen materials (cf. Figure 3)")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=6, ncol=2, loc="upper right")
-    fig.tight_layout()
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 def quality_storage(result: dict[str, Any], path: Path) -> Path:
@@ -345,11 +342,7 @@ def quality_storage(result: dict[str, Any], path: Path) -> Path:
         ax.set_title(title)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=7)
-    fig.tight_layout()
-    with atomic_output(path) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110)
 
 
 # -- markdown ---------------------------------------------------------------------------------

@@ -17,7 +17,6 @@ from typing import Any
 
 import numpy as np
 
-from .._atomic import atomic_output
 from ..errors import BTFInputError
 
 __all__ = [
@@ -166,7 +165,7 @@ def save_side_by_side(
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    from ..figures import error_image
+    from ..figures import error_image, save_figure
 
     exposure = metrics.get("exposure") or auto_exposure(reference)
     h, w = image.shape[:2]
@@ -188,9 +187,4 @@ def save_side_by_side(
         f"MSE {metrics['mse']:.3g}   PSNR {metrics['psnr']:.2f} dB   SSIM {metrics['ssim']:.4f}",
         fontsize=9,
     )
-    fig.tight_layout()
-    target = Path(path)
-    with atomic_output(target) as tmp:
-        fig.savefig(tmp, dpi=100, format="png")
-    plt.close(fig)
-    return target
+    return save_figure(fig, path, dpi=100)
