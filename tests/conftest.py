@@ -49,3 +49,16 @@ def smooth_btf(seed: int, size: int = 8, n_dirs: int = 13, name: str | None = No
 @pytest.fixture
 def small_btfs() -> list[ArrayBTF]:
     return [smooth_btf(s) for s in range(3)]
+
+
+def tiny_model(max_iter: int = 2):
+    """The tests' small model: K = 3 per channel, trained on ``smooth_btf(0..2)`` (4x4
+    patches, 13 directions, tau_l = 16/4/4, every point)."""
+    from sparsebtf.codec import train
+
+    btfs = [smooth_btf(s) for s in range(3)]
+    return train(
+        btfs, n_dictionaries=3, tau_train=(16, 4, 4), patch=4, sample=1.0, max_iter=max_iter,
+        progress=False,
+    )  # fmt: skip
+

@@ -15,18 +15,14 @@ from sparsebtf.model import CodedBTF
 from sparsebtf.runtime import blend
 from sparsebtf.storage import load_coded, save_coded, save_model
 
-from .conftest import smooth_btf
+from .conftest import smooth_btf, tiny_model
 
 FULL = 4 * 4 * 13 * 13  # every coefficient of a data point
 
 
 @pytest.fixture(scope="module")
 def pair():
-    btfs = [smooth_btf(s) for s in range(3)]
-    model = train(
-        btfs, n_dictionaries=3, tau_train=(16, 4, 4), patch=4, sample=1.0, max_iter=2,
-        progress=False,
-    )  # fmt: skip
+    model = tiny_model()
     a = encode(smooth_btf(7, name="a"), model, tau=(40, 8, 8), eps=0.0, progress=False)
     b = encode(smooth_btf(8, name="b"), model, tau=(40, 8, 8), eps=0.0, progress=False)
     # Make b's points use other dictionaries than a's, so Eq. 8–9 is exercised for sure.

@@ -16,21 +16,12 @@ from sparsebtf.data.directions import tiny
 from sparsebtf.errors import BTFInputError, ModelMismatchError
 from sparsebtf.metrics import compare
 
-from .conftest import smooth_btf
+from .conftest import smooth_btf, tiny_model
 
 
 @pytest.fixture(scope="module")
 def model():
-    btfs = [smooth_btf(s) for s in range(3)]
-    return train(
-        btfs,
-        n_dictionaries=3,
-        tau_train=(16, 4, 4),
-        patch=4,
-        sample=1.0,
-        max_iter=3,
-        progress=False,
-    )
+    return tiny_model(max_iter=3)
 
 
 def test_training_records_monotone_objective(model):

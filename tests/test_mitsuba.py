@@ -12,11 +12,11 @@ import os
 import numpy as np
 import pytest
 
-from sparsebtf.codec import coded_btf_view, encode, train
+from sparsebtf.codec import coded_btf_view, encode
 from sparsebtf.errors import BTFInputError
 from sparsebtf.rendering import llvm
 
-from .conftest import smooth_btf
+from .conftest import smooth_btf, tiny_model
 
 if importlib.util.find_spec("mitsuba") is None or importlib.util.find_spec("drjit") is None:
     pytest.skip("mitsuba/drjit not installed (pip install mitsuba drjit)", allow_module_level=True)
@@ -43,15 +43,7 @@ def _llvm_variant():
 @pytest.fixture(scope="module")
 def material():
     """A tiny trained model, a BTF it never saw, its codes at two levels, as plugin keys."""
-    model = train(
-        [smooth_btf(s) for s in range(3)],
-        n_dictionaries=3,
-        tau_train=(16, 4, 4),
-        patch=4,
-        sample=1.0,
-        max_iter=3,
-        progress=False,
-    )
+    model = tiny_model(max_iter=3)
     btf = smooth_btf(9)
     lossy = encode(btf, model, tau=(100, 20, 20), eps=0.0, progress=False)
     lossless = encode(btf, model, tau=4 * 4 * 13 * 13, eps=0.0, progress=False)

@@ -9,10 +9,10 @@ import numpy as np
 import pytest
 
 from sparsebtf.cli.main import main
-from sparsebtf.codec import encode, train
+from sparsebtf.codec import encode
 from sparsebtf.rendering import llvm
 
-from .conftest import smooth_btf
+from .conftest import smooth_btf, tiny_model
 
 if importlib.util.find_spec("mitsuba") is None or importlib.util.find_spec("drjit") is None:
     pytest.skip("mitsuba/drjit not installed (pip install mitsuba drjit)", allow_module_level=True)
@@ -27,8 +27,7 @@ def files(tmp_path_factory):
     from sparsebtf.storage import save_coded, save_model
 
     d = tmp_path_factory.mktemp("render")
-    model = train([smooth_btf(s) for s in range(3)], n_dictionaries=3, tau_train=(16, 4, 4),
-                  patch=4, sample=1.0, max_iter=2, progress=False)  # fmt: skip
+    model = tiny_model()
     save_model(model, d / "model.h5")
     btf = smooth_btf(9)
     coded = encode(btf, model, tau=(100, 20, 20), eps=0.0, progress=False)

@@ -3,23 +3,19 @@
 import numpy as np
 import pytest
 
-from sparsebtf.codec import coded_btf_view, decode_points_eq5, encode, train
+from sparsebtf.codec import coded_btf_view, decode_points_eq5, encode
 from sparsebtf.data.directions import ubo2014
 from sparsebtf.errors import BTFInputError
 from sparsebtf.runtime import RuntimeBTF, angular_weights, kernels, neighbour_table, texels_from_uv
 
-from .conftest import smooth_btf
+from .conftest import smooth_btf, tiny_model
 
 BACKENDS = ["numpy"] + (["numba"] if kernels.HAVE_NUMBA else [])
 
 
 @pytest.fixture(scope="module")
 def coded():
-    btfs = [smooth_btf(s) for s in range(3)]
-    model = train(
-        btfs, n_dictionaries=3, tau_train=(16, 4, 4), patch=4, sample=1.0, max_iter=2,
-        progress=False,
-    )  # fmt: skip
+    model = tiny_model()
     return encode(smooth_btf(9), model, tau=(40, 8, 8), eps=0.0, progress=False)
 
 

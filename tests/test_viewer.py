@@ -27,7 +27,7 @@ import numpy as np
 import pytest
 
 import sparsebtf
-from sparsebtf.codec import encode, train
+from sparsebtf.codec import encode
 from sparsebtf.errors import BTFInputError, FileFormatError
 from sparsebtf.rendering import viewer
 from sparsebtf.rendering.viewer import (
@@ -40,7 +40,7 @@ from sparsebtf.rendering.viewer import (
 from sparsebtf.runtime import RuntimeBTF
 from sparsebtf.storage import save_coded, save_model
 
-from .conftest import smooth_btf
+from .conftest import smooth_btf, tiny_model
 
 CHROMIUM = "/usr/bin/chromium"
 FLAGS = list(HEADLESS_CHROMIUM_FLAGS)
@@ -52,11 +52,7 @@ WO = np.array([-0.1, 0.4, 0.8]) / np.linalg.norm([-0.1, 0.4, 0.8])
 
 @pytest.fixture(scope="module")
 def model():
-    btfs = [smooth_btf(s) for s in range(3)]
-    return train(
-        btfs, n_dictionaries=3, tau_train=(16, 4, 4), patch=4, sample=1.0, max_iter=2,
-        progress=False,
-    )  # fmt: skip
+    return tiny_model()
 
 
 @pytest.fixture(scope="module")
