@@ -53,6 +53,19 @@ def material_bytes(nnz: int, n_points: int, n_channels: int, location_bytes: int
     return (2 + int(location_bytes)) * int(nnz) + 2 * int(n_points) * int(n_channels)
 
 
+def _coefficient_budget(target_bytes: int, n_points: int, n_channels: int,
+                        location_bytes: int) -> int:
+    """Coefficients that ``target_bytes`` pays for beside the per-point bytes (Table 4);
+    refuses a target below one coefficient per point and channel."""
+    need = material_bytes(n_points * n_channels, n_points, n_channels, location_bytes)
+    if target_bytes < need:
+        raise BTFInputError(
+            f"target of {target_bytes} bytes is below the minimum {need} bytes (one coefficient "
+            f"per data point and channel, {n_points} points x {n_channels} channels)"
+        )
+    return (int(target_bytes) - 2 * n_points * n_channels) // (2 + location_bytes)
+
+
 def reference_counts(
     target_bytes: int,
     n_points: int,
@@ -68,13 +81,7 @@ def reference_counts(
     and channel.
     """
     c = len(channels)
-    need = material_bytes(n_points * c, n_points, c, location_bytes)
-    if target_bytes < need:
-        raise BTFInputError(
-            f"target of {target_bytes} bytes is below the minimum {need} bytes "
-            f"(one coefficient per data point and channel, {n_points} points x {c} channels)"
-        )
-    budget = (int(target_bytes) - 2 * n_points * c) // (2 + location_bytes)
+    budget = _coefficient_budget(target_bytes, n_points, c, location_bytes)
     if isinstance(split, Mapping):
         f = np.array([float(split.get(ch, 1.0)) for ch in channels])
     else:
@@ -134,13 +141,7 @@ def allocate(
     if any(candidates[ch].n_points != p for ch in chans):
         raise BTFInputError("every channel needs candidates for the same points")
     c = len(chans)
-    need = material_bytes(p * c, p, c, location_bytes)
-    if target_bytes < need:
-        raise BTFInputError(
-            f"target of {target_bytes} bytes is below the minimum {need} bytes "
-            f"(one coefficient per data point and channel, {p} points x {c} channels)"
-        )
-    budget = (int(target_bytes) - 2 * p * c) // (2 + location_bytes)
+    budget = _coefficient_budget(target_bytes, p, c, location_bytes)
     extra = budget - p * c
     gains = []
     for ch in chans:

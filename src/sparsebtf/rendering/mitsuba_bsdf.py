@@ -156,31 +156,37 @@ def _parse_tau(text: Any) -> Any:
     return int(f) if f.is_integer() and f >= 1 else f
 
 
+def _cached(ck: tuple, make: Any) -> Any:
+    """``_cache[ck]``, made by ``make()`` on first use (one value per key, even if two
+    threads race to make it)."""
+    with _lock:
+        if ck in _cache:
+            return _cache[ck]
+    value = make()
+    with _lock:
+        return _cache.setdefault(ck, value)
+
+
 def load_runtime(source: tuple, tau: Any = None):
     """A :class:`~sparsebtf.runtime.RuntimeBTF` for a plugin source (cached per process)."""
     from ..model import CodedBTF
     from ..runtime import RuntimeBTF
 
-    ck = ("runtime", source, str(tau))
-    with _lock:
-        if ck in _cache:
-            return _cache[ck]
-    if source[0] == "key":
+
+    def make() -> RuntimeBTF:
+        if source[0] != "key":
+            return RuntimeBTF.from_file(source[1], source[2], tau)
         obj = _materials[source[1]]
         if isinstance(obj, CodedBTF):
-            rt = RuntimeBTF(obj, tau)
-        elif isinstance(obj, RuntimeBTF):
-            rt = obj if tau is None else obj.with_tau(tau)
-        else:
-            raise BTFInputError(
-                f"material {source[1]!r} is a {type(obj).__name__}; the sparsebtf plugin needs "
-                "a RuntimeBTF or a CodedBTF (use sparsebtf_dense for dense BTFs)"
-            )
-    else:
-        rt = RuntimeBTF.from_file(source[1], source[2], tau)
-    with _lock:
-        _cache[ck] = rt
-    return rt
+            return RuntimeBTF(obj, tau)
+        if isinstance(obj, RuntimeBTF):
+            return obj if tau is None else obj.with_tau(tau)
+        raise BTFInputError(
+            f"material {source[1]!r} is a {type(obj).__name__}; the sparsebtf plugin needs "
+            "a RuntimeBTF or a CodedBTF (use sparsebtf_dense for dense BTFs)"
+        )
+
+    return _cached(("runtime", source, str(tau)), make)
 
 
 def dense_table(btf: Any, max_gib: float = DENSE_MAX_GIB) -> np.ndarray:
@@ -650,11 +656,8 @@ def _define(mi: Any, dr: Any) -> tuple[type, type]:
             self.meta = dict(self.rt.meta)
             self._setup_flags(self.prm["two_sided"])
             if not scalar:
-                ck = ("jit", mi.variant(), source, str(tau))
-                with _lock:
-                    if ck not in _cache:
-                        _cache[ck] = _CodedJit(mi, self.rt)
-                    self.data = _cache[ck]
+                self.data = _cached(("jit", mi.variant(), source, str(tau)),
+                                    lambda: _CodedJit(mi, self.rt))  # fmt: skip
 
         def _jit_lookup(self, uv, light, view, active):
             return _coded_lookup(mi, dr, self.data, self.prm, uv, light, view, active)
@@ -681,11 +684,8 @@ def _define(mi: Any, dr: Any) -> tuple[type, type]:
             self.np_data = _load_dense(source, max_gib)
             self._setup_flags(self.prm["two_sided"])
             if not scalar:
-                ck = ("jitdense", mi.variant(), source, max_gib)
-                with _lock:
-                    if ck not in _cache:
-                        _cache[ck] = _DenseJit(mi, *self.np_data)
-                    self.data = _cache[ck]
+                self.data = _cached(("jitdense", mi.variant(), source, max_gib),
+                                    lambda: _DenseJit(mi, *self.np_data))  # fmt: skip
 
         def _jit_lookup(self, uv, light, view, active):
             return _dense_lookup(mi, dr, self.data, self.prm, uv, light, view, active)
