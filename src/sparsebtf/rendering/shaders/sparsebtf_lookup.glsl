@@ -184,6 +184,16 @@ ivec3 sb_texel(vec2 uv) {
     return ivec3(row / P + sb_size.w * (col / P), row % P, col % P);
 }
 
+// Coefficient i: its value times its two spatial dictionary entries (rows b1, b2 already
+// offset to the texel), and its angular atom indices l3, l4 (packed l1 | l2<<8 | l3<<16 | l4<<24).
+float sb_spatial_term(int i, int b1, int b2, out int l3, out int l4) {
+    uint code = texelFetch(sb_locations, sb_coord(i), 0).r;
+    int l1 = int(code & 255u), l2 = int((code >> 8) & 255u);
+    l3 = int((code >> 16) & 255u);
+    l4 = int(code >> 24);
+    return sb_f(sb_values, i) * sb_f(sb_dicts, b1 + l1) * sb_f(sb_dicts, b2 + l2);
+}
+
 // Log-domain value of channel c at point/in-patch texel t (Eq. 5 summed with Eq. 6 weights).
 float sb_channel(int c, ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN], int nv,
                  int iv[SB_MAX_NN], float wv[SB_MAX_NN]) {
@@ -206,11 +216,8 @@ float sb_channel(int c, ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN],
     if (sb_domain == 0) {
         float acc = 0.0;
         for (int s = 0; s < count; ++s) {
-            int i = start + s;
-            uint code = texelFetch(sb_locations, sb_coord(i), 0).r;
-            int l1 = int(code & 255u), l2 = int((code >> 8) & 255u);
-            int l3 = int((code >> 16) & 255u), l4 = int(code >> 24);
-            float a = sb_f(sb_values, i) * sb_f(sb_dicts, b1 + l1) * sb_f(sb_dicts, b2 + l2);
+            int l3, l4;
+            float a = sb_spatial_term(start + s, b1, b2, l3, l4);
             float s3 = 0.0, s4 = 0.0;
             for (int j = 0; j < SB_MAX_NN; ++j) {
                 if (j >= nl) break;
@@ -239,11 +246,8 @@ float sb_channel(int c, ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN],
     float x[SB_MAX_NN * SB_MAX_NN];
     for (int j = 0; j < SB_MAX_NN * SB_MAX_NN; ++j) x[j] = 0.0;
     for (int s = 0; s < count; ++s) {
-        int i = start + s;
-        uint code = texelFetch(sb_locations, sb_coord(i), 0).r;
-        int l1 = int(code & 255u), l2 = int((code >> 8) & 255u);
-        int l3 = int((code >> 16) & 255u), l4 = int(code >> 24);
-        float a = sb_f(sb_values, i) * sb_f(sb_dicts, b1 + l1) * sb_f(sb_dicts, b2 + l2);
+        int l3, l4;
+        float a = sb_spatial_term(start + s, b1, b2, l3, l4);
         float g4[SB_MAX_NN];
         for (int b = 0; b < SB_MAX_NN; ++b) {
             if (b >= nv) break;
