@@ -214,6 +214,15 @@ def _check_same_directions(btfs: Sequence[BTF]) -> None:
             )
 
 
+def _check_model_directions(btf: BTF, model: Model) -> None:
+    """Codes only mean something on the direction tables the model was trained for."""
+    if not (btf.lights.equals(model.lights) and btf.views.equals(model.views)):
+        raise ModelMismatchError(
+            f"{btf.name}: {len(btf.lights)} lights x {len(btf.views)} views do not match the "
+            f"model's {len(model.lights)} x {len(model.views)} direction tables"
+        )
+
+
 def _train_channels(
     channels: Sequence[str],
     taus: dict[str, int],
@@ -418,11 +427,7 @@ def encode_levels(
     progress: bool | None = None,
 ) -> list[CodedBTF]:
     """:func:`encode` at several sparsity levels from one pass (projections are shared)."""
-    if not (btf.lights.equals(model.lights) and btf.views.equals(model.views)):
-        raise ModelMismatchError(
-            f"{btf.name}: {len(btf.lights)} lights x {len(btf.views)} views do not match the "
-            f"model's {len(model.lights)} x {len(model.views)} direction tables"
-        )
+    _check_model_directions(btf, model)
     grid = PatchGrid.for_btf(btf, model.patch)
     channels = model.channels
     levels = [parse_tau(t, channels) for t in taus]
@@ -587,11 +592,7 @@ def encode_rate_levels(
         raise BTFInputError("give at least one target size")
     if candidate_factor < 1:
         raise BTFInputError(f"candidate_factor must be >= 1, got {candidate_factor}")
-    if not (btf.lights.equals(model.lights) and btf.views.equals(model.views)):
-        raise ModelMismatchError(
-            f"{btf.name}: {len(btf.lights)} lights x {len(btf.views)} views do not match the "
-            f"model's {len(model.lights)} x {len(model.views)} direction tables"
-        )
+    _check_model_directions(btf, model)
     channels = model.channels
     if "YUV" in channels:
         raise BTFInputError("rate control supports the 4D (Y, U, V) models only")
