@@ -15,7 +15,7 @@ from sparsebtf.data.directions import ubo2014
 from sparsebtf.learning.coding import SparseCodes
 from sparsebtf.learning.ensemble import random_orthonormal
 from sparsebtf.model import CHANNELS, CodedBTF, Model
-from sparsebtf.preprocessing import Standardization
+from sparsebtf.points.preprocessing import Standardization
 
 #: The release's sparsity per channel, the level every rendering benchmark times.
 TAU = {"Y": 885, "U": 64, "V": 64}

@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 
 from sparsebtf.cli.main import main
-from sparsebtf.codec import decode_points, encode, train
+from sparsebtf.codec import encode, train
 from sparsebtf.data.directions import tiny
 from sparsebtf.errors import BTFInputError, ModelMismatchError
 from sparsebtf.learning.coding import SparseCodes
 from sparsebtf.model import CodedBTF
-from sparsebtf.runtime import blend
+from sparsebtf.runtime import blend, decode_points
 from sparsebtf.storage import load_coded, save_coded, save_model
 
 from .conftest import smooth_btf, tiny_model

@@ -168,7 +168,7 @@ def test_errors_are_one_line(files, capsys):
 
 def test_ubo2014_btf_file_through_the_cli(tmp_path, capsys):
     from sparsebtf.data.directions import tiny
-    from sparsebtf.formats.ubo2014 import write_ubo2014
+    from sparsebtf.formats.ubo2014_write import write_ubo2014
 
     rng = np.random.default_rng(0)
     d = tiny(7)
@@ -182,7 +182,7 @@ def test_ubo2014_btf_file_through_the_cli(tmp_path, capsys):
     info = json.loads(out)
     assert info["shape"] == [8, 8, 7, 7, 3] and info["format"] == "ubo2014-btf"
     dense = tmp_path / "tiny.h5"
-    from sparsebtf.data.io import open_btf
+    from sparsebtf.open import open_btf
 
     btf = open_btf(path)
     write_dense(dense, btf)

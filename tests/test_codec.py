@@ -1,11 +1,8 @@
 import numpy as np
 import pytest
 
-import sparsebtf.codec as codec
+import sparsebtf.runtime.dense as dense
 from sparsebtf.codec import (
-    coded_btf_view,
-    decode_points,
-    decode_points_eq5,
     encode,
     encode_levels,
     parse_tau,
@@ -15,6 +12,7 @@ from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.data.directions import tiny
 from sparsebtf.errors import BTFInputError, ModelMismatchError
 from sparsebtf.metrics import compare
+from sparsebtf.runtime import coded_btf_view, decode_points, decode_points_eq5
 
 from .conftest import smooth_btf, tiny_model
 
@@ -54,12 +52,12 @@ def test_eq4_equals_eq5_and_direct_sum(model):
     pts, li, vi = [0, 3], [1, 7], [0, 5, 12]
     for ch in coded.channels:
         eq5 = decode_points_eq5(coded, ch, pts, li, vi)
-        old = codec.EQ5_MAX_DIRECTIONS
-        codec.EQ5_MAX_DIRECTIONS = 0
+        old = dense.EQ5_MAX_DIRECTIONS
+        dense.EQ5_MAX_DIRECTIONS = 0
         try:
             eq4 = decode_points(coded, ch, pts, li, vi)
         finally:
-            codec.EQ5_MAX_DIRECTIONS = old
+            dense.EQ5_MAX_DIRECTIONS = old
         assert np.allclose(eq4, eq5, atol=1e-12)
         # the literal sum of Eq. 5 for one element
         loc, val = coded.codes[ch].point(3)

@@ -2,13 +2,18 @@ import numpy as np
 import pytest
 
 from sparsebtf.errors import BTFInputError
-from sparsebtf.learning.coding import SparseCodes, sparse_code, sparse_code_levels, topk_abs
+from sparsebtf.learning.coding import (
+    SparseCodes,
+    reconstruct_points,
+    sparse_code,
+    sparse_code_levels,
+    topk_abs,
+)
 from sparsebtf.learning.ensemble import (
     DictionaryEnsemble,
     cross_products,
     procrustes,
     random_orthonormal,
-    reconstruct_points,
 )
 from sparsebtf.learning.tensor import fold, mode_dot, multi_mode_dot, project, reconstruct, unfold
 

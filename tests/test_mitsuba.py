@@ -12,9 +12,10 @@ import os
 import numpy as np
 import pytest
 
-from sparsebtf.codec import coded_btf_view, encode
+from sparsebtf.codec import encode
 from sparsebtf.errors import BTFInputError
 from sparsebtf.rendering import llvm
+from sparsebtf.runtime import coded_btf_view
 
 from .conftest import smooth_btf, tiny_model
 
@@ -223,7 +224,7 @@ def test_dense_reference_plugin(material, scheme):
 
 
 def test_dense_reference_refuses_large_tables(material):
-    from sparsebtf.rendering.mitsuba_bsdf import dense_table
+    from sparsebtf.rendering.mitsuba import dense_table
 
     with pytest.raises(BTFInputError, match=r"GiB.*limit.*crop"):
         dense_table(material["btf"], max_gib=1e-6)
@@ -232,7 +233,7 @@ def test_dense_reference_refuses_large_tables(material):
 
 
 def test_bad_parameters_are_named(material):
-    from sparsebtf.rendering.mitsuba_bsdf import preload
+    from sparsebtf.rendering.mitsuba import preload
 
     with pytest.raises(BTFInputError, match="interpolation"):
         preload({"type": "sparsebtf", "key": material["key"], "interpolation": "cubic"})

@@ -2,9 +2,9 @@ import numpy as np
 import pytest
 
 from sparsebtf.data.btf import ArrayBTF
-from sparsebtf.datapoints import PatchGrid, assemble, extract, iter_points, sample_points
 from sparsebtf.errors import BTFInputError
-from sparsebtf.preprocessing import (
+from sparsebtf.points.grid import PatchGrid, assemble, extract, iter_points, sample_points
+from sparsebtf.points.preprocessing import (
     RGB_TO_YUV,
     YUV_TO_RGB_RELEASE,
     Preprocessor,

@@ -7,7 +7,6 @@ import pytest
 
 from sparsebtf.cli.main import main
 from sparsebtf.codec import (
-    coded_btf_view,
     encode,
     encode_rate_levels,
     encode_to_size,
@@ -16,14 +15,11 @@ from sparsebtf.codec import (
 )
 from sparsebtf.data.dense_file import write_dense
 from sparsebtf.errors import BTFInputError
-from sparsebtf.learning.rate_control import (
-    ChannelCandidates,
-    allocate,
-    material_bytes,
-    reference_counts,
-)
+from sparsebtf.learning.cost import material_bytes
+from sparsebtf.learning.rate_control import ChannelCandidates, allocate, reference_counts
 from sparsebtf.metrics import compare
-from sparsebtf.preprocessing import Preprocessor, gather_statistics
+from sparsebtf.points.preprocessing import Preprocessor, gather_statistics
+from sparsebtf.runtime import coded_btf_view
 from sparsebtf.storage import load_coded, load_model, save_coded, save_model, storage_report
 
 from .conftest import smooth_btf

@@ -7,16 +7,16 @@ import numpy as np
 import pytest
 
 from sparsebtf.cli.main import main
-from sparsebtf.codec import decode_points, decode_points_eq5
 from sparsebtf.errors import FileFormatError
-from sparsebtf.formats.release import (
+from sparsebtf.learning.coding import sparse_code
+from sparsebtf.runtime import decode_points, decode_points_eq5
+from sparsebtf.storage import load_coded, load_model, save_coded, save_model
+from sparsebtf.storage.release import (
     import_release,
     read_coefficients,
     read_dictionaries,
     read_mean_std,
 )
-from sparsebtf.learning.coding import sparse_code
-from sparsebtf.storage import load_coded, load_model, save_coded, save_model
 
 
 @pytest.fixture(scope="module")

@@ -3,10 +3,18 @@
 import numpy as np
 import pytest
 
-from sparsebtf.codec import coded_btf_view, decode_points_eq5, encode
+from sparsebtf.codec import encode
 from sparsebtf.data.directions import ubo2014
 from sparsebtf.errors import BTFInputError
-from sparsebtf.runtime import RuntimeBTF, angular_weights, kernels, neighbour_table, texels_from_uv
+from sparsebtf.runtime import (
+    RuntimeBTF,
+    angular_weights,
+    coded_btf_view,
+    decode_points_eq5,
+    kernels,
+    neighbour_table,
+    texels_from_uv,
+)
 
 from .conftest import smooth_btf, tiny_model
 

@@ -15,7 +15,7 @@ from sparsebtf.errors import BTFInputError, FileFormatError, ModelMismatchError
 from sparsebtf.learning.coding import SparseCodes
 from sparsebtf.learning.tensor import reconstruct
 from sparsebtf.model import CodedBTF, Model
-from sparsebtf.preprocessing import Standardization
+from sparsebtf.points.preprocessing import Standardization
 from sparsebtf.storage import (
     MIB,
     channel_storage,

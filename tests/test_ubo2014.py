@@ -12,7 +12,8 @@ import pytest
 
 from sparsebtf.data.directions import from_angles
 from sparsebtf.errors import BTFInputError, FileFormatError
-from sparsebtf.formats.ubo2014 import read_ubo2014, write_ubo2014
+from sparsebtf.formats.ubo2014 import read_ubo2014
+from sparsebtf.formats.ubo2014_write import write_ubo2014
 
 H, W, NL, NV = 8, 6, 7, 5
 EPS = 1e-5

@@ -21,7 +21,7 @@ from skimage.metrics import structural_similarity
 from ._progress import bar
 from .data.btf import BTF
 from .errors import BTFInputError
-from .preprocessing import EPS, RGB_TO_YUV, Standardization
+from .points.preprocessing import EPS, RGB_TO_YUV, Standardization
 
 __all__ = ["compare", "psnr", "ssim_angular"]
 

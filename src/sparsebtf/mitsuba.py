@@ -15,53 +15,33 @@ stderr when there is none — and registers two BSDF plugins for the active vari
 
 Import this module **before** ``mitsuba``/``drjit`` are first used, so that
 ``DRJIT_LIBLLVM_PATH`` is set in time. After switching variants call :func:`register` again.
-Parameters and conventions: :mod:`sparsebtf.rendering.mitsuba_bsdf` and ``docs/rendering.md``.
+Parameters and conventions: :mod:`sparsebtf.rendering.mitsuba` (where the plugins live) and
+``docs/rendering.md``. ``variant`` is the variant chosen on import; ``variant_message`` says
+why the current one was chosen (kept up to date by :func:`setup`).
 """
 
 from __future__ import annotations
 
-import sys
 from typing import Any
 
-from .rendering.mitsuba_bsdf import DENSE_PLUGIN, PLUGIN, add_material
-from .rendering.mitsuba_bsdf import register as _register
+from .rendering.mitsuba import DENSE_PLUGIN, PLUGIN, add_material, register, setup
+from .rendering.mitsuba import variant as _variant_state
 
 __all__ = ["DENSE_PLUGIN", "PLUGIN", "add_material", "register", "setup", "variant_message"]
 
-variant_message = ""
-_warned: list[str] = []
+variant_message: str  # annotation only: the value comes from __getattr__ below
 
 
-def setup(backend: str = "auto", quiet: bool = False) -> str:
-    """Choose and set a Mitsuba variant (unless one is set), register the plugins; the variant.
-
-    ``backend``: "auto" (llvm, else scalar), "llvm", "cuda" (GPU if it works), "scalar".
-    With a variant already active and ``backend="auto"`` that variant is kept.
-    """
-    global variant_message
-    from .rendering.llvm import choose_variant
-
-    variant, why = choose_variant(backend)
-    import mitsuba as mi
-
-    current = mi.variant()
-    if current is None or backend != "auto":
-        if current != variant:
-            mi.set_variant(variant)
-        variant_message = why
-        if variant == "scalar_rgb" and backend != "scalar" and not quiet and not _warned:
-            _warned.append(why)
-            print(f"sparsebtf.mitsuba: {why}", file=sys.stderr)
-    elif current != variant:
-        variant_message = f"keeping the active Mitsuba variant {current}"
-    else:
-        variant_message = why
-    return _register()
+def __getattr__(name: str) -> Any:
+    # setup() rebinds variant_message in its own module; read it there so this name stays
+    # current after every setup(), not frozen at import.
+    if name == "variant_message":
+        return _variant_state.variant_message
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
-def register() -> str:
-    """Register the plugins for the active variant (after ``mi.set_variant``); the variant."""
-    return _register()
+def __dir__() -> list[str]:
+    return sorted([*globals(), "variant_message"])
 
 
 def _auto() -> Any:

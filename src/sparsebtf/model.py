@@ -15,20 +15,122 @@ Files: :mod:`sparsebtf.storage` (HDF5, schema in ``docs/format.md``).
 from __future__ import annotations
 
 import hashlib
+import math
+import numbers
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from .data.directions import DirectionSet
 from .errors import BTFInputError, ModelMismatchError
 from .learning.coding import SparseCodes
-from .preprocessing import Standardization
+from .points.preprocessing import Standardization, StdMode, Transform
 
-__all__ = ["CHANNELS", "CodedBTF", "Model", "dictionaries_hash"]
+if TYPE_CHECKING:
+    from .data.btf import BTF
+
+__all__ = [
+    "CHANNELS",
+    "DEFAULT_STD_MODE",
+    "DEFAULT_TRANSFORM",
+    "CodedBTF",
+    "Model",
+    "TauSpec",
+    "dictionaries_hash",
+    "parse_tau",
+]
 
 #: Channels of the default 4D pipeline, in order. The 5D variant uses one channel "YUV".
 CHANNELS = ("Y", "U", "V")
+#: Defaults of model parameters that older model files (and the release import) leave out.
+DEFAULT_STD_MODE: StdMode = "shared"
+DEFAULT_TRANSFORM: Transform = "log_yuv"
+
+#: What a τ can be given as; see :func:`parse_tau`.
+TauSpec = None | int | float | str | Sequence[int] | Mapping[str, int]
+_ALL = ("all", "full", "none")
+
+
+def _tau_error(tau: object, why: str) -> BTFInputError:
+    return BTFInputError(
+        f"tau {tau!r}: {why} (give integers: one for all channels or 'Y,U,V' such as "
+        "'885,64,64'; or a fraction in (0, 1] of the coded tau such as 0.25)"
+    )
+
+
+def parse_tau(
+    tau: TauSpec,
+    channels: Sequence[str] = CHANNELS,
+    *,
+    full: Mapping[str, int] | None = None,
+    nominal: Mapping[str, int] | None = None,
+) -> dict[str, int]:
+    """τ per channel: the one reader of the τ syntax (CLI, Python API, plugin properties).
+
+    Accepted: an integer (every channel); a sequence of integers, one per channel (or one);
+    a ``{channel: τ}`` mapping; a string ``"885,64,64"``, ``"64"`` or ``"0.25"``; a fraction in
+    (0, 1) of the coded τ (``nominal``, else ``full``), rounded up; ``None`` or ``"all"`` for
+    every stored coefficient (``full``). Where ``full``/``nominal`` are not given (encoding),
+    only explicit counts are accepted. Every τ is an integer >= 1.
+    """
+    if isinstance(tau, str):
+        text = tau.strip()
+        if text.lower() in _ALL:
+            tau = None
+        elif "," in text:
+            tau = [p.strip() for p in text.split(",")]
+        else:
+            try:
+                tau = int(text)
+            except ValueError:
+                try:
+                    tau = float(text)
+                except ValueError:
+                    raise _tau_error(tau, "not a number") from None
+    if tau is None:
+        if full is None:
+            raise _tau_error(tau, "a count is needed here")
+        return {ch: int(full[ch]) for ch in channels}
+    if isinstance(tau, bool):
+        raise _tau_error(tau, "not a number")
+    if isinstance(tau, numbers.Real) and not isinstance(tau, numbers.Integral):
+        f = float(tau)
+        if math.isfinite(f) and f.is_integer():
+            tau = int(f)
+        else:
+            if full is None and nominal is None:
+                raise _tau_error(tau, "a fraction needs a coded BTF to be a fraction of")
+            if not 0 < f <= 1:
+                raise _tau_error(tau, "a fractional tau must be in (0, 1]")
+            base = {**(full or {}), **(nominal or {})}
+            return {ch: max(1, math.ceil(f * int(base[ch]))) for ch in channels}
+    if isinstance(tau, Mapping):
+        missing = [ch for ch in channels if ch not in tau]
+        if missing:
+            raise _tau_error(dict(tau), f"no value for channel(s) {missing}")
+        values: list[Any] = [tau[ch] for ch in channels]
+    elif isinstance(tau, numbers.Integral):
+        values = [tau]
+    else:
+        values = list(tau)
+    counts = []
+    for v in values:
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            raise _tau_error(tau, f"{v!r} is not an integer") from None
+        if not (math.isfinite(f) and f.is_integer()):
+            raise _tau_error(tau, f"{v!r} is not an integer")
+        counts.append(int(f))
+    if len(counts) == 1:
+        counts = counts * len(channels)
+    if len(counts) != len(channels):
+        raise _tau_error(tau, f"needs one value per channel {tuple(channels)}, got {len(counts)}")
+    if any(c < 1 for c in counts):
+        raise _tau_error(tau, "every tau must be >= 1")
+    return dict(zip(channels, counts, strict=True))
 
 
 def dictionaries_hash(ensembles: dict[str, list[np.ndarray]]) -> str:
@@ -107,6 +209,30 @@ class Model:
         """The N mode matrices of dictionary ``k`` of ``channel``."""
         return [np.asarray(m[k], dtype=dtype) for m in self.dictionaries[channel]]
 
+    # -- training parameters, with the defaults of files that leave them out --------------
+    @property
+    def std_mode(self) -> StdMode:
+        """Standardisation the model was trained with ("shared", the release's, by default)."""
+        return self.params.get("std_mode", DEFAULT_STD_MODE)
+
+    @property
+    def transform(self) -> Transform:
+        """Preprocessing of its data points: "log_yuv" (§3.1) or "identity" ([MHU19])."""
+        return self.params.get("preprocessing", DEFAULT_TRANSFORM)
+
+    @property
+    def tau_train(self) -> dict[str, int]:
+        """Training sparsity τ_l per channel (empty when unknown, e.g. the release import)."""
+        return {ch: int(v) for ch, v in (self.params.get("tau_train") or {}).items()}
+
+    def check_directions(self, btf: BTF) -> None:
+        """Codes only mean something on the direction tables the model was trained for."""
+        if not (btf.lights.equals(self.lights) and btf.views.equals(self.views)):
+            raise ModelMismatchError(
+                f"{btf.name}: {len(btf.lights)} lights x {len(btf.views)} views do not match the "
+                f"model's {len(self.lights)} x {len(self.views)} direction tables"
+            )
+
 
 @dataclass(eq=False)
 class CodedBTF:
@@ -148,6 +274,40 @@ class CodedBTF:
 
     def nnz(self) -> dict[str, int]:
         return {ch: self.codes[ch].nnz for ch in self.channels}
+
+    @property
+    def stored_tau(self) -> dict[str, int]:
+        """The largest count of any point per channel: every stored coefficient."""
+        return {ch: int(np.max(self.codes[ch].counts, initial=0)) for ch in self.channels}
+
+    @property
+    def coded_tau(self) -> dict[str, int]:
+        """τ the material was coded at (``params["tau"]``; the stored counts when absent)."""
+        coded = self.params.get("tau") or {}
+        return {**self.stored_tau, **{ch: int(v) for ch, v in coded.items()}}
+
+    @property
+    def model_file(self) -> str | None:
+        """Path of the model file recorded at encoding (``params["model_file"]``), if any."""
+        return self.params.get("model_file") or None
+
+    def dictionary_count(self, channel: str, model: Model | None = None) -> int | None:
+        """K of a channel: from ``model`` or the attached one, else the coding parameters
+        (``params["n_dictionaries"]``, an int or one per channel); None when unknown."""
+        m = model or self.model
+        if m is not None and channel in m.dictionaries:
+            return m.n_dictionaries(channel)
+        k = self.params.get("n_dictionaries")
+        if isinstance(k, Mapping):
+            k = k.get(channel)
+        if isinstance(k, numbers.Integral) and not isinstance(k, bool) and k > 0:
+            return int(k)
+        return None
+
+    def resolve_tau(self, tau: TauSpec) -> dict[str, int]:
+        """τ' per channel of this material (:func:`parse_tau` with its counts: None = all
+        stored coefficients, a fraction = of the coded τ)."""
+        return parse_tau(tau, self.channels, full=self.stored_tau, nominal=self.coded_tau)
 
     def attach(self, model: Model) -> CodedBTF:
         """Attach the model these codes were made with; refuses any other model."""

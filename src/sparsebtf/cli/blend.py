@@ -14,6 +14,9 @@ from typing import Any
 import numpy as np
 
 from ..errors import BTFInputError
+from ..runtime.angular import SCHEMES
+from ._args import check_tau
+from ._output import print_json
 
 __all__ = ["register"]
 
@@ -62,11 +65,11 @@ def cmd_blend(args: argparse.Namespace) -> int:
     from ..figures import save_png
     from ..runtime import RuntimeBTF, blend
     from ..storage import load_coded_with_model, save_coded
-    from .main import _print_json
 
     if len(args.inputs) < 2:
         raise BTFInputError("blend needs at least two coded files")
     weights = _weights(args, len(args.inputs))
+    tau = check_tau(args.tau)
     if weights and not args.output:
         raise BTFInputError("give -o OUT.h5 for the blended coded file")
     if args.sweep and not args.png:
@@ -76,8 +79,8 @@ def cmd_blend(args: argparse.Namespace) -> int:
     coded = [load_coded_with_model(p, args.model) for p in args.inputs]
     report: dict[str, Any] = {"inputs": [str(p) for p in args.inputs]}
     if weights:
-        out = blend(coded, weights=weights, tau=args.tau)
-        out.params["model_file"] = coded[0].params.get("model_file")
+        out = blend(coded, weights=weights, tau=tau)
+        out.params["model_file"] = coded[0].model_file
         save_coded(out, args.output)
         report.update(output=str(args.output), weights=weights, nnz=out.nnz())
     if args.sweep:
@@ -89,7 +92,7 @@ def cmd_blend(args: argparse.Namespace) -> int:
         folder.mkdir(parents=True, exist_ok=True)
         tiles, frames = [], []
         for alpha in np.linspace(0.0, 1.0, args.sweep):
-            mixed = blend(coded, alpha=float(alpha), tau=args.tau, progress=False)
+            mixed = blend(coded, alpha=float(alpha), tau=tau, progress=False)
             img = RuntimeBTF(mixed).image(light, view, interpolation=args.interpolation)
             tile = tone_map(img)
             path = save_png(folder / f"blend_alpha_{alpha:.2f}.png", tile)
@@ -101,7 +104,7 @@ def cmd_blend(args: argparse.Namespace) -> int:
         report["strip"] = str(save_png(folder / "blend_strip.png", strip))
         report["sweep"] = frames
     if args.json:
-        _print_json(report)
+        print_json(report)
     else:
         if "output" in report:
             print(f"wrote {report['output']}: weights {weights}, nnz {report['nnz']}")
@@ -130,6 +133,6 @@ def register(sub: Any) -> None:
     s.add_argument("--view", default=FIGURE6_VIEW,
                    help=f"view 'azimuth,elevation' in degrees (default {FIGURE6_VIEW})")
     s.add_argument("--interpolation", default="linear",
-                   choices=("nearest", "linear", "barycentric", "gaussian"))
+                   choices=SCHEMES)
     s.add_argument("--json", action="store_true", help="print the result as JSON")
     s.set_defaults(func=cmd_blend)

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError
+from ..runtime.angular import SCHEMES
 
 __all__ = ["cmd_render", "register"]
 
@@ -37,7 +38,7 @@ def _parse_size(text: str) -> tuple[int, int]:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from ..rendering.mitsuba_bsdf import add_material, dense_table
+    from ..rendering.mitsuba import add_material, dense_table
     from ..rendering.render import (
         compare_renders,
         render_material,
@@ -68,7 +69,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         coded_bsdf["tau"] = str(args.tau)
     reference = None
     if args.reference:
-        from ..data.io import open_btf
+        from ..open import open_btf
         from ..storage import load_coded_with_model
 
         ref_btf = open_btf(args.reference)
@@ -181,7 +182,7 @@ def register(sub: Any) -> None:
     s.add_argument("--tau", default=None,
                    help="level of detail: 885,64,64, one integer, or a fraction such as 0.25 "
                    "(default: every stored coefficient)")
-    s.add_argument("--interpolation", choices=["nearest", "linear", "barycentric", "gaussian"],
+    s.add_argument("--interpolation", choices=SCHEMES,
                    default="linear", help="angular interpolation (default linear, the release's)")
     s.add_argument("--domain", choices=["standardized", "log"], default="standardized",
                    help="interpolation domain of the coded lookup (default standardized, Eq. 6)")

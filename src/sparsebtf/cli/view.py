@@ -14,33 +14,16 @@ import argparse
 import time
 from typing import Any
 
-from ..errors import BTFInputError
+from ._args import check_tau
 
 __all__ = ["register"]
-
-
-def _tau(text: str | None) -> Any:
-    """--tau: "885,64,64", one int for all channels, or a fraction such as 0.5."""
-    if text is None:
-        return None
-    t = text.strip()
-    try:
-        if "," not in t and "." in t:
-            return float(t)
-        if "," not in t:
-            return int(t)
-    except ValueError:
-        raise BTFInputError(
-            f"--tau must be 'Y,U,V', an integer or a fraction, got {text!r}"
-        ) from None
-    return t
 
 
 def cmd_view(args: argparse.Namespace) -> int:
     from ..rendering.viewer import build_bundle, export, serve
     from ..runtime import RuntimeBTF
 
-    rt = RuntimeBTF.from_file(args.coded, args.model, _tau(args.tau))
+    rt = RuntimeBTF.from_file(args.coded, args.model, check_tau(args.tau))
     bundle = build_bundle(rt, neighbours=not args.no_neighbours)
     mib = bundle.manifest["bytes"] / 2**20
     if args.export:

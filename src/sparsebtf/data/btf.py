@@ -23,7 +23,11 @@ import numpy as np
 from ..errors import BTFInputError
 from .directions import DirectionSet
 
-__all__ = ["BTF", "ArrayBTF", "FactorBTF", "FunctionBTF", "as_index"]
+#: Log offset of BTF dynamic-range reduction: UBO2014 stores ln(x + 1e-5), and §3.1 codes
+#: ln(x + 1e-5) (release: ``DataBTF4D.inl``, the shader's exp(·) − 1e-5). Defined once here.
+LOG_EPS = 1e-5
+
+__all__ = ["BTF", "LOG_EPS", "ArrayBTF", "FactorBTF", "FunctionBTF", "as_index"]
 
 Index = slice | np.ndarray | list[int]
 
@@ -265,7 +269,7 @@ class FactorBTF(BTF):
         lights: DirectionSet,
         views: DirectionSet,
         log_domain: bool = False,
-        eps: float = 1e-5,
+        eps: float = LOG_EPS,
         name: str = "btf",
         attrs: dict[str, Any] | None = None,
     ) -> None:

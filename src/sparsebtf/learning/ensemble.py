@@ -31,9 +31,9 @@ import numpy as np
 from .._atomic import atomic_output
 from .._progress import bar
 from ..errors import BTFInputError
-from .coding import SparseCodes, sparse_code
+from .coding import SparseCodes, reconstruct_points, sparse_code
 from .parallel import parallel_map, prefetch
-from .tensor import project, reconstruct, unfold
+from .tensor import project, unfold
 
 __all__ = [
     "ArraySource",
@@ -44,7 +44,6 @@ __all__ = [
     "hosvd_bases",
     "procrustes",
     "random_orthonormal",
-    "reconstruct_points",
 ]
 
 
@@ -166,24 +165,6 @@ def cross_products(
         if res is not None:
             z[res[0]] += res[1]
     return z
-
-
-def reconstruct_points(
-    codes: SparseCodes,
-    dictionaries: Sequence[np.ndarray],
-    points: Sequence[int] | np.ndarray | None = None,
-    dtype: type = np.float64,
-) -> np.ndarray:
-    """Eq. 4 for the chosen points: (n, m_1, …, m_N) in the coded domain."""
-    idx = np.arange(codes.n_points) if points is None else np.asarray(points, dtype=np.int64)
-    out = np.empty((idx.size, *codes.mode_sizes), dtype=dtype)
-    for j, i in enumerate(idx):
-        loc, val = codes.point(int(i))
-        s = np.zeros((1, *codes.mode_sizes), dtype=dtype)
-        s[(0, *loc.T)] = val
-        k = int(codes.membership[i])
-        out[j] = reconstruct(s, [np.asarray(d[k], dtype=dtype) for d in dictionaries])[0]
-    return out
 
 
 def _as_source(x: np.ndarray | PointSource) -> PointSource:

@@ -18,7 +18,7 @@ a point are sorted and its weight is constant, the kept set of each point is a p
 result is an ordinary :class:`~sparsebtf.learning.coding.SparseCodes` (counts vary per point).
 
 This module holds the array-level algorithm; :func:`sparsebtf.codec.encode_to_size` streams a
-BTF through it.
+BTF through it. Bytes are counted by :mod:`sparsebtf.learning.cost` (Table 4).
 """
 
 from __future__ import annotations
@@ -31,26 +31,17 @@ import numpy as np
 
 from ..errors import BTFInputError
 from .coding import SparseCodes
+from .cost import coefficient_budget, material_bytes
 
 __all__ = [
     "PAPER_SPLIT",
     "ChannelCandidates",
     "allocate",
-    "material_bytes",
     "reference_counts",
 ]
 
 #: The release's split of coefficients over Y, U, V (τ = 885, 64, 64).
 PAPER_SPLIT = (885, 64, 64)
-
-
-def material_bytes(nnz: int, n_points: int, n_channels: int, location_bytes: int = 3) -> int:
-    """Per-material bytes of Table 4 (dictionaries excluded): values, locations, m and z.
-
-    ``(2 + location_bytes) · NNZ + 2 · P · C``: binary16 values, packed locations, and one
-    membership and one count byte per point and channel (``storage.accounting``).
-    """
-    return (2 + int(location_bytes)) * int(nnz) + 2 * int(n_points) * int(n_channels)
 
 
 def _coefficient_budget(target_bytes: int, n_points: int, n_channels: int,
@@ -63,7 +54,7 @@ def _coefficient_budget(target_bytes: int, n_points: int, n_channels: int,
             f"target of {target_bytes} bytes is below the minimum {need} bytes (one coefficient "
             f"per data point and channel, {n_points} points x {n_channels} channels)"
         )
-    return (int(target_bytes) - 2 * n_points * n_channels) // (2 + location_bytes)
+    return coefficient_budget(target_bytes, n_points, n_channels, location_bytes)
 
 
 def reference_counts(

@@ -38,9 +38,9 @@ class RenderResult(dict):
 
 
 def _setup(backend: str) -> tuple[Any, Any, str]:
-    from .. import mitsuba as sbm
+    from .mitsuba import setup
 
-    variant = sbm.setup(backend, quiet=False)
+    variant = setup(backend, quiet=False)
     import drjit as dr
     import mitsuba as mi
 
@@ -69,7 +69,7 @@ def render_material(
     if w < 1 or h < 1:
         raise BTFInputError(f"image size must be positive, got {w}x{h}")
     mi, dr, variant = _setup(backend)
-    from .mitsuba_bsdf import preload
+    from .mitsuba import preload
     from .scenes import scene_dict
 
     preload(bsdf)  # input errors as sparsebtf errors, not wrapped by Mitsuba

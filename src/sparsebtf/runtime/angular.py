@@ -27,7 +27,7 @@ from typing import Literal
 
 import numpy as np
 
-from ..data.directions import DirectionSet
+from ..data.directions import DirectionSet, k_nearest
 from ..errors import BTFInputError
 
 __all__ = ["DEFAULT_K", "SCHEMES", "Scheme", "angular_weights", "neighbour_table"]
@@ -57,23 +57,6 @@ def _unit_queries(query: np.ndarray, name: str) -> np.ndarray:
             f"{name} direction {i} is zero or not finite ({bad.sum()} such directions)"
         )
     return q / norm
-
-
-def _k_nearest(xyz: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
-    """(index, squared chord distance) of the k nearest, ascending, ties by lower index."""
-    from .kernels import k_nearest
-
-    fast = k_nearest(xyz, q, k)
-    if fast is not None:
-        return fast
-    d2 = np.maximum(2.0 - 2.0 * (q @ xyz.T), 0.0)
-    if k < xyz.shape[0]:
-        part = np.argpartition(d2, k - 1, axis=1)[:, :k]
-    else:
-        part = np.broadcast_to(np.arange(xyz.shape[0]), d2.shape).copy()
-    pd = np.take_along_axis(d2, part, axis=1)
-    order = np.lexsort((part, pd), axis=1)
-    return np.take_along_axis(part, order, axis=1), np.take_along_axis(pd, order, axis=1)
 
 
 def _linear(d: np.ndarray) -> np.ndarray:
@@ -146,7 +129,7 @@ def angular_weights(
     weight = np.empty((n, kk), dtype=np.float64)
     for s in range(0, n, _CHUNK):
         qs = q[s : s + _CHUNK]
-        idx, d2 = _k_nearest(xyz, qs, kk)
+        idx, d2 = k_nearest(xyz, qs, kk)
         if scheme == "nearest":
             w = np.ones((qs.shape[0], 1))
         elif scheme == "linear":
@@ -183,5 +166,5 @@ def neighbour_table(
     ph = (np.arange(n_phi) + 0.5) * (2 * np.pi) / n_phi - np.pi
     e, a = np.meshgrid(el, ph, indexing="ij")
     centres = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1)
-    idx, _ = _k_nearest(xyz, centres.reshape(-1, 3), k)
+    idx, _ = k_nearest(xyz, centres.reshape(-1, 3), k)
     return idx.reshape(n_elevation, n_phi, k).astype(np.int16)

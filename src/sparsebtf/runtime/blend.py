@@ -21,13 +21,12 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._progress import bar
-from ..codec import parse_tau
 from ..errors import BTFInputError, ModelMismatchError
 from ..learning.coding import SparseCodes, topk_abs
 from ..learning.parallel import parallel_map
 from ..learning.tensor import reconstruct
-from ..model import CodedBTF
-from ..preprocessing import Standardization
+from ..model import CodedBTF, TauSpec, parse_tau
+from ..points.preprocessing import Standardization
 
 __all__ = ["blend", "check_blendable"]
 
@@ -55,8 +54,8 @@ def check_blendable(coded: Sequence[CodedBTF]) -> None:
             )
         if b.channels != a.channels:
             raise BTFInputError(f"{a.name} has channels {a.channels}, {b.name} {b.channels}")
-        if (b.stats.mode, b.stats.eps, getattr(b.stats, "transform", "log_yuv")) != (
-            a.stats.mode, a.stats.eps, getattr(a.stats, "transform", "log_yuv")
+        if (b.stats.mode, b.stats.eps, b.stats.transform) != (
+            a.stats.mode, a.stats.eps, a.stats.transform
         ):
             raise BTFInputError(
                 f"{a.name} uses {a.stats.mode} standardisation (eps {a.stats.eps}), {b.name} "
@@ -165,7 +164,7 @@ def blend(
     coded: Sequence[CodedBTF],
     weights: Sequence[float] | None = None,
     alpha: float | None = None,
-    tau: int | str | Sequence[int] | None = None,
+    tau: TauSpec = None,
     name: str | None = None,
     progress: bool | None = None,
 ) -> CodedBTF:
@@ -193,14 +192,8 @@ def blend(
     first = coded[0]
     model = first.require_model()
     channels = first.channels
-    if tau is None:
-        taus = {
-            ch: max(int((c.params.get("tau") or {}).get(ch, c.codes[ch].counts.max()))
-                    for c in coded)
-            for ch in channels
-        }  # fmt: skip
-    else:
-        taus = parse_tau(tau, channels)
+    widest = {ch: max(c.coded_tau[ch] for c in coded) for ch in channels}
+    taus = parse_tau(tau, channels, full=widest)
     codes = {
         ch: _blend_channel(
             [c.codes[ch] for c in coded], w, model.dictionaries[ch], taus[ch], progress,

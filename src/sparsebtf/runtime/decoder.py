@@ -14,25 +14,22 @@ The flat arrays a GPU or Dr.Jit shader needs come from :meth:`RuntimeBTF.arrays`
 
 from __future__ import annotations
 
-import math
 import os
-from collections.abc import Mapping, Sequence
 from dataclasses import replace
 from typing import Any, Literal
 
 import numpy as np
 
-from ..datapoints import PatchGrid
 from ..errors import BTFInputError
-from ..model import CHANNELS, CodedBTF
-from ..preprocessing import YUV_TO_RGB, from_log_yuv
+from ..model import CHANNELS, CodedBTF, TauSpec
+from ..points.grid import PatchGrid
+from ..points.preprocessing import YUV_TO_RGB, from_log_yuv
 from . import kernels
 from .angular import SCHEMES, Scheme, angular_weights, neighbour_table
 
 __all__ = ["Domain", "RuntimeBTF", "texels_from_uv"]
 
 Domain = Literal["standardized", "log"]
-TauSpec = None | int | float | str | Sequence[int] | Mapping[str, int]
 
 
 def texels_from_uv(uv: np.ndarray, height: int, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -50,33 +47,6 @@ def texels_from_uv(uv: np.ndarray, height: int, width: int) -> tuple[np.ndarray,
     col = np.minimum((f[:, 0] * width).astype(np.int64), width - 1)
     row = np.minimum((f[:, 1] * height).astype(np.int64), height - 1)
     return row, col
-
-
-def _channel_taus(coded: CodedBTF, tau: TauSpec) -> dict[str, int]:
-    """τ' per channel from None (all), an int, "a,b,c", a sequence, a dict or a fraction."""
-    full = {ch: int(np.max(coded.codes[ch].counts, initial=0)) for ch in coded.channels}
-    if tau is None:
-        return full
-    if isinstance(tau, float) and not float(tau).is_integer():
-        if not 0 < tau <= 1:
-            raise BTFInputError(f"a fractional tau must be in (0, 1], got {tau}")
-        nominal = coded.params.get("tau", {}) or {}
-        return {
-            ch: max(1, math.ceil(tau * int(nominal.get(ch, full[ch])))) for ch in coded.channels
-        }
-    if isinstance(tau, Mapping):
-        missing = [ch for ch in coded.channels if ch not in tau]
-        if missing:
-            raise BTFInputError(f"tau gives no value for channel(s) {missing}")
-        vals = {ch: int(tau[ch]) for ch in coded.channels}
-    else:
-        from ..codec import parse_tau
-
-        vals = parse_tau(int(tau) if isinstance(tau, float) else tau, coded.channels)
-    for ch, v in vals.items():
-        if v < 1:
-            raise BTFInputError(f"channel {ch}: tau must be >= 1, got {v}")
-    return vals
 
 
 class RuntimeBTF:
@@ -104,7 +74,7 @@ class RuntimeBTF:
                 f"{coded.name}: the runtime needs channels Y, U and V as separate 4D codes, "
                 f"this file has {coded.channels}"
             )
-        if getattr(coded.stats, "transform", "log_yuv") != "log_yuv":
+        if coded.stats.transform != "log_yuv":
             raise BTFInputError(
                 f"{coded.name}: coded without the log-YUV preprocessing "
                 f"({coded.stats.transform!r}); the runtime decodes log-YUV codes only"
@@ -115,7 +85,7 @@ class RuntimeBTF:
                 f"{coded.name}: the runtime needs 4D data points with every mode <= 256 "
                 f"(packed locations), got {sizes}"
             )
-        self.tau = _channel_taus(coded, tau)
+        self.tau = coded.resolve_tau(tau)
         codes = {
             ch: c.truncate(self.tau[ch]) if np.max(c.counts, initial=0) > self.tau[ch] else c
             for ch, c in coded.codes.items()
@@ -162,7 +132,7 @@ class RuntimeBTF:
 
     def with_tau(self, tau: TauSpec) -> RuntimeBTF:
         """A copy truncated to τ' ≤ the current τ per channel (level of detail at load time)."""
-        new = _channel_taus(self.coded, tau)
+        new = self.coded.resolve_tau(tau)
         bigger = {ch: v for ch, v in new.items() if v > self.tau[ch]}
         if bigger:
             raise BTFInputError(f"cannot raise tau above the loaded level {self.tau}: {bigger}")
@@ -293,7 +263,7 @@ class RuntimeBTF:
             raise BTFInputError(f"wi {wi.shape} and wo {wo.shape} must have the same shape")
         n = wi.shape[0] if wi.ndim == 2 else -1
         pts, i1, i2 = self._texels(uv, texel, n)
-        caps = self.tau if tau is None else _channel_taus(self.coded, tau)
+        caps = self.tau if tau is None else self.coded.resolve_tau(tau)
         over = {ch: v for ch, v in caps.items() if v > self.tau[ch]}
         if over:
             raise BTFInputError(f"run-time tau {over} exceeds the loaded tau {self.tau}")

@@ -18,21 +18,14 @@ padding NumPy needs for points of different coefficient counts (about 10× faste
 
 from __future__ import annotations
 
-import os
+from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["HAVE_NUMBA", "k_nearest", "pair_sums", "separable_sum"]
+__all__ = ["HAVE_NUMBA", "gather_terms", "pair_sums", "separable_sum"]
 
-try:  # numba is optional: the NumPy path is complete on its own.
-    if os.environ.get("SPARSEBTF_NO_NUMBA"):
-        raise ImportError("disabled by SPARSEBTF_NO_NUMBA")
-    import numba as _nb
-
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover - depends on the environment
-    _nb = None
-    HAVE_NUMBA = False
+from .._numba import HAVE_NUMBA
+from .._numba import numba as _nb
 
 #: Budget of gathered entries per NumPy chunk (queries × coefficients × neighbours).
 _NUMPY_BUDGET = 1 << 22
@@ -42,22 +35,55 @@ def _unpack(code: np.ndarray) -> tuple[np.ndarray, ...]:
     return code & 0xFF, (code >> 8) & 0xFF, (code >> 16) & 0xFF, code >> 24
 
 
-def _gather(ch: dict[str, np.ndarray], pts, i1, i2, li, vi, tau: int):
-    """Per-query padded coefficient data: (coef·U1·U2 (n, w), U3 rows (n, w, kl), U4 (n, w, kv))."""
-    off = ch["offsets"]
-    start = off[pts].astype(np.int64)
-    cnt = np.minimum(off[pts + 1] - off[pts], tau)
+def gather_terms(
+    values: np.ndarray,
+    locations: np.ndarray,
+    offsets: np.ndarray,
+    membership: np.ndarray,
+    dicts: Sequence[np.ndarray],
+    pts: np.ndarray,
+    tau: int | None,
+    rows: Sequence[np.ndarray],
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """The terms of Eq. 5 for a batch of points: the NumPy reference of every backend.
+
+    Eq. 5 sums over each point's kept coefficients s: v_s Π_n U_n[k, row_n, l_n(s)]. Here the
+    first ``tau`` (None: all) coefficients of every point in ``pts`` (n,) are gathered,
+    padded to the widest point with zero values, together with one factor per mode:
+
+    * ``values`` (nnz,), ``offsets`` (P+1,), ``membership`` (P,) as in :class:`SparseCodes`;
+      ``locations`` (nnz, N) multi-indices, or (nnz,) uint32 packed l1 | l2<<8 | l3<<16 | l4<<24;
+    * ``dicts`` — per mode (K, m_n, m_n); ``rows`` — per mode the dictionary rows wanted,
+      (r_n,) for every point or (n, r_n) per point (a texel, a light's neighbours, ...).
+
+    Returns ``val`` (n, w) float64 and per mode ``factor_n`` (n, w, r_n) = U_n[k, row, l_n].
+    """
+    start = offsets[pts].astype(np.int64)
+    cnt = offsets[pts + 1] - offsets[pts]
+    if tau is not None:
+        cnt = np.minimum(cnt, tau)
     width = int(cnt.max()) if cnt.size else 0
     col = np.arange(width)
     valid = col[None, :] < cnt[:, None]
     pos = np.where(valid, start[:, None] + col[None, :], 0)
-    val = np.where(valid, ch["values"][pos], 0).astype(np.float64)
-    l1, l2, l3, l4 = _unpack(ch["locations"][pos].astype(np.int64))
-    k = ch["membership"][pts][:, None]
-    a = val * ch["dict1"][k, i1[:, None], l1] * ch["dict2"][k, i2[:, None], l2]
-    g3 = ch["dict3"][k[..., None], li[:, None, :], l3[..., None]]
-    g4 = ch["dict4"][k[..., None], vi[:, None, :], l4[..., None]]
-    return a, g3, g4
+    val = np.where(valid, values[pos], 0).astype(np.float64)
+    loc = locations[pos]
+    loc = np.stack(_unpack(loc.astype(np.int64)), axis=-1) if loc.ndim == 2 else loc
+    k = membership[pts][:, None, None]
+    factors = [
+        d[k, np.atleast_2d(r)[:, None, :], loc[..., n, None]]
+        for n, (d, r) in enumerate(zip(dicts, rows, strict=True))
+    ]
+    return val, factors
+
+
+def _gather(ch: dict[str, np.ndarray], pts, i1, i2, li, vi, tau: int):
+    """Per-query padded coefficient data: (coef·U1·U2 (n, w), U3 rows (n, w, kl), U4 (n, w, kv))."""
+    args = _args(ch)
+    val, (f1, f2, g3, g4) = gather_terms(
+        *args[:4], args[4:], pts, tau, [i1[:, None], i2[:, None], li, vi]
+    )
+    return val * f1[..., 0] * f2[..., 0], g3, g4
 
 
 def _chunks(ch: dict[str, np.ndarray], pts: np.ndarray, tau: int, k: int):
@@ -149,43 +175,6 @@ if HAVE_NUMBA:
                     for jb in range(kv):
                         out[q, ja, jb] += g * d4[k, vi[q, jb], l4]
         return out
-
-
-    @_nb.njit(parallel=True, cache=True, nogil=True)
-    def _knn_nb(xyz, q, k):
-        n = q.shape[0]
-        m = xyz.shape[0]
-        idx = np.empty((n, k), dtype=np.int32)
-        dist = np.empty((n, k), dtype=np.float64)
-        for i in _nb.prange(n):
-            cnt = 0
-            for j in range(m):
-                d = 2.0 - 2.0 * (q[i, 0] * xyz[j, 0] + q[i, 1] * xyz[j, 1] + q[i, 2] * xyz[j, 2])
-                d = max(d, 0.0)
-                if cnt < k:
-                    cnt += 1
-                elif d >= dist[i, k - 1]:
-                    continue
-                # insertion: strict comparison keeps the lower index first on ties
-                pos = cnt - 1
-                while pos > 0 and dist[i, pos - 1] > d:
-                    dist[i, pos] = dist[i, pos - 1]
-                    idx[i, pos] = idx[i, pos - 1]
-                    pos -= 1
-                dist[i, pos] = d
-                idx[i, pos] = j
-        return idx, dist
-
-
-def k_nearest(xyz: np.ndarray, q: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray] | None:
-    """Compiled brute-force k nearest by squared chord distance, or None without numba.
-
-    A scan of the N sampled directions with an insertion list of k beats NumPy's
-    argpartition + sort of an (n, N) distance matrix by ~20× for N = 151.
-    """
-    if not HAVE_NUMBA:
-        return None
-    return _knn_nb(np.ascontiguousarray(xyz), np.ascontiguousarray(q), k)
 
 
 def _args(ch: dict[str, np.ndarray]) -> tuple[np.ndarray, ...]:

@@ -12,13 +12,13 @@ Every write is atomic; every read error is a :class:`~sparsebtf.errors.FileForma
 
 from __future__ import annotations
 
-from .accounting import MIB, channel_storage, paper_storage, storage_report
+from ..learning.cost import channel_storage, location_width
+from .accounting import MIB, paper_storage, storage_report
 from .coded_file import (
     CODED_FORMAT,
     CODED_SCHEMA_VERSION,
     load_coded,
     load_coded_with_model,
-    location_width,
     pack_locations,
     save_coded,
     unpack_locations,

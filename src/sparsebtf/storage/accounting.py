@@ -1,13 +1,8 @@
 """Storage accounting as in the paper's Table 4 (the release's ``btf4Dcomp``).
 
-Per channel (``official-release-format.md`` §5, ``training-algorithm.md`` §7)::
-
-    bytes = 2·NNZ            binary16 values
-          + 3·NNZ            locations: a 24-bit linear index (4 B if ∏m ≥ 2^24)
-          + 2·K·Σ m_n²       the channel's K dictionaries in binary16
-          + P + P            membership m and count z, one byte per point each
-
-Raw size is H·W·L·V·3 values at 2 bytes (binary16). The compression ratio is
+Per channel the bytes are those of the Table 4 formula
+(:func:`sparsebtf.learning.cost.channel_storage`: values, locations, dictionaries, membership
+and counts). Raw size is H·W·L·V·3 values at 2 bytes (binary16). The compression ratio is
 raw / (coefficients + dictionaries + membership/counts); the standardisation statistics are
 reported apart (``bytes_stats``) and not in the ratio, as in the paper. For UBO2014 at
 τ = (885, 64, 64), K = 8 and 1600 points per channel this gives 10,312,096 B ≈ 9.83 MiB and a
@@ -22,45 +17,14 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ..errors import BTFInputError, ModelMismatchError
+from ..learning.cost import channel_storage, raw_bytes
 from ..model import CHANNELS, CodedBTF, Model
-from .coded_file import location_width
 
-__all__ = ["MIB", "channel_storage", "paper_storage", "storage_report"]
+__all__ = ["MIB", "paper_storage", "storage_report"]
 
 #: Bytes per MiB (the paper reports sizes in MiB = 2^20 bytes).
 MIB = float(1 << 20)
-
-
-def channel_storage(
-    nnz: int, n_points: int, n_dictionaries: int, mode_sizes: Sequence[int]
-) -> dict[str, Any]:
-    """Bytes of one channel by the ``btf4Dcomp`` formula (Table 4)."""
-    sizes = tuple(int(m) for m in mode_sizes)
-    loc_w = location_width(sizes)
-    dict_entries = int(n_dictionaries) * sum(m * m for m in sizes)
-    out = {
-        "nnz": int(nnz),
-        "n_points": int(n_points),
-        "n_dictionaries": int(n_dictionaries),
-        "mode_sizes": sizes,
-        "dictionary_entries": dict_entries,
-        "location_bytes_per_coefficient": loc_w,
-        "bytes_values": 2 * int(nnz),
-        "bytes_locations": loc_w * int(nnz),
-        "bytes_dictionaries": 2 * dict_entries,
-        "bytes_membership": int(n_points),
-        "bytes_counts": int(n_points),
-        "mean_coefficients_per_point": float(nnz) / n_points if n_points else 0.0,
-    }
-    out["bytes_coefficients"] = out["bytes_values"] + out["bytes_locations"]
-    out["bytes_total"] = (
-        out["bytes_coefficients"] + out["bytes_dictionaries"] + out["bytes_membership"]
-        + out["bytes_counts"]
-    )
-    return out
 
 
 def _combine(
@@ -73,7 +37,7 @@ def _combine(
     dicts = sum(c["bytes_dictionaries"] for c in per_channel.values())
     mz = sum(c["bytes_membership"] + c["bytes_counts"] for c in per_channel.values())
     total = coeff + dicts + mz
-    raw = 2 * raw_values
+    raw = raw_bytes(raw_values)
     return {
         "bytes_raw": raw,
         "bytes_raw_float32": 4 * raw_values,
@@ -159,13 +123,9 @@ def storage_report(
     per: dict[str, dict[str, Any]] = {}
     for ch in coded.channels:
         c = coded.codes[ch]
-        k_param: Any = coded.params.get("n_dictionaries")
-        if isinstance(k_param, Mapping):
-            k_param = k_param.get(ch)
-        if m is not None and ch in m.dictionaries:
-            k, source = m.n_dictionaries(ch), "model"
-        elif isinstance(k_param, (int, np.integer)) and not isinstance(k_param, bool):
-            k, source = int(k_param), "params"
+        known = coded.dictionary_count(ch, m)
+        if known is not None:
+            k, source = known, "model" if m is not None and ch in m.dictionaries else "params"
         else:
             k = int(c.membership.max()) + 1 if c.n_points else 1
             source = "membership"

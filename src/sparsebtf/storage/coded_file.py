@@ -26,7 +26,6 @@ import json
 import os
 import warnings
 from pathlib import Path
-from typing import Any
 
 import h5py
 import numpy as np
@@ -36,8 +35,9 @@ from .._atomic import atomic_output
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes
+from ..learning.cost import location_width
 from ..model import CodedBTF, Model
-from ..preprocessing import Standardization
+from ..points.preprocessing import EPS, Standardization
 from ._common import (
     as_str,
     check_geometry,
@@ -54,7 +54,6 @@ __all__ = [
     "CODED_FORMAT",
     "CODED_SCHEMA_VERSION",
     "load_coded",
-    "location_width",
     "pack_locations",
     "save_coded",
     "unpack_locations",
@@ -67,21 +66,6 @@ _FP16_MAX = float(np.finfo(np.float16).max)
 
 
 # --------------------------------------------------------------------------- location packing
-
-
-def location_width(mode_sizes: tuple[int, ...] | list[int]) -> int:
-    """Bytes per packed location: 3 when ∏ m_n < 2^24 (Table 4's 3 B), else 4."""
-    total = int(np.prod([int(m) for m in mode_sizes], dtype=object))
-    if total <= 0:
-        raise BTFInputError(f"mode sizes must be positive, got {tuple(mode_sizes)}")
-    if total <= 1 << 24:
-        return 3
-    if total <= 1 << 32:
-        return 4
-    raise BTFInputError(
-        f"data points of {total} entries (modes {tuple(mode_sizes)}) exceed the 32-bit "
-        f"location index of this format"
-    )
 
 
 def pack_locations(locations: np.ndarray, mode_sizes: tuple[int, ...] | list[int]) -> np.ndarray:
@@ -137,18 +121,6 @@ def unpack_locations(packed: np.ndarray, mode_sizes: tuple[int, ...] | list[int]
 # --------------------------------------------------------------------------- writing
 
 
-def _known_k(coded: CodedBTF, ch: str) -> int | None:
-    """K of a channel: from the attached model, else ``params["n_dictionaries"]`` (int or dict)."""
-    if coded.model is not None and ch in coded.model.dictionaries:
-        return coded.model.n_dictionaries(ch)
-    k: Any = coded.params.get("n_dictionaries")
-    if isinstance(k, dict):
-        k = k.get(ch)
-    if isinstance(k, (int, np.integer)) and not isinstance(k, bool) and k > 0:
-        return int(k)
-    return None
-
-
 def _check_coded(coded: CodedBTF) -> None:
     """Refuse (before anything is written) what :func:`load_coded` would refuse."""
     name = coded.name
@@ -159,7 +131,7 @@ def _check_coded(coded: CodedBTF) -> None:
         raise BTFInputError(
             f"{name}: size {coded.height}x{coded.width} is not a multiple of the patch {p}"
         )
-    if getattr(coded.stats, "transform", "log_yuv") != "log_yuv":
+    if coded.stats.transform != "log_yuv":
         raise BTFInputError(
             f"{name}: coded with preprocessing {coded.stats.transform!r}; the coded file format "
             "stores log-YUV statistics only (that preprocessing is an evaluation baseline)"
@@ -180,7 +152,7 @@ def _check_coded(coded: CodedBTF) -> None:
             )
         if c.n_points and (int(c.membership.min()) < 0 or int(c.counts.min()) < 0):
             raise BTFInputError(f"{name}, channel {ch}: negative membership or count")
-        k = _known_k(coded, ch)
+        k = coded.dictionary_count(ch)
         if k is not None and c.n_points and int(c.membership.max()) >= k:
             raise BTFInputError(
                 f"{name}, channel {ch}: membership {int(c.membership.max())} but only {k} "
@@ -215,7 +187,7 @@ def save_coded(coded: CodedBTF, path: str | os.PathLike[str]) -> Path:
         f.attrs["attrs_json"] = to_json(coded.attrs)
         root = f.create_group("codes")
         for ch in coded.channels:
-            k = _known_k(coded, ch)
+            k = coded.dictionary_count(ch)
             _write_codes(root.create_group(ch), coded.codes[ch], k, coded.name, ch)
         st = f.create_group("stats")
         st.attrs["mode"] = coded.stats.mode
@@ -427,7 +399,7 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
     mean = read_array(g, "mean", where).astype(np.float64)
     std = read_array(g, "std", where).astype(np.float64)
     mode = read_str_attr(g, "mode", where)
-    eps = float(np.asarray(g.attrs.get("eps", 1e-5)).item())
+    eps = float(np.asarray(g.attrs.get("eps", EPS)).item())
     try:
         return Standardization(mode=mode, mean=mean, std=std, eps=eps)  # type: ignore[arg-type]
     except BTFInputError as e:
@@ -445,7 +417,7 @@ def load_coded_with_model(
     from .model_file import load_model
 
     coded = load_coded(path)
-    mpath = model_path or coded.params.get("model_file")
+    mpath = model_path or coded.model_file
     if not mpath:
         raise ModelMismatchError(
             f"{path}: pass --model MODEL.h5 (the coded file names no model file)"

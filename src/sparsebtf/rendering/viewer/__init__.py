@@ -231,7 +231,7 @@ def pack_textures(
         "sb_dictSize": sizes,
         "sb_stdBase": int(mean.size),
         "sb_yuvToRgb": arrays["yuv_to_rgb"].astype(np.float64).tolist(),
-        "sb_eps": float(meta.get("eps", 1e-5)),
+        "sb_eps": float(meta["eps"]),
     }
     part = {
         "textures": textures,

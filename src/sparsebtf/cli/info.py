@@ -2,16 +2,20 @@
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .data.btf import BTF
-from .data.io import file_format, open_btf
+from .._json import json_default
+from ..data.btf import BTF
+from ..open import file_format, open_btf
+from ._output import print_json, table
 
-__all__ = ["describe", "describe_btf"]
+__all__ = ["describe", "describe_btf", "register"]
 
 
 def _directions(btf: BTF) -> dict[str, Any]:
@@ -67,7 +71,7 @@ def describe(
         out.update(format=fmt, file_bytes=size)
         return out
     if fmt == "sparsebtf-model":
-        from .storage import load_model
+        from ..storage import load_model
 
         m = load_model(s)
         return {
@@ -88,11 +92,11 @@ def describe(
             "file_bytes": size,
         }
     if fmt == "sparsebtf-coded":
-        from .storage import load_coded, load_model, storage_report
+        from ..storage import load_coded, load_model, storage_report
 
         coded = load_coded(s)
         model = None
-        mpath = model_path or coded.params.get("model_file")
+        mpath = model_path or coded.model_file
         if mpath and Path(mpath).exists():
             model = load_model(mpath)
             coded.attach(model)
@@ -113,3 +117,24 @@ def describe(
             **{k: v for k, v in report.items() if not isinstance(v, dict) or k == "nnz"},
         }
     return {"kind": "unknown", "format": fmt, "file_bytes": size}
+
+
+def run(args: argparse.Namespace) -> int:
+    info = describe(args.file, model_path=args.model, scan=not args.no_scan)
+    if args.json:
+        print_json(info)
+    else:
+        print(table([(k, v) for k, v in info.items() if not isinstance(v, dict | list)]))
+        for k, v in info.items():
+            if isinstance(v, dict | list):
+                print(f"{k}: {json.dumps(v, default=json_default)}")
+    return 0
+
+
+def register(sub: Any) -> None:
+    s = sub.add_parser("info", help="describe a BTF, model or coded file")
+    s.add_argument("file", help="a .h5 file of ours, or synth:CLASS[:SIZE[:SEED]]")
+    s.add_argument("-m", "--model", help="model file (for a coded file's storage figures)")
+    s.add_argument("--no-scan", action="store_true", help="skip the value-range scan")
+    s.add_argument("--json", action="store_true", help="print one JSON object")
+    s.set_defaults(func=run)

@@ -18,9 +18,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .data.btf import BTF
-from .data.validate import check_finite
-from .errors import BTFInputError
+from ..data.btf import BTF
+from ..data.validate import check_finite
+from ..errors import BTFInputError
 from .preprocessing import Preprocessor
 
 __all__ = ["PatchGrid", "assemble", "extract", "iter_points", "sample_points"]
@@ -120,7 +120,7 @@ def iter_points(
     Yields ``(indices, X)`` with X of shape (b, p, p, L, V, 3), b <= ``batch``. Points are
     read one spatial patch at a time (a patch holds every direction), so memory stays at
     ``batch`` data points whatever the BTF size. NaN/Inf raise with their location; negative
-    values are clamped to 0 (counted by :func:`~sparsebtf.preprocessing.gather_statistics`).
+    values are clamped to 0 (counted by :func:`~sparsebtf.points.preprocessing.gather_statistics`).
     """
     grid = PatchGrid.for_btf(btf, patch)
     if (pre.stats.n_lights, pre.stats.n_views) != btf.shape[2:4]:

@@ -8,17 +8,21 @@ when a channel is missing (the release ships no Y coefficients).
 
 from __future__ import annotations
 
+import argparse
+import json
 import os
 from typing import Any
 
 import numpy as np
 
-from .data.io import file_format, open_btf
-from .datapoints import PatchGrid
-from .errors import BTFInputError
-from .preprocessing import from_log_yuv, gather_statistics, to_log_yuv
+from .._json import json_default
+from ..errors import BTFInputError, SparseBTFError
+from ..open import file_format, open_btf
+from ..points.grid import PatchGrid
+from ..points.preprocessing import from_log_yuv, gather_statistics, to_log_yuv
+from ._output import print_json, table
 
-__all__ = ["lookup"]
+__all__ = ["lookup", "register"]
 
 
 def _check(r: int, c: int, light: int, view: int, shape: tuple[int, ...]) -> None:
@@ -40,8 +44,8 @@ def lookup(
     fmt = file_format(path)
     out: dict[str, Any] = {"texel": [row, col], "light": light, "view": view}
     if fmt == "sparsebtf-coded":
-        from .codec import decode_points_eq5
-        from .storage import load_coded_with_model
+        from ..runtime import decode_points_eq5
+        from ..storage import load_coded_with_model
 
         coded = load_coded_with_model(path, model_path)
         _check(
@@ -77,3 +81,27 @@ def lookup(
         rgb=[float(v) for v in rgb],
     )
     return out
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        r, c = (int(v) for v in args.texel.split(","))
+    except ValueError:
+        raise SparseBTFError(f"--texel must look like R,C, got {args.texel!r}") from None
+    out = lookup(args.file, r, c, args.light, args.view, model_path=args.model)
+    if args.json:
+        print_json(out)
+    else:
+        print(table([(k, json.dumps(v, default=json_default)) for k, v in out.items()]))
+    return 0
+
+
+def register(sub: Any) -> None:
+    s = sub.add_parser("lookup", help="one value of a coded or dense BTF, in every domain")
+    s.add_argument("file", help="coded or dense .h5 file")
+    s.add_argument("--texel", required=True, help="R,C (row, column; the release's convention)")
+    s.add_argument("--light", type=int, required=True, help="sampled light index")
+    s.add_argument("--view", type=int, required=True, help="sampled view index")
+    s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
+    s.add_argument("--json", action="store_true")
+    s.set_defaults(func=run)

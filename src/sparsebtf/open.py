@@ -1,4 +1,5 @@
-"""Open any BTF a user names: our dense file, a coded file (decoded lazily), or a synthetic spec.
+"""Open any BTF a user names: our dense file, a coded file (decoded lazily), a Bonn file, or a
+synthetic spec. This module sits above the readers, the storage and the runtime.
 
 Accepted sources:
 
@@ -17,10 +18,10 @@ from pathlib import Path
 
 import h5py
 
-from ..errors import FileFormatError
-from .btf import BTF
-from .dense_file import FORMAT as DENSE_FORMAT
-from .dense_file import DenseFileBTF
+from .data.btf import BTF
+from .data.dense_file import FORMAT as DENSE_FORMAT
+from .data.dense_file import DenseFileBTF
+from .errors import FileFormatError
 
 __all__ = ["file_format", "open_btf", "parse_synth_spec"]
 
@@ -67,23 +68,23 @@ def open_btf(
     """Open ``source`` as a :class:`BTF` (see the module docstring for what is accepted)."""
     s = str(source)
     if s.startswith("synth:"):
-        from .synth import cached
+        from .data.synth import cached
 
         return cached(**parse_synth_spec(s), progress=progress)  # type: ignore[arg-type]
     if s.lower().endswith(".btf"):
-        from ..formats.ubo2014 import read_ubo2014
+        from .formats.ubo2014 import read_ubo2014
 
         return read_ubo2014(s)
     if s.lower().endswith(".zip"):
-        from ..formats.ubo2003 import read_ubo2003_zip
+        from .formats.ubo2003 import read_ubo2003_zip
 
         return read_ubo2003_zip(s)
     fmt = file_format(s)
     if fmt == DENSE_FORMAT:
         return DenseFileBTF(s)
     if fmt == "sparsebtf-coded":
-        from ..codec import coded_btf_view
-        from ..storage import load_coded_with_model
+        from .runtime.dense import coded_btf_view
+        from .storage import load_coded_with_model
 
         return coded_btf_view(load_coded_with_model(s, model_path))
     raise FileFormatError(f"{s}: format {fmt!r} is not a BTF (dense or coded) file")

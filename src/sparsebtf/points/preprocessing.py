@@ -28,14 +28,15 @@ from typing import Literal
 
 import numpy as np
 
-from ._progress import progress as _progress
-from .data.btf import BTF, Index, as_index
-from .data.validate import check_finite
-from .errors import BTFInputError
+from .._progress import progress as _progress
+from ..data.btf import BTF, LOG_EPS, Index, as_index
+from ..data.validate import check_finite
+from ..errors import BTFInputError
 
 __all__ = [
     "EPS",
     "RGB_TO_YUV",
+    "STD_MODES",
     "TRANSFORMS",
     "YUV_TO_RGB",
     "YUV_TO_RGB_RELEASE",
@@ -51,8 +52,10 @@ __all__ = [
     "yuv_to_rgb",
 ]
 
-EPS = 1e-5
+#: The log offset of §3.1 (and of UBO2014's dynamic-range reduction).
+EPS = LOG_EPS
 StdMode = Literal["shared", "per_channel"]
+STD_MODES = ("shared", "per_channel")
 #: ``"log_yuv"``: the paper's §3.1 processing. ``"identity"``: none at all — the codes hold raw
 #: linear R, G, B in the channel slots Y, U, V (the [MHU19] baseline of the paper's Table 2).
 Transform = Literal["log_yuv", "identity"]
@@ -134,7 +137,7 @@ class Standardization:
             raise BTFInputError(
                 f"preprocessing transform must be one of {TRANSFORMS}, got {self.transform!r}"
             )
-        if self.mode not in ("shared", "per_channel"):
+        if self.mode not in STD_MODES:
             raise BTFInputError(
                 f"standardisation mode must be 'shared' or 'per_channel', got {self.mode!r}"
             )
@@ -239,7 +242,7 @@ def gather_statistics(
     location; negative values are clamped to 0 with one warning giving the total count.
     ``transform="identity"`` reads nothing and returns μ = 0, σ = 1 (no processing at all).
     """
-    if mode not in ("shared", "per_channel"):
+    if mode not in STD_MODES:
         raise BTFInputError(f"standardisation mode must be 'shared' or 'per_channel', got {mode!r}")
     if transform not in TRANSFORMS:
         raise BTFInputError(

@@ -30,7 +30,7 @@ from ..data.directions import DirectionSet, from_angles, ubo2014
 from ..errors import FileFormatError
 from ..learning.coding import SparseCodes
 from ..model import CodedBTF, Model
-from ..preprocessing import Standardization
+from ..points.preprocessing import Standardization
 
 __all__ = [
     "import_release",

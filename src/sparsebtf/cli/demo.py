@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import time
 from dataclasses import dataclass
@@ -17,13 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .codec import coded_btf_view, encode_levels, train
-from .data.synth import cached
-from .figures import comparison_grid, quality_plot
-from .metrics import compare
-from .storage import save_coded, save_model, storage_report
-
-__all__ = ["DemoConfig", "run_demo"]
+__all__ = ["DemoConfig", "register", "run_demo"]
 
 
 @dataclass(frozen=True)
@@ -95,6 +90,14 @@ def run_demo(
     config: DemoConfig | None = None,
 ) -> dict[str, Any]:
     """Run the demo into folder ``out``; returns (and writes) the results object."""
+    # The whole pipeline, imported here so that ``sparsebtf --help`` stays fast.
+    from ..codec import encode_levels, train
+    from ..data.synth import cached
+    from ..figures import comparison_grid, quality_plot
+    from ..metrics import compare
+    from ..runtime import coded_btf_view
+    from ..storage import save_coded, save_model, storage_report
+
     cfg = config or (DemoConfig.quick() if quick else DemoConfig())
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
@@ -199,3 +202,17 @@ def run_demo(
     if as_json:
         print(json.dumps(result, indent=2, default=str))
     return result
+
+
+def run(args: argparse.Namespace) -> int:
+    run_demo(Path(args.out), quick=args.quick, seed=args.seed, as_json=args.json)
+    return 0
+
+
+def register(sub: Any) -> None:
+    s = sub.add_parser("demo", help="synthesise, train, encode at several tau, report and plot")
+    s.add_argument("--out", default="sparsebtf-demo", help="output folder (default sparsebtf-demo)")
+    s.add_argument("--quick", action="store_true", help="smaller sizes (about a minute)")
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--json", action="store_true", help="also print the results as JSON")
+    s.set_defaults(func=run)

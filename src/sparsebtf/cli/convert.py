@@ -1,0 +1,29 @@
+"""``sparsebtf convert``: any BTF (.btf, .zip, .h5, synth:...) to our dense file."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ._args import open_source
+
+__all__ = ["register"]
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..data.dense_file import write_dense
+
+    btf = open_source(args.input, crop=args.crop)
+    write_dense(args.output, btf, dtype=args.dtype, progress=None)
+    print(f"wrote {args.output}: {btf.height}x{btf.width} texels, {len(btf.lights)} lights x "
+          f"{len(btf.views)} views")
+    return 0
+
+
+def register(sub: Any) -> None:
+    s = sub.add_parser("convert", help="any BTF (.btf, .h5, synth:...) to our dense file")
+    s.add_argument("input", metavar="IN", help="a .btf, dense/coded .h5, or synth:CLASS[:SIZE]")
+    s.add_argument("-o", "--output", required=True, help="dense BTF file to write (.h5)")
+    s.add_argument("--crop", help="keep rows R0:R1 and columns C0:C1")
+    s.add_argument("--dtype", choices=["float32", "float16"], default="float32")
+    s.set_defaults(func=run)

@@ -1,0 +1,64 @@
+"""``sparsebtf synth``: render a synthetic material to a dense BTF file and/or a preview PNG."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+from ..errors import SparseBTFError
+from ._args import open_source
+
+__all__ = ["register"]
+
+
+def run(args: argparse.Namespace) -> int:
+    from ..data.dense_file import write_dense
+    from ..data.synth import contact_sheet, synthesize
+
+    if args.source:
+        # Preview (or convert) any BTF the user has: .btf, our .h5, synth:...
+        btf = open_source(args.source)
+    elif args.material:
+        btf = synthesize(args.material, args.size, args.directions, args.seed)
+    else:
+        raise SparseBTFError("give --class CLASS to synthesise, or --from BTF to preview a BTF")
+    if not args.output and not args.preview:
+        raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --preview OUT.png")
+    if args.output:
+        write_dense(args.output, btf, dtype=args.dtype, progress=None)
+        print(
+            f"wrote {args.output}: {btf.shape[0]}x{btf.shape[1]} texels, "
+            f"{len(btf.lights)} lights x {len(btf.views)} views ({btf.lights.name})"
+        )
+        if args.preview:
+            btf = open_source(args.output)
+    if args.preview:
+        contact_sheet(btf, args.preview)
+        print(f"wrote {args.preview}")
+    return 0
+
+
+def register(sub: Any) -> None:
+    s = sub.add_parser("synth", help="render a synthetic material (dense BTF file, preview PNG)")
+    s.add_argument(
+        "--class",
+        dest="material",
+        help="carpet, fabric, felt, leather, stone, wallpaper or wood",
+    )
+    s.add_argument(
+        "--from",
+        dest="source",
+        metavar="BTF",
+        help="instead of synthesising, preview/convert this BTF (.btf, .h5, synth:...)",
+    )
+    s.add_argument("--size", type=int, default=64, help="texels per side (default 64)")
+    s.add_argument(
+        "--directions",
+        default="ubo2014",
+        help="ubo2014 (151), ubo2003 (81), tiny7/13/19 (default ubo2014)",
+    )
+    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--dtype", choices=["float32", "float16"], default="float32")
+    s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")
+    s.add_argument("--preview", help="PNG contact sheet of angular images to write")
+    s.set_defaults(func=run)

@@ -1,0 +1,46 @@
+"""The SparseBTF codec: train a model once (§3.2), encode any BTF on it (§3.3), to a target size
+by rate control (beyond §3.3).
+
+>>> model = train([btf_a, btf_b], tau_train=(256, 32, 32))           # doctest: +SKIP
+>>> coded = encode(btf_c, model, tau=(885, 64, 64), eps=1e-5)          # doctest: +SKIP
+
+Decoding reads codes and lives in :mod:`sparsebtf.runtime` (``coded_btf_view``, Eq. 4–6).
+Everything streams: statistics by view block, data points by patch.
+"""
+
+from __future__ import annotations
+
+from ..model import parse_tau
+from .encode import encode, encode_levels
+from .rate import WEIGHTINGS, encode_rate_levels, encode_to_size, material_target_bytes
+from .train import train
+
+__all__ = [
+    "WEIGHTINGS",
+    "encode",
+    "encode_levels",
+    "encode_rate_levels",
+    "encode_to_size",
+    "material_target_bytes",
+    "parse_tau",
+    "train",
+]
+
+#: Decoding moved to the runtime; the old names still resolve, with a warning.
+_MOVED = {
+    "coded_btf_view", "decode_points", "decode_points_eq5", "DecodedBTF", "EQ5_MAX_DIRECTIONS",
+}
+
+
+def __getattr__(name: str) -> object:
+    if name in _MOVED:
+        import warnings
+
+        from ..runtime import dense
+
+        warnings.warn(
+            f"sparsebtf.codec.{name} moved to sparsebtf.runtime.{name}", DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(dense, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,95 @@
+"""Mitsuba 3 BSDF plugins: ``sparsebtf`` (coded BTFs, Eq. 5/6) and ``sparsebtf_dense`` (reference).
+
+Use :mod:`sparsebtf.mitsuba` (``import sparsebtf.mitsuba``), which picks a variant and calls
+:func:`register`. Importing this package does not import Mitsuba or Dr.Jit. Its modules:
+
+* :mod:`.materials` — material sources (files, :func:`add_material`), per-process caches, the
+  parameter checks, :func:`preload`; plain Python/NumPy,
+* :mod:`.kernels` — the lookups: Dr.Jit kernels (Eq. 5/6, the dense reference) and their
+  scalar NumPy counterparts,
+* :mod:`.plugins` — the Mitsuba BSDF classes, built for the variant active when it is imported
+  (only :func:`register` imports it),
+* :mod:`.variant` — :func:`setup` (choose and set the variant) and :func:`register`.
+
+``sparsebtf`` — a coded material
+--------------------------------
+Evaluates a coded BTF locally at each shading point, never reconstructing a data point: the
+texel's data point p, its dictionary k = M[p] and its stored coefficients (v_s, l_s), then per
+YUV channel (paper Eq. 5, with Eq. 6's coefficient-space angular interpolation)::
+
+    X_c = Σ_s v_s U1[i1,l1] U2[i2,l2] (Σ_a wl_a U3[L_a,l3]) (Σ_b wv_b U4[V_b,l4])
+
+followed by the inverse preprocessing (de-standardisation with μ, σ blended by the same
+weights, YUV → RGB, exp). On the ``llvm_ad_*``/``cuda_ad_*`` variants everything is Dr.Jit:
+``dr.gather`` from flat arrays (:meth:`sparsebtf.runtime.RuntimeBTF.arrays`), a symbolic
+``dr.while_loop`` over the coefficients of each channel and one over the sampled directions
+(brute-force k-nearest by chord distance, as :func:`sparsebtf.runtime.angular_weights`). On
+``scalar_rgb`` the lookup calls :meth:`RuntimeBTF.evaluate` per ray (tiny renders only).
+
+Convention (what ``eval`` returns). Mitsuba calls ``eval(ctx, si, wo)`` with ``si.wi`` towards
+the camera (the previous path vertex) and ``wo`` towards the light, both in the local shading
+frame, and expects f·cos θ_o. A measured BTF value (UBO-style) is already the reflected
+radiance per unit incident radiance *including* the foreshortening of the light, i.e. f·cos θ_light.
+So::
+
+    eval(ctx, si, wo) = BTF(uv, ω_light = wo, ω_view = si.wi)        (no extra cosine)
+
+i.e. :meth:`RuntimeBTF.evaluate(wi=wo, wo=si.wi, uv=si.uv·uv_scale)` (the runtime's ``wi`` is
+the light). In ``TransportMode.Importance`` (light tracing) the roles swap. The decoder's floor
+of −1e-5 (exp(·) − 1e-5) is clamped to 0. Directions below the horizon give 0 unless
+``two_sided`` is set, which mirrors both directions to the upper side on back-face hits.
+
+Local frame. The BTF's azimuth is measured from the +u texture axis towards +v (z = normal).
+Mitsuba's shading frame has s = ∂p/∂u (Gram–Schmidt against n) and t = n × s; where the surface
+parametrisation is left-handed (t points along −∂p/∂v, e.g. Mitsuba's built-in sphere, whose v
+runs from the north pole down) the local y of both directions is negated, so the material's
+angular behaviour stays consistent with its texture (a mirror image of the sample, as the
+texture itself is mirrored there).
+
+Sampling: cosine-weighted hemisphere (on the side of ``si.wi``); ``pdf`` is cos θ_o/π and
+``sample`` returns eval/pdf, so ``sample``, ``pdf`` and ``eval`` agree (checked with
+``mitsuba.chi2`` in ``tests/test_mitsuba.py``).
+
+Parameters (``mi.load_dict({"type": "sparsebtf", ...})``):
+
+============== ========= ==============================================================
+filename       string    coded file (``sparsebtf encode`` / ``import-release``)
+model          string    model file; default: the one the coded file names
+key            string    instead of ``filename``: a material added with
+                         :func:`sparsebtf.mitsuba.add_material` (a RuntimeBTF/CodedBTF)
+tau            string    level of detail τ' at load time: "885,64,64", "32" or a fraction
+                         "0.25" of the coded τ (default: every stored coefficient)
+uv_scale       float     texture tiling: uv ↦ uv·uv_scale (default 1; wraps)
+interpolation  string    nearest | linear (release 2-NN, default) | barycentric | gaussian
+domain         string    standardized (Eq. 6, default) | log (the release shader)
+k              integer   neighbours of the gaussian scheme (default 4)
+beta           float     gaussian sharpness β in exp(−β d²) (default 20)
+two_sided      boolean   shade back faces like front faces (default false)
+============== ========= ==============================================================
+
+``sparsebtf_dense`` — the uncompressed reference
+------------------------------------------------
+The same lookup from a dense (H, W, L, V, 3) table: texel by uv, the same angular neighbours
+and weights, the weighted blend taken of ln(x + 1e-5) (the log domain of the coded decoder,
+so ``nearest`` is an exact table lookup and the blends are comparable), then exp(·) − 1e-5.
+Parameters: ``filename`` (any BTF: dense ``.h5``, ``synth:…``, UBO2014 ``.btf``, a coded file)
+or ``key``, ``uv_scale``, ``interpolation``, ``k``, ``beta``, ``two_sided`` as above, and
+``max_gib`` (float, default 2): larger tables are refused with an error (crop the BTF first,
+``sparsebtf convert --crop``).
+"""
+
+from __future__ import annotations
+
+from .materials import DENSE_PLUGIN, PLUGIN, add_material, dense_table, load_runtime, preload
+from .variant import register, setup
+
+__all__ = [
+    "DENSE_PLUGIN",
+    "PLUGIN",
+    "add_material",
+    "dense_table",
+    "load_runtime",
+    "preload",
+    "register",
+    "setup",
+]

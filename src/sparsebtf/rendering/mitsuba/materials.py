@@ -1,0 +1,216 @@
+"""Where the plugins' materials come from, and the parameters they share (no Mitsuba import).
+
+A plugin names its material by ``filename`` (a coded file, or for ``sparsebtf_dense`` any BTF
+:func:`sparsebtf.open.open_btf` reads) or by ``key`` (an object added with
+:func:`add_material`). Loaded materials are cached per process, keyed by their source, so a
+scene that uses one material many times loads it once; the plugin classes
+(:mod:`.plugins`) and :func:`preload` (which runs the same checks outside Mitsuba, so errors
+reach the caller as :class:`~sparsebtf.errors.BTFInputError` rather than Mitsuba's
+``RuntimeError``) both go through here. The parameters are documented in
+:mod:`sparsebtf.rendering.mitsuba`.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import threading
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from ...errors import BTFInputError
+from ...points.preprocessing import EPS as LOG_EPS
+from ...runtime.angular import DEFAULT_K, SCHEMES
+
+__all__ = [
+    "DENSE_MAX_GIB",
+    "DENSE_PLUGIN",
+    "PLUGIN",
+    "add_material",
+    "cached",
+    "coded_params",
+    "common_params",
+    "dense_table",
+    "load_dense",
+    "load_runtime",
+    "preload",
+    "source_id",
+]
+
+PLUGIN = "sparsebtf"
+DENSE_PLUGIN = "sparsebtf_dense"
+#: Dense reference tables above this size (GiB) are refused by default.
+DENSE_MAX_GIB = 2.0
+#: ``domain`` values of the ``sparsebtf`` plugin (Eq. 6 blend, or the release shader's).
+DOMAINS = ("standardized", "log")
+
+# Mitsuba may construct plugins from several threads while loading a scene.
+_lock = threading.Lock()
+_materials: dict[str, Any] = {}
+_cache: dict[tuple, Any] = {}
+
+
+def add_material(obj: Any, key: str | None = None) -> str:
+    """Make an in-memory material available to the plugins under ``key`` (returned).
+
+    ``obj``: a :class:`~sparsebtf.runtime.RuntimeBTF` or a :class:`~sparsebtf.model.CodedBTF`
+    with its model (for ``sparsebtf``), or a :class:`~sparsebtf.data.btf.BTF` (for
+    ``sparsebtf_dense``). Adding under an existing key replaces that material.
+    """
+    with _lock:
+        key = key or f"mem{len(_materials)}-{id(obj):x}"
+        _materials[key] = obj
+        for ck in [ck for ck in _cache if ("key", key) in ck]:  # replaced: drop stale data
+            del _cache[ck]
+    return key
+
+
+def source_id(props: Any, what: str) -> tuple:
+    """The cache identity of a plugin's material: ``("key", key)`` or
+    ``("file", path, model, mtime)`` (the mtime, so an edited file is loaded again).
+
+    ``props``: Mitsuba ``Properties`` or a plugin dict; ``what``: the plugin name for errors.
+    """
+    if "key" in props:
+        key = str(props.get("key"))
+        if key not in _materials:
+            raise BTFInputError(f"{what}: no material was added under key {key!r}")
+        return ("key", key)
+    if "filename" not in props:
+        raise BTFInputError(f"{what}: give 'filename' (a file) or 'key' (an added material)")
+    path = str(props.get("filename"))
+    if path.startswith("synth:"):
+        return ("file", path, None, 0.0)
+    if not os.path.exists(path):
+        raise BTFInputError(f"{what}: file {path!r} does not exist")
+    model = str(props.get("model")) if "model" in props else None
+    return ("file", os.path.abspath(path), model, os.path.getmtime(path))
+
+
+def cached(ck: tuple, make: Callable[[], Any]) -> Any:
+    """``_cache[ck]``, made by ``make()`` on first use (one value per key, even if two
+    threads race to make it)."""
+    with _lock:
+        if ck in _cache:
+            return _cache[ck]
+    value = make()
+    with _lock:
+        return _cache.setdefault(ck, value)
+
+
+def load_runtime(source: tuple, tau: Any = None) -> Any:
+    """A :class:`~sparsebtf.runtime.RuntimeBTF` for a plugin source (cached per process).
+
+    ``tau`` is the plugin's string (or number) as given; :class:`RuntimeBTF` parses it.
+    """
+    from ...model import CodedBTF
+    from ...runtime import RuntimeBTF
+
+    def make() -> RuntimeBTF:
+        if source[0] != "key":
+            return RuntimeBTF.from_file(source[1], source[2], tau)
+        obj = _materials[source[1]]
+        if isinstance(obj, CodedBTF):
+            return RuntimeBTF(obj, tau)
+        if isinstance(obj, RuntimeBTF):
+            return obj if tau is None else obj.with_tau(tau)
+        raise BTFInputError(
+            f"material {source[1]!r} is a {type(obj).__name__}; the sparsebtf plugin needs "
+            "a RuntimeBTF or a CodedBTF (use sparsebtf_dense for dense BTFs)"
+        )
+
+    return cached(("runtime", source, str(tau)), make)
+
+
+def dense_table(btf: Any, max_gib: float = DENSE_MAX_GIB) -> np.ndarray:
+    """ln(max(x, 0) + 1e-5) of a whole BTF as float32 (H, W, L, V, 3); refuses > ``max_gib``."""
+    h, w, nl, nv, c = btf.shape
+    need = h * w * nl * nv * c * 4
+    if need > max_gib * 2**30:
+        raise BTFInputError(
+            f"reference BTF {btf.name!r} ({h}x{w} texels, {nl} lights x {nv} views) needs "
+            f"{need / 2**30:.1f} GiB as a float32 table, above the {max_gib:g} GiB limit; crop "
+            "it first (sparsebtf convert BTF -o crop.h5 --crop R0:R1,C0:C1) or raise max_gib"
+        )
+    arr = np.asarray(btf.to_array(), dtype=np.float32)
+    return np.log(np.maximum(arr, 0) + np.float32(LOG_EPS)).astype(np.float32)
+
+
+def load_dense(source: tuple, max_gib: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(log table (H, W, L, V, 3), light xyz (L, 3), view xyz (V, 3)) of a dense source, as
+    float32 (cached per process)."""
+    ck = ("dense", source, max_gib)
+    with _lock:
+        if ck in _cache:
+            return _cache[ck]
+    if source[0] == "key":
+        btf = _materials[source[1]]
+        if not hasattr(btf, "to_array"):
+            raise BTFInputError(
+                f"material {source[1]!r} is a {type(btf).__name__}; sparsebtf_dense needs a BTF"
+            )
+    else:
+        from ...open import open_btf
+
+        btf = open_btf(source[1], source[2])
+    table = dense_table(btf, max_gib)
+    out = (table, btf.lights.xyz.astype(np.float32), btf.views.xyz.astype(np.float32))
+    with _lock:
+        _cache[ck] = out
+    return out
+
+
+def common_params(props: Any, what: str) -> dict[str, Any]:
+    """The parameters both plugins take, checked: ``interpolation``, ``k``, ``beta``,
+    ``uv_scale``, ``two_sided``."""
+    interp = str(props.get("interpolation", "linear"))
+    if interp not in SCHEMES:
+        raise BTFInputError(
+            f"{what}: interpolation must be one of {', '.join(SCHEMES)}, got {interp!r}"
+        )
+    k = int(props.get("k", DEFAULT_K[interp]))
+    if interp != "gaussian" and k != DEFAULT_K[interp]:
+        raise BTFInputError(f"{what}: interpolation {interp!r} uses k = {DEFAULT_K[interp]}")
+    if k < 1:
+        raise BTFInputError(f"{what}: k must be >= 1, got {k}")
+    beta = float(props.get("beta", 20.0))
+    uv_scale = float(props.get("uv_scale", 1.0))
+    if not (math.isfinite(uv_scale) and uv_scale != 0):
+        raise BTFInputError(f"{what}: uv_scale must be finite and non-zero, got {uv_scale}")
+    return {
+        "interpolation": interp,
+        "k": k,
+        "beta": beta,
+        "uv_scale": uv_scale,
+        "two_sided": bool(props.get("two_sided", False)),
+    }
+
+
+def coded_params(props: Any) -> dict[str, Any]:
+    """:func:`common_params` of the ``sparsebtf`` plugin plus its ``domain``, checked."""
+    prm = common_params(props, PLUGIN)
+    domain = str(props.get("domain", "standardized"))
+    if domain not in DOMAINS:
+        raise BTFInputError(f"{PLUGIN}: domain must be standardized or log, got {domain!r}")
+    prm["domain"] = domain
+    return prm
+
+
+def preload(bsdf: dict[str, Any]) -> Any:
+    """Load what a plugin dict needs, outside Mitsuba, so errors surface as themselves.
+
+    (An exception inside a plugin constructor reaches the caller as Mitsuba's RuntimeError.)
+    Returns the RuntimeBTF (``sparsebtf``), the dense (log table, light xyz, view xyz)
+    (``sparsebtf_dense``, as :func:`load_dense`) or None for any other plugin type.
+    """
+    kind = bsdf.get("type")
+    if kind == PLUGIN:
+        coded_params(bsdf)
+        return load_runtime(source_id(bsdf, PLUGIN), bsdf.get("tau"))
+    if kind == DENSE_PLUGIN:
+        common_params(bsdf, DENSE_PLUGIN)
+        max_gib = float(bsdf.get("max_gib", DENSE_MAX_GIB))
+        return load_dense(source_id(bsdf, DENSE_PLUGIN), max_gib)
+    return None
