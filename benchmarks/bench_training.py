@@ -1,68 +1,176 @@
-"""Training cost: seconds per iteration per 1000 data points at 10×10×151×151.
+"""Training cost at 10×10×151×151: the fast trainer against the exhaustive one, in one run.
 
-One iteration is a coding pass (projection on K dictionaries + top-τ_l + membership) and one
-Procrustes update per mode (a partial projection per point, SVDs of 151×151 sums). We time
-iterations on a small set of points held in memory and scale to 1000 points (the cost is
-linear in the number of points; the SVDs are a constant 8·4 small factorisations).
+Both train the same Y-channel ensemble (K = 8, τ_l = 256) on the same data points for the
+same number of iterations from the same initialisation:
 
-    python benchmarks/bench_training.py [--points 8] [--dicts 8] [--tau 256] [--json]
+* **exhaustive** — every coding pass projects every point on all K dictionaries, and every
+  dictionary update forms the dense partial projection of every point for every mode
+  (``candidates=K, update="projections"``: the trainer before the fast one);
+* **fast** — the library defaults: partial coding passes on each point's best candidates
+  of the last full pass, Z⁽ⁿ⁾ built from the τ_l coefficients, two modes free with the coding
+  pass, the final memberships from a full pass;
+* with ``--breakdown`` also the exhaustive coding with the fast update, to split the gain.
+
+Reported: seconds per iteration per 1000 points (the mean over the iterations, the fast
+trainer's full passes included; the initialisation and first coding, the same for both, are
+left out), their ratio, and the final objective of both with the relative gap. The points
+are the benchmark's synthetic materials (7 classes, 40×40 texels, UBO2014 directions,
+cached), standardised log-YUV, channel Y. ``--memory`` instead measures the peak resident
+memory of training from a staged file at two point counts (subprocesses).
+
+    python benchmarks/bench_training.py [--points 112] [--iters 10] [--json]
+    python benchmarks/bench_training.py --memory [--memory-points 28 112] [--memory-iters 1]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import os
+import subprocess
+import sys
+import time
 
 import numpy as np
 
-from _common import machine, report
-from sparsebtf.learning.ensemble import DictionaryEnsemble
+from _common import machine, peak_rss_bytes, report
+from sparsebtf.learning.ensemble import CANDIDATES, FULL_PASS_EVERY, DictionaryEnsemble
+
+CLASSES = ("carpet", "fabric", "felt", "leather", "stone", "wallpaper", "wood")
+
+
+def training_source(points: int, seed: int = 0):
+    """``points`` standardised log-YUV training points of the benchmark materials (all
+    three channels), as a streamed point source."""
+    from sparsebtf.data.synth import cached
+    from sparsebtf.points.sources import training_points
+
+    btfs = [cached(c, 40, "ubo2014", 1) for c in CLASSES]
+    per = 16  # 40×40 texels = 16 points of 10×10
+    if not 1 <= points <= per * len(btfs):
+        raise SystemExit(f"--points must be in [1, {per * len(btfs)}]")
+    return training_points(btfs, 10, points / (per * len(btfs)), seed, progress=False)
+
+
+def _fit(x: np.ndarray, iters: int, **kw) -> DictionaryEnsemble:
+    return DictionaryEnsemble(
+        n_dictionaries=8, tau=256, max_iter=iters, tol=0, random_state=0, progress=False, **kw
+    ).fit(x)
+
+
+def speed(a: argparse.Namespace) -> None:
+    src = training_source(a.points).for_channel(0)
+    x = np.concatenate([xb for _, xb in src.batches(8)])
+    runs = {"exhaustive": dict(candidates=8, update="projections")}
+    if a.breakdown:
+        runs["exhaustive coding, fast update"] = dict(candidates=8, update="codes")
+    runs["fast"] = dict(candidates=a.candidates, full_pass_every=a.full_pass_every)
+    res = {}
+    for name, kw in runs.items():
+        t = time.perf_counter()
+        ens = _fit(x, a.iters, **kw)
+        per_1000 = float(np.mean(ens.iteration_seconds_)) / x.shape[0] * 1000
+        res[name] = {
+            "settings": kw,
+            "seconds": time.perf_counter() - t,
+            "seconds_per_iteration_per_1000_points": per_1000,
+            "objective": ens.objective_,
+            "passes": ens.passes_,
+            "membership_counts": ens.counts_.tolist(),
+        }
+    ex, fa = res["exhaustive"], res["fast"]
+    speedup = (
+        ex["seconds_per_iteration_per_1000_points"] / fa["seconds_per_iteration_per_1000_points"]
+    )
+    gap = fa["objective"][-1] / ex["objective"][-1] - 1
+    data = {
+        "machine": machine(),
+        "load_average_before": os.getloadavg(),
+        "points": int(x.shape[0]),
+        "iterations": a.iters,
+        "runs": res,
+        "speedup_per_iteration": speedup,
+        "objective_gap": gap,
+        "load_average_after": os.getloadavg(),
+    }
+    rows = [("points x iterations", f"{x.shape[0]} x {a.iters} (channel Y, K = 8, tau_l = 256)")]
+    for name, r in res.items():
+        rows.append((f"{name}: s / iteration / 1000 points",
+                     f"{r['seconds_per_iteration_per_1000_points']:.1f}"))
+        rows.append((f"{name}: final objective", f"{r['objective'][-1]:.6g}"))
+    rows += [
+        ("fast settings", f"candidates = {a.candidates}, full pass every "
+                          f"{a.full_pass_every or 'when needed'}; passes "
+                          + "".join(p[0] for p in fa["passes"])),
+        ("speed-up per iteration", f"{speedup:.2f}x (target >= 5x, aim 9x)"),
+        ("objective gap (fast / exhaustive - 1)", f"{gap * 100:+.3f}% (target within 1%)"),
+        ("paper scale (2880 points), fast",
+         f"{fa['seconds_per_iteration_per_1000_points'] * 2.88:.0f} s per iteration per channel"),
+        ("load average before / after", "{:.1f} / {:.1f}".format(
+            data["load_average_before"][0], data["load_average_after"][0])),
+    ]  # fmt: skip
+    report(rows, data, a.json)
+
+
+def _memory_child(points: int, iters: int) -> None:
+    """One measured run: stage ``points`` points, train channel Y, print peak RSS (JSON)."""
+    from sparsebtf.points.sources import channel_sources
+
+    src = training_source(points)
+    base = peak_rss_bytes()
+    t = time.perf_counter()
+    with channel_sources(src, ("Y", "U", "V"), stage=True, batch_size=4) as source:
+        staged = time.perf_counter() - t
+        ens = DictionaryEnsemble(
+            n_dictionaries=8, tau=256, max_iter=iters, tol=0, random_state=0, progress=False
+        ).fit(source("Y"))
+    print(json.dumps({
+        "points": points, "iterations": iters, "peak_rss_bytes": peak_rss_bytes(),
+        "peak_rss_before_training_bytes": base, "stage_seconds": staged,
+        "fit_seconds": ens.fit_seconds_, "staged_bytes": src.n_bytes,
+    }))  # fmt: skip
+
+
+def memory(a: argparse.Namespace) -> None:
+    out = []
+    for n in a.memory_points:
+        cmd = [sys.executable, __file__, "--memory-child", str(n), "--iters", str(a.memory_iters)]
+        done = subprocess.run(cmd, capture_output=True, text=True, check=True)
+        out.append(json.loads(done.stdout.strip().splitlines()[-1]))
+    data = {"machine": machine(), "runs": out, "load_average": os.getloadavg()}
+    rows = [
+        (f"{r['points']} points, {r['iterations']} iteration(s)",
+         f"peak RSS {r['peak_rss_bytes'] / 2**30:.2f} GiB (staged file "
+         f"{r['staged_bytes'] / 2**30:.1f} GiB, fit {r['fit_seconds']:.0f} s)")
+        for r in out
+    ]  # fmt: skip
+    growth = out[-1]["peak_rss_bytes"] / out[0]["peak_rss_bytes"]
+    rows.append(("peak RSS ratio, largest / smallest point count",
+                 f"{growth:.2f} for {out[-1]['points'] / out[0]['points']:.0f}x the points"))
+    data["peak_ratio"] = growth
+    report(rows, data, a.json)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--points", type=int, default=8)
-    ap.add_argument("--dicts", type=int, default=8)
-    ap.add_argument("--tau", type=int, default=256)
-    ap.add_argument("--iters", type=int, default=2)
+    ap.add_argument("--points", type=int, default=112)
+    ap.add_argument("--iters", type=int, default=10)
+    ap.add_argument("--candidates", type=int, default=CANDIDATES)
+    ap.add_argument("--full-pass-every", type=int, default=FULL_PASS_EVERY)
+    ap.add_argument("--breakdown", action="store_true",
+                    help="also time the exhaustive coding with the fast update")
+    ap.add_argument("--memory", action="store_true", help="peak memory at two point counts")
+    ap.add_argument("--memory-points", type=int, nargs="+", default=[28, 112])
+    ap.add_argument("--memory-iters", type=int, default=1)
+    ap.add_argument("--memory-child", type=int, help=argparse.SUPPRESS)
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
-    rng = np.random.default_rng(0)
-    # Smooth-ish random points: a sum of a few separable terms plus noise.
-    shape = (10, 10, 151, 151)
-    x = np.zeros((a.points, *shape), np.float32)
-    for i in range(a.points):
-        for _ in range(4):
-            f = [rng.standard_normal(m) for m in shape]
-            x[i] += np.einsum("a,b,c,d->abcd", *f).astype(np.float32)
-        x[i] += 0.1 * rng.standard_normal(shape).astype(np.float32)
-    kw = dict(n_dictionaries=a.dicts, tau=a.tau, tol=0, random_state=0)
-    base = DictionaryEnsemble(max_iter=0, **kw).fit(x)  # initialisation + first coding
-    ens = DictionaryEnsemble(max_iter=a.iters, **kw).fit(x)
-    per_iter = (ens.fit_seconds_ - base.fit_seconds_) / a.iters
-    per_1000 = per_iter / a.points * 1000
-    data = {
-        "machine": machine(),
-        "points": a.points,
-        "dicts": a.dicts,
-        "tau": a.tau,
-        "iterations": a.iters,
-        "fit_seconds": ens.fit_seconds_,
-        "seconds_per_iteration_per_1000_points": per_1000,
-        "objective": ens.objective_,
-    }
-    report(
-        [
-            ("points x iterations", f"{a.points} x {a.iters} (K = {a.dicts}, tau_l = {a.tau})"),
-            ("fit time", f"{ens.fit_seconds_:.1f} s"),
-            ("s / iteration / 1000 points", f"{per_1000:.0f}"),
-            (
-                "paper scale (2880 points)",
-                f"{per_1000 * 2.88 / 3600:.2f} h per iteration per channel",
-            ),
-        ],
-        data,
-        a.json,
-    )
+    if a.memory_child:
+        _memory_child(a.memory_child, a.iters)
+    elif a.memory:
+        memory(a)
+    else:
+        speed(a)
 
 
 if __name__ == "__main__":

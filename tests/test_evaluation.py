@@ -21,8 +21,9 @@ from sparsebtf.evaluation.baselines import (
 from sparsebtf.evaluation.benchmark_set import BenchConfig, level_tau, paper_level_ratio
 from sparsebtf.evaluation.report import regenerate
 from sparsebtf.evaluation.runner import run_quality
+from sparsebtf.evaluation.scoring import coded_mse_std, score_many
 
-from .conftest import smooth_btf
+from .conftest import smooth_btf, tiny_model
 
 
 def _matrix(btf, log: bool) -> np.ndarray:
@@ -106,7 +107,8 @@ def tiny_config() -> BenchConfig:
         n_dictionaries=2,
         tau_train=(8, 4, 4),
         sample=1.0,
-        iters=1,
+        iters=3,
+        tol=1e-2,
         levels=(16, 32),
         level_ratios=((16, 60.0), (32, 25.0)),
         curve_taus=((8, 4, 4), (40, 8, 8)),
@@ -184,3 +186,81 @@ def test_cli_bench_quality_tiny(tmp_path, monkeypatch, capsys):
                "--materials", "synth:wood:7:1:tiny13"])  # size 7: not a multiple of the patch
     assert rc == 2
     assert "patch" in capsys.readouterr().err
+
+
+def test_fast_scores_equal_compare():
+    """score_many (one pass, log domain, Parseval) gives compare()'s numbers."""
+    from sparsebtf.codec import encode_levels, train
+    from sparsebtf.metrics import compare
+    from sparsebtf.runtime import coded_btf_view
+
+    model = tiny_model()
+    btf = smooth_btf(7)
+    coded = encode_levels(btf, model, [(16, 4, 4), (120, 30, 30)], eps=0.0, progress=False)
+    raw_model = train([smooth_btf(s) for s in range(3)], n_dictionaries=2, tau_train=(8, 8, 8),
+                      patch=4, sample=1.0, max_iter=1, progress=False,
+                      preprocessing="identity")
+    raw = encode_levels(btf, raw_model, [(20, 20, 20)], eps=0.0, progress=False)[0]
+    fit = fit_pca(btf, 3, domain="log", oversample=60, power_iters=1, tile=3)
+    recs = [coded_btf_view(c) for c in coded] + [coded_btf_view(raw),
+                                                 pca_reconstruction(fit, (2, 1, 1), btf)]
+    stats = [c.stats for c in coded] + [None, None]
+    fast = score_many(btf, recs, ssim_images=3, tile=4, progress=False)
+    for rec, st, f in zip(recs, stats, fast, strict=True):
+        slow = compare(btf, rec, stats=st, ssim_images=3, tile=4, progress=False)
+        for key in ("mse_rgb", "mse_log", "psnr_rgb", "ssim", "peak"):
+            assert f[key] == pytest.approx(slow[key], rel=1e-5), key
+        if st is None:
+            assert "mse_std" not in f
+        else:
+            # Parseval from the codes = the decoded standardised-domain error (nothing clamped)
+            assert f["mse_std"] == pytest.approx(slow["mse_std"], rel=1e-4)
+    # and the coded-domain error is the one the encoder stored
+    c = coded[0]
+    assert coded_mse_std(c) == pytest.approx(
+        np.mean([c.codes[ch].errors.mean() for ch in c.channels]), rel=1e-12)
+    with pytest.raises(BTFInputError, match="cannot compare"):
+        score_many(btf, [smooth_btf(1, size=4)])
+
+
+def test_bench_trains_to_convergence(tiny_run):
+    _, result = tiny_run
+    for info in result["models"].values():
+        for t in info["training"].values():
+            assert 1 <= t["n_iter"] <= 3
+            assert t["passes"][-1] == "full"
+            obj = t["objective"]
+            if t["n_iter"] < 3:  # stopped on the tolerance
+                assert (obj[-2] - obj[-1]) / obj[-2] < 1e-2
+    md = (tiny_run[0] / "results.md").read_text()
+    assert "trained until an iteration lowered the objective by less than 0.01" in md
+
+
+def test_report_notes_how_verdicts_moved(tiny_run, tmp_path):
+    out, result = tiny_run
+    docs = tmp_path / "docs"
+    # an earlier run held in docs: a copy of this one with other figures and verdicts
+    old = json.loads((out / "results.json").read_text())
+    old["created"] = "2020-01-01T00:00:00Z"
+    old["summary"]["table2_processing"]["ratio_geomean"] = 1.24
+    old["summary"]["table5_pca"]["verdict"] = "an older verdict"
+    (docs / "results").mkdir(parents=True)
+    (docs / "results" / "results.json").write_text(json.dumps(old))
+    text = regenerate(out, docs).read_text()
+    assert "moved from the previous run" in text
+    row = next(line for line in text.splitlines() if line.startswith("| BTF-specific"))
+    now = result["summary"]["table2_processing"]["ratio_geomean"]
+    assert f"1.24x → {now:.2f}x" in row and "2020-01-01" in row
+    t5 = next(line for line in text.splitlines() if "twice its storage" in line)
+    assert "was **an older verdict**" in t5
+    # the docs copy keeps the comparison: regenerating it in place writes the same notes
+    held = json.loads((docs / "results" / "results.json").read_text())
+    assert held["previous"]["created"] == "2020-01-01T00:00:00Z"
+    again = regenerate(docs / "results", docs).read_text()
+    assert f"1.24x → {now:.2f}x" in again
+    # an explicit --previous wins; a bad one is one clear error
+    rc = main(["bench", "report", str(out), "--docs", str(docs), "--previous",
+               str(docs / "results" / "results.json")])
+    assert rc == 0
+    assert main(["bench", "report", str(out), "--docs", str(docs), "--previous",
+                 str(tmp_path / "missing.json")]) == 2

@@ -234,6 +234,11 @@ def test_training_is_seeded_and_resumable(tmp_path):
     assert all(
         np.array_equal(a, b) for a, b in zip(full.dictionaries_, again.dictionaries_, strict=True)
     )
+    # Extending a finished run: with every pass full (candidates = K) the schedule does not
+    # depend on max_iter, so 2 + 2 iterations equal 4 (an interrupted run with partial passes:
+    # test_training_steps.py).
+    kw["candidates"] = 3
+    full = DictionaryEnsemble(max_iter=4, **kw).fit(x)
     ck = tmp_path / "ck.npz"
     DictionaryEnsemble(max_iter=2, checkpoint=ck, **kw).fit(x)
     resumed = DictionaryEnsemble(max_iter=4, checkpoint=ck, **kw).fit(x)

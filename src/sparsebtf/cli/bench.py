@@ -15,17 +15,21 @@ from typing import Any
 
 __all__ = ["register"]
 
+PREVIOUS_HELP = ("an earlier run's results.json: write beside each verdict how it moved "
+                 "(default with --docs: the run DOCS/results held before)")
+
 
 def cmd_bench_quality(args: argparse.Namespace) -> int:
     from ..evaluation.benchmark_set import BenchConfig
     from ..evaluation.runner import run_quality
 
     cfg = getattr(args, "config", None) or (BenchConfig.quick() if args.quick else BenchConfig())
-    result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed)
+    result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed,
+                         previous=args.previous)
     if args.docs:
         from ..evaluation.report import regenerate
 
-        print(f"wrote {regenerate(args.out, args.docs)}")
+        print(f"wrote {regenerate(args.out, args.docs, args.previous)}")
     if args.json:
         print(json.dumps(result["summary"], indent=2, default=str))
     return 0
@@ -34,7 +38,7 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
 def cmd_bench_report(args: argparse.Namespace) -> int:
     from ..evaluation.report import regenerate
 
-    print(f"wrote {regenerate(args.run, args.docs)}")
+    print(f"wrote {regenerate(args.run, args.docs, args.previous)}")
     return 0
 
 
@@ -55,8 +59,10 @@ def register(sub: Any) -> None:
     q.add_argument("--docs", metavar="DIR",
                    help="also write DIR/results.md and DIR/results/*.png from this run")
     q.add_argument("--json", action="store_true", help="print the verdicts as JSON")
+    q.add_argument("--previous", metavar="RESULTS_JSON", help=PREVIOUS_HELP)
     q.set_defaults(func=cmd_bench_quality)
     r = bs.add_parser("report", help="rewrite DOCS/results.md from a finished run's results.json")
     r.add_argument("run", help="folder of a 'bench quality' run (holds results.json)")
     r.add_argument("--docs", default="docs", help="docs folder (default docs)")
+    r.add_argument("--previous", metavar="RESULTS_JSON", help=PREVIOUS_HELP)
     r.set_defaults(func=cmd_bench_report)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ..learning.ensemble import CANDIDATES, FULL_PASS_EVERY
 from ..points.preprocessing import STD_MODES
 from ._args import open_source
 from ._output import print_json
@@ -27,6 +28,8 @@ def run(args: argparse.Namespace) -> int:
         tol=args.tol,
         std_mode=args.std_mode,
         colour_mode=args.colour_mode,
+        candidates=args.candidates,
+        full_pass_every=args.full_pass_every,
         batch_size=args.batch,
         seed=args.seed,
         checkpoint_dir=args.checkpoint_dir,
@@ -87,6 +90,20 @@ def register(sub: Any) -> None:
         "--colour-mode",
         action="store_true",
         help="one 5D ensemble with colour as a mode (paper Table 6)",
+    )
+    s.add_argument(
+        "--candidates",
+        type=int,
+        default=CANDIDATES,
+        help="dictionaries tried per point between full coding passes: its best ones at the "
+        f"last full pass (default {CANDIDATES}; >= --dicts tries all K every iteration)",
+    )
+    s.add_argument(
+        "--full-pass-every",
+        type=int,
+        default=FULL_PASS_EVERY,
+        help="try all K dictionaries every N iterations (default "
+        f"{FULL_PASS_EVERY}; 0: only when needed); the last pass is always full",
     )
     s.add_argument("--batch", type=int, default=4, help="data points per batch (memory bound)")
     s.add_argument("--seed", type=int, default=0)

@@ -16,7 +16,12 @@ import numpy as np
 from .. import library_version
 from ..data.btf import BTF
 from ..errors import BTFInputError
-from ..learning.ensemble import DictionaryEnsemble, PointSource
+from ..learning.ensemble import (
+    CANDIDATES,
+    FULL_PASS_EVERY,
+    DictionaryEnsemble,
+    PointSource,
+)
 from ..model import CHANNELS, Model, TauSpec, parse_tau
 from ..points.preprocessing import TRANSFORMS, StdMode, Transform
 from ..points.sources import channel_sources, training_points
@@ -34,6 +39,8 @@ def _train_channel(
     max_iter: int,
     tol: float,
     init: str,
+    candidates: int,
+    full_pass_every: int,
     batch_size: int,
     dtype: str,
     seed: int,
@@ -47,6 +54,8 @@ def _train_channel(
         max_iter=max_iter,
         tol=tol,
         init=init,
+        candidates=candidates,
+        full_pass_every=full_pass_every,
         batch_size=batch_size,
         dtype=dtype,
         random_state=seed + c,
@@ -56,6 +65,8 @@ def _train_channel(
     ens.fit(src, desc=f"train {ch}")
     return ens.dictionaries_, {
         "objective": [float(v) for v in ens.objective_],
+        # which coding passes tried all K dictionaries; the last one always did
+        "passes": list(ens.passes_),
         "membership_counts": [int(v) for v in ens.counts_],
         "n_iter": int(ens.n_iter_),
         "seconds": float(ens.fit_seconds_),
@@ -75,6 +86,8 @@ def train(
     std_mode: StdMode = "shared",
     colour_mode: bool = False,
     init: str = "points",
+    candidates: int = CANDIDATES,
+    full_pass_every: int = FULL_PASS_EVERY,
     batch_size: int = 4,
     dtype: str = "float32",
     seed: int = 0,
@@ -88,6 +101,9 @@ def train(
 
     ``sample`` is the fraction of each BTF's data points used (paper: 10% of 18 BTFs).
     ``colour_mode`` trains one ensemble on 5D points (p, p, L, V, 3), the paper's Table 6.
+    ``candidates`` and ``full_pass_every`` set the coding passes between full ones
+    (:class:`~sparsebtf.learning.ensemble.DictionaryEnsemble`; ``candidates >= n_dictionaries``
+    is the exhaustive trainer); the final memberships always come from a full pass.
     With ``checkpoint_dir`` each channel resumes from its last completed iteration.
     ``stage`` preprocesses the sampled points once into a temporary file in ``stage_dir``
     (default: when they need at most :data:`~sparsebtf.points.sources.STAGE_LIMIT_BYTES` and
@@ -117,6 +133,8 @@ def train(
                 max_iter=max_iter,
                 tol=tol,
                 init=init,
+                candidates=candidates,
+                full_pass_every=full_pass_every,
                 batch_size=batch_size,
                 dtype=dtype,
                 seed=seed,
@@ -133,6 +151,8 @@ def train(
         "std_mode": std_mode,
         "colour_mode": colour_mode,
         "init": init,
+        "candidates": min(candidates, n_dictionaries),
+        "full_pass_every": full_pass_every,
         "seed": seed,
         "dtype": dtype,
     }

@@ -29,10 +29,13 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from .._atomic import atomic_output
+from .._json import json_default
+from ..errors import BTFInputError
 from ..figures import save_figure
 from ..storage.accounting import paper_storage
+from .history import moved, record
 
-__all__ = ["regenerate", "summarise", "write_report"]
+__all__ = ["previous_record", "regenerate", "summarise", "write_report"]
 
 _ORDER = ["sparsebtf", "rate", "per_channel", "raw", "pca_log", "pca_linear"]
 
@@ -354,8 +357,32 @@ def _per_level(s: dict[str, Any], key: str = "per_level_geomean") -> str:
     return ", ".join(f"{k}: {_pct(v)}" for k, v in s[key].items())
 
 
-def render_markdown(result: dict[str, Any], summary: dict[str, Any], img: str = "") -> str:
-    """results.md text; ``img`` is the prefix of image links (folder of the PNGs)."""
+def _training_line(result: dict[str, Any]) -> str:
+    """How the models were trained, from their recorded training (older runs: the config)."""
+    cfg = result["config"]
+    training = result["models"].get("sparsebtf", {}).get("training", {})
+    points = max((t.get("n_points", 0) for t in training.values()), default=0)
+    if "tol" not in cfg:
+        return (f"{cfg['iters']} iterations on {cfg['sample']:.0%} of the training points "
+                f"({points} points per channel)")
+    names = result.get("methods", {})
+    its = "; ".join(
+        f"{names.get(key, key)} " + "/".join(str(t["n_iter"]) for t in m["training"].values())
+        for key, m in result["models"].items()
+    )
+    return (f"{points} training points per channel ({cfg['sample']:.0%} of the training "
+            f"materials' points), trained until an iteration lowered the objective by less than "
+            f"{cfg['tol']:g} (at most {cfg['iters']}); iterations Y/U/V: {its}")
+
+
+def render_markdown(
+    result: dict[str, Any],
+    summary: dict[str, Any],
+    img: str = "",
+    previous: dict[str, Any] | None = None,
+) -> str:
+    """results.md text; ``img`` is the prefix of image links (folder of the PNGs);
+    ``previous`` (a :func:`~.history.record`) adds how each verdict moved from that run."""
     cfg = result["config"]
     mach = result["machine"]
     lines = [
@@ -378,8 +405,8 @@ def render_markdown(result: dict[str, Any], summary: dict[str, Any], img: str = 
         f"{cfg['test_size']}x{cfg['test_size']} (seeds {cfg['test_seeds']}), Table-5 "
         f"materials of {cfg['table5_size']}x{cfg['table5_size']}.",
         f"- Models: K = {cfg['n_dictionaries']} dictionaries per channel, tau_l = "
-        f"{tuple(cfg['tau_train'])}, {cfg['iters']} iterations on {cfg['sample']:.0%} of the "
-        "training points. The paper: K = 8, 18 UBO2014 materials of 400x400, 10%.",
+        f"{tuple(cfg['tau_train'])}, {_training_line(result)}. The paper: K = 8, 18 UBO2014 "
+        "materials of 400x400, 10% (2880 points per channel).",
         "- Storage: per-material bytes of the paper's Table 4 (2 B per value + 3 B per "
         "location + 1 B membership + 1 B count per point and channel; PCA: binary16 factors). "
         "Level L keeps the per-material compression ratio of the paper's SparseBTF(L) "
@@ -394,32 +421,43 @@ def render_markdown(result: dict[str, Any], summary: dict[str, Any], img: str = 
     ]
     for n in cfg.get("notes", []):
         lines.append(f"- Note: {n}")
-    lines += ["", "## Verdicts", "", "| claim | our figure | verdict |", "|---|---|---|"]
+    lines += ["", "## Verdicts", ""]
+    if previous:
+        lines += ["| claim | our figure | verdict | moved from the previous run |",
+                  "|---|---|---|---|"]
+    else:
+        lines += ["| claim | our figure | verdict |", "|---|---|---|"]
+
+    def verdict_row(key: str, claim: str, figure: str) -> None:
+        cells = [claim, figure, f"**{summary[key]['verdict']}**"]
+        if previous:
+            cells.append(moved(key, summary, previous) or "—")
+        lines.append("| " + " | ".join(cells) + " |")
+
     if "table2_processing" in summary:
         s = summary["table2_processing"]
-        lines.append(f"| {s['claim']} | MSE ratio {_pct(s['ratio_geomean'])} (geo. mean; per "
-                     f"level {_per_level(s)}); "
-                     f"better on {s['materials_better']} | **{s['verdict']}** |")
+        verdict_row("table2_processing", s["claim"],
+                    f"MSE ratio {_pct(s['ratio_geomean'])} (geo. mean; per level "
+                    f"{_per_level(s)}); better on {s['materials_better']}")
     s = summary["table3_monotone"]
-    lines.append(f"| {s['claim']} | strictly decreasing on {s['materials_monotone']} "
-                 f"materials | **{s['verdict']}** |")
+    verdict_row("table3_monotone", s["claim"],
+                f"strictly decreasing on {s['materials_monotone']} materials")
     if "table5_pca" in summary:
         s = summary["table5_pca"]
-        lines.append(f"| {s['claim']} | SparseBTF lower on {s['materials_won']} | "
-                     f"**{s['verdict']}** |")
+        verdict_row("table5_pca", s["claim"], f"SparseBTF lower on {s['materials_won']}")
     s = summary["table4_check"]
-    lines.append(f"| {s['claim']} | {s['ours']:.1f} | **{s['verdict']}** |")
+    verdict_row("table4_check", s["claim"], f"{s['ours']:.1f}")
     if "standardisation" in summary:
         s = summary["standardisation"]
-        lines.append(f"| (release choice) {s['question']} | MSE ratio per-channel/shared "
-                     f"{_pct(s['ratio_geomean'])} | **{s['verdict']}** |")
+        verdict_row("standardisation", f"(release choice) {s['question']}",
+                    f"MSE ratio per-channel/shared {_pct(s['ratio_geomean'])}")
     if "rate_control" in summary:
         s = summary["rate_control"]
         dev = s["max_bytes_deviation"]
-        lines.append(f"| (beyond the paper) {s['question']} | gain {_pct(s['gain_geomean'])} "
-                     f"(per level {_per_level(s, 'per_level_geomean')}); "
-                     f"better on {s['materials_better']}; bytes within "
-                     f"{(dev or 0) * 100:.3f}% of target | **{s['verdict']}** |")
+        verdict_row("rate_control", f"(beyond the paper) {s['question']}",
+                    f"gain {_pct(s['gain_geomean'])} (per level "
+                    f"{_per_level(s, 'per_level_geomean')}); better on "
+                    f"{s['materials_better']}; bytes within {(dev or 0) * 100:.3f}% of target")
     lines += ["", "Rules behind the verdicts:", ""]
     for key in ("table2_processing", "table3_monotone", "table5_pca", "standardisation",
                 "rate_control"):
@@ -456,7 +494,8 @@ def render_markdown(result: dict[str, Any], summary: dict[str, Any], img: str = 
 def write_report(result: dict[str, Any], out: str | os.PathLike[str]) -> dict[str, Any]:
     """Write tables (Markdown), figure3.png, quality_storage.png and results.md into ``out``.
 
-    Adds ``summary`` (verdicts) to ``result`` and returns it.
+    Adds ``summary`` (verdicts) to ``result`` and returns it. A ``previous`` record in
+    ``result`` (:func:`~.history.record`) adds how each verdict moved from that run.
     """
     out = Path(out)
     summary = summarise(result)
@@ -467,29 +506,60 @@ def write_report(result: dict[str, Any], out: str | os.PathLike[str]) -> dict[st
         with atomic_output(out / name) as tmp:
             tmp.write_text(fn(result) + "\n")
     with atomic_output(out / "results.md") as tmp:
-        tmp.write_text(render_markdown(result, summary))
+        tmp.write_text(render_markdown(result, summary, previous=result.get("previous")))
     return summary
 
 
-def regenerate(run_dir: str | os.PathLike[str], docs: str | os.PathLike[str]) -> Path:
-    """``docs/results.md`` (+ ``docs/results/*.png``) from a finished run's ``results.json``."""
+def previous_record(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The :func:`~.history.record` of the run whose ``results.json`` is at ``path``."""
+    try:
+        prev = json.loads(Path(path).read_text())
+        return record(prev, prev.get("summary") or summarise(prev))
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise BTFInputError(
+            f"--previous {path}: not a readable 'bench quality' results.json ({e})"
+        ) from e
+
+
+def regenerate(
+    run_dir: str | os.PathLike[str],
+    docs: str | os.PathLike[str],
+    previous: str | os.PathLike[str] | None = None,
+) -> Path:
+    """``docs/results.md``, ``docs/results/*.png`` and ``docs/results/results.json`` from a
+    finished run's ``results.json``.
+
+    Beside each verdict goes how it moved from a previous run: the ``results.json`` at
+    ``previous``; else the run's own ``previous`` record; else the run that ``docs`` held
+    until now (``docs/results/results.json``), which this call then replaces.
+    """
     run = Path(run_dir)
     result = json.loads((run / "results.json").read_text())
     summary = summarise(result)
     docs = Path(docs)
     img_dir = docs / "results"
     img_dir.mkdir(parents=True, exist_ok=True)
+    held = img_dir / "results.json"
+    if previous is not None:
+        result["previous"] = previous_record(previous)
+    elif "previous" not in result and held.exists():
+        prev = json.loads(held.read_text())
+        if prev.get("created") != result.get("created"):
+            result["previous"] = record(prev, prev.get("summary") or summarise(prev))
+    result["summary"] = summary
     figure3(result, img_dir / "figure3.png")
     quality_storage(result, img_dir / "quality_storage.png")
     for g in result.get("grids", []):
         src, dst = run / g, img_dir / g
         if src.exists() and not (dst.exists() and src.samefile(dst)):
             shutil.copyfile(src, dst)
+    with atomic_output(held) as tmp:
+        tmp.write_text(json.dumps(result, indent=2, default=json_default))
     target = docs / "results.md"
-    text = render_markdown(result, summary, img="results/")
+    text = render_markdown(result, summary, img="results/", previous=result.get("previous"))
     text = text.replace(
         "from `results.json`;",
-        f"from `results.json` (regenerate: `sparsebtf bench report {run} --docs {docs}`);",
+        f"from `results.json` (regenerate: `sparsebtf bench report {img_dir} --docs {docs}`);",
     )
     with atomic_output(target) as tmp:
         tmp.write_text(text)

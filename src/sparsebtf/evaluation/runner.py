@@ -13,8 +13,10 @@ and ``results.md``):
    plus the extra τ_t of the Figure 3 curves;
 4. the Table 5 materials (100 × 100 texels) coded by SparseBTF and by per-material PCA at
    equal and at twice SparseBTF's bytes, in the log and in the linear domain;
-5. MSE (linear RGB, the paper's tables), log MSE, PSNR and SSIM for every reconstruction,
-   image grids like Figures 4 and 5.
+5. MSE (linear RGB, the paper's tables), log MSE, PSNR and SSIM for every reconstruction
+   (:func:`~.scoring.score_many`: one pass over each material for all its reconstructions,
+   each decoded once; the standardised-domain MSE of the coded ones by Parseval from their
+   coefficients), image grids like Figures 4 and 5.
 
 Bytes are the paper's Table 4 accounting per material: coefficients (2 B value + 3 B
 location) + membership and count (1 B each per point and channel) for the sparse methods;
@@ -42,7 +44,6 @@ from ..codec import encode_levels, encode_rate_levels, train
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..figures import comparison_grid
-from ..metrics import compare
 from ..model import CodedBTF, Model
 from ..runtime import coded_btf_view
 from ..storage.accounting import storage_report
@@ -54,6 +55,7 @@ from .baselines import (
     pca_reconstruction,
 )
 from .benchmark_set import BenchConfig, level_tau
+from .scoring import score_many
 
 __all__ = ["METHODS", "run_quality"]
 
@@ -82,12 +84,13 @@ def _figure_pairs(btf: BTF) -> list[tuple[int, int]]:
     ]
 
 
-def _metrics(ref: BTF, rec: BTF, cfg: BenchConfig, stats: Any = None) -> dict[str, Any]:
-    m = compare(
-        ref, rec, stats=stats, ssim_images=cfg.ssim_images, tile=2 * cfg.patch, progress=False
-    )
+def _metrics(ref: BTF, recs: Sequence[BTF], cfg: BenchConfig) -> list[dict[str, Any]]:
+    """Every metric of every reconstruction of ``ref``, in one pass over it."""
     keys = ("mse_rgb", "mse_log", "mse_std", "psnr_rgb", "ssim")
-    return {k: (float(m[k]) if m.get(k) is not None else None) for k in keys}
+    scores = score_many(
+        ref, recs, ssim_images=cfg.ssim_images, tile=2 * cfg.patch, progress=False
+    )
+    return [{k: (float(m[k]) if m.get(k) is not None else None) for k in keys} for m in scores]
 
 
 def _coded_row(coded: CodedBTF, model: Model) -> dict[str, Any]:
@@ -127,19 +130,22 @@ def run_quality(
     seed: int = 0,
     log: Callable[[str], None] = print,
     progress: bool | None = None,
+    previous: str | os.PathLike[str] | None = None,
 ) -> dict[str, Any]:
     """Run the benchmark into folder ``out``; returns (and writes) the results object.
 
     ``materials`` are extra test BTFs (any source :func:`~sparsebtf.data.io.open_btf`
     accepts: ``.btf``, dense ``.h5``, ``synth:…``); they need the benchmark's directions and
     a size that is a multiple of the patch. ``seed`` shifts every material seed and the
-    training seed.
+    training seed. ``previous`` (an earlier run's ``results.json``) adds how each verdict
+    moved from it.
     """
     from ..data.synth import cached
     from ..open import open_btf
-    from .report import write_report
+    from .report import previous_record, write_report
 
     cfg = (config or BenchConfig()).with_seed(seed)
+    prev = None if previous is None else previous_record(previous)  # fail before the hour
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     say = _Log(log)
@@ -193,10 +199,12 @@ def run_quality(
     for key, spec in model_specs.items():
         t0 = time.perf_counter()
         say(f"training {METHODS[key]}: K={cfg.n_dictionaries}, tau_l={spec['tau_train']}, "
-            f"{cfg.iters} iterations, sample {cfg.sample}")
+            f"until the objective falls by less than {cfg.tol:g} per iteration (at most "
+            f"{cfg.iters}), sample {cfg.sample}")
         models[key] = train(
             train_btfs, n_dictionaries=cfg.n_dictionaries, patch=cfg.patch, sample=cfg.sample,
-            max_iter=cfg.iters, seed=seed, progress=progress, **spec,  # type: ignore[arg-type]
+            max_iter=cfg.iters, tol=cfg.tol, seed=seed, progress=progress,
+            **spec,  # type: ignore[arg-type]
         )
         stage(f"train_{key}", t0)
         m = models[key]
@@ -222,11 +230,21 @@ def run_quality(
         rows.append(row)
         return row
 
+    def score(btf: BTF, pending: list[tuple[dict[str, Any], BTF | None]]) -> None:
+        """Metrics of every pending reconstruction of ``btf`` in one pass, then the rows in
+        order (a row without a reconstruction is added as it is)."""
+        t0 = time.perf_counter()
+        mets = iter(_metrics(btf, [v for _, v in pending if v is not None], cfg))
+        for row, view in pending:
+            add(row, **(next(mets) if view is not None else {}))
+        stage("evaluate", t0)
+
     # 3. test materials ---------------------------------------------------------------------
     for label, cls, mseed, btf in tests:
         base = {"material": label, "class": cls, "seed": mseed, "set": "test",
                 "size": [btf.height, btf.width]}
         recs: dict[str, BTF] = {}
+        pending: list[tuple[dict[str, Any], BTF | None]] = []
         lv_taus = [level_tau(level_budget(btf, lv), minimum=tau_l) for lv in cfg.levels]
         say(f"{label}: SparseBTF at levels {list(cfg.levels)} (tau {lv_taus}) and "
             f"{len(cfg.curve_taus)} curve points")
@@ -236,35 +254,31 @@ def run_quality(
                               allow_below_training=True, progress=progress)
         stage("encode_sparsebtf", t0)
         fixed_bytes: dict[int, int] = {}
-        t0 = time.perf_counter()
         for j, (tau, c) in enumerate(zip(allt, coded, strict=True)):
             level = cfg.levels[j] if j < len(cfg.levels) else None
             info = _coded_row(c, models["sparsebtf"])
             view = coded_btf_view(c)
-            met = _metrics(btf, view, cfg, c.stats)
-            add(base, method="sparsebtf", level=level, tau=list(tau), **info, **met)
+            pending.append(({**base, "method": "sparsebtf", "level": level, "tau": list(tau),
+                             **info}, view))
             if level is not None:
                 fixed_bytes[level] = info["material_bytes"]
                 if level in cfg.grid_levels:
                     recs[f"SparseBTF({level})"] = view
-        stage("evaluate", t0)
         if cfg.with_rate_control:
             t0 = time.perf_counter()
             targets = [fixed_bytes[lv] for lv in cfg.levels]
             say(f"{label}: rate control at the fixed-tau bytes {targets}")
             rc = encode_rate_levels(btf, models["sparsebtf"], targets, progress=progress)
             stage("encode_rate", t0)
-            t0 = time.perf_counter()
             for lv, c in zip(cfg.levels, rc, strict=True):
                 info = _coded_row(c, models["sparsebtf"])
                 view = coded_btf_view(c)
-                met = _metrics(btf, view, cfg, c.stats)
-                add(base, method="rate", level=lv, tau=list(c.params["tau"].values()),
-                    target_bytes=c.params["rate_control"]["target_material_bytes"],
-                    **info, **met)
+                pending.append(({
+                    **base, "method": "rate", "level": lv, "tau": list(c.params["tau"].values()),
+                    "target_bytes": c.params["rate_control"]["target_material_bytes"], **info,
+                }, view))  # fmt: skip
                 if lv in cfg.grid_levels:
                     recs[f"+rate control({lv})"] = view
-            stage("evaluate", t0)
         for key in ("per_channel", "raw"):
             if key not in models:
                 continue
@@ -278,15 +292,14 @@ def run_quality(
             cs = encode_levels(btf, models[key], taus, eps=0.0, allow_below_training=True,
                                progress=progress)
             stage(f"encode_{key}", t0)
-            t0 = time.perf_counter()
             for lv, tau, c in zip(cfg.levels, taus, cs, strict=True):
-                info = _coded_row(c, models[key])
                 view = coded_btf_view(c)
-                met = _metrics(btf, view, cfg, c.stats if key != "raw" else None)
-                add(base, method=key, level=lv, tau=list(tau), **info, **met)
+                pending.append(({**base, "method": key, "level": lv, "tau": list(tau),
+                                 **_coded_row(c, models[key])}, view))
                 if key == "raw" and lv in cfg.grid_levels:
                     recs[f"[MHU19]({lv})"] = view
-            stage("evaluate", t0)
+        say(f"{label}: metrics of {len(pending)} reconstructions")
+        score(btf, pending)
         if recs and len(grids) < 2:
             t0 = time.perf_counter()
             path = comparison_grid(btf, recs, _figure_pairs(btf), out / f"grid_{label}.png")
@@ -305,17 +318,16 @@ def run_quality(
                               allow_below_training=True, progress=progress)
         stage("encode_sparsebtf", t0)
         recs = {}
+        pending = []
         budgets: dict[int, int] = {}
-        t0 = time.perf_counter()
         for lv, tau, c in zip(t5_levels, lv_taus, coded, strict=True):
             info = _coded_row(c, models["sparsebtf"])
             budgets[lv] = info["material_bytes"]
             view = coded_btf_view(c)
-            met = _metrics(btf, view, cfg, c.stats)
-            add(base, method="sparsebtf", level=lv, tau=list(tau), **info, **met)
+            pending.append(({**base, "method": "sparsebtf", "level": lv, "tau": list(tau),
+                             **info}, view))
             if lv in cfg.grid_levels:
                 recs[f"SparseBTF({lv})"] = view
-        stage("evaluate", t0)
         n_tex = btf.height * btf.width
         n_ang = len(btf.lights) * len(btf.views)
         max_rank = max(1, pca_rank_for_budget(2 * max(budgets.values()), n_tex, n_ang))
@@ -326,7 +338,6 @@ def run_quality(
                                progress=progress)
         stage("pca_fit", t0)
         for domain, fit in zip(cfg.pca_domains, fits, strict=True):
-            t0 = time.perf_counter()
             for lv in t5_levels:
                 for factor in (1, 2):
                     budget = factor * budgets[lv]
@@ -334,6 +345,7 @@ def run_quality(
                     ranks = allocate_ranks(fit, total)
                     nbytes = pca_bytes(ranks, n_tex, n_ang)
                     entry = {
+                        **base, "method": f"pca_{domain}",
                         "level": lv, "budget_factor": factor, "budget_bytes": int(budget),
                         "ranks": list(ranks), "material_bytes": nbytes,
                         "bytes_raw": 2 * btf.n_values,
@@ -341,16 +353,16 @@ def run_quality(
                         "bytes_dictionaries_shared": 0,
                     }
                     if sum(ranks) == 0:
-                        add(base, method=f"pca_{domain}", **entry, mse_rgb=None, mse_log=None,
-                            mse_std=None, psnr_rgb=None, ssim=None,
-                            note="no component fits in the budget")
+                        pending.append(({**entry, "mse_rgb": None, "mse_log": None,
+                                         "mse_std": None, "psnr_rgb": None, "ssim": None,
+                                         "note": "no component fits in the budget"}, None))
                         continue
                     rec = pca_reconstruction(fit, ranks, btf)
-                    met = _metrics(btf, rec, cfg)
-                    add(base, method=f"pca_{domain}", **entry, **met)
+                    pending.append((entry, rec))
                     if lv in cfg.grid_levels and factor == 2 and domain == cfg.pca_domains[0]:
                         recs[f"PCA {domain} 2x({lv})"] = rec
-            stage("evaluate", t0)
+        say(f"{label}: metrics of {sum(v is not None for _, v in pending)} reconstructions")
+        score(btf, pending)
         if recs:
             t0 = time.perf_counter()
             path = comparison_grid(btf, recs, _figure_pairs(btf), out / f"grid_{label}_pca.png")
@@ -378,6 +390,8 @@ def run_quality(
         },
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
+    if prev is not None:
+        result["previous"] = prev
     t0 = time.perf_counter()
     write_report(result, out)
     stage("report", t0)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import BTFInputError
 from .parallel import parallel_map
-from .tensor import project, reconstruct
+from .tensor import project, reconstruct_sparse
 
 __all__ = ["SparseCodes", "reconstruct_points", "sparse_code", "sparse_code_levels", "topk_abs"]
 
@@ -303,14 +303,12 @@ def reconstruct_points(
     def task(j: int) -> None:
         i = int(idx[j])
         loc, val = codes.point(i)
-        s = np.zeros((1, *codes.mode_sizes), dtype=dtype)
-        s[(0, *loc.T)] = val
         k = int(codes.membership[i])
         mats = [
             np.asarray(d[k] if r is None else d[k][r], dtype=dtype)
             for d, r in zip(dictionaries, rows, strict=True)
         ]
-        out[j] = reconstruct(s, mats)[0]
+        out[j] = reconstruct_sparse(loc, val.astype(dtype, copy=False), mats)
 
     for _ in parallel_map(task, range(idx.size)):
         pass

@@ -1,20 +1,32 @@
 """Training an ensemble of K orthonormal N-mode dictionaries (paper §3.2, Eq. 2).
 
 Block-coordinate descent on Eq. 2a under the constraints 2b–2d
-(``shared/specs/training-algorithm.md`` §4):
+(``shared/specs/training-algorithm.md`` §4). One iteration:
 
-1. **Sparse coding + membership** (map over batches): project every point on every dictionary
-   (Eq. 3), keep the τ_l largest coefficients (exact ℓ0 optimum for orthonormal bases), and
-   assign each point to the dictionary of least error (Parseval, no reconstruction).
-2. **Dictionary update**, one mode at a time (Gauss–Seidel): the map sums, per dictionary,
-   Z⁽ⁿ'ᵏ⁾ = Σ_{i∈C_k} [X_i ×_{q≠n} U_qᵀ]_(n) [Ŝ_i]_(n)ᵀ; the reduce sets U⁽ⁿ'ᵏ⁾ = ΓΘᵀ from
-   the SVD Z = ΓΣΘᵀ (orthogonal Procrustes: the maximiser of tr(UᵀZ) over orthogonal U).
+1. **Dictionary update**, one mode at a time (Gauss–Seidel): per dictionary,
+   Z⁽ⁿ'ᵏ⁾ = Σ_{i∈C_k} [X_i ×_{q≠n} U_qᵀ]_(n) [Ŝ_i]_(n)ᵀ, then U⁽ⁿ'ᵏ⁾ = ΓΘᵀ from the SVD
+   Z = ΓΣΘᵀ (orthogonal Procrustes: the maximiser of tr(UᵀZ) over orthogonal U). Z is built
+   from the τ_l coefficients of each point (:mod:`.steps`); the last two modes of the
+   projection order come free with the previous coding pass, the others take one pass each.
+2. **Sparse coding + membership**: project every point on its candidate dictionaries (Eq. 3),
+   keep the τ_l largest coefficients (exact ℓ0 optimum for orthonormal bases) and assign it
+   to the candidate of least error (Parseval, no reconstruction).
 
-Every step minimises Eq. 2a over its own block, so the objective never increases.
+**Candidates.** Memberships settle after the first iterations, so projecting every point on
+all K dictionaries every iteration is mostly wasted. A *full* pass tries all K and ranks
+them per point; the passes in between (*partial*) try only each point's ``candidates`` best
+of the last full pass, which include its current dictionary. Every ``full_pass_every``-th
+iteration, the iteration after a re-seeded dictionary, the last iteration and any iteration
+that meets the tolerance end with a full pass, so a full pass always decides the final
+memberships. ``candidates >= K`` is the exhaustive trainer.
+
+Every step minimises Eq. 2a over its own block (the update with Ŝ and M fixed; the coding over
+a set of dictionaries that contains the current one), so the objective never increases.
 Each pass streams the training set in batches: memory is bounded by the batch, not the set.
-:func:`code_step`, :func:`cross_products` and :func:`procrustes` are the pure map and reduce
-pieces, so an iteration can run unchanged on a distributed engine (map over partitions,
-sum the Z's, SVD on the driver).
+The map steps (:func:`~.steps.code_step`, :func:`~.steps.sparse_cross_products`) and reduce
+steps (:meth:`~.steps.BatchCoding.combine`, sums, :func:`~.steps.procrustes`) are pure, so an
+iteration can run unchanged on a distributed engine (map over partitions, sum the Z's and
+H's, SVDs on the driver).
 """
 
 from __future__ import annotations
@@ -22,7 +34,8 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
@@ -33,9 +46,21 @@ from .._progress import bar
 from ..errors import BTFInputError
 from .coding import SparseCodes, reconstruct_points, sparse_code
 from .parallel import parallel_map, prefetch
-from .tensor import project, unfold
+from .steps import (
+    BatchCoding,
+    code_step,
+    cross_products,
+    pair_cross_products,
+    pair_modes,
+    procrustes,
+    sparse_cross_products,
+)
+from .tensor import unfold
 
 __all__ = [
+    "CANDIDATES",
+    "FULL_PASS_EVERY",
+    "UPDATES",
     "ArraySource",
     "DictionaryEnsemble",
     "PointSource",
@@ -44,7 +69,17 @@ __all__ = [
     "hosvd_bases",
     "procrustes",
     "random_orthonormal",
+    "sparse_cross_products",
 ]
+
+#: Default dictionaries tried per point between full coding passes (``benchmarks/bench_training.py``
+#: and docs/benchmarks.md §2 measure what it saves and what it costs in objective).
+CANDIDATES = 2
+#: Default period of the full coding passes, in iterations (0: only those that must be full).
+FULL_PASS_EVERY = 5
+
+#: How Z⁽ⁿ'ᵏ⁾ is built: from the codes (fast) or from dense partial projections (reference).
+UPDATES = ("codes", "projections")
 
 
 class PointSource(Protocol):
@@ -110,65 +145,20 @@ def hosvd_bases(point: np.ndarray) -> list[np.ndarray]:
     return bases
 
 
-def procrustes(z: np.ndarray) -> np.ndarray:
-    """Orthogonal Procrustes: the orthogonal U maximising tr(UᵀZ), U = ΓΘᵀ for Z = ΓΣΘᵀ."""
-    u, _, vt = np.linalg.svd(z)
-    return u @ vt
-
-
-def code_step(
-    batch: np.ndarray,
-    dictionaries: Sequence[np.ndarray],
-    tau: int,
-    eps: float = 0.0,
-    dtype: type = np.float32,
-) -> SparseCodes:
-    """Map step 1: sparse coding and membership of one batch (Eq. 3, hard thresholding)."""
-    return sparse_code(batch, dictionaries, tau, eps, dtype)
-
-
-def cross_products(
-    batch: np.ndarray,
-    codes: SparseCodes,
-    dictionaries: Sequence[np.ndarray],
-    mode: int,
-    dtype: type = np.float32,
-) -> np.ndarray:
-    """Map step 2: this batch's share of Z⁽ⁿ'ᵏ⁾ for every k, shape (K, m_n, m_n), float64.
-
-    Z⁽ⁿ'ᵏ⁾ = Σ_i [P_i]_(n) [Ŝ_i]_(n)ᵀ with the partial projection P_i = X_i ×_{q≠n} U_qᵀ. Ŝ_i
-    is sparse, so column l_n(s) of Z gains v_s times the mode-n fibre of P_i at the other
-    indices of coefficient s: τ fibre gathers instead of a dense product.
-    """
-    n_dict = dictionaries[0].shape[0]
-    m = dictionaries[mode].shape[1]
-    z = np.zeros((n_dict, m, m))
-    offsets = codes.offsets
-
-    def task(b: int) -> tuple[int, np.ndarray] | None:
-        k = int(codes.membership[b])
-        lo, hi = offsets[b], offsets[b + 1]
-        if hi == lo:
-            return None
-        mats = [np.asarray(d[k], dtype=dtype) for d in dictionaries]
-        p = project(np.asarray(batch[b : b + 1], dtype=dtype), mats, skip=mode)[0]
-        p = np.moveaxis(p, mode, -1)
-        loc = codes.locations[lo:hi]
-        other = tuple(loc[:, q] for q in range(loc.shape[1]) if q != mode)
-        fibres = p[other].astype(np.float64) * codes.values[lo:hi, None].astype(np.float64)
-        part = np.zeros((m, m))
-        # Z[:, l_n] += v · fibre, accumulated by target column.
-        np.add.at(part.T, loc[:, mode], fibres)
-        return k, part
-
-    for res in parallel_map(task, range(batch.shape[0])):
-        if res is not None:
-            z[res[0]] += res[1]
-    return z
-
-
 def _as_source(x: np.ndarray | PointSource) -> PointSource:
     return ArraySource(x) if isinstance(x, np.ndarray) else x
+
+
+@dataclass
+class _State:
+    """What an iteration carries to the next (and a checkpoint stores)."""
+
+    dicts: list[np.ndarray]
+    objective: list[float]
+    passes: list[str]  # "full" or "partial", one per objective value
+    iteration: int
+    ranking: np.ndarray | None = None  # (N, c) candidates from the last full pass
+    reseeded_from: list[int] = field(default_factory=list)
 
 
 class DictionaryEnsemble:
@@ -180,9 +170,16 @@ class DictionaryEnsemble:
     tau : training sparsity τ_l (paper: Y 256, U 32, V 32).
     eps : optional training error threshold ε_l (0: membership by least error at τ_l).
     max_iter : maximum number of iterations (update + coding).
-    tol : stop when the relative decrease of the objective falls below it.
+    tol : stop when an iteration ending in a full pass lowers the objective by less than
+        this fraction.
     init : "points" (per-mode HOSVD of K random training points) or "random" (Haar-random).
     reseed_empty : re-seed a dictionary left without members from the worst-fitted point.
+    candidates : dictionaries tried per point in a partial coding pass: its best ones at the
+        last full pass (module docstring). ``>= n_dictionaries``: every pass is full.
+    full_pass_every : every this-many-th iteration ends with a full pass (0: only the
+        iterations that must: after a re-seed, on meeting ``tol``, the last one).
+    update : how Z⁽ⁿ'ᵏ⁾ is built: "codes" (from the τ_l coefficients, :mod:`.steps`) or
+        "projections" (dense partial projections, the reference; same Z, ~10× the FLOPs).
     batch_size : data points per map task.
     dtype : projection arithmetic ("float32" or "float64"); sums are always float64.
     random_state : seed of every random choice.
@@ -192,10 +189,12 @@ class DictionaryEnsemble:
     Attributes
     ----------
     dictionaries_ : list over modes of (K, m_n, m_n) float64, ordered by decreasing use.
-    membership_ : (N,) dictionary of each training point (after the final coding).
+    membership_ : (N,) dictionary of each training point (after the final, full, coding).
     counts_ : (K,) members per dictionary (the release's ``EnsHist``).
     objective_ : mean squared error per entry after each coding step (non-increasing).
+    passes_ : "full" or "partial" for each coding step of ``objective_``.
     n_iter_ : iterations run.
+    iteration_seconds_ : wall time of each iteration run by this ``fit`` (update + coding).
     fit_seconds_ : wall time of ``fit``.
     """
 
@@ -208,6 +207,9 @@ class DictionaryEnsemble:
         tol: float = 1e-4,
         init: str = "points",
         reseed_empty: bool = True,
+        candidates: int = CANDIDATES,
+        full_pass_every: int = FULL_PASS_EVERY,
+        update: str = "codes",
         batch_size: int = 4,
         dtype: str = "float32",
         random_state: int = 0,
@@ -221,6 +223,9 @@ class DictionaryEnsemble:
         self.tol = tol
         self.init = init
         self.reseed_empty = reseed_empty
+        self.candidates = candidates
+        self.full_pass_every = full_pass_every
+        self.update = update
         self.batch_size = batch_size
         self.dtype = dtype
         self.random_state = random_state
@@ -234,47 +239,58 @@ class DictionaryEnsemble:
         src = _as_source(x)
         t0 = time.perf_counter()
         dt = np.dtype(self.dtype).type
-        dicts, objective, start = self._resume(src)
-        if dicts is None:
-            dicts = self._initialise(src)
-            objective = []
-        codes = self._code_all(src, dicts, dt, f"{desc} code")
-        if not objective:
-            objective.append(float(codes.errors.mean()))
-        used_for_reseed: set[int] = set()
-        it = start
-        for it in range(start, self.max_iter):
-            self._reseed(src, dicts, codes, used_for_reseed)
-            for mode in range(len(dicts)):
-                z = np.zeros((self.n_dictionaries, dicts[mode].shape[1], dicts[mode].shape[1]))
-                with bar(
-                    src.n_points, f"{desc} it{it + 1} mode{mode + 1}", "pt", self.progress
-                ) as pb:
-                    for idx, xb in prefetch(src.batches(self.batch_size)):
-                        z += cross_products(xb, _slice_codes(codes, idx), dicts, mode, dt)
-                        pb.update(len(idx))
-                for k in np.flatnonzero(
-                    np.bincount(codes.membership, minlength=self.n_dictionaries)
-                ):
-                    dicts[mode][k] = procrustes(z[k])
-            codes = self._code_all(src, dicts, dt, f"{desc} it{it + 1} code")
-            objective.append(float(codes.errors.mean()))
-            self._save_checkpoint(dicts, objective, it + 1)
-            prev, cur = objective[-2], objective[-1]
-            if prev <= 0 or (prev - cur) / prev < self.tol:
-                it += 1
-                break
+        n_cand = min(self.candidates, self.n_dictionaries)
+        state = self._resume(src)
+        if state is None:
+            state = _State(self._initialise(src), [], [], 0)
+            coding = self._code_all(src, state.dicts, dt, None, f"{desc} code")
+            state.objective.append(float(coding.codes.errors.mean()))
+            state.passes.append("full")
+            state.ranking = coding.ranking[:, :n_cand]
         else:
-            it = self.max_iter
+            partial = state.passes[-1] == "partial"
+            coding = self._code_all(
+                src, state.dicts, dt, state.ranking if partial else None, f"{desc} code"
+            )
+        self.iteration_seconds_: list[float] = []
+        for it in range(state.iteration, self.max_iter):
+            t_it = time.perf_counter()
+            reseeded = self._reseed(src, state, coding.codes)
+            self._update_dictionaries(src, state.dicts, coding, dt, f"{desc} it{it + 1}")
+            full = (
+                reseeded
+                or n_cand >= self.n_dictionaries
+                or it + 1 == self.max_iter
+                or (self.full_pass_every > 0 and (it + 1) % self.full_pass_every == 0)
+            )
+            label = f"{desc} it{it + 1} code"
+            coding = self._code_all(src, state.dicts, dt, None if full else state.ranking, label)
+            done = self._converged(state.objective[-1], coding)
+            if done and not full:
+                # Memberships may still move: only a full pass can confirm convergence.
+                full = True
+                coding = self._code_all(src, state.dicts, dt, None, f"{label} (full)")
+                done = self._converged(state.objective[-1], coding)
+            state.objective.append(float(coding.codes.errors.mean()))
+            state.passes.append("full" if full else "partial")
+            if full:
+                state.ranking = coding.ranking[:, :n_cand]
+            state.iteration = it + 1
+            self._save_checkpoint(state)
+            self.iteration_seconds_.append(time.perf_counter() - t_it)
+            if done:
+                break
+        codes = coding.codes
         counts = np.bincount(codes.membership, minlength=self.n_dictionaries)
         order = np.argsort(-counts, kind="stable")
         rank = np.empty_like(order)
         rank[order] = np.arange(order.size)
-        self.dictionaries_ = [d[order].copy() for d in dicts]
+        self.dictionaries_ = [d[order].copy() for d in state.dicts]
         self.membership_ = rank[codes.membership]
         self.counts_ = counts[order]
-        self.objective_ = objective
-        self.n_iter_ = max(it, start)
+        self.objective_ = state.objective
+        self.passes_ = state.passes
+        self.n_iter_ = state.iteration
         self.mode_sizes_ = src.mode_sizes
         self.fit_seconds_ = time.perf_counter() - t0
         return self
@@ -299,10 +315,20 @@ class DictionaryEnsemble:
             raise BTFInputError(f"init must be 'points' or 'random', got {self.init!r}")
         if self.dtype not in ("float32", "float64"):
             raise BTFInputError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
+        if self.candidates < 1:
+            raise BTFInputError(f"candidates must be >= 1, got {self.candidates}")
+        if self.full_pass_every < 0:
+            raise BTFInputError(f"full_pass_every must be >= 0, got {self.full_pass_every}")
+        if self.update not in UPDATES:
+            raise BTFInputError(f"update must be one of {UPDATES}, got {self.update!r}")
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "dictionaries_"):
             raise BTFInputError("this ensemble is not fitted yet; call fit() first")
+
+    def _converged(self, prev: float, coding: BatchCoding) -> bool:
+        cur = float(coding.codes.errors.mean())
+        return prev <= 0 or (prev - cur) / prev < self.tol
 
     def _initialise(self, src: PointSource) -> list[np.ndarray]:
         rng = np.random.default_rng(self.random_state)
@@ -312,8 +338,8 @@ class DictionaryEnsemble:
             n_seed = min(k, src.n_points)
             seeds = np.sort(rng.choice(src.n_points, size=n_seed, replace=False))
             pts = src.take(seeds)
-            for j in range(n_seed):
-                for mode, u in enumerate(hosvd_bases(pts[j])):
+            for j, bases in enumerate(parallel_map(hosvd_bases, list(pts))):
+                for mode, u in enumerate(bases):
                     dicts[mode][j] = u
             start = n_seed
         else:
@@ -324,29 +350,73 @@ class DictionaryEnsemble:
         return dicts
 
     def _code_all(
-        self, src: PointSource, dicts: list[np.ndarray], dt: type, desc: str
-    ) -> SparseCodes:
+        self,
+        src: PointSource,
+        dicts: list[np.ndarray],
+        dt: type,
+        ranking: np.ndarray | None,
+        desc: str,
+    ) -> BatchCoding:
+        """Coding map over every batch (all K, or each point's ``ranking`` row), reduced."""
         parts = []
         with bar(src.n_points, desc, "pt", self.progress) as pb:
-            for _, xb in prefetch(src.batches(self.batch_size)):
-                parts.append(code_step(xb, dicts, self.tau, self.eps, dt))
+            for idx, xb in prefetch(src.batches(self.batch_size)):
+                cand = None if ranking is None else ranking[idx]
+                parts.append(code_step(xb, dicts, self.tau, self.eps, dt, cand))
                 pb.update(xb.shape[0])
-        return SparseCodes.concatenate(parts)
+        return BatchCoding.combine(parts)
 
-    def _reseed(
-        self, src: PointSource, dicts: list[np.ndarray], codes: SparseCodes, used: set[int]
+    def _update_dictionaries(
+        self, src: PointSource, dicts: list[np.ndarray], coding: BatchCoding, dt: type, desc: str
     ) -> None:
-        if not self.reseed_empty:
-            return
+        """One Gauss–Seidel sweep of Procrustes updates over the modes (codes held fixed).
+
+        Order: the projection's last mode b, then a, then the others. With ``update="codes"``
+        Z⁽ᵇ⁾ and H⁽ᵃ⁾ come from the coding pass; every other mode is one map-reduce pass.
+        """
+        codes = coding.codes
+        active = np.flatnonzero(np.bincount(codes.membership, minlength=self.n_dictionaries))
+        mode_b, mode_a = pair_modes(src.mode_sizes)
+        pair = [mode_b] if mode_a is None else [mode_b, mode_a]
+        order = pair + [n for n in range(len(dicts)) if n not in pair]
+        fast = self.update == "codes"
+        for mode in order:
+            if fast and mode == mode_b and coding.z_last is not None:
+                z = coding.z_last
+            elif fast and mode == mode_a and coding.pair is not None:
+                z = np.stack([
+                    pair_cross_products(coding.pair[k], dicts[mode_b][k])
+                    for k in range(self.n_dictionaries)
+                ])  # fmt: skip
+            else:
+                step = sparse_cross_products if fast else cross_products
+                m = dicts[mode].shape[1]
+                z = np.zeros((self.n_dictionaries, m, m))
+                with bar(src.n_points, f"{desc} mode{mode + 1}", "pt", self.progress) as pb:
+                    for idx, xb in prefetch(src.batches(self.batch_size)):
+                        z += step(xb, _slice_codes(codes, idx), dicts, mode, dt)
+                        pb.update(len(idx))
+            # Single-threaded SVDs side by side: two LAPACK threads per 151×151 SVD ran 20×
+            # slower whenever another process held a core.
+            for k, u in zip(active, parallel_map(procrustes, list(z[active])), strict=True):
+                dicts[mode][k] = u
+
+    def _reseed(self, src: PointSource, state: _State, codes: SparseCodes) -> bool:
+        """Give each dictionary left without members the HOSVD bases of the worst-fitted point
+        not used before; True when one was re-seeded (its next coding pass must be full)."""
+        if not self.reseed_empty or state.passes[-1] != "full":
+            # After a partial pass a dictionary may be empty only for lack of candidates.
+            return False
         counts = np.bincount(codes.membership, minlength=self.n_dictionaries)
         empty = np.flatnonzero(counts == 0)
-        if empty.size == 0:
-            return
+        used = set(state.reseeded_from)
         worst = [int(i) for i in np.argsort(-codes.errors, kind="stable") if int(i) not in used]
         for k, i in zip(empty, worst, strict=False):
-            used.add(i)
-            for mode, u in enumerate(hosvd_bases(src.take(np.array([i]))[0])):
-                dicts[mode][k] = u
+            state.reseeded_from.append(i)
+            bases = next(parallel_map(hosvd_bases, [src.take(np.array([i]))[0]]))
+            for mode, u in enumerate(bases):
+                state.dicts[mode][k] = u
+        return bool(empty.size and worst)
 
     # -- checkpoints ----------------------------------------------------------------------
     def _params_key(self, src: PointSource) -> str:
@@ -358,13 +428,16 @@ class DictionaryEnsemble:
                 "init": self.init,
                 "seed": self.random_state,
                 "dtype": self.dtype,
+                "candidates": min(self.candidates, self.n_dictionaries),
+                "full_pass_every": self.full_pass_every,
+                "update": self.update,
                 "n": src.n_points,
                 "shape": list(src.mode_sizes),
             },
             sort_keys=True,
         )
 
-    def _save_checkpoint(self, dicts: list[np.ndarray], objective: list[float], it: int) -> None:
+    def _save_checkpoint(self, state: _State) -> None:
         if self.checkpoint is None:
             return
         path = Path(self.checkpoint)
@@ -372,24 +445,33 @@ class DictionaryEnsemble:
             with open(tmp, "wb") as f:
                 np.savez(
                     f,
-                    iteration=it,
-                    objective=np.array(objective),
+                    iteration=state.iteration,
+                    objective=np.array(state.objective),
+                    passes=np.array(state.passes),
+                    ranking=state.ranking,
+                    reseeded_from=np.array(state.reseeded_from, dtype=np.int64),
                     key=self._key,
-                    **{f"mode{n}": d for n, d in enumerate(dicts)},
+                    **{f"mode{n}": d for n, d in enumerate(state.dicts)},
                 )
 
-    def _resume(self, src: PointSource) -> tuple[list[np.ndarray] | None, list[float], int]:
+    def _resume(self, src: PointSource) -> _State | None:
         self._key = self._params_key(src)
         if self.checkpoint is None or not Path(self.checkpoint).exists():
-            return None, [], 0
+            return None
         with np.load(self.checkpoint) as ck:
-            if str(ck["key"]) != self._key:
+            if "passes" not in ck.files or str(ck["key"]) != self._key:
                 raise BTFInputError(
                     f"checkpoint {self.checkpoint} was made with other training parameters or "
                     "data; delete it or choose another checkpoint path"
                 )
-            dicts = [ck[f"mode{n}"].copy() for n in range(len(src.mode_sizes))]
-            return dicts, [float(v) for v in ck["objective"]], int(ck["iteration"])
+            return _State(
+                [ck[f"mode{n}"].copy() for n in range(len(src.mode_sizes))],
+                [float(v) for v in ck["objective"]],
+                [str(v) for v in ck["passes"]],
+                int(ck["iteration"]),
+                ck["ranking"].copy(),
+                [int(v) for v in ck["reseeded_from"]],
+            )
 
 
 def _slice_codes(codes: SparseCodes, idx: np.ndarray) -> SparseCodes:

@@ -108,6 +108,15 @@ class DecodedBTF(BTF):
         self.pre = Preprocessor(coded.stats)
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
+        _, _, li, vi = self.indices(rows, cols, lights, views)
+        z = self.read_standardised(rows, cols, lights, views)
+        return self.pre.inverse(z, li, vi).astype(np.float32, copy=False)
+
+    def read_standardised(
+        self, rows: Index, cols: Index, lights: Index, views: Index
+    ) -> np.ndarray:
+        """The decoded values before the preprocessing is undone: (rows, cols, l, v, 3)
+        standardised log-YUV (or, for an "identity" model, linear RGB), float32."""
         r, c, li, vi = self.indices(rows, cols, lights, views)
         p = self.coded.patch
         rb = np.unique(r // p)
@@ -133,7 +142,7 @@ class DecodedBTF(BTF):
             z = z[row_pos]
         if not np.array_equal(col_pos, np.arange(z.shape[1])):
             z = z[:, col_pos]
-        return self.pre.inverse(z, li, vi).astype(np.float32, copy=False)
+        return z
 
 
 def coded_btf_view(coded: CodedBTF) -> DecodedBTF:

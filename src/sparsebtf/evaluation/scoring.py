@@ -1,0 +1,144 @@
+"""The benchmark's metrics for many reconstructions of one material in one pass over it.
+
+:func:`sparsebtf.metrics.compare` scores one reconstruction: it reads and logs the reference,
+decodes the reconstruction to linear RGB, takes its log again and decodes the SSIM images a
+second time. The benchmark scores some twenty reconstructions per material, so
+:func:`score_many` does the same arithmetic with the shared work done once:
+
+* the reference is read, clamped and logged **once per material** (per spatial tile), however
+  many reconstructions it is compared with;
+* every reconstruction is decoded **once** (per tile, all directions): coded BTFs are decoded
+  to standardised log-YUV (:meth:`~sparsebtf.runtime.dense.DecodedBTF.read_standardised`),
+  mapped to log-RGB ℓ, and their clamped log ln(max(exp ℓ − ε, 0) + ε) = max(ℓ, ln ε) needs no
+  exp/log round trip; linear RGB is exp ℓ − ε;
+* the SSIM images are cut from the same decoded tiles;
+* ``mse_std`` of a coded BTF comes from its coefficients by Parseval (no decode at all): the
+  coded-domain residual ‖X − Ŝ ×_q U_q‖² = ‖X‖² − ‖Ŝ‖² that the encoder already stored per
+  point (``SparseCodes.errors``), i.e. the MSE on the standardised tensors that the release's
+  ``btf4Drecon`` reports. :func:`compare` gets the same number from the decoded RGB when no
+  value needs clamping (tests check both).
+
+Every metric keeps :func:`compare`'s definition (linear-RGB MSE over every value, log MSE on
+ln(RGB + 1e-5), PSNR with the reference's peak, mean SSIM over the same regular sample of
+angular images); ``tests/test_evaluation.py`` checks the two agree.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from skimage.metrics import structural_similarity
+from threadpoolctl import threadpool_limits
+
+from .._progress import bar
+from ..data.btf import BTF
+from ..errors import BTFInputError
+from ..metrics import _angular_sample, _sumsq, psnr
+from ..model import CodedBTF
+from ..points.preprocessing import EPS, yuv_to_rgb
+from ..runtime.dense import DecodedBTF
+
+__all__ = ["coded_mse_std", "score_many"]
+
+
+def coded_mse_std(coded: CodedBTF) -> float:
+    """MSE per value in the standardised domain, from the codes by Parseval (no decode)."""
+    total = sum(
+        float(np.sum(c.errors, dtype=np.float64)) * int(np.prod(c.mode_sizes))
+        for c in coded.codes.values()
+    )
+    n = coded.height * coded.width * len(coded.lights) * len(coded.views) * 3
+    return total / n
+
+
+def _log_rgb(rec: BTF, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray]:
+    """(linear RGB, clamped log RGB ln(max(x, 0) + ε)) of a tile of a reconstruction."""
+    if isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv":
+        z = rec.read_standardised(rows, cols, slice(None), slice(None))
+        yuv = rec.coded.stats.invert(z)
+        # One (n, 3) × (3, 3) GEMM, not one per (row, col, light) slab; single-threaded: two
+        # BLAS threads on this thin product ran 30× slower whenever a core was busy.
+        with threadpool_limits(limits=1, user_api="blas"):
+            log_rgb = yuv_to_rgb(yuv.reshape(-1, 3)).reshape(yuv.shape)
+        lin = np.exp(log_rgb)
+        lin -= np.float32(EPS)
+        # ln(max(exp ℓ − ε, 0) + ε) = max(ℓ, ln ε): no log of the exp.
+        return lin, np.maximum(log_rgb, np.float32(np.log(EPS)))
+    lin = rec.region(rows, cols).astype(np.float32, copy=False)
+    return lin, np.log(np.maximum(lin, 0) + np.float32(EPS))
+
+
+def score_many(
+    reference: BTF,
+    reconstructions: Sequence[BTF],
+    *,
+    tile: int = 10,
+    ssim_images: int = 16,
+    progress: bool | None = None,
+) -> list[dict[str, Any]]:
+    """:func:`~sparsebtf.metrics.compare` of every reconstruction against ``reference``, in
+    one streamed pass over the reference (memory: one tile of each, plus the SSIM images).
+
+    Reconstructions that are decoded coded BTFs (:class:`DecodedBTF`) also get ``mse_std``
+    (:func:`coded_mse_std`) unless their model codes raw RGB.
+    """
+    for rec in reconstructions:
+        if rec.shape != reference.shape:
+            raise BTFInputError(
+                f"cannot compare {reference.name} {reference.shape} with {rec.name} {rec.shape}"
+            )
+        if not (reference.lights.equals(rec.lights) and reference.views.equals(rec.views)):
+            raise BTFInputError(f"{reference.name} and {rec.name} have different direction tables")
+    h, w = reference.height, reference.width
+    pairs = _angular_sample(len(reference.lights), len(reference.views), ssim_images)
+    li = np.array([p[0] for p in pairs])
+    vi = np.array([p[1] for p in pairs])
+    n_rec = len(reconstructions)
+    sums = np.zeros((n_rec, 2))  # linear RGB, log
+    ref_img = np.zeros((len(pairs), h, w, 3), dtype=np.float32)
+    rec_img = np.zeros((n_rec, len(pairs), h, w, 3), dtype=np.float32)
+    peak = 0.0
+    n = 0
+    tiles = [(r, c) for c in range(0, w, tile) for r in range(0, h, tile)]
+    with bar(len(tiles) * (n_rec + 1), f"score {reference.name}", "tile", progress) as pb:
+        for r, c in tiles:
+            rows, cols = slice(r, min(r + tile, h)), slice(c, min(c + tile, w))
+            a = np.maximum(reference.region(rows, cols).astype(np.float32), 0)
+            la = np.log(a + np.float32(EPS))
+            peak = max(peak, float(a.max()))
+            n += a.size
+            if ssim_images:
+                ref_img[:, rows, cols] = np.moveaxis(a[:, :, li, vi], 2, 0)
+            pb.update(1)
+            for j, rec in enumerate(reconstructions):
+                b, lb = _log_rgb(rec, rows, cols)
+                sums[j, 0] += _sumsq(a - b)
+                sums[j, 1] += _sumsq(la - lb)
+                if ssim_images:
+                    rec_img[j, :, rows, cols] = np.moveaxis(b[:, :, li, vi], 2, 0)
+                pb.update(1)
+    win = min(7, h if h % 2 else h - 1, w if w % 2 else w - 1)
+    if ssim_images and win < 3:
+        raise BTFInputError(f"SSIM needs at least 3x3 texels, got {h}x{w}")
+    out = []
+    for j, rec in enumerate(reconstructions):
+        mse_rgb = sums[j, 0] / n
+        res: dict[str, Any] = {
+            "mse_rgb": mse_rgb,
+            "psnr_rgb": psnr(mse_rgb, peak),
+            "mse_log": sums[j, 1] / n,
+            "ssim": float(np.mean([
+                structural_similarity(ref_img[i].astype(np.float64),
+                                      rec_img[j, i].astype(np.float64), data_range=peak,
+                                      channel_axis=2, win_size=win)
+                for i in range(len(pairs))
+            ])) if ssim_images else None,
+            "ssim_images": len(pairs) if ssim_images else 0,
+            "peak": peak,
+        }  # fmt: skip
+        if isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv":
+            res["mse_std"] = coded_mse_std(rec.coded)
+        out.append(res)
+    return out

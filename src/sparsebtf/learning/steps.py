@@ -1,0 +1,354 @@
+"""The map and reduce steps of one training iteration (paper §3.2, Eq. 2), free of hidden state.
+
+An iteration of :class:`~sparsebtf.learning.ensemble.DictionaryEnsemble` updates the modes one
+at a time (Gauss–Seidel), each by orthogonal Procrustes on
+
+    Z⁽ⁿ'ᵏ⁾ = Σ_{i∈C_k} [P_i]_(n) [Ŝ_i]_(n)ᵀ,   P_i = X_i ×_{q≠n} U_qᵀ          (1)
+           = Σ_{i∈C_k} [X_i]_(n) [Ŝ_i ×_{q≠n} U_q]_(n)ᵀ                         (2)
+
+(``shared/specs/training-algorithm.md`` §4: tr(UᵀZ) is the only term of ‖X − Ŝ ×_q U_q‖² that
+depends on U = U_n, so U_n = ΓΘᵀ for Z = ΓΣΘᵀ; (1) = (2) by the adjointness of ×_q U_qᵀ and
+×_q U_q). Ŝ_i holds τ_l coefficients v_s at multi-indices l(s), so column j of Z only needs
+the mode-n fibres of P_i at the τ_l coefficients with l_n(s) = j:
+
+    Z⁽ⁿ⁾[:, j] = Σ_{s: l_n(s)=j} v_s f_s,   f_s = X_i ×_{q≠n} U_q[:, l_q(s)]ᵀ          (3)
+
+which :func:`mode_fibres` builds without forming P_i: the small (spatial) modes are
+contracted in full (2·L·m_q FLOP each, m_q = 10), the big (angular) ones one column per
+coefficient. For a 10×10×151×151 point that is about 0.1 GFLOP per mode instead of 0.8–1.4
+for the dense partial projection (:func:`cross_products`, kept as the reference).
+
+Two modes per iteration cost nothing extra: the coding step projects in
+:func:`~sparsebtf.learning.tensor.projection_order` and its last two modes a, b (the spatial
+ones) pass through A = X ×_{q∉{a,b}} U_qᵀ and P⁽ᵇ⁾ = A ×_a U_aᵀ. From those the coding step
+returns Z⁽ᵇ⁾ by (3) and the pair tensor
+
+    H⁽ᵃ⁾[α, β, j, m] = Σ_{s: l_a(s)=j, l_b(s)=m} v_s A[α, β, l_{q∉{a,b}}(s)]           (4)
+
+from which, once U_b is updated, Z⁽ᵃ⁾[α, j] = Σ_{β,m} U_b[β, m] H⁽ᵃ⁾[α, β, j, m]
+(:func:`pair_cross_products`): exactly (1) with the new U_b, so Gauss–Seidel holds.
+
+Map steps (pure functions of one batch of points, the dictionaries and that batch's codes;
+they can run on remote workers): :func:`code_step`, :func:`sparse_cross_products`,
+:func:`cross_products`. Reduce steps (sums over batches, then small dense algebra):
+:meth:`BatchCoding.combine`, :func:`pair_cross_products`, :func:`procrustes`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BTFInputError
+from .coding import SparseCodes, _count_and_error, topk_abs
+from .parallel import parallel_map
+from .tensor import project, project_modes, projection_order
+
+__all__ = [
+    "PAIR_MAX_ENTRIES",
+    "BatchCoding",
+    "code_step",
+    "cross_products",
+    "mode_fibres",
+    "pair_cross_products",
+    "pair_modes",
+    "procrustes",
+    "sparse_cross_products",
+]
+
+#: The pair tensor H⁽ᵃ⁾ of (4) is built when (m_a·m_b)² stays under this many entries.
+PAIR_MAX_ENTRIES = 2**20
+
+
+def procrustes(z: np.ndarray) -> np.ndarray:
+    """Orthogonal Procrustes: the orthogonal U maximising tr(UᵀZ), U = ΓΘᵀ for Z = ΓΣΘᵀ."""
+    u, _, vt = np.linalg.svd(z)
+    return u @ vt
+
+
+def pair_modes(mode_sizes: Sequence[int]) -> tuple[int, int | None]:
+    """(b, a): the last two modes of the projection order. The coding step yields Z⁽ᵇ⁾, and
+    H⁽ᵃ⁾ when it is small enough (else a is None and mode a needs its own pass)."""
+    order = projection_order(mode_sizes)
+    b = order[-1]
+    if len(order) < 2:
+        return b, None
+    a = order[-2]
+    small = (int(mode_sizes[a]) * int(mode_sizes[b])) ** 2 <= PAIR_MAX_ENTRIES
+    return b, a if small else None
+
+
+def _coefficient_matrix(cols: np.ndarray, values: np.ndarray, width: int) -> np.ndarray:
+    """E (τ, width) with E[s, cols[s]] = v_s: Σ_s v_s f_s e_{cols[s]}ᵀ = Fᵀ E as one GEMM."""
+    e = np.zeros((cols.size, width))
+    e[np.arange(cols.size), cols] = values
+    return e
+
+
+@dataclass(eq=False)
+class BatchCoding:
+    """Result of the coding map step on a batch (or, combined, on the whole set).
+
+    Attributes
+    ----------
+    codes : the codes of the winning dictionary of every point.
+    ranking : (P, c) the dictionaries tried for each point, best first by the coding rule
+        (fewest coefficients, then least error; ties to the earlier tried).
+    z_last : (K, m_b, m_b) float64, Z⁽ᵇ⁾ of (3) summed over the batch's winners (b: the
+        projection's last mode), or None.
+    pair : (K, m_a, m_b, m_a, m_b) float64, H⁽ᵃ⁾ of (4), or None.
+    """
+
+    codes: SparseCodes
+    ranking: np.ndarray
+    z_last: np.ndarray | None
+    pair: np.ndarray | None
+
+    @staticmethod
+    def combine(parts: Sequence[BatchCoding]) -> BatchCoding:
+        """Reduce: concatenate codes and rankings of consecutive batches, sum Z⁽ᵇ⁾ and H⁽ᵃ⁾."""
+        if not parts:
+            raise BTFInputError("nothing to combine")
+        ranking = np.concatenate([p.ranking for p in parts])
+        z = None if parts[0].z_last is None else sum(p.z_last for p in parts)  # type: ignore[misc]
+        h = None if parts[0].pair is None else sum(p.pair for p in parts)  # type: ignore[misc]
+        return BatchCoding(SparseCodes.concatenate([p.codes for p in parts]), ranking, z, h)
+
+
+def _at_coefficients(t: np.ndarray, loc: np.ndarray, keep: tuple[int, ...]) -> np.ndarray:
+    """(τ, m_keep…) float64: t at each coefficient's indices on every mode but ``keep``."""
+    rest = tuple(loc[:, q] for q in range(t.ndim) if q not in keep)
+    moved = np.moveaxis(t, keep, tuple(range(-len(keep), 0)))
+    if not rest:
+        return np.broadcast_to(moved, (loc.shape[0], *moved.shape)).astype(np.float64)
+    return moved[rest].astype(np.float64)
+
+
+def code_step(
+    batch: np.ndarray,
+    dictionaries: Sequence[np.ndarray],
+    tau: int,
+    eps: float = 0.0,
+    dtype: type = np.float32,
+    candidates: np.ndarray | None = None,
+) -> BatchCoding:
+    """Map step 1: sparse coding and membership of one batch (Eq. 3, hard thresholding).
+
+    ``candidates`` (B, c) lists the dictionaries tried for each point (None: all K, the
+    exhaustive step); the point goes to the best of them by the §3.3 rule (with ε = 0: least
+    error at τ). The codes equal :func:`~sparsebtf.learning.coding.sparse_code`'s when every
+    dictionary is tried (same projections, same rule). Also returns the by-products Z⁽ᵇ⁾ and
+    H⁽ᵃ⁾ of the winners (module docstring, (3) and (4)).
+    """
+    x = np.asarray(batch)
+    shape = tuple(int(s) for s in x.shape[1:])
+    n_dict = dictionaries[0].shape[0]
+    b_count = x.shape[0]
+    if candidates is None:
+        cand = np.broadcast_to(np.arange(n_dict), (b_count, n_dict))
+    else:
+        cand = np.sort(np.asarray(candidates, dtype=np.int64), axis=1)
+        if cand.shape[0] != b_count or cand.min() < 0 or cand.max() >= n_dict:
+            raise BTFInputError(
+                f"candidates {cand.shape} must list dictionaries in [0, {n_dict}) per point"
+            )
+    size = int(np.prod(shape))
+    tau = min(int(tau), size)
+    order = projection_order(shape)
+    mode_b, mode_a = pair_modes(shape)
+    xc = np.ascontiguousarray(x, dtype=dtype)
+    flat = xc.reshape(b_count, -1)
+    energy = np.einsum("ij,ij->i", flat, flat, dtype=np.float64)
+    mats_k = [[np.asarray(d[k], dtype=dtype) for d in dictionaries] for k in range(n_dict)]
+    m_b = shape[mode_b]
+    m_a = shape[mode_a] if mode_a is not None else 0
+
+    def task(ik: tuple[int, int]) -> tuple:
+        i, k = ik
+        if mode_a is None:
+            inner = project_modes(xc[i : i + 1], mats_k[k], order[:-1])[0]
+            outer = None
+        else:
+            outer = project_modes(xc[i : i + 1], mats_k[k], order[:-2])
+            inner = project_modes(outer, mats_k[k], [mode_a])[0]
+            outer = outer[0]
+        s = project_modes(inner[None], mats_k[k], [mode_b]).reshape(-1)
+        idx = topk_abs(s, tau)
+        vals = s[idx]
+        n, err = _count_and_error(vals.astype(np.float64) ** 2, energy[i], size, tau, eps)
+        idx, vals = idx[:n], vals[:n]
+        loc = np.stack(np.unravel_index(idx, shape), axis=1)
+        # The values as the codes store them (float32), as the update passes will read them.
+        v64 = vals.astype(np.float32).astype(np.float64)
+        # (3) for mode b: fibres of P⁽ᵇ⁾ along b at the other indices of each coefficient.
+        fib = _at_coefficients(inner, loc, (mode_b,))
+        z = fib.T @ _coefficient_matrix(loc[:, mode_b], v64, m_b)
+        h = None
+        if mode_a is not None and outer is not None:
+            # (4): the (m_a, m_b) slices of A at the other indices of each coefficient.
+            g = _at_coefficients(outer, loc, (mode_a, mode_b))
+            cols = loc[:, mode_a] * m_b + loc[:, mode_b]
+            h = g.reshape(n, m_a * m_b).T @ _coefficient_matrix(cols, v64, m_a * m_b)
+        return n, err, idx, vals, z, h
+
+    pairs = [(i, int(k)) for i in range(b_count) for k in cand[i]]
+    results = dict(zip(pairs, parallel_map(task, pairs), strict=True))
+    member = np.empty(b_count, dtype=np.int64)
+    ranking = np.empty(cand.shape, dtype=np.int64)
+    counts = np.empty(b_count, dtype=np.int64)
+    errors = np.empty(b_count)
+    z_last = np.zeros((n_dict, m_b, m_b))
+    pair = np.zeros((n_dict, m_a, m_b, m_a, m_b)) if mode_a is not None else None
+    idx_parts, val_parts = [], []
+    for i in range(b_count):
+        tried = [results[(i, int(k))] for k in cand[i]]
+        rank = np.lexsort(([r[1] for r in tried], [r[0] for r in tried]))
+        ranking[i] = cand[i][rank]
+        best = tried[rank[0]]
+        k = int(ranking[i, 0])
+        member[i], counts[i], errors[i] = k, best[0], best[1]
+        idx_parts.append(best[2])
+        val_parts.append(best[3])
+        z_last[k] += best[4]
+        if pair is not None:
+            pair[k] += best[5].reshape(m_a, m_b, m_a, m_b)
+    idx_all = np.concatenate(idx_parts) if idx_parts else np.empty(0, dtype=np.int64)
+    vals_all = (
+        np.concatenate(val_parts).astype(np.float32) if val_parts else np.empty(0, np.float32)
+    )
+    locs = np.stack(np.unravel_index(idx_all, shape), axis=1).astype(np.int32)
+    codes = SparseCodes(shape, member, counts, vals_all, locs, errors)
+    return BatchCoding(codes, ranking, z_last, pair)
+
+
+def pair_cross_products(pair: np.ndarray, u_b: np.ndarray) -> np.ndarray:
+    """Reduce: Z⁽ᵃ⁾[α, j] = Σ_{β,m} U_b[β, m] H⁽ᵃ⁾[α, β, j, m] for the updated U_b (one k)."""
+    return np.tensordot(pair, u_b, axes=([1, 3], [0, 1]))
+
+
+def _gathered_modes(shape: Sequence[int], mode: int) -> tuple[list[int], list[int]]:
+    """(dense, gathered): modes other than ``mode`` contracted in full (the small ones) and
+    those contracted one column per coefficient (at least half the largest mode size)."""
+    big = max(shape)
+    others = [q for q in range(len(shape)) if q != mode]
+    gathered = [q for q in others if 2 * shape[q] >= big]
+    return [q for q in others if q not in gathered], gathered
+
+
+def mode_fibres(
+    point: np.ndarray, mats: Sequence[np.ndarray], locations: np.ndarray, mode: int
+) -> np.ndarray:
+    """F (τ, m_n): F[s] = X ×_{q≠n} U_q[:, l_q(s)]ᵀ, the mode-n fibre of P = X ×_{q≠n} U_qᵀ
+    at the other indices of coefficient s ((3) of the module docstring).
+
+    ``point`` is one data point (m_1, …, m_N); ``mats`` its dictionary's bases. The small
+    modes are contracted in full first; coefficients sharing their small-mode indices share
+    one slice, on which each big mode is contracted with the columns U_q[:, l_q(s)] only.
+    """
+    shape = point.shape
+    dense, gathered = _gathered_modes(shape, mode)
+    t = project_modes(point[None], mats, dense)[0] if dense else point
+    loc = np.asarray(locations, dtype=np.int64)
+    out = np.empty((loc.shape[0], shape[mode]), dtype=np.float64)
+    if loc.shape[0] == 0:
+        return out
+    # Coefficients sharing their small-mode indices share one slice of t: its axes are the
+    # remaining modes (n and the big ones) in increasing order.
+    keys = (
+        np.ravel_multi_index(tuple(loc[:, q] for q in dense), [shape[q] for q in dense])
+        if dense
+        else np.zeros(loc.shape[0], dtype=np.int64)
+    )
+    rest = sorted([mode, *gathered])
+    n_axis = rest.index(mode)
+    sorter = np.argsort(keys, kind="stable")
+    bounds = np.flatnonzero(np.diff(keys[sorter])) + 1
+    for grp in np.split(sorter, bounds):
+        at = tuple(int(loc[grp[0], q]) if q in dense else slice(None) for q in range(len(shape)))
+        sl = np.moveaxis(t[at], n_axis, 0)  # (m_n, gathered...)
+        cols = [mats[q][:, loc[grp, q]] for q in gathered]
+        if len(cols) == 1:
+            out[grp] = (sl @ cols[0]).T
+        elif len(cols) == 2:
+            r = sl @ cols[1]  # (m_n, m_g1, s): the last big mode, one column per coefficient
+            out[grp] = np.einsum("ngs,gs->sn", r, cols[0])
+        else:
+            letters = "abcdefgh"[: len(cols)]
+            spec = "n" + letters + "," + ",".join(f"{c}s" for c in letters) + "->sn"
+            out[grp] = np.einsum(spec, sl, *cols, optimize=True)
+    return out
+
+
+def sparse_cross_products(
+    batch: np.ndarray,
+    codes: SparseCodes,
+    dictionaries: Sequence[np.ndarray],
+    mode: int,
+    dtype: type = np.float32,
+) -> np.ndarray:
+    """Map step 2: this batch's share of Z⁽ⁿ'ᵏ⁾ for every k, shape (K, m_n, m_n), float64,
+    by (3) from each point's τ coefficients (:func:`mode_fibres`; equals :func:`cross_products`).
+    """
+    n_dict = dictionaries[0].shape[0]
+    m = dictionaries[mode].shape[1]
+    z = np.zeros((n_dict, m, m))
+    offsets = codes.offsets
+
+    def task(b: int) -> tuple[int, np.ndarray] | None:
+        k = int(codes.membership[b])
+        lo, hi = offsets[b], offsets[b + 1]
+        if hi == lo:
+            return None
+        mats = [np.asarray(d[k], dtype=dtype) for d in dictionaries]
+        loc = codes.locations[lo:hi]
+        f = mode_fibres(np.asarray(batch[b], dtype=dtype), mats, loc, mode)
+        e = _coefficient_matrix(loc[:, mode], codes.values[lo:hi].astype(np.float64), m)
+        return k, f.T @ e
+
+    for res in parallel_map(task, range(batch.shape[0])):
+        if res is not None:
+            z[res[0]] += res[1]
+    return z
+
+
+def cross_products(
+    batch: np.ndarray,
+    codes: SparseCodes,
+    dictionaries: Sequence[np.ndarray],
+    mode: int,
+    dtype: type = np.float32,
+) -> np.ndarray:
+    """Map step 2, reference: Z⁽ⁿ'ᵏ⁾ by (1) from the dense partial projection of every point.
+
+    Ŝ_i is sparse, so column l_n(s) of Z gains v_s times the mode-n fibre of P_i at the other
+    indices of coefficient s: τ fibre gathers instead of a dense product. The partial
+    projection costs 0.8–1.4 GFLOP per 10×10×151×151 point; :func:`sparse_cross_products`
+    gives the same Z for about a tenth of that.
+    """
+    n_dict = dictionaries[0].shape[0]
+    m = dictionaries[mode].shape[1]
+    z = np.zeros((n_dict, m, m))
+    offsets = codes.offsets
+
+    def task(b: int) -> tuple[int, np.ndarray] | None:
+        k = int(codes.membership[b])
+        lo, hi = offsets[b], offsets[b + 1]
+        if hi == lo:
+            return None
+        mats = [np.asarray(d[k], dtype=dtype) for d in dictionaries]
+        p = project(np.asarray(batch[b : b + 1], dtype=dtype), mats, skip=mode)[0]
+        p = np.moveaxis(p, mode, -1)
+        loc = codes.locations[lo:hi]
+        other = tuple(loc[:, q] for q in range(loc.shape[1]) if q != mode)
+        fibres = p[other].astype(np.float64) * codes.values[lo:hi, None].astype(np.float64)
+        part = np.zeros((m, m))
+        # Z[:, l_n] += v · fibre, accumulated by target column.
+        np.add.at(part.T, loc[:, mode], fibres)
+        return k, part
+
+    for res in parallel_map(task, range(batch.shape[0])):
+        if res is not None:
+            z[res[0]] += res[1]
+    return z
