@@ -127,3 +127,30 @@ def test_staged_training_equals_streamed_training(tmp_path):
     b = train(btfs, stage=False, **kw)
     assert a.content_hash == b.content_hash
     assert list(tmp_path.iterdir()) == []  # the staging file is removed
+
+
+def test_channel_by_channel_staging(tmp_path, monkeypatch):
+    """When all channels do not fit the staging limit but one does, each is staged in turn."""
+    import tempfile
+
+    import sparsebtf.points.sources as sources
+
+    btfs = [smooth_btf(s) for s in range(2)]
+    kw = dict(
+        n_dictionaries=2, tau_train=(16, 4, 4), patch=4, sample=1.0, max_iter=2, progress=False
+    )
+    need = sources.training_points(btfs, 4, 1.0, 0, progress=False).n_bytes
+    monkeypatch.setattr(sources, "STAGE_LIMIT_BYTES", need // 2)
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    staged = []
+    init = sources.StagedPoints.__init__
+
+    def spy(self, path, source, channels, *a, **k):
+        staged.append(list(channels))
+        init(self, path, source, channels, *a, **k)
+
+    monkeypatch.setattr(sources.StagedPoints, "__init__", spy)
+    a = train(btfs, **kw)
+    assert staged == [["Y"], ["U"], ["V"]]
+    assert a.content_hash == train(btfs, stage=False, **kw).content_hash
+    assert list(tmp_path.iterdir()) == []

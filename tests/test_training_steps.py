@@ -176,3 +176,25 @@ def test_fast_trainer_parameter_errors():
     ):
         with pytest.raises(BTFInputError, match=match):
             DictionaryEnsemble(**kw).fit(x)
+
+
+def test_train_records_the_coding_schedule(tmp_path, capsys):
+    """The model file records the candidates, the full-pass period and each pass's kind."""
+    from sparsebtf.cli.main import main
+    from sparsebtf.storage import load_model
+
+    out = tmp_path / "m.h5"
+    rc = main(["train", "synth:wood:8:1:tiny13", "synth:felt:8:2:tiny13", "-o", str(out),
+               "--patch", "4", "--dicts", "3", "--tau-train", "8,4,4", "--sample", "1",
+               "--iters", "4", "--tol", "0", "--candidates", "2", "--full-pass-every", "2",
+               "--json"])
+    assert rc == 0
+    model = load_model(out)
+    assert model.params["candidates"] == 2 and model.params["full_pass_every"] == 2
+    for t in model.training.values():
+        assert t["passes"] == ["full", "partial", "full", "partial", "full"]
+        assert np.all(np.diff(t["objective"]) <= 1e-9 * t["objective"][0])
+    capsys.readouterr()
+    assert main(["train", "synth:wood:8:1:tiny13", "-o", str(tmp_path / "x.h5"),
+                 "--patch", "4", "--full-pass-every", "-1"]) == 2
+    assert "full_pass_every" in capsys.readouterr().err

@@ -74,9 +74,9 @@ __all__ = [
 
 #: Default dictionaries tried per point between full coding passes (``benchmarks/bench_training.py``
 #: and docs/benchmarks.md §2 measure what it saves and what it costs in objective).
-CANDIDATES = 2
+CANDIDATES = 1
 #: Default period of the full coding passes, in iterations (0: only those that must be full).
-FULL_PASS_EVERY = 5
+FULL_PASS_EVERY = 10
 
 #: How Z⁽ⁿ'ᵏ⁾ is built: from the codes (fast) or from dense partial projections (reference).
 UPDATES = ("codes", "projections")

@@ -15,6 +15,7 @@ import contextlib
 import shutil
 import tempfile
 from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -126,11 +127,11 @@ class StagedPoints:
             ch: self._file.create_dataset(ch, shape=(n, *full), dtype="float32", chunks=(1, *full))
             for ch in channels
         }
-        with bar(n, "stage points", "pt", progress) as pb:
+        with bar(n, f"stage points {'/'.join(channels)}", "pt", progress) as pb:
             for g, x in source.batches(batch_size):
                 lo, hi = int(g[0]), int(g[-1]) + 1
-                for c, ch in enumerate(channels):
-                    self._ds[ch][lo:hi] = x if ch == "YUV" else x[..., c]
+                for ch in channels:
+                    self._ds[ch][lo:hi] = x if ch == "YUV" else x[..., "YUV".index(ch)]
                 pb.update(hi - lo)
 
     def source(self, channel: str) -> _StagedChannel:
@@ -209,20 +210,40 @@ def channel_sources(
     """Yield ``channel name → PointSource`` for training, staged on disk or streamed.
 
     ``stage=None`` stages when the points need at most :data:`STAGE_LIMIT_BYTES` and less
-    than half the free disk of ``stage_dir`` (default: the system's temporary folder); the
-    temporary file is removed when the block ends, however it ends.
+    than half the free disk of ``stage_dir`` (default: the system's temporary folder). When
+    all channels together do not fit but one does (the paper's 2880 points: 79 GB for Y, U
+    and V, 26 GB each), each channel is staged when it is asked for, replacing the previous
+    one (one more pass over the BTFs per channel instead of re-reading them every pass). The
+    temporary files are removed when the block ends, however it ends.
     """
+    colour = tuple(channels) == ("YUV",)
+    per_channel = False
     if stage is None:
         need = source.n_bytes
         free = shutil.disk_usage(stage_dir or tempfile.gettempdir()).free
         stage = need <= STAGE_LIMIT_BYTES and need < free // 2
-    if not stage:
-        colour = tuple(channels) == ("YUV",)
+        one = need // len(channels) if not colour else need
+        per_channel = not stage and one <= STAGE_LIMIT_BYTES and one < free // 2
+    if not stage and not per_channel:
         yield lambda ch: source.for_channel(None if colour else list(channels).index(ch))
         return
     with tempfile.TemporaryDirectory(dir=stage_dir, prefix="sparsebtf-stage-") as tmp:
-        staged = StagedPoints(f"{tmp}/points.h5", source, channels, batch_size, progress)
+        held: list[StagedPoints] = []
+
+        def staged_channel(ch: str) -> Any:
+            while held:
+                held.pop().close()
+                Path(f"{tmp}/points.h5").unlink(missing_ok=True)
+            held.append(StagedPoints(f"{tmp}/points.h5", source, [ch], batch_size, progress))
+            return held[0].source(ch)
+
         try:
-            yield staged.source
+            if per_channel:
+                yield staged_channel
+            else:
+                held.append(StagedPoints(f"{tmp}/points.h5", source, channels, batch_size,
+                                         progress))
+                yield held[0].source
         finally:
-            staged.close()
+            for st in held:
+                st.close()
