@@ -59,6 +59,7 @@ def _fit(x: np.ndarray, iters: int, **kw) -> DictionaryEnsemble:
 
 
 def speed(a: argparse.Namespace) -> None:
+    load_before = os.getloadavg()
     src = training_source(a.points).for_channel(0)
     x = np.concatenate([xb for _, xb in src.batches(8)])
     runs = {"exhaustive": dict(candidates=8, update="projections")}
@@ -85,7 +86,7 @@ def speed(a: argparse.Namespace) -> None:
     gap = fa["objective"][-1] / ex["objective"][-1] - 1
     data = {
         "machine": machine(),
-        "load_average_before": os.getloadavg(),
+        "load_average_before": load_before,
         "points": int(x.shape[0]),
         "iterations": a.iters,
         "runs": res,

@@ -198,3 +198,28 @@ def test_train_records_the_coding_schedule(tmp_path, capsys):
     assert main(["train", "synth:wood:8:1:tiny13", "-o", str(tmp_path / "x.h5"),
                  "--patch", "4", "--full-pass-every", "-1"]) == 2
     assert "full_pass_every" in capsys.readouterr().err
+
+
+def test_reseeded_dictionary_is_tried_by_every_point_in_the_next_pass(monkeypatch):
+    import sparsebtf.learning.ensemble as ensemble
+
+    widths = []
+    real = ensemble.code_step
+
+    def spy(batch, dicts, tau, eps, dtype, candidates=None):
+        widths.append(None if candidates is None else candidates.shape[1])
+        return real(batch, dicts, tau, eps, dtype, candidates)
+
+    monkeypatch.setattr(ensemble, "code_step", spy)
+    x = _mixture(16, n=12)
+    ens = DictionaryEnsemble(
+        n_dictionaries=6, max_iter=3, candidates=1, full_pass_every=0, init="random",
+        **{k: v for k, v in FIT.items() if k != "n_dictionaries"},
+    ).fit(x)
+    assert ens.passes_ == ["full", "partial", "partial", "full"]
+    # the initial full pass left dictionaries empty: re-seeded, then tried by every point
+    n_batches = -(-len(x) // 4)
+    first_partial = widths[n_batches : 2 * n_batches]
+    assert all(w is not None and w > 1 for w in first_partial)
+    assert widths[2 * n_batches : 3 * n_batches] == [1] * n_batches
+    assert np.all(np.diff(ens.objective_) <= 1e-12 * ens.objective_[0])

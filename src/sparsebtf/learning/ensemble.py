@@ -16,9 +16,9 @@ Block-coordinate descent on Eq. 2a under the constraints 2b–2d
 all K dictionaries every iteration is mostly wasted. A *full* pass tries all K and ranks
 them per point; the passes in between (*partial*) try only each point's ``candidates`` best
 of the last full pass, which include its current dictionary. Every ``full_pass_every``-th
-iteration, the iteration after a re-seeded dictionary, the last iteration and any iteration
-that meets the tolerance end with a full pass, so a full pass always decides the final
-memberships. ``candidates >= K`` is the exhaustive trainer.
+iteration, the last iteration and any iteration that meets the tolerance end with a full
+pass, so a full pass always decides the final memberships; a dictionary re-seeded after a full
+pass is tried by every point in the next pass. ``candidates >= K`` is the exhaustive trainer.
 
 Every step minimises Eq. 2a over its own block (the update with Ŝ and M fixed; the coding over
 a set of dictionaries that contains the current one), so the objective never increases.
@@ -258,13 +258,15 @@ class DictionaryEnsemble:
             reseeded = self._reseed(src, state, coding.codes)
             self._update_dictionaries(src, state.dicts, coding, dt, f"{desc} it{it + 1}")
             full = (
-                reseeded
-                or n_cand >= self.n_dictionaries
+                n_cand >= self.n_dictionaries
                 or it + 1 == self.max_iter
                 or (self.full_pass_every > 0 and (it + 1) % self.full_pass_every == 0)
             )
             label = f"{desc} it{it + 1} code"
-            coding = self._code_all(src, state.dicts, dt, None if full else state.ranking, label)
+            cand = None if full else _with_extra(state.ranking, reseeded)
+            coding = self._code_all(src, state.dicts, dt, cand, label)
+            if not full:
+                _keep_current(state.ranking, coding.codes.membership)
             done = self._converged(state.objective[-1], coding)
             if done and not full:
                 # Memberships may still move: only a full pass can confirm convergence.
@@ -401,22 +403,24 @@ class DictionaryEnsemble:
             for k, u in zip(active, parallel_map(procrustes, list(z[active])), strict=True):
                 dicts[mode][k] = u
 
-    def _reseed(self, src: PointSource, state: _State, codes: SparseCodes) -> bool:
+    def _reseed(self, src: PointSource, state: _State, codes: SparseCodes) -> list[int]:
         """Give each dictionary left without members the HOSVD bases of the worst-fitted point
-        not used before; True when one was re-seeded (its next coding pass must be full)."""
+        not used before; the re-seeded dictionaries (every point tries them next pass)."""
         if not self.reseed_empty or state.passes[-1] != "full":
             # After a partial pass a dictionary may be empty only for lack of candidates.
-            return False
+            return []
         counts = np.bincount(codes.membership, minlength=self.n_dictionaries)
         empty = np.flatnonzero(counts == 0)
         used = set(state.reseeded_from)
         worst = [int(i) for i in np.argsort(-codes.errors, kind="stable") if int(i) not in used]
+        done = []
         for k, i in zip(empty, worst, strict=False):
             state.reseeded_from.append(i)
+            done.append(int(k))
             bases = next(parallel_map(hosvd_bases, [src.take(np.array([i]))[0]]))
             for mode, u in enumerate(bases):
                 state.dicts[mode][k] = u
-        return bool(empty.size and worst)
+        return done
 
     # -- checkpoints ----------------------------------------------------------------------
     def _params_key(self, src: PointSource) -> str:
@@ -472,6 +476,21 @@ class DictionaryEnsemble:
                 ck["ranking"].copy(),
                 [int(v) for v in ck["reseeded_from"]],
             )
+
+
+def _with_extra(ranking: np.ndarray, extra: list[int]) -> np.ndarray:
+    """Each point's candidates plus dictionaries every point must try (re-seeded ones)."""
+    if not extra:
+        return ranking
+    return np.column_stack([ranking, np.broadcast_to(np.array(extra), (len(ranking), len(extra)))])
+
+
+def _keep_current(ranking: np.ndarray, membership: np.ndarray) -> None:
+    """Put a point's dictionary among its candidates when a partial pass moved it to one
+    outside them (a re-seeded one), in place of its last: the current dictionary is always
+    tried, so the objective cannot increase."""
+    missing = ~(ranking == membership[:, None]).any(axis=1)
+    ranking[missing, -1] = membership[missing]
 
 
 def _slice_codes(codes: SparseCodes, idx: np.ndarray) -> SparseCodes:

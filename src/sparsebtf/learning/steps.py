@@ -95,7 +95,7 @@ class BatchCoding:
     ----------
     codes : the codes of the winning dictionary of every point.
     ranking : (P, c) the dictionaries tried for each point, best first by the coding rule
-        (fewest coefficients, then least error; ties to the earlier tried).
+        (fewest coefficients, then least error; ties to the lower index), padded with -1.
     z_last : (K, m_b, m_b) float64, Z⁽ᵇ⁾ of (3) summed over the batch's winners (b: the
         projection's last mode), or None.
     pair : (K, m_a, m_b, m_a, m_b) float64, H⁽ᵃ⁾ of (4), or None.
@@ -111,7 +111,11 @@ class BatchCoding:
         """Reduce: concatenate codes and rankings of consecutive batches, sum Z⁽ᵇ⁾ and H⁽ᵃ⁾."""
         if not parts:
             raise BTFInputError("nothing to combine")
-        ranking = np.concatenate([p.ranking for p in parts])
+        width = max(p.ranking.shape[1] for p in parts)
+        ranking = np.concatenate([
+            np.pad(p.ranking, ((0, 0), (0, width - p.ranking.shape[1])), constant_values=-1)
+            for p in parts
+        ])  # fmt: skip
         z = None if parts[0].z_last is None else sum(p.z_last for p in parts)  # type: ignore[misc]
         h = None if parts[0].pair is None else sum(p.pair for p in parts)  # type: ignore[misc]
         return BatchCoding(SparseCodes.concatenate([p.codes for p in parts]), ranking, z, h)
@@ -147,13 +151,14 @@ def code_step(
     n_dict = dictionaries[0].shape[0]
     b_count = x.shape[0]
     if candidates is None:
-        cand = np.broadcast_to(np.arange(n_dict), (b_count, n_dict))
+        rows = [np.arange(n_dict)] * b_count
     else:
-        cand = np.sort(np.asarray(candidates, dtype=np.int64), axis=1)
-        if cand.shape[0] != b_count or cand.min() < 0 or cand.max() >= n_dict:
+        cand = np.asarray(candidates, dtype=np.int64)
+        if cand.ndim != 2 or cand.shape[0] != b_count or cand.min() < 0 or cand.max() >= n_dict:
             raise BTFInputError(
                 f"candidates {cand.shape} must list dictionaries in [0, {n_dict}) per point"
             )
+        rows = [np.unique(c) for c in cand]  # sorted: ties go to the lowest index
     size = int(np.prod(shape))
     tau = min(int(tau), size)
     order = projection_order(shape)
@@ -193,19 +198,19 @@ def code_step(
             h = g.reshape(n, m_a * m_b).T @ _coefficient_matrix(cols, v64, m_a * m_b)
         return n, err, idx, vals, z, h
 
-    pairs = [(i, int(k)) for i in range(b_count) for k in cand[i]]
+    pairs = [(i, int(k)) for i in range(b_count) for k in rows[i]]
     results = dict(zip(pairs, parallel_map(task, pairs), strict=True))
     member = np.empty(b_count, dtype=np.int64)
-    ranking = np.empty(cand.shape, dtype=np.int64)
+    ranking = np.full((b_count, max((r.size for r in rows), default=0)), -1, dtype=np.int64)
     counts = np.empty(b_count, dtype=np.int64)
     errors = np.empty(b_count)
     z_last = np.zeros((n_dict, m_b, m_b))
     pair = np.zeros((n_dict, m_a, m_b, m_a, m_b)) if mode_a is not None else None
     idx_parts, val_parts = [], []
     for i in range(b_count):
-        tried = [results[(i, int(k))] for k in cand[i]]
+        tried = [results[(i, int(k))] for k in rows[i]]
         rank = np.lexsort(([r[1] for r in tried], [r[0] for r in tried]))
-        ranking[i] = cand[i][rank]
+        ranking[i, : rank.size] = rows[i][rank]
         best = tried[rank[0]]
         k = int(ranking[i, 0])
         member[i], counts[i], errors[i] = k, best[0], best[1]
