@@ -16,10 +16,11 @@ trainer's full passes included; the initialisation and first coding, the same fo
 left out), their ratio, and the final objective of both with the relative gap. The points
 are the benchmark's synthetic materials (7 classes, 40×40 texels, UBO2014 directions,
 cached), standardised log-YUV, channel Y. ``--memory`` instead measures the peak resident
-memory of training from a staged file at two point counts (subprocesses).
+memory of training channel Y from its staged file at several point counts (subprocesses;
+``--memory-lazy 320`` adds all 1024 points of a lazy 320×320 low-rank source).
 
     python benchmarks/bench_training.py [--points 112] [--iters 10] [--json]
-    python benchmarks/bench_training.py --memory [--memory-points 28 112] [--memory-iters 1]
+    python benchmarks/bench_training.py --memory [--memory-points 28 112] [--memory-lazy 320]
 """
 
 from __future__ import annotations
@@ -126,40 +127,49 @@ def speed(a: argparse.Namespace) -> None:
     report(rows, data, a.json)
 
 
-def _memory_child(points: int, iters: int) -> None:
-    """One measured run: stage ``points`` points, train channel Y, print peak RSS (JSON)."""
-    from sparsebtf.points.sources import channel_sources
+def _memory_child(points: int, iters: int, lazy: int) -> None:
+    """One measured run: stage channel Y of ``points`` points (or of every point of a lazy
+    ``lazy``×``lazy`` low-rank source), train it, print the peak RSS (JSON)."""
+    from sparsebtf.points.sources import channel_sources, training_points
 
-    src = training_source(points)
+    if lazy:
+        from bench_encode import lazy_source
+
+        src = training_points([lazy_source(lazy, 100)], 10, 1.0, 0, progress=False)
+    else:
+        src = training_source(points)
     base = peak_rss_bytes()
     t = time.perf_counter()
-    with channel_sources(src, ("Y", "U", "V"), stage=True, batch_size=4) as source:
+    with channel_sources(src, ("Y",), stage=True, batch_size=4) as source:
         staged = time.perf_counter() - t
         ens = DictionaryEnsemble(
             n_dictionaries=8, tau=256, max_iter=iters, tol=0, random_state=0, progress=False
         ).fit(source("Y"))
     print(json.dumps({
-        "points": points, "iterations": iters, "peak_rss_bytes": peak_rss_bytes(),
+        "points": src.n_points, "source": f"lazy {lazy}x{lazy}" if lazy else "7 x 40x40 synth",
+        "iterations": iters, "peak_rss_bytes": peak_rss_bytes(),
         "peak_rss_before_training_bytes": base, "stage_seconds": staged,
-        "fit_seconds": ens.fit_seconds_, "staged_bytes": src.n_bytes,
+        "fit_seconds": ens.fit_seconds_, "staged_bytes": src.n_bytes // 3,
     }))  # fmt: skip
 
 
 def memory(a: argparse.Namespace) -> None:
     out = []
-    for n in a.memory_points:
-        cmd = [sys.executable, __file__, "--memory-child", str(n), "--iters", str(a.memory_iters)]
+    runs = [(n, 0) for n in a.memory_points] + [(0, s) for s in a.memory_lazy]
+    for n, lazy in runs:
+        cmd = [sys.executable, __file__, "--memory-child", str(n), "--memory-child-lazy",
+               str(lazy), "--iters", str(a.memory_iters)]
         done = subprocess.run(cmd, capture_output=True, text=True, check=True)
         out.append(json.loads(done.stdout.strip().splitlines()[-1]))
     data = {"machine": machine(), "runs": out, "load_average": os.getloadavg()}
     rows = [
-        (f"{r['points']} points, {r['iterations']} iteration(s)",
-         f"peak RSS {r['peak_rss_bytes'] / 2**30:.2f} GiB (staged file "
+        (f"{r['points']} points ({r['source']}), {r['iterations']} iteration(s)",
+         f"peak RSS {r['peak_rss_bytes'] / 2**20:.0f} MiB (staged channel Y "
          f"{r['staged_bytes'] / 2**30:.1f} GiB, fit {r['fit_seconds']:.0f} s)")
         for r in out
     ]  # fmt: skip
     growth = out[-1]["peak_rss_bytes"] / out[0]["peak_rss_bytes"]
-    rows.append(("peak RSS ratio, largest / smallest point count",
+    rows.append(("peak RSS ratio, last / first run",
                  f"{growth:.2f} for {out[-1]['points'] / out[0]['points']:.0f}x the points"))
     data["peak_ratio"] = growth
     report(rows, data, a.json)
@@ -174,13 +184,16 @@ def main() -> None:
     ap.add_argument("--breakdown", action="store_true",
                     help="also time the exhaustive coding with the fast update")
     ap.add_argument("--memory", action="store_true", help="peak memory at two point counts")
-    ap.add_argument("--memory-points", type=int, nargs="+", default=[28, 112])
+    ap.add_argument("--memory-points", type=int, nargs="*", default=[28, 112])
+    ap.add_argument("--memory-lazy", type=int, nargs="*", default=[], metavar="SIZE",
+                    help="also every point of a lazy SIZE x SIZE rank-100 source (320: 1024)")
     ap.add_argument("--memory-iters", type=int, default=1)
     ap.add_argument("--memory-child", type=int, help=argparse.SUPPRESS)
+    ap.add_argument("--memory-child-lazy", type=int, default=0, help=argparse.SUPPRESS)
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
-    if a.memory_child:
-        _memory_child(a.memory_child, a.iters)
+    if a.memory_child is not None:
+        _memory_child(a.memory_child, a.iters, a.memory_child_lazy)
     elif a.memory:
         memory(a)
     else:

@@ -150,6 +150,13 @@ def test_interrupted_training_resumes_to_the_same_result(tmp_path):
         np.testing.assert_allclose(a, b, atol=1e-12)
     with pytest.raises(BTFInputError, match="other training parameters"):
         DictionaryEnsemble(checkpoint=ck, **{**kw, "candidates": 2}).fit(x)
+    # resumed with fewer iterations than the checkpoint holds: still a full final pass
+    ck2 = tmp_path / "ck2.npz"
+    with pytest.raises(KeyboardInterrupt):
+        Interrupted(checkpoint=ck2, **kw).fit(x)
+    short = DictionaryEnsemble(checkpoint=ck2, **{**kw, "max_iter": 1}).fit(x)
+    assert short.n_iter_ == 2 and short.passes_[-1] == "full"
+    assert np.array_equal(short.transform(x).membership, short.membership_)
 
 
 def test_tolerance_is_confirmed_by_a_full_pass():

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["FIGURES", "moved", "record"]
+__all__ = ["FIGURES", "describe", "moved", "record"]
 
 #: verdict key → (figure key in its summary entry, how to print it)
 FIGURES: dict[str, tuple[str, str]] = {
@@ -46,11 +46,18 @@ def record(result: dict[str, Any], summary: dict[str, Any]) -> dict[str, Any]:
     }
 
 
-def _describe(rec: dict[str, Any]) -> str:
-    m = rec.get("models", {})
+def describe(previous: dict[str, Any], result: dict[str, Any]) -> str:
+    """One sentence naming the previous run and its models (and a different configuration)."""
+    m = previous.get("models", {})
     its = sorted(set(m.get("iterations", {}).values()))
     it_text = "/".join(str(i) for i in its) if its else "?"
-    return f"{m.get('points', '?')} training points, {it_text} iterations"
+    text = (f"The last column compares with the previous run ({previous.get('created', '?')}, "
+            f"configuration {previous.get('configuration', '?')}: {m.get('points', '?')} "
+            f"training points per channel, {it_text} iterations).")
+    now = result.get("config", {}).get("name")
+    if previous.get("configuration") != now:
+        text += f" This run's configuration is {now}: other materials, so compare with care."
+    return text
 
 
 def moved(key: str, summary: dict[str, Any], previous: dict[str, Any] | None) -> str:
@@ -69,9 +76,6 @@ def moved(key: str, summary: dict[str, Any], previous: dict[str, Any] | None) ->
     text = f"{show(before['figure'])} → {show(now)}"
     if isinstance(now, float) and isinstance(before["figure"], float) and before["figure"]:
         text += f" ({(now / before['figure'] - 1) * 100:+.0f}%)"
-    verdict = (
-        "verdict unchanged"
-        if before["verdict"] == summary[key].get("verdict")
-        else f"was **{before['verdict']}**"
-    )
-    return f"{text}; {verdict} (previous run {previous.get('created', '?')}: {_describe(previous)})"
+    if before["verdict"] == summary[key].get("verdict"):
+        return f"{text}; verdict unchanged"
+    return f"{text}; was **{before['verdict']}**"

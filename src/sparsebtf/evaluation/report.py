@@ -33,7 +33,7 @@ from .._json import json_default
 from ..errors import BTFInputError
 from ..figures import save_figure
 from ..storage.accounting import paper_storage
-from .history import moved, record
+from .history import describe, moved, record
 
 __all__ = ["previous_record", "regenerate", "summarise", "write_report"]
 
@@ -423,7 +423,8 @@ def render_markdown(
         lines.append(f"- Note: {n}")
     lines += ["", "## Verdicts", ""]
     if previous:
-        lines += ["| claim | our figure | verdict | moved from the previous run |",
+        lines += [describe(previous, result), "",
+                  "| claim | our figure | verdict | moved from the previous run |",
                   "|---|---|---|---|"]
     else:
         lines += ["| claim | our figure | verdict |", "|---|---|---|"]

@@ -30,11 +30,11 @@ from typing import Any
 
 import numpy as np
 from skimage.metrics import structural_similarity
-from threadpoolctl import threadpool_limits
 
 from .._progress import bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
+from ..learning.parallel import single_threaded_blas
 from ..metrics import _angular_sample, _sumsq, psnr
 from ..model import CodedBTF
 from ..points.preprocessing import EPS, yuv_to_rgb
@@ -60,7 +60,7 @@ def _log_rgb(rec: BTF, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray
         yuv = rec.coded.stats.invert(z)
         # One (n, 3) × (3, 3) GEMM, not one per (row, col, light) slab; single-threaded: two
         # BLAS threads on this thin product ran 30× slower whenever a core was busy.
-        with threadpool_limits(limits=1, user_api="blas"):
+        with single_threaded_blas():
             log_rgb = yuv_to_rgb(yuv.reshape(-1, 3)).reshape(yuv.shape)
         lin = np.exp(log_rgb)
         lin -= np.float32(EPS)

@@ -25,7 +25,7 @@ import numpy as np
 
 from ..errors import BTFInputError
 from .parallel import parallel_map
-from .tensor import project, reconstruct_sparse
+from .tensor import project, reconstruct_sparse, sum_squares
 
 __all__ = ["SparseCodes", "reconstruct_points", "sparse_code", "sparse_code_levels", "topk_abs"]
 
@@ -225,8 +225,7 @@ def sparse_code_levels(
     b = x.shape[0]
     nl = len(levels)
     xc = np.ascontiguousarray(x, dtype=dtype)
-    flat = xc.reshape(b, -1)
-    energy = np.einsum("ij,ij->i", flat, flat, dtype=np.float64)
+    energy = sum_squares(xc.reshape(b, -1))
 
     counts = np.empty((nl, b, n_dict), dtype=np.int64)
     errs = np.empty((nl, b, n_dict))

@@ -120,8 +120,8 @@ class ArraySource:
 
     def batches(self, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         for s in range(0, self.n_points, batch_size):
-            idx = np.arange(s, min(s + batch_size, self.n_points))
-            yield idx, self.data[idx]
+            e = min(s + batch_size, self.n_points)
+            yield np.arange(s, e), self.data[s:e]  # a view: no copy of the points
 
     def take(self, indices: np.ndarray) -> np.ndarray:
         return self.data[np.asarray(indices)]
@@ -282,6 +282,11 @@ class DictionaryEnsemble:
             self.iteration_seconds_.append(time.perf_counter() - t_it)
             if done:
                 break
+        if state.passes[-1] != "full":
+            # Resumed past max_iter after a partial pass: the final memberships need a full one.
+            coding = self._code_all(src, state.dicts, dt, None, f"{desc} code (full)")
+            state.objective[-1] = float(coding.codes.errors.mean())
+            state.passes[-1] = "full"
         codes = coding.codes
         counts = np.bincount(codes.membership, minlength=self.n_dictionaries)
         order = np.argsort(-counts, kind="stable")

@@ -44,7 +44,7 @@ import numpy as np
 from ..errors import BTFInputError
 from .coding import SparseCodes, _count_and_error, topk_abs
 from .parallel import parallel_map
-from .tensor import project, project_modes, projection_order
+from .tensor import project, project_modes, projection_order, sum_squares
 
 __all__ = [
     "PAIR_MAX_ENTRIES",
@@ -164,8 +164,7 @@ def code_step(
     order = projection_order(shape)
     mode_b, mode_a = pair_modes(shape)
     xc = np.ascontiguousarray(x, dtype=dtype)
-    flat = xc.reshape(b_count, -1)
-    energy = np.einsum("ij,ij->i", flat, flat, dtype=np.float64)
+    energy = sum_squares(xc.reshape(b_count, -1))
     mats_k = [[np.asarray(d[k], dtype=dtype) for d in dictionaries] for k in range(n_dict)]
     m_b = shape[mode_b]
     m_a = shape[mode_a] if mode_a is not None else 0

@@ -21,7 +21,7 @@ __all__ = [
     "projection_order",
     "reconstruct",
     "reconstruct_sparse",
-    "small_and_big_modes",
+    "sum_squares",
     "unfold",
 ]
 
@@ -122,19 +122,6 @@ def reconstruct(coeffs: np.ndarray, matrices: Sequence[np.ndarray]) -> np.ndarra
     return out
 
 
-#: How much slower than a GEMM a FLOP of a small-mode product runs (memory-bound), measured.
-MODE_PRODUCT_PENALTY = 4
-
-
-def small_and_big_modes(mode_sizes: Sequence[int], among: Sequence[int] | None = None):
-    """(small, big): the modes (of ``among``, default all) under half the largest size, and the
-    rest. For a 10×10×151×151 data point: the two spatial modes and the two angular ones."""
-    modes = range(len(mode_sizes)) if among is None else among
-    top = max(int(m) for m in mode_sizes)
-    big = [q for q in modes if 2 * int(mode_sizes[q]) >= top]
-    return [q for q in modes if q not in big], big
-
-
 def reconstruct_sparse(
     locations: np.ndarray, values: np.ndarray, matrices: Sequence[np.ndarray]
 ) -> np.ndarray:
@@ -142,68 +129,33 @@ def reconstruct_sparse(
 
     ``locations`` (τ, N) and ``values`` (τ,) are the coefficients; ``matrices`` the N bases,
     possibly restricted to some rows (U_n of shape (r_n, m_n)); the result is (r_1, …, r_N).
-    Coefficients that share their small-mode indices (a group g) share one outer factor:
-    X_(small, big) = W · Y with W[:, g] = ⊗_small U_q[:, l_q(g)] and Y_g = Σ_{s∈g} v_s ⊗_big
-    U_q[:, l_q(s)] — 2·(∏r_big)·(τ + G·∏r_small) FLOP instead of the dense 2·L·Σm_n (about a
-    third at τ = 885 on a 10×10×151×151 point, a tenth at τ = 64). Falls back to the dense
-    mode products (:func:`reconstruct`) where those are cheaper.
+    Only the columns A_n = {l_n(s)} the coefficients use take part: X = C ×_1 U_1[:, A_1] …
+    ×_N U_N[:, A_N] with C the |A_1|×…×|A_N| core holding the values, expanded mode by mode,
+    the least-growing first. Trained codes use few angular columns (about 12 and 37 of 151 at
+    τ = 885), so this is a few percent of the dense 2·L·Σm_n; it never exceeds it.
     """
     loc = np.asarray(locations, dtype=np.int64)
-    vals = np.asarray(values)
-    dt = np.result_type(vals.dtype, *(m.dtype for m in matrices))
-    rows = [int(m.shape[0]) for m in matrices]
-    coef = [int(m.shape[1]) for m in matrices]
-    small, big = small_and_big_modes(coef)
-    keys = (
-        np.ravel_multi_index(tuple(loc[:, q] for q in small), [coef[q] for q in small])
-        if small
-        else np.zeros(loc.shape[0], dtype=np.int64)
-    )
-    uniq, group = np.unique(keys, return_inverse=True)
-    n_small = int(np.prod([rows[q] for q in small], dtype=np.int64))
-    n_big = int(np.prod([rows[q] for q in big], dtype=np.int64))
-    sparse_cost = n_big * (loc.shape[0] + uniq.size * n_small)
-    dense_cost = int(np.prod(coef, dtype=np.int64)) * sum(coef)
-    if sparse_cost >= dense_cost:
-        s = np.zeros((1, *coef), dtype=dt)
-        s[(0, *loc.T)] = vals
-        return reconstruct(s, matrices)[0]
-    y = np.zeros((uniq.size, n_big), dtype=dt)
-    order = np.argsort(group, kind="stable")
-    bounds = np.flatnonzero(np.diff(group[order])) + 1
-    for g, grp in enumerate(np.split(order, bounds)):
-        cols = [matrices[q][:, loc[grp, q]] for q in big]
-        v = vals[grp]
-        if len(cols) == 0:
-            y[g] = v.sum()
-        elif len(cols) == 1:
-            y[g] = cols[0] @ v
-        elif len(cols) == 2:
-            y[g] = ((cols[0] * v) @ cols[1].T).reshape(-1)
-        else:
-            letters = "abcdefgh"[: len(cols)]
-            spec = ",".join(f"{c}s" for c in letters) + ",s->" + letters
-            y[g] = np.einsum(spec, *cols, v, optimize=True).reshape(-1)
-    n_core = int(np.prod([coef[q] for q in small], dtype=np.int64))
-    dims = [coef[q] for q in small]
-    mode_cost = 0
-    for pos, q in enumerate(small):
-        mode_cost += int(np.prod(dims, dtype=np.int64)) * rows[q]
-        dims[pos] = rows[q]
-    # The mode products are memory-bound (small inner dimension): count them MODE_PRODUCT_PENALTY×.
-    if not small or uniq.size * n_small > MODE_PRODUCT_PENALTY * mode_cost:
-        # Most small-index groups are present: scatter Y into the dense small-mode core and
-        # apply the small modes as mode products (memory-bound, cheaper than W·Y here).
-        core = np.zeros((n_core, n_big), dtype=dt)
-        core[uniq] = y
-        out = core.reshape([coef[q] for q in small] + [rows[q] for q in big])
-        for pos, q in enumerate(small):
-            out = _apply(out[None], matrices[q], pos + 1)[0]
-    else:
-        # W[:, g] = ⊗_small U_q[:, l_q(g)]: Kronecker product of one column per small mode.
-        idx = np.unravel_index(uniq, [coef[q] for q in small])
-        w = np.ones((1, uniq.size), dtype=dt)
-        for q, iq in zip(small, idx, strict=True):
-            w = (w[:, None, :] * matrices[q][:, iq][None, :, :]).reshape(-1, uniq.size)
-        out = (w @ y).reshape([rows[q] for q in small] + [rows[q] for q in big])
-    return np.moveaxis(out, list(range(len(coef))), small + big)
+    n = len(matrices)
+    if loc.shape[0] == 0:
+        return np.zeros([m.shape[0] for m in matrices], dtype=np.result_type(values, *matrices))
+    cols, pos = zip(*(np.unique(loc[:, q], return_inverse=True) for q in range(n)), strict=True)
+    core = np.zeros([c.size for c in cols], dtype=np.result_type(values, *matrices))
+    core[pos] = values
+    sub = [matrices[q][:, cols[q]] for q in range(n)]
+    out = core[None]
+    for q in sorted(range(n), key=lambda q: sub[q].shape[0] / max(1, sub[q].shape[1])):
+        out = _apply(out, sub[q], q + 1)
+    return out[0]
+
+
+def sum_squares(rows: np.ndarray, chunk: int = 1 << 15) -> np.ndarray:
+    """(B,) float64 Σ x² of each row of a (B, n) array.
+
+    BLAS dot products on chunks of ``chunk`` entries, summed in float64: five times faster
+    than a float64 einsum on float32 data and as accurate for a Parseval difference (each
+    chunk's float32 sum carries ~1e-7 relative error, far below the coding errors).
+    """
+    out = np.empty(rows.shape[0])
+    for i, r in enumerate(rows):
+        out[i] = sum(float(np.dot(c, c)) for c in np.split(r, range(chunk, r.size, chunk)))
+    return out
