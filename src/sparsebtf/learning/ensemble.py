@@ -195,6 +195,7 @@ class DictionaryEnsemble:
     passes_ : "full" or "partial" for each coding step of ``objective_``.
     n_iter_ : iterations run.
     iteration_seconds_ : wall time of each iteration run by this ``fit`` (update + coding).
+    iteration_cpu_seconds_ : CPU time of this process (all threads) in each of them.
     fit_seconds_ : wall time of ``fit``.
     """
 
@@ -253,8 +254,9 @@ class DictionaryEnsemble:
                 src, state.dicts, dt, state.ranking if partial else None, f"{desc} code"
             )
         self.iteration_seconds_: list[float] = []
+        self.iteration_cpu_seconds_: list[float] = []
         for it in range(state.iteration, self.max_iter):
-            t_it = time.perf_counter()
+            t_it, cpu_it = time.perf_counter(), time.process_time()
             reseeded = self._reseed(src, state, coding.codes)
             self._update_dictionaries(src, state.dicts, coding, dt, f"{desc} it{it + 1}")
             full = (
@@ -280,6 +282,7 @@ class DictionaryEnsemble:
             state.iteration = it + 1
             self._save_checkpoint(state)
             self.iteration_seconds_.append(time.perf_counter() - t_it)
+            self.iteration_cpu_seconds_.append(time.process_time() - cpu_it)
             if done:
                 break
         if state.passes[-1] != "full":
