@@ -26,12 +26,17 @@ def _dicts(shape, k, rng):
     return [np.stack([random_orthonormal(m, rng) for _ in range(k)]) for m in shape]
 
 
-@pytest.mark.parametrize("shape", SHAPES)
-def test_z_from_codes_equals_dense_partial_projections(shape):
-    rng = np.random.default_rng(20)
+def _case(shape, seed):
+    """Three random dictionaries, five random points and their codes at τ = 7 (float64)."""
+    rng = np.random.default_rng(seed)
     dicts = _dicts(shape, 3, rng)
     x = rng.standard_normal((5, *shape))
-    codes = sparse_code(x, dicts, tau=7, dtype=np.float64)
+    return rng, dicts, x, sparse_code(x, dicts, tau=7, dtype=np.float64)
+
+
+@pytest.mark.parametrize("shape", SHAPES)
+def test_z_from_codes_equals_dense_partial_projections(shape):
+    _, dicts, x, codes = _case(shape, 20)
     for mode in range(len(shape)):
         dense = cross_products(x, codes, dicts, mode, np.float64)
         np.testing.assert_allclose(
@@ -51,10 +56,7 @@ def test_z_from_codes_equals_dense_partial_projections(shape):
 
 @pytest.mark.parametrize("shape", SHAPES)
 def test_code_step_equals_sparse_code_and_yields_two_modes(shape):
-    rng = np.random.default_rng(21)
-    dicts = _dicts(shape, 3, rng)
-    x = rng.standard_normal((5, *shape))
-    ref = sparse_code(x, dicts, tau=7, dtype=np.float64)
+    rng, dicts, x, ref = _case(shape, 21)
     got = code_step(x, dicts, 7, dtype=np.float64)
     for name in ("membership", "counts", "values", "locations", "errors"):
         assert np.array_equal(getattr(got.codes, name), getattr(ref, name)), name

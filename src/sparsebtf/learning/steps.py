@@ -36,7 +36,7 @@ they can run on remote workers): :func:`code_step`, :func:`sparse_cross_products
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -258,6 +258,47 @@ def mode_fibres(
     return t[tuple(pos[q] for q in others)].astype(np.float64)
 
 
+def _dense_fibres(
+    point: np.ndarray, mats: Sequence[np.ndarray], locations: np.ndarray, mode: int
+) -> np.ndarray:
+    """:func:`mode_fibres` the long way: gathered from the dense partial projection (1)."""
+    p = np.moveaxis(project(point[None], mats, skip=mode)[0], mode, -1)
+    return p[tuple(locations[:, q] for q in range(locations.shape[1]) if q != mode)].astype(
+        np.float64
+    )
+
+
+def _cross_products(
+    batch: np.ndarray,
+    codes: SparseCodes,
+    dictionaries: Sequence[np.ndarray],
+    mode: int,
+    dtype: type,
+    fibres: Callable[[np.ndarray, Sequence[np.ndarray], np.ndarray, int], np.ndarray],
+) -> np.ndarray:
+    """Σ over the batch of Z⁽ⁿ'ᵏ⁾[:, l_n(s)] += v_s f_s (one GEMM per point), per k."""
+    n_dict = dictionaries[0].shape[0]
+    m = dictionaries[mode].shape[1]
+    z = np.zeros((n_dict, m, m))
+    offsets = codes.offsets
+
+    def task(b: int) -> tuple[int, np.ndarray] | None:
+        k = int(codes.membership[b])
+        lo, hi = offsets[b], offsets[b + 1]
+        if hi == lo:
+            return None
+        mats = [np.asarray(d[k], dtype=dtype) for d in dictionaries]
+        loc = codes.locations[lo:hi]
+        f = fibres(np.asarray(batch[b], dtype=dtype), mats, loc, mode)
+        e = _coefficient_matrix(loc[:, mode], codes.values[lo:hi].astype(np.float64), m)
+        return k, f.T @ e
+
+    for res in parallel_map(task, range(batch.shape[0])):
+        if res is not None:
+            z[res[0]] += res[1]
+    return z
+
+
 def sparse_cross_products(
     batch: np.ndarray,
     codes: SparseCodes,
@@ -268,26 +309,7 @@ def sparse_cross_products(
     """Map step 2: this batch's share of Z⁽ⁿ'ᵏ⁾ for every k, shape (K, m_n, m_n), float64,
     by (3) from each point's τ coefficients (:func:`mode_fibres`; equals :func:`cross_products`).
     """
-    n_dict = dictionaries[0].shape[0]
-    m = dictionaries[mode].shape[1]
-    z = np.zeros((n_dict, m, m))
-    offsets = codes.offsets
-
-    def task(b: int) -> tuple[int, np.ndarray] | None:
-        k = int(codes.membership[b])
-        lo, hi = offsets[b], offsets[b + 1]
-        if hi == lo:
-            return None
-        mats = [np.asarray(d[k], dtype=dtype) for d in dictionaries]
-        loc = codes.locations[lo:hi]
-        f = mode_fibres(np.asarray(batch[b], dtype=dtype), mats, loc, mode)
-        e = _coefficient_matrix(loc[:, mode], codes.values[lo:hi].astype(np.float64), m)
-        return k, f.T @ e
-
-    for res in parallel_map(task, range(batch.shape[0])):
-        if res is not None:
-            z[res[0]] += res[1]
-    return z
+    return _cross_products(batch, codes, dictionaries, mode, dtype, mode_fibres)
 
 
 def cross_products(
@@ -297,35 +319,7 @@ def cross_products(
     mode: int,
     dtype: type = np.float32,
 ) -> np.ndarray:
-    """Map step 2, reference: Z⁽ⁿ'ᵏ⁾ by (1) from the dense partial projection of every point.
-
-    Ŝ_i is sparse, so column l_n(s) of Z gains v_s times the mode-n fibre of P_i at the other
-    indices of coefficient s: τ fibre gathers instead of a dense product. The partial
-    projection costs 0.8–1.4 GFLOP per 10×10×151×151 point; :func:`sparse_cross_products`
-    gives the same Z for about a tenth of that.
-    """
-    n_dict = dictionaries[0].shape[0]
-    m = dictionaries[mode].shape[1]
-    z = np.zeros((n_dict, m, m))
-    offsets = codes.offsets
-
-    def task(b: int) -> tuple[int, np.ndarray] | None:
-        k = int(codes.membership[b])
-        lo, hi = offsets[b], offsets[b + 1]
-        if hi == lo:
-            return None
-        mats = [np.asarray(d[k], dtype=dtype) for d in dictionaries]
-        p = project(np.asarray(batch[b : b + 1], dtype=dtype), mats, skip=mode)[0]
-        p = np.moveaxis(p, mode, -1)
-        loc = codes.locations[lo:hi]
-        other = tuple(loc[:, q] for q in range(loc.shape[1]) if q != mode)
-        fibres = p[other].astype(np.float64) * codes.values[lo:hi, None].astype(np.float64)
-        part = np.zeros((m, m))
-        # Z[:, l_n] += v · fibre, accumulated by target column.
-        np.add.at(part.T, loc[:, mode], fibres)
-        return k, part
-
-    for res in parallel_map(task, range(batch.shape[0])):
-        if res is not None:
-            z[res[0]] += res[1]
-    return z
+    """Map step 2, reference: Z⁽ⁿ'ᵏ⁾ by (1) from the dense partial projection of every point
+    (0.8–1.4 GFLOP per 10×10×151×151 point; :func:`sparse_cross_products` gives the same Z
+    for about a tenth of that)."""
+    return _cross_products(batch, codes, dictionaries, mode, dtype, _dense_fibres)
