@@ -412,9 +412,9 @@ def test_render_close_to_reference(material):
     Bound (48x48, 8 spp, same sampler seed, sphere scene, linear interpolation): the relative
     MSE ‖coded − reference‖² / ‖reference‖² of the render follows the material's own coding
     error. Measured for τ = (100, 20, 20): render 0.009 (0.013 with cosine sampling), decoded
-    BTF 0.014 (τ = (40, 8, 8), cosine: 0.042 and 0.030). Asserted: render < 0.03 and < 2x the BTF's. A different material
-    under the same settings gives 0.45. The references sample with the coded material's
-    tables (``sampling_key``), so both renders draw the same directions.
+    BTF 0.014 (τ = (40, 8, 8), cosine: 0.042 and 0.030). Asserted: render < 0.03 and < 2x the
+    BTF's. A different material under the same settings gives 0.45. The references sample with
+    the coded material's tables (``sampling_key``), so both renders draw the same directions.
     """
     opts = {"scene": "sphere", "size": (48, 48), "spp": 8, "seed": 1}
     common = {"interpolation": "linear", "two_sided": True}
