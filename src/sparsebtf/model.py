@@ -159,6 +159,8 @@ class Model:
     params : training parameters (tau_train per channel, n_dictionaries, sample, seed, ...).
     provenance : where it came from (materials, library version, time, release import ...).
     training : per channel diagnostics (objective history, membership histogram, seconds).
+    file : the model file it was last saved to or loaded from (None for a model only in
+        memory); not part of its content. Saving a coded BTF records it.
     """
 
     dictionaries: dict[str, list[np.ndarray]]
@@ -182,6 +184,7 @@ class Model:
                         f"channel {ch}, mode {n + 1}: expected (K, m, m), got {m.shape}"
                     )
         self._hash: str | None = None
+        self.file: str | None = None
 
     @property
     def channels(self) -> tuple[str, ...]:

@@ -54,7 +54,8 @@ Parameters (``mi.load_dict({"type": "sparsebtf", ...})``):
 
 ============== ========= ==============================================================
 filename       string    coded file (``sparsebtf encode`` / ``import-release``)
-model          string    model file; default: the one the coded file names
+model          string    model file or bundled model name; default: the coded file's
+                         (a bundled model by hash, else the model file it recorded)
 key            string    instead of ``filename``: a material added with
                          :func:`sparsebtf.mitsuba.add_material` (a RuntimeBTF/CodedBTF)
 tau            string    level of detail τ' at load time: "885,64,64", "32" or a fraction
