@@ -48,6 +48,6 @@ def check_tau(text: str | None, flag: str = "--tau") -> str | None:
     except SparseBTFError:
         raise SparseBTFError(
             f"{flag} must be 'Y,U,V' integers (e.g. 885,64,64), one integer for every channel, "
-            f"or a fraction in (0, 1] of the coded tau (e.g. 0.25); got {text!r}"
+            f"or a fraction in (0, 1) of the coded tau (e.g. 0.25); got {text!r}"
         ) from None
     return text

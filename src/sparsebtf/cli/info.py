@@ -13,6 +13,7 @@ import numpy as np
 from .._json import json_default
 from ..data.btf import BTF
 from ..open import file_format, open_btf
+from ._model import MODEL_HELP
 from ._output import print_json, table
 
 __all__ = ["describe", "describe_btf", "register"]
@@ -92,14 +93,19 @@ def describe(
             "file_bytes": size,
         }
     if fmt == "sparsebtf-coded":
-        from ..storage import load_coded, load_model, storage_report
+        from ..errors import ModelMismatchError
+        from ..storage import load_coded, storage_report
+        from ..storage.bundled import bundled_name, find_model
 
         coded = load_coded(s)
         model = None
-        mpath = model_path or coded.model_file
-        if mpath and Path(mpath).exists():
-            model = load_model(mpath)
+        try:
+            model = find_model(coded, model_path, s)
             coded.attach(model)
+        except ModelMismatchError:
+            if model_path:
+                raise
+            model = None  # storage figures from the file's own parameters
         report = storage_report(coded, model, s)
         return {
             "kind": "coded",
@@ -109,6 +115,10 @@ def describe(
             "patch": coded.patch,
             "channels": list(coded.channels),
             "model_hash": coded.model_hash,
+            "model": (f"bundled '{bundled_name(coded.model_hash)}'"
+                      if bundled_name(coded.model_hash) else
+                      (model.file or "given") if model is not None else
+                      "not found (give -m MODEL.h5 for exact dictionary bytes)"),
             "params": coded.params,
             "directions": {
                 "lights": {"name": coded.lights.name, "count": len(coded.lights)},
@@ -119,22 +129,51 @@ def describe(
     return {"kind": "unknown", "format": fmt, "file_bytes": size}
 
 
+def flat_rows(obj: dict[str, Any], prefix: str = "") -> list[tuple[str, str]]:
+    """A nested description as table rows: nested keys joined by dots, short lists inline,
+    long ones summarised, direction tables as "151 (ubo2014)"."""
+    rows: list[tuple[str, str]] = []
+    for k, v in obj.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and set(v) == {"name", "count"}:
+            rows.append((key, f"{v['count']} ({v['name']})"))
+        elif isinstance(v, dict) and v:
+            rows += flat_rows(v, key + ".")
+        elif isinstance(v, list | tuple) and len(v) > 12:
+            rows.append((key, f"[{len(v)} values: {_text(v[0])} … {_text(v[-1])}]"))
+        elif isinstance(v, list | tuple):
+            rows.append((key, ", ".join(_text(x) for x in v) or "(none)"))
+        else:
+            rows.append((key, _text(v)))
+    return rows
+
+
+def _text(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 1000:
+        return f"{v:,}"
+    if isinstance(v, dict | list):
+        return json.dumps(v, default=json_default)
+    return str(v)
+
+
 def run(args: argparse.Namespace) -> int:
     info = describe(args.file, model_path=args.model, scan=not args.no_scan)
     if args.json:
         print_json(info)
     else:
-        print(table([(k, v) for k, v in info.items() if not isinstance(v, dict | list)]))
-        for k, v in info.items():
-            if isinstance(v, dict | list):
-                print(f"{k}: {json.dumps(v, default=json_default)}")
+        print(table(flat_rows(info)))
     return 0
 
 
 def register(sub: Any) -> None:
     s = sub.add_parser("info", help="describe a BTF, model or coded file")
-    s.add_argument("file", help="a .h5 file of ours, or synth:CLASS[:SIZE[:SEED]]")
-    s.add_argument("-m", "--model", help="model file (for a coded file's storage figures)")
-    s.add_argument("--no-scan", action="store_true", help="skip the value-range scan")
+    s.add_argument("file", help="a .h5 file of ours (dense, model or coded), a UBO2014 .btf, a "
+                   "UBO2003 .zip, or synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]")
+    s.add_argument("-m", "--model",
+                   help=MODEL_HELP + " (for a coded file; default: the one it names)")
+    s.add_argument("--no-scan", action="store_true",
+                   help="skip the value-range scan (it reads the whole BTF)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(func=run)

@@ -9,6 +9,7 @@ Each command module has ``register(subparsers)``; heavy imports happen inside it
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
@@ -24,6 +25,7 @@ from . import (
     import_release,
     info,
     lookup,
+    models,
     render,
     synth,
     train,
@@ -34,8 +36,8 @@ __all__ = ["build_parser", "main"]
 
 #: The commands in the order ``sparsebtf --help`` lists them: the pipeline first.
 COMMANDS = (
-    synth, info, train, encode, decode, evaluate, convert, import_release, lookup, demo,
-    blend, render, view, bench,
+    synth, info, models, train, encode, decode, evaluate, convert, import_release, lookup,
+    demo, blend, render, view, bench,
 )  # fmt: skip
 
 
@@ -62,6 +64,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("sparsebtf: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader went away (``sparsebtf info … | head``): stop quietly, and point stdout
+        # at /dev/null so the interpreter's final flush does not complain either.
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 1
 
 
 if __name__ == "__main__":  # pragma: no cover

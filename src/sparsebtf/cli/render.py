@@ -37,6 +37,25 @@ def _parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _refuse_slow_scalar(args: argparse.Namespace, size: tuple[int, int]) -> None:
+    """Without a usable libLLVM, refuse (before minutes of waiting) a scalar render estimated
+    over a minute, naming the one install command; ``--backend scalar`` runs it anyway."""
+    if args.backend == "scalar":
+        return
+    from ..rendering.llvm import choose_variant
+    from ..rendering.render import scalar_seconds
+
+    variant, _ = choose_variant(args.backend)
+    seconds = scalar_seconds(size, args.spp, 2 if args.reference else 1)
+    if variant == "scalar_rgb" and seconds > 60:
+        raise SparseBTFError(
+            f"no usable libLLVM (>= 17) for Mitsuba's fast CPU backend; install one with "
+            f"'apt-get install libllvm19' (Debian/Ubuntu) or set DRJIT_LIBLLVM_PATH. Without it "
+            f"this render would take about {seconds / 60:.0f} min in the scalar fallback: "
+            f"lower --size/--spp (e.g. --size 32 --spp 4) or pass --backend scalar to wait"
+        )
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     from ..rendering.mitsuba import add_material, dense_table
     from ..rendering.render import (
@@ -49,6 +68,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     size = _parse_size(args.size)
     if not Path(args.coded).exists():
         raise SparseBTFError(f"{args.coded}: no such file")
+    _refuse_slow_scalar(args, size)
     common: dict[str, Any] = {
         "uv_scale": float(args.uv_scale),
         "interpolation": args.interpolation,
@@ -157,7 +177,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         line = f"wrote {args.output}: {res['variant']}, {size[0]}x{size[1]}, {args.spp} spp, " \
                f"{res['seconds']:.2f} s"
         if reference is not None:
-            line += (f"; vs reference: MSE {out['mse']:.4g}, PSNR {out['psnr']:.2f} dB, "
+            line += (f"; vs reference (linear RGB): MSE {out['mse']:.4g}, PSNR "
+                     f"{out['psnr']:.2f} dB (peak {out['peak']:.4g}), "
                      f"SSIM {out['ssim']:.4f} (reference render {out['reference_seconds']:.2f} s)")
         print(line)
     return 0
@@ -175,7 +196,8 @@ def register(sub: Any) -> None:
     )
     s.add_argument("coded", help="coded file (.h5 from 'sparsebtf encode' or 'import-release')")
     s.add_argument("-o", "--output", required=True, help="PNG to write")
-    s.add_argument("--model", help="model file (default: the one the coded file names)")
+    s.add_argument("-m", "--model", help="model file or bundled model name (default: the one "
+                   "the coded file names)")
     s.add_argument("--scene", choices=["sphere", "cloth"], default="sphere",
                    help="sphere on a plane (default) or a procedurally draped cloth")
     s.add_argument("--floor", choices=["material", "diffuse"], default=None,
@@ -200,7 +222,8 @@ def register(sub: Any) -> None:
                    help="direction sampling: btf (from the material's angular response, "
                    "default) or cosine")
     s.add_argument("--reference", metavar="BTF",
-                   help="also render this uncompressed BTF (.h5, .btf, synth:...) and compare")
+                   help="also render this uncompressed BTF (.h5, .btf, .zip, synth:...) and "
+                   "compare")
     s.add_argument("--max-gib", type=float, default=2.0,
                    help="refuse references whose float32 table exceeds this (default 2 GiB)")
     s.add_argument("--max-depth", type=int, default=4, help="path length (default 4)")

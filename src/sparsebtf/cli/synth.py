@@ -49,16 +49,20 @@ def register(sub: Any) -> None:
         "--from",
         dest="source",
         metavar="BTF",
-        help="instead of synthesising, preview/convert this BTF (.btf, .h5, synth:...)",
+        help="instead of synthesising, preview/convert this BTF (.h5, UBO2014 .btf, UBO2003 "
+        ".zip, synth:...)",
     )
-    s.add_argument("--size", type=int, default=64, help="texels per side (default 64)")
+    s.add_argument("--size", type=int, default=64,
+                   help="texels per side (default 64; a 100x100 UBO2014 BTF file is 2.8 GB)")
     s.add_argument(
         "--directions",
         default="ubo2014",
         help="ubo2014 (151), ubo2003 (81), tiny7/13/19 (default ubo2014)",
     )
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--dtype", choices=["float32", "float16"], default="float32")
+    s.add_argument("--seed", type=int, default=0,
+                   help="random seed of the material's texture and geometry (default 0)")
+    s.add_argument("--dtype", choices=["float32", "float16"], default="float32",
+                   help="value type of the dense file (default float32; float16 halves it)")
     s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")
     s.add_argument("--preview", help="PNG contact sheet of angular images to write")
     s.set_defaults(func=run)

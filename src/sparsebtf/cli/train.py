@@ -55,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
 def register(sub: Any) -> None:
     s = sub.add_parser("train", help="learn a model (three dictionary ensembles) from BTFs")
     s.add_argument("btfs", nargs="+", metavar="BTF",
-                   help="training BTFs: dense .h5 files or synth:CLASS[:SIZE[:SEED]]")
+                   help="training BTFs: dense .h5, UBO2014 .btf, UBO2003 .zip or "
+                   "synth:CLASS[:SIZE[:SEED]]")
     s.add_argument("-o", "--output", required=True, help="model file to write (.h5)")
     s.add_argument("--dicts", type=int, default=8, help="dictionaries per ensemble K (default 8)")
     s.add_argument(
@@ -89,8 +90,9 @@ def register(sub: Any) -> None:
         help="one 5D ensemble with colour as a mode (paper Table 6)",
     )
     s.add_argument("--batch", type=int, default=4, help="data points per batch (memory bound)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=int, default=0,
+                   help="seed of the data-point sample and the initial dictionaries (default 0)")
     s.add_argument("--crop", help="use only rows R0:R1 and columns C0:C1 of every BTF")
     s.add_argument("--checkpoint-dir", help="save after each iteration and resume from here")
-    s.add_argument("--json", action="store_true")
+    s.add_argument("--json", action="store_true", help="print the training summary as JSON")
     s.set_defaults(func=run)

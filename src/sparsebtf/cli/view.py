@@ -56,7 +56,8 @@ def register(sub: Any) -> None:
     """Add the ``view`` subcommand to the main parser's subparsers."""
     s = sub.add_parser("view", help="real-time WebGL2 viewer of a coded BTF (browser)")
     s.add_argument("coded", help="coded BTF file (.h5 from 'sparsebtf encode')")
-    s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
+    s.add_argument("-m", "--model", help="model file or bundled model name (default: the one "
+                   "the coded file names)")
     s.add_argument(
         "--tau",
         help="load-time level of detail: 'Y,U,V', one integer, or a fraction such as 0.5 "

@@ -169,9 +169,14 @@ def save_coded(coded: CodedBTF, path: str | os.PathLike[str]) -> Path:
 
     Values are rounded to binary16 (round-to-nearest-even, as the release's ``.bin`` files);
     a channel with a finite value beyond ±65504 is kept in float32 instead, with a warning.
-    Locations are packed to 3 bytes (4 when ∏m ≥ 2^24). Returns the path written.
+    Locations are packed to 3 bytes (4 when ∏m ≥ 2^24). The file of the attached model (if it
+    was saved or loaded from one) is recorded as ``params["model_file"]`` unless one is set
+    already, so the coded file finds its model. Returns the path written.
     """
     _check_coded(coded)
+    params = dict(coded.params)
+    if not params.get("model_file") and coded.model is not None and coded.model.file:
+        params["model_file"] = coded.model.file
     target = Path(path)
     with atomic_output(target) as tmp, h5py.File(tmp, "w") as f:
         f.attrs["format"] = CODED_FORMAT
@@ -183,7 +188,7 @@ def save_coded(coded: CodedBTF, path: str | os.PathLike[str]) -> Path:
         f.attrs["width"] = int(coded.width)
         f.attrs["patch"] = int(coded.patch)
         f.attrs["channels"] = json.dumps(list(coded.channels))
-        f.attrs["params_json"] = to_json(coded.params)
+        f.attrs["params_json"] = to_json(params)
         f.attrs["attrs_json"] = to_json(coded.attrs)
         root = f.create_group("codes")
         for ch in coded.channels:
@@ -409,17 +414,15 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
 def load_coded_with_model(
     path: str | os.PathLike[str], model_path: str | os.PathLike[str] | None = None
 ) -> CodedBTF:
-    """Read a coded file with its model attached: ``model_path``, else the model file it names.
+    """Read a coded file with its model attached.
 
-    Encoding records the model's path in ``params["model_file"]``; the model's content hash is
-    checked either way (:class:`~sparsebtf.errors.ModelMismatchError` for the wrong model).
+    The model is ``model_path`` (a model file, or the name of a bundled model such as
+    ``"release"``), else found from the file: a bundled model whose content hash is the one
+    the codes name, else the model file recorded at encoding (``params["model_file"]``). The
+    content hash is checked either way (:class:`~sparsebtf.errors.ModelMismatchError` for the
+    wrong model).
     """
-    from .model_file import load_model
+    from .bundled import find_model
 
     coded = load_coded(path)
-    mpath = model_path or coded.model_file
-    if not mpath:
-        raise ModelMismatchError(
-            f"{path}: pass --model MODEL.h5 (the coded file names no model file)"
-        )
-    return coded.attach(load_model(mpath))
+    return coded.attach(find_model(coded, model_path, str(path)))

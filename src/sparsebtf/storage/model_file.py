@@ -6,12 +6,16 @@ Layout (``format="sparsebtf-model"``, ``schema_version=1``)::
                               patch, channels (JSON list), params_json, provenance_json,
                               training_json
     /dictionaries/<CH>        attrs: n_dictionaries (K), mode_sizes (N,) int64
-    /dictionaries/<CH>/modeN  (K, m_n, m_n) float64; [k, row, col]: row = sample index
+    /dictionaries/<CH>/modeN  (K, m_n, m_n) float64 (float32 / float16 when that type holds
+                              every value exactly); [k, row, col]: row = sample index
                               (texel offset or direction), col = atom index (paper Eq. 4/5)
     /lights, /views           direction tables (xyz, theta, phi), as in the dense file
 
-Dictionaries are stored in float64 so :attr:`Model.content_hash` — the address coded files
-refer to — is recomputed exactly on load; a mismatch means the file was corrupted. (The
+Dictionaries are stored so that their float64 values come back bit for bit: in float64, or in
+the narrowest of float16 / float32 that represents every value exactly (a model rounded to
+float32, like the bundled one, takes half the bytes). So :attr:`Model.content_hash` — the
+address coded files refer to, always computed on float64 values — is recomputed exactly on
+load; a mismatch means the file was corrupted. (The
 release stores binary16 dictionaries; Table 4 of the paper counts 2 bytes per entry, which
 :mod:`sparsebtf.storage.accounting` follows regardless of the file's dtype.)
 """
@@ -42,7 +46,7 @@ from ._common import (
     to_json,
 )
 
-__all__ = ["MODEL_FORMAT", "MODEL_SCHEMA_VERSION", "load_model", "save_model"]
+__all__ = ["MODEL_FORMAT", "MODEL_SCHEMA_VERSION", "exact_dtype", "load_model", "save_model"]
 
 MODEL_FORMAT = "sparsebtf-model"
 MODEL_SCHEMA_VERSION = 1
@@ -52,8 +56,9 @@ _SUPPORTED = (1,)
 def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
     """Write ``model`` to ``path`` (HDF5, atomically: an interrupted write leaves no file).
 
-    Every ensemble is stored in float64, so the content hash that coded files refer to is
-    preserved exactly. Returns the path written.
+    Every mode is stored in the narrowest of float16 / float32 / float64 that holds its values
+    exactly (:func:`exact_dtype`), contiguous and uncompressed, so the content hash that coded
+    files refer to is preserved exactly. Returns the path written; ``model.file`` remembers it.
     """
     target = Path(path)
     for ch in model.channels:
@@ -79,10 +84,23 @@ def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
             g.attrs["n_dictionaries"] = model.n_dictionaries(ch)
             g.attrs["mode_sizes"] = np.array([m.shape[1] for m in mats], dtype=np.int64)
             for n, m in enumerate(mats, start=1):
-                g.create_dataset(f"mode{n}", data=np.asarray(m, dtype="<f8"))
+                a = np.asarray(m, dtype="<f8")
+                g.create_dataset(f"mode{n}", data=a.astype(exact_dtype(a)))
         write_directions(f.create_group("lights"), model.lights)
         write_directions(f.create_group("views"), model.views)
+    model.file = str(target.resolve())
     return target
+
+
+def exact_dtype(values: np.ndarray) -> str:
+    """The narrowest of ``<f2``, ``<f4``, ``<f8`` whose cast gives back ``values`` exactly
+    (as float64 bit patterns, so the content hash cannot change)."""
+    a = np.asarray(values, dtype="<f8")
+    with np.errstate(over="ignore"):
+        for dt in ("<f2", "<f4"):
+            if np.array_equal(a.astype(dt).astype("<f8").view("<u8"), a.view("<u8")):
+                return dt
+    return "<f8"
 
 
 def load_model(path: str | os.PathLike[str]) -> Model:
@@ -141,12 +159,14 @@ def load_model(path: str | os.PathLike[str]) -> Model:
             f"file records {stored_hash[:12]}…"
         )
     try:
-        return Model(
+        model = Model(
             dictionaries=dictionaries, patch=patch, lights=lights, views=views,
             params=params, provenance=provenance, training=training,
         )
     except BTFInputError as e:
         raise FileFormatError(f"{where}: {e}") from None
+    model.file = str(p.resolve())
+    return model
 
 
 def _channel_list(f: h5py.File, root: h5py.Group, where: str) -> list[str]:

@@ -27,17 +27,19 @@ import h5py
 import numpy as np
 
 from ..data.directions import DirectionSet, from_angles, ubo2014
-from ..errors import FileFormatError
+from ..errors import FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes
 from ..model import CodedBTF, Model
 from ..points.preprocessing import Standardization
 
 __all__ = [
+    "check_same_dictionaries",
     "import_release",
     "read_angles",
     "read_coefficients",
     "read_dictionaries",
     "read_mean_std",
+    "release_model",
 ]
 
 RELEASE = "behnazkavoosi/SparseBTF (MIT), HEAD bc5d927"
@@ -166,10 +168,14 @@ def read_angles(path: str | os.PathLike[str]) -> DirectionSet:
     return from_angles(np.pi / 2 - elev, phi, name="ubo2014")
 
 
-def import_release(
-    directory: str | os.PathLike[str], prefer: str = "mat", height: int = 400, width: int = 400
-) -> tuple[Model, dict[str, CodedBTF], list[str]]:
-    """The release in ``directory`` as (model, coded BTFs by material, notes for the user)."""
+def release_model(
+    directory: str | os.PathLike[str], prefer: str = "mat"
+) -> tuple[Model, list[str]]:
+    """The release's Y/U/V ensembles in ``directory`` as a :class:`Model` (and notes).
+
+    ``prefer``: the fp64 ``.mat`` files (exact, default) or the fp16 ``.bin`` files; the other
+    kind is used for a channel that lacks the preferred one.
+    """
     d = Path(directory)
     if not d.is_dir():
         raise FileFormatError(f"{d}: not a folder")
@@ -204,6 +210,64 @@ def import_release(
         provenance={"release": RELEASE, "licence": "MIT (LICENSE-SparseBTF)", "folder": str(d)},
         training=training,
     )
+    return model, notes
+
+
+#: Largest difference between the release's dictionaries and a model they are coded against
+#: (``import_release(model=...)``): float32 rounding of entries <= 1 is below 2^-25.
+MATCH_TOLERANCE = 2.0**-24
+
+
+def check_same_dictionaries(a: Model, b: Model, tolerance: float = MATCH_TOLERANCE) -> float:
+    """The largest entry difference of two models' ensembles; refuses more than ``tolerance``
+    (or different channels / shapes)."""
+    worst = 0.0
+    for ch in a.channels:
+        if ch not in b.dictionaries:
+            raise ModelMismatchError(f"channel {ch} is in the release but not in the model")
+        for n, (u, v) in enumerate(zip(a.dictionaries[ch], b.dictionaries[ch], strict=True)):
+            if u.shape != v.shape:
+                raise ModelMismatchError(
+                    f"channel {ch}, mode {n + 1}: release {u.shape}, model {v.shape}"
+                )
+            worst = max(worst, float(np.abs(u - v).max()))
+    if worst > tolerance:
+        raise ModelMismatchError(
+            f"the release's dictionaries differ from the model's by up to {worst:.3g} "
+            f"(more than {tolerance:.3g}): not the same ensembles"
+        )
+    return worst
+
+
+def import_release(
+    directory: str | os.PathLike[str],
+    prefer: str = "mat",
+    height: int = 400,
+    width: int = 400,
+    model: Model | None = None,
+) -> tuple[Model, dict[str, CodedBTF], list[str]]:
+    """The release in ``directory`` as (model, coded BTFs by material, notes for the user).
+
+    With ``model`` (e.g. the bundled ``release`` model, the same ensembles rounded to
+    float32), the coefficients are coded against it instead, after checking that the folder's
+    dictionaries equal it within :data:`MATCH_TOLERANCE`; it is returned as the model.
+    """
+    d = Path(directory)
+    own, notes = release_model(d, prefer)
+    if model is not None:
+        worst = check_same_dictionaries(own, model)
+        if not (own.lights.equals(model.lights) and own.views.equals(model.views)):
+            raise ModelMismatchError(
+                f"{d}: the release's {len(own.lights)} directions differ from the model's"
+            )
+        notes.append(
+            f"codes refer to model {model.content_hash[:12]} (its dictionaries differ from the "
+            f"folder's by at most {worst:.2g})"
+        )
+    else:
+        model = own
+    dicts = own.dictionaries
+    directions = own.lights
     groups: dict[str, dict[str, tuple[Path, float]]] = {}
     for f in sorted(d.glob("Coeffs_BTF_*.bin")):
         m = COEFF_RE.match(f.name)

@@ -142,10 +142,13 @@ def dense_table(btf: Any, max_gib: float = DENSE_MAX_GIB) -> np.ndarray:
         raise BTFInputError(
             f"reference BTF {btf.name!r} ({h}x{w} texels, {nl} lights x {nv} views) needs "
             f"{need / 2**30:.1f} GiB as a float32 table, above the {max_gib:g} GiB limit; crop "
-            "it first (sparsebtf convert BTF -o crop.h5 --crop R0:R1,C0:C1) or raise max_gib"
+            "it first (sparsebtf convert BTF -o crop.h5 --crop R0:R1,C0:C1) or raise max_gib "
+            "(sparsebtf render --max-gib)"
         )
-    arr = np.asarray(btf.to_array(), dtype=np.float32)
-    return np.log(np.maximum(arr, 0) + np.float32(LOG_EPS)).astype(np.float32)
+    arr = np.array(btf.to_array(), dtype=np.float32)  # one copy; the log is taken in place
+    np.maximum(arr, 0, out=arr)
+    arr += np.float32(LOG_EPS)
+    return np.log(arr, out=arr)
 
 
 def load_dense(source: tuple, max_gib: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
