@@ -61,7 +61,26 @@ equal-area cells, mixed over the known direction's angular neighbours, with a sh
 
 Parameters (``mi.load_dict({"type": "sparsebtf", ...})``):
 
-================ ========= =======================================================
+================ ========= ==============================================================
+filename         string    coded file (``sparsebtf encode`` / ``import-release``)
+model            string    model file or bundled model name; default: the coded file's
+                           (a bundled model by hash, else the model file it recorded)
+key              string    instead of ``filename``: a material added with
+                           :func:`sparsebtf.mitsuba.add_material` (a RuntimeBTF/CodedBTF)
+tau              string    level of detail τ' at load time: "885,64,64", "32" or a fraction
+                           "0.25" of the coded τ (default: every stored coefficient)
+uv_scale         float     texture tiling: uv ↦ uv·uv_scale (default 1; wraps)
+interpolation    string    nearest | linear (release 2-NN, default) | barycentric | gaussian
+domain           string    standardized (Eq. 6, default) | log (the release shader)
+k                integer   neighbours of the gaussian scheme (default 4)
+beta             float     gaussian sharpness β in exp(−β d²) (default 20)
+two_sided        boolean   shade back faces like front faces (default false)
+sampling         string    btf (default) | cosine
+sampling_tables  string    material (default: one table) | patch (one per data point)
+sampling_grid    integer   cells per side of the equal-area grid (32; 16 for patch tables)
+sampling_mix     float     share of cosine sampling in the mixture (default 0.2)
+================ ========= ==============================================================
+
 ``sparsebtf_dense`` — the uncompressed reference
 ------------------------------------------------
 The same lookup from a dense (H, W, L, V, 3) table: texel by uv, the same angular neighbours
