@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from _common import machine, report
+from _common import machine, peak_rss_bytes, report
 from bench_encode import lazy_source, random_model
 from sparsebtf.codec import encode_many
 from sparsebtf.data.dense_file import write_dense
@@ -119,6 +119,7 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             with get_task_stream(client=client) as ts:
                 tn, coded = _encode(path, model, a, client=ex)
             cpu = sum(client.run(_cpu_seconds).values()) + _cpu_seconds() - cpu
+            peak = max(client.run(peak_rss_bytes).values())
             if n == a.workers[0]:
                 small["cluster_start_seconds"] = start
                 small["on_cluster_seconds"] = min(
@@ -133,6 +134,7 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             "seconds": tn,
             "points_per_s": n_points / tn,
             "cpu_seconds": cpu,
+            "worker_peak_rss_bytes": peak,
             "cluster_start_seconds": start,
             "tasks": len(ts.data),
             "range_tasks": len(ranges),
@@ -173,6 +175,7 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             f"{r['seconds']:.1f} s, {r['points_per_s']:.2f} points/s, efficiency "
             f"{r['efficiency']:.2f}, {r['vs_in_process']:.2f}x in-process, CPU "
             f"{r['cpu_seconds']:.1f} s ({r['cpu_vs_in_process']:.2f}x in-process); "
+            f"worker peak memory {r['worker_peak_rss_bytes'] / 2**30:.2f} GiB; "
             f"{r['range_tasks']} range tasks of {r['range_task_points']:.0f} points (median "
             f"{r['range_task_seconds_median']:.2f} s, per worker "
             f"{'/'.join(map(str, r['range_tasks_per_worker']))}), {r['statistics_tasks']} "
