@@ -1,4 +1,5 @@
-"""``sparsebtf encode``: code one BTF on a model (§3.3), at τ or to a target size."""
+"""``sparsebtf encode``: code BTFs on a model (§3.3), at τ or to a target size, in this process
+or on a Dask cluster (``--workers`` / ``--scheduler``)."""
 
 from __future__ import annotations
 
@@ -6,7 +7,14 @@ import argparse
 from typing import Any
 
 from ..points.preprocessing import STD_MODES
-from ._args import check_tau, open_source
+from ._args import (
+    add_cluster_options,
+    check_tau,
+    cluster_options,
+    open_source,
+    output_files,
+    parse_crop,
+)
 from ._model import MODEL_HELP, check_fits, model_label, open_model_arg
 from ._output import print_json
 
@@ -14,41 +22,38 @@ __all__ = ["register"]
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..codec import encode, encode_to_size
+    from ..codec import encode_many
     from ..storage import save_coded, storage_report
 
     tau = check_tau(args.tau)
+    outputs = output_files(args.btf, args.output)
     model = open_model_arg(args.model)
     label = model_label(args.model, model)
-    btf = open_source(args.btf, crop=args.crop)
-    check_fits(btf, model, label, args.btf)
+    # One line, before any work, for an input the model cannot code (here, not on a worker,
+    # so the message can name the commands that fix it).
+    for source in args.btf:
+        check_fits(open_source(source, crop=args.crop), model, label, source)
     per_material = not args.with_dictionaries
-    if args.target_ratio is not None or args.target_bytes is not None:
-        coded = encode_to_size(
-            btf, model, target_bytes=args.target_bytes, target_ratio=args.target_ratio,
-            per_material=per_material, std_mode=args.std_mode, batch_size=args.batch,
-        )
-    else:
-        coded = encode(
-            btf,
-            model,
-            tau=tau or "885,64,64",
-            eps=args.eps,
-            std_mode=args.std_mode,
-            batch_size=args.batch,
-            allow_below_training=args.allow_below_training,
-        )
-    if model.file:
-        coded.params["model_file"] = model.file
-    save_coded(coded, args.output)
-    report = storage_report(coded, model, args.output)
-    report["model"] = {"label": label, "content_hash": model.content_hash}
+    coded_all = encode_many(
+        args.btf, model, tau=tau, eps=args.eps, target_bytes=args.target_bytes,
+        target_ratio=args.target_ratio, per_material=per_material, std_mode=args.std_mode,
+        batch_size=args.batch, allow_below_training=args.allow_below_training,
+        crop=parse_crop(args.crop), **cluster_options(args),
+    )  # fmt: skip
+    reports = []
+    for coded, output in zip(coded_all, outputs, strict=True):
+        if model.file:
+            coded.params["model_file"] = model.file
+        save_coded(coded, output)
+        report = storage_report(coded, model, output)
+        report["model"] = {"label": label, "content_hash": model.content_hash}
+        reports.append({"input": coded.name, "output": str(output), **report})
+        if not args.json:
+            print(f"wrote {output} with {label} ({model.content_hash[:12]}): nnz "
+                  f"{coded.nnz()}, file {report['file_bytes'] / 2**20:.3f} MiB")  # fmt: skip
+            print(f"  {ratio_line(report, args.target_ratio, per_material)}")
     if args.json:
-        print_json(report)
-    else:
-        print(f"wrote {args.output} with {label} ({model.content_hash[:12]}): nnz "
-              f"{coded.nnz()}, file {report['file_bytes'] / 2**20:.3f} MiB")  # fmt: skip
-        print(f"  {ratio_line(report, args.target_ratio, per_material)}")
+        print_json(reports[0] if len(args.btf) == 1 else {"files": reports})
     return 0
 
 
@@ -66,16 +71,19 @@ def ratio_line(report: dict[str, Any], asked: float | None, per_material: bool) 
 
 def register(sub: Any) -> None:
     s = sub.add_parser(
-        "encode", help="code one BTF on a model (default: the bundled 'release' model)",
-        description="Code a BTF as sparse coefficients on a model's dictionary ensembles "
-        "(paper §3.3). Without -m the bundled 'release' model is used: the authors' ensembles "
-        "for UBO2014's 151 directions and 10x10 patches.",
+        "encode", help="code BTFs on a model (default: the bundled 'release' model)",
+        description="Code BTFs as sparse coefficients on a model's dictionary ensembles "
+        "(paper §3.3), in this process or on a Dask cluster (--workers, --scheduler). Without "
+        "-m the bundled 'release' model is used: the authors' ensembles for UBO2014's 151 "
+        "directions and 10x10 patches.",
     )
-    s.add_argument("btf", metavar="BTF",
-                   help="the BTF to code: dense .h5, UBO2014 .btf, UBO2003 .zip or synth:...")
+    s.add_argument("btf", metavar="BTF", nargs="+",
+                   help="the BTFs to code: dense .h5, UBO2014 .btf, UBO2003 .zip or synth:...")
     s.add_argument("-m", "--model", default=None,
                    help=MODEL_HELP + "; default: the bundled 'release' model")
-    s.add_argument("-o", "--output", required=True, help="coded file to write (.h5)")
+    s.add_argument("-o", "--output", required=True,
+                   help="coded file to write (.h5), or a folder (DIR/) for one NAME.coded.h5 per "
+                   "input (needed for several inputs)")
     size = s.add_mutually_exclusive_group()
     size.add_argument(
         "--tau", default=None,
@@ -106,5 +114,6 @@ def register(sub: Any) -> None:
     s.add_argument("--allow-below-training", action="store_true",
                    help="accept a tau below the model's training sparsity tau_l (the paper "
                    "requires tau >= tau_l)")
-    s.add_argument("--json", action="store_true", help="print the storage report as JSON")
+    add_cluster_options(s)
+    s.add_argument("--json", action="store_true", help="print the storage report(s) as JSON")
     s.set_defaults(func=run)
