@@ -73,6 +73,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         "uv_scale": float(args.uv_scale),
         "interpolation": args.interpolation,
         "two_sided": not args.one_sided,
+        "sampling": args.sampling,
     }
     if args.interpolation == "gaussian":
         common["k"] = int(args.k)
@@ -109,6 +110,11 @@ def cmd_render(args: argparse.Namespace) -> int:
         key = add_material(ref_btf, f"cli-reference:{args.reference}")
         reference = {"type": "sparsebtf_dense", "key": key, "max_gib": float(args.max_gib),
                      **common}  # fmt: skip
+        if args.sampling == "btf":  # sample as the coded render does: correlated noise
+            from ..runtime import RuntimeBTF
+
+            reference["sampling_key"] = add_material(RuntimeBTF(coded, args.tau),
+                                                     f"cli-sampling:{args.coded}")  # fmt: skip
     opts = {
         "scene": args.scene,
         "size": size,
@@ -129,6 +135,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         "tau": args.tau,
         "interpolation": args.interpolation,
         "domain": args.domain,
+        "sampling": args.sampling,
         "uv_scale": args.uv_scale,
         "seconds": res["seconds"],
         "setup_seconds": res["setup_seconds"],
@@ -211,6 +218,9 @@ def register(sub: Any) -> None:
     s.add_argument("--k", type=int, default=4, help="gaussian: neighbours (default 4)")
     s.add_argument("--beta", type=float, default=20.0, help="gaussian: sharpness (default 20)")
     s.add_argument("--one-sided", action="store_true", help="black back faces (default two-sided)")
+    s.add_argument("--sampling", choices=["btf", "cosine"], default="btf",
+                   help="direction sampling: btf (from the material's angular response, "
+                   "default) or cosine")
     s.add_argument("--reference", metavar="BTF",
                    help="also render this uncompressed BTF (.h5, .btf, .zip, synth:...) and "
                    "compare")
