@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError
+from ._args import check_output_dir, check_output_file
 
 __all__ = ["register"]
 
@@ -23,12 +24,15 @@ def run(args: argparse.Namespace) -> int:
     from ..runtime import coded_btf_view
     from ..storage import load_coded_with_model
 
+    check_output_file(args.output, [args.coded, args.model])
+    check_output_dir(args.png, "--png")
+    pairs = _parse_pairs(args.images) if args.images else []
     coded = load_coded_with_model(args.coded, args.model)
+    check_output_file(args.output, [coded.model_file])
     view = coded_btf_view(coded)
     if args.images:
         from ..figures import save_angular_images
 
-        pairs = _parse_pairs(args.images)
         outdir = Path(args.png or ".")
         for path in save_angular_images(view, pairs, outdir):
             print(f"wrote {path}")

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from ..points.preprocessing import STD_MODES
-from ._args import check_tau, open_source
+from ._args import check_output_file, check_tau, integer, number, open_source
 from ._output import print_json
 
 __all__ = ["register"]
@@ -18,6 +18,7 @@ def run(args: argparse.Namespace) -> int:
     from ..storage import load_model, save_coded, storage_report
 
     tau = check_tau(args.tau)
+    check_output_file(args.output, [args.btf, args.model])
     model = load_model(args.model)
     btf = open_source(args.btf, crop=args.crop)
     if args.target_ratio is not None or args.target_bytes is not None:
@@ -74,4 +75,9 @@ def register(sub: Any) -> None:
         "--allow-below-training", action="store_true", help="accept tau below the training sparsity"
     )
     s.add_argument("--json", action="store_true")
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, checks={
+        "eps": number(0, unit="(residual mean squared error, standardised)"),
+        "target_ratio": number(1, unit="(raw bytes / coded bytes)"),
+        "target_bytes": integer(1, unit="bytes"),
+        "batch": integer(1, 4096, unit="data points per batch"),
+    })  # fmt: skip

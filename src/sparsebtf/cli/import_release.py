@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ._args import check_output_dir, check_output_file
 from ._output import print_json
 
 __all__ = ["register"]
@@ -15,6 +16,8 @@ def run(args: argparse.Namespace) -> int:
     from ..storage import save_coded, save_model
     from ..storage.release import import_release
 
+    check_output_file(args.output)
+    check_output_dir(args.coded_dir, "--coded-dir")
     model, coded, notes = import_release(args.folder, prefer=args.prefer)
     save_model(model, args.output)
     out_dir = Path(args.coded_dir) if args.coded_dir else Path(args.output).resolve().parent

@@ -38,7 +38,7 @@ def describe_btf(btf: BTF, scan: bool = True) -> dict[str, Any]:
     }
     if scan:
         lo, hi, total, nonfinite = np.inf, -np.inf, 0.0, 0
-        for _, block in btf.iter_view_blocks():
+        for block in btf.iter_blocks():
             finite = np.isfinite(block)
             nonfinite += int((~finite).sum())
             vals = block[finite]
@@ -68,7 +68,7 @@ def describe(
     size = Path(s).stat().st_size
     if fmt == "sparsebtf-dense":
         out = describe_btf(open_btf(s), scan)
-        out.update(format=fmt, file_bytes=size)
+        out.update(format=fmt, file_bytes=size, integrity=_integrity(s))
         return out
     if fmt == "sparsebtf-model":
         from ..storage import load_model
@@ -90,6 +90,7 @@ def describe(
             "training": m.training,
             "provenance": m.provenance,
             "file_bytes": size,
+            "integrity": _integrity(s),
         }
     if fmt == "sparsebtf-coded":
         from ..storage import load_coded, load_model, storage_report
@@ -97,7 +98,7 @@ def describe(
         coded = load_coded(s)
         model = None
         mpath = model_path or coded.model_file
-        if mpath and Path(mpath).exists():
+        if mpath and Path(mpath).is_file():  # a stored path is only followed to a regular file
             model = load_model(mpath)
             coded.attach(model)
         report = storage_report(coded, model, s)
@@ -115,8 +116,18 @@ def describe(
                 "views": {"name": coded.views.name, "count": len(coded.views)},
             },
             **{k: v for k, v in report.items() if not isinstance(v, dict) or k == "nnz"},
+            "integrity": _integrity(s),
         }
     return {"kind": "unknown", "format": fmt, "file_bytes": size}
+
+
+def _integrity(path: str) -> str:
+    """Which checksums protect the file (schema 2: fletcher32 on every dataset)."""
+    from .._h5check import integrity
+    from .._hdf5 import open_h5
+
+    with open_h5(path) as f:
+        return integrity(f)
 
 
 def run(args: argparse.Namespace) -> int:

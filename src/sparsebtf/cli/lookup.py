@@ -20,6 +20,7 @@ from ..errors import BTFInputError, SparseBTFError
 from ..open import file_format, open_btf
 from ..points.grid import PatchGrid
 from ..points.preprocessing import from_log_yuv, gather_statistics, to_log_yuv
+from ._args import integer
 from ._output import print_json, table
 
 __all__ = ["lookup", "register"]
@@ -104,4 +105,5 @@ def register(sub: Any) -> None:
     s.add_argument("--view", type=int, required=True, help="sampled view index")
     s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
     s.add_argument("--json", action="store_true")
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, checks={"light": integer(0),
+                                     "view": integer(0)})

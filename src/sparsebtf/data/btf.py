@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .._limits import check_allocation
 from ..errors import BTFInputError
 from .directions import DirectionSet
 
@@ -117,12 +118,17 @@ class BTF(abc.ABC):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Validated int64 index arrays of a read request (errors name the axis)."""
         h, w, nl, nv, _ = self.shape
-        return (
+        out = (
             as_index(rows, h, "row"),
             as_index(cols, w, "col"),
             as_index(lights, nl, "light"),
             as_index(views, nv, "view"),
         )
+        # Every read's float32 result must fit the memory budget (sizes may come from a file).
+        n = int(np.prod([ix.size for ix in out], dtype=np.int64))
+        check_allocation(12 * n, f"{self.name}: reading {'x'.join(str(ix.size) for ix in out)}x3"
+                         " values at once", BTFInputError)  # fmt: skip
+        return out
 
     # -- access ----------------------------------------------------------------------------
     @abc.abstractmethod
@@ -158,6 +164,22 @@ class BTF(abc.ABC):
         """Yield (view index, (H, W, L, 3) block) for every view, in order."""
         for v in range(len(self.views)):
             yield v, self.view_block(v)
+
+    def iter_blocks(self, max_bytes: int = 64 * 2**20) -> Iterator[np.ndarray]:
+        """Yield the whole BTF as (h, w, L, 1, 3) float32 blocks of at most ``max_bytes`` (one
+        view, a band of rows or a tile), view by view: a scan whose memory does not grow with
+        the BTF."""
+        h, w, nl, nv, _ = self.shape
+        row_bytes = 12 * w * nl
+        rstep = max(1, max_bytes // max(row_bytes, 1))
+        cstep = w if row_bytes <= max_bytes else max(1, max_bytes // (12 * nl))
+        for v in range(nv):
+            for r0 in range(0, h, rstep):
+                for c0 in range(0, w, cstep):
+                    yield self.read(
+                        slice(r0, min(r0 + rstep, h)), slice(c0, min(c0 + cstep, w)),
+                        slice(None), [v],
+                    )  # fmt: skip
 
     def to_array(self) -> np.ndarray:
         """The whole BTF in memory. Only for small BTFs: refuses above 2 GiB."""
