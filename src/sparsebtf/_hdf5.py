@@ -3,7 +3,7 @@ watchdog around every open of an input.
 
 Writing (:func:`create`, :func:`create_dataset`)
     Files use the HDF5 1.10 object formats (``libver=("v110", "v110")``, readable by HDF5 ≥
-    1.10, h5py ≥ 2.10, MATLAB R2021b+): object headers, the superblock and chunk indexes carry
+    1.10 and h5py ≥ 2.10): object headers, the superblock and chunk indexes carry
     checksums, so a flipped bit in an attribute or in the file's structure is reported, not
     read. Every non-empty dataset gets the ``fletcher32`` filter, so a flipped bit in the data
     is reported by whichever HDF5 reader reads it. libhdf5 does not survive a failed write
@@ -401,6 +401,8 @@ def _walk_message(path: str) -> str:
             f.visititems(visit)
     except SparseBTFError as e:
         return f"{where}: {e}"
+    except MemoryError:
+        return f"{where}: the HDF5 library ran out of memory (over the budget) reading it"
     except Exception as e:  # any failure goes to the parent
         return str(read_error(e, where))
     return ""

@@ -11,6 +11,7 @@ the benchmark is replayed with :func:`run_case`.
 
 from __future__ import annotations
 
+import io
 import os
 import zipfile
 from pathlib import Path
@@ -231,6 +232,19 @@ def mutate(data: bytes, rng: np.random.Generator) -> bytes:
     return bytes(b)
 
 
+def _mutate_member(data: bytes, rng: np.random.Generator) -> bytes:
+    """The archive ``data`` rewritten with one member mutated (its CRC recomputed)."""
+    out = io.BytesIO()
+    with zipfile.ZipFile(io.BytesIO(data)) as zi:
+        infos = zi.infolist()
+        victim = int(rng.integers(len(infos)))
+        with zipfile.ZipFile(out, "w", infos[0].compress_type) as zo:
+            for i, info in enumerate(infos):
+                blob = zi.read(info)
+                zo.writestr(info.filename, mutate(blob, rng) if i == victim else blob)
+    return out.getvalue()
+
+
 def write_case(corpus: dict[str, list[Path]], reader: str, seed: int, folder: Path) -> Path:
     """Write case ``seed`` of ``reader`` (a mutated copy of one corpus file) into ``folder``."""
     rng = np.random.default_rng([READERS.index(reader), seed])
@@ -239,7 +253,12 @@ def write_case(corpus: dict[str, list[Path]], reader: str, seed: int, folder: Pa
     target = folder / src.name
     folder.mkdir(parents=True, exist_ok=True)
     tmp = target.with_suffix(target.suffix + ".tmp")
-    tmp.write_bytes(mutate(src.read_bytes(), rng))
+    if src.suffix == ".zip" and rng.integers(2):
+        # Half the zip cases damage one image inside a valid archive (correct CRCs), so the
+        # JPEG and Radiance parsers are reached, not only the archive's own checks.
+        tmp.write_bytes(_mutate_member(src.read_bytes(), rng))
+    else:
+        tmp.write_bytes(mutate(src.read_bytes(), rng))
     os.replace(tmp, target)
     return target
 

@@ -136,6 +136,8 @@ def _decode_jpeg(data: bytes, where: str) -> np.ndarray:
 
     try:
         u8 = np.asarray(iio.imread(data, extension=".jpg"))
+    except MemoryError:
+        raise
     except Exception as exc:
         raise FileFormatError(f"{where}: cannot decode JPEG ({exc})") from exc
     if u8.ndim == 2:

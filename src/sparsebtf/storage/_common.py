@@ -10,38 +10,12 @@ from typing import Any
 
 import h5py
 
-from .._h5check import (
-    HDF5_ERRORS,
-    as_str,
-    checked_dataset,
-    integrity,
-    read_array,
-    read_float_attr,
-    read_int_attr,
-    read_json_attr,
-    read_str_attr,
-    require,
-)
+from .._h5check import HDF5_ERRORS, read_int_attr, read_str_attr
 from .._hdf5 import open_h5, read_error
 from .._json import json_default
 from ..errors import FileFormatError, SparseBTFError
 
-__all__ = [
-    "as_str",
-    "check_geometry",
-    "check_str_param",
-    "check_tau_param",
-    "checked_dataset",
-    "integrity",
-    "open_checked",
-    "read_array",
-    "read_float_attr",
-    "read_int_attr",
-    "read_json_attr",
-    "read_str_attr",
-    "require",
-    "to_json",
-]
+__all__ = ["check_geometry", "check_str_param", "check_tau_param", "open_checked", "to_json"]
 
 
 def to_json(obj: Any) -> str:

@@ -37,6 +37,15 @@ import numpy as np
 
 from .. import library_version
 from .._atomic import atomic_output
+from .._h5check import (
+    checked_dataset,
+    read_array,
+    read_float_attr,
+    read_int_attr,
+    read_json_attr,
+    read_str_attr,
+    require,
+)
 from .._hdf5 import create, create_dataset, write_str_attr
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
@@ -44,20 +53,7 @@ from ..learning.coding import SparseCodes
 from ..learning.cost import location_width
 from ..model import CodedBTF, Model
 from ..points.preprocessing import EPS, STD_MODES, Standardization
-from ._common import (
-    check_geometry,
-    check_str_param,
-    check_tau_param,
-    checked_dataset,
-    open_checked,
-    read_array,
-    read_float_attr,
-    read_int_attr,
-    read_json_attr,
-    read_str_attr,
-    require,
-    to_json,
-)
+from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 
 __all__ = [
     "CODED_FORMAT",

@@ -30,25 +30,21 @@ import numpy as np
 
 from .. import library_version
 from .._atomic import atomic_output
-from .._hdf5 import create, create_dataset, write_str_attr
-from ..data.dense_file import read_directions, write_directions
-from ..errors import BTFInputError, FileFormatError
-from ..model import Model, dictionaries_hash
-from ..points.preprocessing import STD_MODES, TRANSFORMS
-from ._common import (
+from .._h5check import (
     as_str,
-    check_geometry,
-    check_str_param,
-    check_tau_param,
     checked_dataset,
-    open_checked,
     read_array,
     read_int_attr,
     read_json_attr,
     read_str_attr,
     require,
-    to_json,
 )
+from .._hdf5 import create, create_dataset, write_str_attr
+from ..data.dense_file import read_directions, write_directions
+from ..errors import BTFInputError, FileFormatError
+from ..model import Model, dictionaries_hash
+from ..points.preprocessing import STD_MODES, TRANSFORMS
+from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 
 __all__ = ["MODEL_FORMAT", "MODEL_SCHEMA_VERSION", "load_model", "save_model"]
 
