@@ -12,7 +12,7 @@ The coded file is UBO2014-size (400×400 texels, 151×151 directions, K = 8, τ 
 The alternative the issue names, a stored content hash checked on load, is timed as SHA-256
 over the same dataset bytes. A dense file (``--dense-size`` texels, 151×151 directions) is
 scanned with and without fletcher32 to show the cost on large reads. All ratios are measured
-in one run.
+in one run, the variants' runs interleaved.
 
     python benchmarks/bench_checksum.py [--dense-size 20] [--json]
 """
@@ -22,6 +22,8 @@ from __future__ import annotations
 import argparse
 import hashlib
 import tempfile
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import h5py
@@ -58,6 +60,19 @@ def _rewrite(src: Path, dst: Path, libver: str | tuple[str, str], fletcher32: bo
     return dst
 
 
+def interleaved_best(fns: dict[str, Callable[[], object]], repeat: int) -> dict[str, float]:
+    """Best wall time of each function, the runs interleaved (A, B, C, A, B, C, …) so that
+    a change in the machine's load hits every variant alike; one warm-up run each."""
+    best = dict.fromkeys(fns, float("inf"))
+    for r in range(repeat + 1):
+        for name, fn in fns.items():
+            t = time.perf_counter()
+            fn()
+            if r:
+                best[name] = min(best[name], time.perf_counter() - t)
+    return best
+
+
 def _sha256_of_datasets(path: Path) -> str:
     h = hashlib.sha256()
     with h5py.File(path, "r") as f:
@@ -89,12 +104,16 @@ def main() -> None:
         old = _legacy_copy(ours, d / "schema1.h5")
         with h5py.File(plain, "a") as f:  # read like a schema-1 file
             f.attrs["schema_version"] = 1
-        loads = {}
-        for name, path in (("schema 2", ours), ("no fletcher32", plain), ("schema 1", old)):
+        files = {"schema 2": ours, "no fletcher32": plain, "schema 1": old}
+        for path in files.values():
             load_coded(path)  # the watchdog walks each file once; later loads skip it
-            loads[name] = best_of(lambda path=path: load_coded(path), args.repeat)
-        walk = best_of(lambda: _probe(ours), args.repeat)
-        sha = best_of(lambda: _sha256_of_datasets(plain), args.repeat)
+        times = interleaved_best(
+            {**{n: (lambda p=p: load_coded(p)) for n, p in files.items()},
+             "walk": lambda: _probe(ours), "sha": lambda: _sha256_of_datasets(plain)},
+            args.repeat,
+        )  # fmt: skip
+        loads = {n: times[n] for n in files}
+        walk, sha = times["walk"], times["sha"]
         sizes = {n: p.stat().st_size for n, p in (("schema 2", ours), ("no fletcher32", plain),
                                                   ("schema 1", old))}  # fmt: skip
 
@@ -105,10 +124,9 @@ def main() -> None:
             btf = synthesize("stone", args.dense_size, "ubo2014", 0)
             dense = write_dense(d / "dense.h5", btf)
             plain_dense = _rewrite(dense, d / "dense_plain.h5", ("v110", "v110"), False)
-            for path in (dense, plain_dense):
-                _scan(path)
-            t_dense = best_of(lambda: _scan(dense), 3)
-            t_plain = best_of(lambda: _scan(plain_dense), 3)
+            scans = interleaved_best({"fletcher32": lambda: _scan(dense),
+                                      "plain": lambda: _scan(plain_dense)}, 3)  # fmt: skip
+            t_dense, t_plain = scans["fletcher32"], scans["plain"]
 
     nnz = coded.nnz()
     rows = [

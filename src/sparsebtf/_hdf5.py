@@ -190,11 +190,16 @@ def check_written(f: h5py.File) -> None:
 def create_dataset(group: h5py.Group, name: str, data: Any = None, **kwargs: Any) -> h5py.Dataset:
     """``group.create_dataset`` with the ``fletcher32`` checksum (chunked, as HDF5 requires).
 
-    Empty datasets hold no data to protect and are written plainly.
+    Unless ``chunks`` is given, a chunk is whole rows of about 1 MiB (h5py's guess splits
+    (n, 3) location tables into column chunks, three times the reads). Empty and scalar
+    datasets hold no data to protect and are written plainly.
     """
-    shape = kwargs.get("shape", None if data is None else np.shape(data))
-    if shape is not None and int(np.prod(shape, dtype=np.int64)) > 0:
-        kwargs.setdefault("chunks", True)
+    shape = tuple(kwargs.get("shape", None if data is None else np.shape(data)) or ())
+    if shape and int(np.prod(shape, dtype=np.int64)) > 0:
+        if kwargs.get("chunks") in (None, True):
+            itemsize = np.dtype(kwargs.get("dtype") or np.asarray(data).dtype).itemsize
+            row = itemsize * int(np.prod(shape[1:], dtype=np.int64))
+            kwargs["chunks"] = (min(shape[0], max(1, 2**20 // max(row, 1))), *shape[1:])
         kwargs["fletcher32"] = True
     return group.create_dataset(name, data=data, **kwargs)
 
@@ -263,8 +268,9 @@ def _has_signature(path: Path, size: int) -> bool:
 _probed: OrderedDict[tuple[int, ...], None] = OrderedDict()
 
 
-def open_h5(path: str | os.PathLike[str]) -> h5py.File:
-    """Open an HDF5 input read-only, after the watchdog walk (see the module docstring).
+def open_h5(path: str | os.PathLike[str], **kwargs: Any) -> h5py.File:
+    """Open an HDF5 input read-only, after the watchdog walk (see the module docstring);
+    ``kwargs`` go to :class:`h5py.File` (e.g. the chunk cache size ``rdcc_nbytes``).
 
     Raises :class:`FileFormatError` naming the file: no such file, not a regular file, not
     HDF5, truncated or damaged, a link to another file, or a structure libhdf5 loops or
@@ -281,7 +287,7 @@ def open_h5(path: str | os.PathLike[str]) -> h5py.File:
         while len(_probed) > 256:
             _probed.popitem(last=False)
     try:
-        return h5py.File(p, "r")
+        return h5py.File(p, "r", **kwargs)
     except OSError as e:
         raise FileFormatError(f"{p}: not a readable HDF5 file, or truncated ({e})") from None
 

@@ -70,6 +70,8 @@ class BTF(abc.ABC):
     views: DirectionSet
     name: str
     attrs: dict[str, Any]
+    #: (rows, views) a scan should read at once to follow the storage (a file's chunks).
+    block_hint: tuple[int, int] = (1, 1)
 
     def __init__(
         self,
@@ -166,19 +168,23 @@ class BTF(abc.ABC):
             yield v, self.view_block(v)
 
     def iter_blocks(self, max_bytes: int = 64 * 2**20) -> Iterator[np.ndarray]:
-        """Yield the whole BTF as (h, w, L, 1, 3) float32 blocks of at most ``max_bytes`` (one
-        view, a band of rows or a tile), view by view: a scan whose memory does not grow with
-        the BTF."""
+        """Yield the whole BTF as (h, w, L, v, 3) float32 blocks of about ``max_bytes`` (bands
+        of rows of a few views, or tiles), following :attr:`block_hint` where it fits: a scan
+        whose memory does not grow with the BTF."""
         h, w, nl, nv, _ = self.shape
-        row_bytes = 12 * w * nl
+        hint_rows, vstep = (max(1, int(x)) for x in self.block_hint)
+        vstep = min(vstep, nv) if 12 * w * nl * vstep * hint_rows <= max_bytes else 1
+        row_bytes = 12 * w * nl * vstep
         rstep = max(1, max_bytes // max(row_bytes, 1))
-        cstep = w if row_bytes <= max_bytes else max(1, max_bytes // (12 * nl))
-        for v in range(nv):
+        if rstep >= hint_rows:
+            rstep -= rstep % hint_rows
+        cstep = w if row_bytes <= max_bytes else max(1, max_bytes // (12 * nl * vstep))
+        for v0 in range(0, nv, vstep):
             for r0 in range(0, h, rstep):
                 for c0 in range(0, w, cstep):
                     yield self.read(
                         slice(r0, min(r0 + rstep, h)), slice(c0, min(c0 + cstep, w)),
-                        slice(None), [v],
+                        slice(None), slice(v0, min(v0 + vstep, nv)),
                     )  # fmt: skip
 
     def to_array(self) -> np.ndarray:

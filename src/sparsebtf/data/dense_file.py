@@ -36,6 +36,7 @@ from .._h5check import (
     require,
 )
 from .._hdf5 import check_written, create, create_dataset, open_h5, read_error, write_str_attr
+from .._limits import memory_budget
 from .._progress import progress as _progress
 from ..errors import BTFInputError, FileFormatError, SparseBTFError
 from .btf import BTF, Index
@@ -148,7 +149,10 @@ class DenseFileBTF(BTF):
 
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
-        f = open_h5(self.path)
+        # Checksummed chunks are read and verified whole: a chunk cache of an eighth of the
+        # memory budget keeps the chunks shared by neighbouring patches or views.
+        cache = memory_budget() // 8
+        f = open_h5(self.path, rdcc_nbytes=cache, rdcc_nslots=max(10007, cache // 2**14 | 1))
         try:
             ds, lights, views, name, attrs = _open_dense(f, str(self.path))
         except SparseBTFError:
@@ -160,6 +164,8 @@ class DenseFileBTF(BTF):
         super().__init__(ds.shape[0], ds.shape[1], lights, views, name, attrs)
         self._file = f
         self._ds = ds
+        if ds.chunks is not None:  # scans read whole chunks: their rows and views at once
+            self.block_hint = (int(ds.chunks[0]), int(ds.chunks[3]))
 
     @property
     def dtype(self) -> np.dtype:
