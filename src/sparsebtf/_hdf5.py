@@ -190,16 +190,18 @@ def check_written(f: h5py.File) -> None:
 def create_dataset(group: h5py.Group, name: str, data: Any = None, **kwargs: Any) -> h5py.Dataset:
     """``group.create_dataset`` with the ``fletcher32`` checksum (chunked, as HDF5 requires).
 
-    Unless ``chunks`` is given, a chunk is whole rows of about 1 MiB (h5py's guess splits
-    (n, 3) location tables into column chunks, three times the reads). Empty and scalar
-    datasets hold no data to protect and are written plainly.
+    Unless ``chunks`` is given, chunks are whole rows, at most 1 MiB and of equal size (h5py's
+    guess splits (n, 3) location tables into column chunks; HDF5 stores edge chunks whole).
+    Empty and scalar datasets hold no data to protect and are written plainly.
     """
     shape = tuple(kwargs.get("shape", None if data is None else np.shape(data)) or ())
     if shape and int(np.prod(shape, dtype=np.int64)) > 0:
         if kwargs.get("chunks") in (None, True):
             itemsize = np.dtype(kwargs.get("dtype") or np.asarray(data).dtype).itemsize
             row = itemsize * int(np.prod(shape[1:], dtype=np.int64))
-            kwargs["chunks"] = (min(shape[0], max(1, 2**20 // max(row, 1))), *shape[1:])
+            per = max(1, 2**20 // max(row, 1))
+            n = -(-shape[0] // per)  # chunks of equal rows: the last one wastes < n rows
+            kwargs["chunks"] = (-(-shape[0] // n), *shape[1:])
         kwargs["fletcher32"] = True
     return group.create_dataset(name, data=data, **kwargs)
 
