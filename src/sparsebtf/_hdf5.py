@@ -16,7 +16,7 @@ Reading (:func:`open_h5`)
     A damaged file can make libhdf5 loop forever or crash (segfault) while it reads the file's
     structure. Before the first open in this process, a forked child walks the whole file —
     every link, object, attribute, chunk index, and every dataset under 64 MiB — under a time
-    limit (``$SPARSEBTF_HDF5_TIMEOUT``, default 10 s) and the memory budget. A loop becomes a
+    limit (``$SPARSEBTF_HDF5_TIMEOUT``, default 10 s) and a 512 MiB memory cap. A loop becomes a
     :class:`~sparsebtf.errors.FileFormatError` after the limit, a crash an error that names
     the signal; only then does this process open the file. Links to other files are refused.
 """
@@ -27,7 +27,6 @@ import contextlib
 import errno
 import io
 import os
-import resource
 import select
 import signal
 import stat
@@ -40,7 +39,6 @@ from typing import Any
 import h5py
 import numpy as np
 
-from ._limits import memory_budget
 from .errors import FileFormatError, SparseBTFError
 
 __all__ = [
@@ -61,6 +59,7 @@ GUARD_ENV = "SPARSEBTF_HDF5_GUARD"
 _SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _WALK_READ_LIMIT = 64 * 2**20  # datasets up to this size are read whole by the watchdog
 _WALK_MAX_OBJECTS = 200_000
+_WALK_MEMORY = 512 * 2**20  # address space the watchdog may add
 
 
 # --------------------------------------------------------------------------- writing
@@ -366,14 +365,17 @@ def _waitpid(pid: int) -> tuple[int, int]:
 
 
 def _limit_child_memory() -> None:  # pragma: no cover - runs in the child
-    """Address-space cap of the watchdog: what it has now plus the memory budget."""
+    """Address-space cap of the watchdog: what it has now plus 512 MiB (it reads datasets of
+    at most 64 MiB; more is libhdf5 misreading a damaged size)."""
+    import resource
+
     try:
         with open("/proc/self/statm") as fh:
             vsize = int(fh.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
     except (OSError, ValueError):
         return
     _, hard = resource.getrlimit(resource.RLIMIT_AS)
-    cap = vsize + memory_budget() + 2**29
+    cap = vsize + _WALK_MEMORY
     if hard != resource.RLIM_INFINITY:
         cap = min(cap, hard)
     with contextlib.suppress(ValueError, OSError):
@@ -410,7 +412,7 @@ def _walk_message(path: str) -> str:
     except SparseBTFError as e:
         return f"{where}: {e}"
     except MemoryError:
-        return f"{where}: the HDF5 library ran out of memory (over the budget) reading it"
+        return f"{where}: the HDF5 library ran out of memory (the watchdog's 512 MiB) reading it"
     except Exception as e:  # any failure goes to the parent
         return str(read_error(e, where))
     return ""

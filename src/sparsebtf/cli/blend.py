@@ -33,6 +33,8 @@ def direction(text: str, what: str) -> np.ndarray:
         raise BTFInputError(
             f"{what} must be 'azimuth,elevation' in degrees, got {text!r}"
         ) from None
+    if not np.isfinite(az):
+        raise BTFInputError(f"{what}: azimuth must be a finite number of degrees, got {text!r}")
     if not 0 < el <= np.pi / 2 + 1e-12:
         raise BTFInputError(f"{what}: elevation must be in (0, 90] degrees, got {np.degrees(el)}")
     return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])

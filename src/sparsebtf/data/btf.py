@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from .._limits import check_allocation
+from .._limits import check_allocation, format_bytes, memory_budget
 from ..errors import BTFInputError
 from .directions import DirectionSet
 
@@ -188,12 +188,14 @@ class BTF(abc.ABC):
                     )  # fmt: skip
 
     def to_array(self) -> np.ndarray:
-        """The whole BTF in memory. Only for small BTFs: refuses above 2 GiB."""
+        """The whole BTF in memory. Only for small BTFs: refuses above the memory budget
+        (2 GiB unless ``$SPARSEBTF_MAX_MEMORY_GB`` says otherwise)."""
         nbytes = self.n_values * 4
-        if nbytes > 2 * 2**30:
+        if nbytes > memory_budget():
             raise BTFInputError(
-                f"{self.name}: refusing to load {nbytes / 2**30:.1f} GiB into memory; "
-                "stream it by region or view block instead"
+                f"{self.name}: refusing to load {nbytes / 2**30:.1f} GiB into memory (budget "
+                f"{format_bytes(memory_budget())}, $SPARSEBTF_MAX_MEMORY_GB); stream it by region "
+                "or view block instead"
             )
         return self.read(slice(None), slice(None), slice(None), slice(None))
 

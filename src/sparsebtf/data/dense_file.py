@@ -147,11 +147,14 @@ def write_dense(
 class DenseFileBTF(BTF):
     """A BTF stored in our dense HDF5 file; reads only the chunks a request touches."""
 
+    #: HDF5 chunk cache per open file in bytes (None: an eighth of the memory budget).
+    chunk_cache: int | None = None
+
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
         # Checksummed chunks are read and verified whole: a chunk cache of an eighth of the
         # memory budget keeps the chunks shared by neighbouring patches or views.
-        cache = memory_budget() // 8
+        cache = self.chunk_cache or memory_budget() // 8
         f = open_h5(self.path, rdcc_nbytes=cache, rdcc_nslots=max(10007, cache // 2**14 | 1))
         try:
             ds, lights, views, name, attrs = _open_dense(f, str(self.path))
