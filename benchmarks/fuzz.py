@@ -18,7 +18,7 @@ are stopped by the package's 10 s watchdog first). Outcomes:
 "max extra RSS" is the largest growth of a case's peak resident memory over its worker's,
 including the HDF5 watchdog's forked walk (which has its own 512 MiB cap).
 
-    python benchmarks/fuzz.py --cases 2000              # the full run (about half an hour)
+    python benchmarks/fuzz.py --cases 2500              # 15,000 cases, a few minutes
     python benchmarks/fuzz.py --cases 50 --readers coded dense
     python benchmarks/fuzz.py --replay coded 1234       # one case in process, with traceback
 
