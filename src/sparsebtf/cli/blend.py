@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import BTFInputError
 from ..runtime.angular import SCHEMES
-from ._args import check_tau
+from ._args import check_output_dir, check_output_file, check_tau, integer, number
 from ._output import print_json
 
 __all__ = ["register"]
@@ -33,6 +33,8 @@ def direction(text: str, what: str) -> np.ndarray:
         raise BTFInputError(
             f"{what} must be 'azimuth,elevation' in degrees, got {text!r}"
         ) from None
+    if not np.isfinite(az):
+        raise BTFInputError(f"{what}: azimuth must be a finite number of degrees, got {text!r}")
     if not 0 < el <= np.pi / 2 + 1e-12:
         raise BTFInputError(f"{what}: elevation must be in (0, 90] degrees, got {np.degrees(el)}")
     return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
@@ -97,6 +99,8 @@ def cmd_blend(args: argparse.Namespace) -> int:
         raise BTFInputError("--sweep needs --png DIR for the strip of renders")
     if args.sweep and len(args.inputs) != 2:
         raise BTFInputError("--sweep runs α from 0 to 1 between two inputs")
+    check_output_file(args.output, [*args.inputs, args.model])
+    check_output_dir(args.png, "--png")
     coded = [load_coded_with_model(p, args.model) for p in args.inputs]
     report: dict[str, Any] = {"inputs": [str(p) for p in args.inputs]}
     if weights:
@@ -164,4 +168,7 @@ def register(sub: Any) -> None:
     s.add_argument("--interpolation", default="linear", choices=SCHEMES,
                    help="angular interpolation of the sweep's renders (default linear)")
     s.add_argument("--json", action="store_true", help="print the result as JSON")
-    s.set_defaults(func=cmd_blend)
+    s.set_defaults(func=cmd_blend, checks={
+        "alpha": number(0, 1, unit="(weight of the second input)"),
+        "sweep": integer(0, 10**4, unit="renders"),
+    })  # fmt: skip

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ._args import open_source
+from ._args import check_output_file, open_source
 
 __all__ = ["register"]
 
@@ -13,6 +13,7 @@ __all__ = ["register"]
 def run(args: argparse.Namespace) -> int:
     from ..data.dense_file import write_dense
 
+    check_output_file(args.output, [args.input])
     btf = open_source(args.input, crop=args.crop)
     write_dense(args.output, btf, dtype=args.dtype, progress=None)
     print(f"wrote {args.output}: {btf.height}x{btf.width} texels, {len(btf.lights)} lights x "

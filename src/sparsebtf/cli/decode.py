@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError
+from ._args import check_output_dir, check_output_file
 from ._model import MODEL_HELP
 
 __all__ = ["register"]
@@ -26,12 +27,15 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.output and not args.images:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --images L:V,...")
+    check_output_file(args.output, [args.coded, args.model])
+    check_output_dir(args.png, "--png")
+    pairs = _parse_pairs(args.images) if args.images else []
     coded = load_coded_with_model(args.coded, args.model)
+    check_output_file(args.output, [coded.model_file])
     view = coded_btf_view(coded)
     if args.images:
         from ..figures import save_angular_images
 
-        pairs = _parse_pairs(args.images)
         for light, v in pairs:
             for what, i, n in (("light", light, len(coded.lights)), ("view", v, len(coded.views))):
                 if not 0 <= i < n:

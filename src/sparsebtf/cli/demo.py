@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from ._args import check_output_dir, integer
+
 __all__ = ["DemoConfig", "register", "run_demo"]
 
 
@@ -234,6 +236,7 @@ def _bundled_rows(cfg: DemoConfig, test_btfs: list[Any], out: Path, row: Any) ->
 
 
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.out, "--out")
     run_demo(Path(args.out), quick=args.quick, seed=args.seed, as_json=args.json)
     return 0
 
@@ -245,4 +248,4 @@ def register(sub: Any) -> None:
     s.add_argument("--seed", type=int, default=0,
                    help="shifts every material's seed and the training seed (default 0)")
     s.add_argument("--json", action="store_true", help="also print the results as JSON")
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, checks={"seed": integer(0, 2**32 - 1)})

@@ -11,6 +11,8 @@ from ._args import (
     add_cluster_options,
     check_tau,
     cluster_options,
+    integer,
+    number,
     open_source,
     output_files,
     parse_crop,
@@ -26,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
     from ..storage import save_coded, storage_report
 
     tau = check_tau(args.tau)
-    outputs = output_files(args.btf, args.output)
+    outputs = output_files(args.btf, args.output, inputs=[args.model])
     model = open_model_arg(args.model)
     label = model_label(args.model, model)
     # One line, before any work, for an input the model cannot code (here, not on a worker,
@@ -116,4 +118,9 @@ def register(sub: Any) -> None:
                    "requires tau >= tau_l)")
     add_cluster_options(s)
     s.add_argument("--json", action="store_true", help="print the storage report(s) as JSON")
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, checks={
+        "eps": number(0, unit="(residual mean squared error, standardised)"),
+        "target_ratio": number(1, unit="(raw bytes / coded bytes)"),
+        "target_bytes": integer(1, unit="bytes"),
+        "batch": integer(1, 4096, unit="data points per batch"),
+    })  # fmt: skip

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ._args import open_source
+from ._args import integer, open_source
 from ._model import MODEL_HELP
 from ._output import print_json, table
 
@@ -82,4 +82,4 @@ def register(sub: Any) -> None:
         "--ssim-images", type=int, default=16, help="angular images sampled for SSIM (default 16)"
     )
     s.add_argument("--json", action="store_true", help="print one JSON object")
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, checks={"ssim_images": integer(0, 10**6, unit="angular images")})

@@ -7,6 +7,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError
+from ._args import check_output_dir, check_output_file
 from ._model import open_model_arg
 from ._output import print_json
 
@@ -20,6 +21,8 @@ def run(args: argparse.Namespace) -> int:
     if args.output is None and args.model is None:
         raise SparseBTFError("give -o MODEL.h5 (the model file to write) or -m NAME (code the "
                              "coefficients against a bundled model, e.g. -m release)")
+    check_output_file(args.output)
+    check_output_dir(args.coded_dir, "--coded-dir")
     against = open_model_arg(args.model) if args.model else None
     model, coded, notes = import_release(args.folder, prefer=args.prefer, model=against)
     if args.output:

@@ -39,7 +39,7 @@ def describe_btf(btf: BTF, scan: bool = True) -> dict[str, Any]:
     }
     if scan:
         lo, hi, total, nonfinite = np.inf, -np.inf, 0.0, 0
-        for _, block in btf.iter_view_blocks():
+        for block in btf.iter_blocks():
             finite = np.isfinite(block)
             nonfinite += int((~finite).sum())
             vals = block[finite]
@@ -69,7 +69,7 @@ def describe(
     size = Path(s).stat().st_size
     if fmt == "sparsebtf-dense":
         out = describe_btf(open_btf(s), scan)
-        out.update(format=fmt, file_bytes=size)
+        out.update(format=fmt, file_bytes=size, integrity=_integrity(s))
         return out
     if fmt == "sparsebtf-model":
         from ..storage import load_model
@@ -91,6 +91,7 @@ def describe(
             "training": m.training,
             "provenance": m.provenance,
             "file_bytes": size,
+            "integrity": _integrity(s),
         }
     if fmt == "sparsebtf-coded":
         from ..errors import ModelMismatchError
@@ -125,6 +126,7 @@ def describe(
                 "views": {"name": coded.views.name, "count": len(coded.views)},
             },
             **{k: v for k, v in report.items() if not isinstance(v, dict) or k == "nnz"},
+            "integrity": _integrity(s),
         }
     return {"kind": "unknown", "format": fmt, "file_bytes": size}
 
@@ -156,6 +158,15 @@ def _text(v: Any) -> str:
     if isinstance(v, dict | list):
         return json.dumps(v, default=json_default)
     return str(v)
+
+
+def _integrity(path: str) -> str:
+    """Which checksums protect the file (schema 2: fletcher32 on every dataset)."""
+    from .._h5check import integrity
+    from .._hdf5 import open_h5
+
+    with open_h5(path) as f:
+        return integrity(f)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -20,6 +20,7 @@ from ..errors import BTFInputError, SparseBTFError
 from ..open import file_format, open_btf
 from ..points.grid import PatchGrid
 from ..points.preprocessing import from_log_yuv, gather_statistics, to_log_yuv
+from ._args import integer
 from ._model import MODEL_HELP
 from ._output import print_json, table
 
@@ -116,4 +117,4 @@ def register(sub: Any) -> None:
     s.add_argument("--view", type=int, required=True, help="view index, 0-based")
     s.add_argument("-m", "--model", help=MODEL_HELP + " (default: the one the coded file names)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, checks={"light": integer(0), "view": integer(0)})

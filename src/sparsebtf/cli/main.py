@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 from collections.abc import Sequence
 
@@ -31,6 +32,7 @@ from . import (
     train,
     view,
 )
+from ._args import check_args
 
 __all__ = ["build_parser", "main"]
 
@@ -53,10 +55,20 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _terminate(signum: int, frame: object) -> None:
+    # `kill` (SIGTERM) unwinds like Ctrl-C, so temporary outputs are removed on the way out.
+    raise SystemExit(128 + signum)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        previous = signal.signal(signal.SIGTERM, _terminate)
+    except ValueError:  # not the main thread (embedded use): keep the default
+        previous = None
+    try:
+        check_args(args)
         return int(args.func(args) or 0)
     except SparseBTFError as e:
         print(f"sparsebtf: error: {e}", file=sys.stderr)
@@ -70,6 +82,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         devnull = os.open(os.devnull, os.O_WRONLY)
         os.dup2(devnull, sys.stdout.fileno())
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":  # pragma: no cover

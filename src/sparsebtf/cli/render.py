@@ -20,6 +20,7 @@ from typing import Any
 
 from ..errors import SparseBTFError
 from ..runtime.angular import SCHEMES
+from ._args import check_output_file, integer, number
 
 __all__ = ["cmd_render", "register"]
 
@@ -68,6 +69,9 @@ def cmd_render(args: argparse.Namespace) -> int:
     size = _parse_size(args.size)
     if not Path(args.coded).exists():
         raise SparseBTFError(f"{args.coded}: no such file")
+    inputs = [args.coded, args.model, args.reference, args.envmap]
+    check_output_file(args.output, inputs)
+    check_output_file(args.save_raw, [*inputs, args.output], flag="--save-raw")
     _refuse_slow_scalar(args, size)
     common: dict[str, Any] = {
         "uv_scale": float(args.uv_scale),
@@ -234,4 +238,13 @@ def register(sub: Any) -> None:
                    help="Mitsuba variant: auto (llvm_ad_rgb, else scalar_rgb), cuda, llvm, scalar")
     s.add_argument("--save-raw", metavar="NPZ", help="also save the linear float renders (.npz)")
     s.add_argument("--json", action="store_true", help="print the numbers as JSON")
-    s.set_defaults(func=cmd_render)
+    s.set_defaults(func=cmd_render, checks={
+        "spp": integer(1, 2**20, unit="samples per pixel"),
+        "uv_scale": number(0, 1e6, lo_open=True),
+        "k": integer(1, 64, unit="neighbours"),
+        "beta": number(0, 1e6, lo_open=True),
+        "max_gib": number(0, lo_open=True, unit="GiB"),
+        "max_depth": integer(1, 1024, unit="bounces"),
+        "seed": integer(0, 2**31 - 1),
+        "exposure": number(0, lo_open=True),
+    })  # fmt: skip

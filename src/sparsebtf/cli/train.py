@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from ..points.preprocessing import STD_MODES
-from ._args import open_source
+from ._args import check_output_file, integer, number, open_source
 from ._output import print_json
 
 __all__ = ["register"]
@@ -16,6 +16,7 @@ def run(args: argparse.Namespace) -> int:
     from ..codec import train
     from ..storage import save_model
 
+    check_output_file(args.output, args.btfs)
     btfs = [open_source(s, crop=args.crop) for s in args.btfs]
     model = train(
         btfs,
@@ -95,4 +96,12 @@ def register(sub: Any) -> None:
     s.add_argument("--crop", help="use only rows R0:R1 and columns C0:C1 of every BTF")
     s.add_argument("--checkpoint-dir", help="save after each iteration and resume from here")
     s.add_argument("--json", action="store_true", help="print the training summary as JSON")
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, checks={
+        "dicts": integer(1, 65535, unit="dictionaries per ensemble"),
+        "patch": integer(1, 4096, unit="texels"),
+        "sample": number(0, 1, lo_open=True, unit="(fraction of each BTF's data points)"),
+        "iters": integer(1, 10**6, unit="iterations"),
+        "tol": number(0, unit="(relative objective decrease)"),
+        "batch": integer(1, 4096, unit="data points per batch"),
+        "seed": integer(0, 2**32 - 1),
+    })  # fmt: skip

@@ -22,8 +22,9 @@ from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from .._h5check import read_json_attr, read_str_attr
 from ..errors import FileFormatError, ModelMismatchError
-from ._common import open_checked, read_json_attr, read_str_attr
+from ._common import open_checked
 
 if TYPE_CHECKING:
     from ..model import CodedBTF, Model
@@ -82,11 +83,11 @@ class BundledModel:
 
 @functools.cache
 def _registry(folder: str) -> dict[str, BundledModel]:
-    from .model_file import MODEL_FORMAT
+    from .model_file import _SUPPORTED, MODEL_FORMAT
 
     out: dict[str, BundledModel] = {}
     for path in sorted(Path(folder).glob("*.h5")):
-        with open_checked(path, MODEL_FORMAT, (1,)) as f:
+        with open_checked(path, MODEL_FORMAT, _SUPPORTED) as f:
             where = str(path)
             out[path.stem] = BundledModel(
                 path.stem,
@@ -159,14 +160,18 @@ def find_model(
     if name is not None:
         return load_bundled(name)
     recorded = coded.model_file
-    if recorded and Path(recorded).exists():
+    # A path read from a file is followed only to a regular file (a FIFO there would block).
+    if recorded and Path(recorded).is_file():
         from .model_file import load_model
 
         return load_model(recorded)
-    why = (
-        f"the model file it recorded, {recorded}, does not exist" if recorded
-        else "it records no model file"
-    )
+    if not recorded:
+        why = "it records no model file"
+    elif Path(recorded).exists():
+        why = (f"the model file it recorded, {recorded}, is not a regular file (a folder, "
+               "FIFO or device)")  # fmt: skip
+    else:
+        why = f"the model file it recorded, {recorded}, does not exist"
     raise ModelMismatchError(
         f"{where or coded.name}: coded with model {coded.model_hash[:12]}…, which is not a "
         f"bundled model, and {why}; give the model file it was coded with (--model MODEL.h5 on "
