@@ -1,26 +1,41 @@
-"""Mitsuba 3 render time of a coded material (``sparsebtf`` plugin, Dr.Jit LLVM backend).
+"""Mitsuba 3 renders of coded materials: BTF-driven vs cosine sampling, and the lookup's cost.
 
-A coded BTF at full UBO2014 angular resolution (151 lights × 151 views, 10×10 patches,
-``--texels`` square texture) with K = 8 random orthonormal dictionaries per channel and
-τ = (885, 64, 64) random coefficients sorted by magnitude (as the encoder stores them): the
-cost of a lookup depends on τ, K and the angular size, not on the values. Scene: the built-in
-sphere on a floor (both with the material), procedural sky, path tracer with max depth 4,
-256×256 pixels, 16 spp, linear (2-NN, the release's) angular interpolation in coefficient
-space (Eq. 6). Measured in one run:
+Measured in one run (``sparsebtf`` plugin, path tracer with max depth 4, the built-in sphere on
+a floor, both carrying the material with ``uv_scale`` 2, linear angular interpolation):
 
-* the render time at τ = (885, 64, 64) and at a quarter of it, (221, 16, 16), each the best of
-  ``--repeat`` renders after a first one that also traces and compiles the kernels;
-* their ratio, and the time of the first render (Dr.Jit tracing + LLVM code generation);
-* for scale: the same scene with the uncompressed reference plugin (``sparsebtf_dense``) on a
-  20×20-texel dense table (109 MB) with the same interpolation.
+**Noise** (``--size``², default 48²). Two synthetic materials at UBO2014 directions (151 × 151,
+20×20 texels, seed 7): a glossy one (``--glossy``, default leather) and a diffuse one (felt),
+and an analytic mirror-lobe BTF (:func:`lobe_btf`; ``--no-lobe`` skips it), coded at
+τ = (885, 64, 64) with a K = 2 model trained on them (cached in
+``$SPARSEBTF_CACHE/bench_render``). The two synthetic ones are lit by the procedural sky and by
+a small bright emitter (``light="emitter"`` of :func:`sparsebtf.rendering.scenes.scene_dict`),
+the lobe by the sky. The reference
+is the mean of a cosine-sampled and a BTF-sampled render of ``--ref-spp``/2 samples each (the
+two halves also check that both samplers converge to the same image). Then, per sampler, the
+relative MSE ‖img − ref‖²/‖ref‖² of ``--spp`` renders (``--seeds`` seeds, averaged) and their
+time (samplers: cosine, BTF with one table per material, BTF with one table per data point);
+at equal time, cosine sampling with the spp the BTF sampler's time buys (time per sample from
+the two reference halves, long renders). Before rendering, a
+BSDF-level check: the relative variance of sample()'s weight eval/pdf at three incidences.
 
-    python benchmarks/bench_render.py [--size 256] [--spp 16] [--json]
+**Time per sample** (``--time-size``², ``--time-spp``): the benchmark material of
+``_common.synthetic_coded`` (K = 8 random dictionaries, 40×40 texels) at τ = (885, 64, 64) and
+a quarter of it, and the dense reference plugin on a 20×20-texel table, each with both
+samplers; best of ``--repeat`` interleaved rounds after one render each that compiles the
+kernels.
+
+    python benchmarks/bench_render.py [--json] [--out docs/rendering]
+    python benchmarks/bench_render.py --backend cuda      # on a machine with an NVIDIA GPU
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import sys
 import time
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -28,75 +43,325 @@ from _common import TAU, machine, report, synthetic_coded
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.data.directions import ubo2014
 
+CODED_TAU = (885, 64, 64)
+LIGHTS = ("sky", "emitter")
+SAMPLERS = ("cosine", "btf")
+#: The noise renders also try per-patch tables (one per data point).
+NOISE_SAMPLERS = {"cosine": {"sampling": "cosine"}, "btf": {"sampling": "btf"},
+                  "btf_patch": {"sampling": "btf", "sampling_tables": "patch"}}
+INCIDENCES = {"normal": (0.0, 0.0, 1.0), "45 deg": (0.5, 0.5, 0.7071), "75 deg": (0.9, 0.25, 0.26)}
+
+
+def log(message: str) -> None:
+    """Progress on stderr (stdout carries the table or the JSON)."""
+    print(message, file=sys.stderr, flush=True)
+
+
+def lobe_btf(size: int = 20, width: float = 0.03) -> ArrayBTF:
+    """An analytic glossy BTF at UBO2014 directions: cos θ_light · (a dim diffuse texture + a
+    mirror lobe exp(−(1 − r·v)/``width``), r the mirrored light, of spatially varying weight).
+    What the synthetic classes lack: a material-wide lobe that cosine sampling misses."""
+    rng = np.random.default_rng(7)
+    d = ubo2014()
+    x = d.xyz
+    lobe = np.exp(-(1.0 - (x * np.array([-1.0, -1.0, 1.0])) @ x.T) / width)  # (L, V)
+    base = rng.uniform(0.3, 1.0, (size, size, 1, 1, 3))
+    spec = rng.uniform(0.6, 1.0, (size, size, 1, 1, 1))
+    data = x[:, 2][None, None, :, None, None] * (0.05 * base + 1.5 * spec * lobe[..., None])
+    return ArrayBTF(data.astype(np.float32), d, d, name="lobe")
+
+
+def coded_materials(glossy: str, lobe: bool) -> dict[str, Any]:
+    """{name: RuntimeBTF} of the glossy class, felt (and the analytic lobe), trained together
+    (K = 2) and coded once (cached)."""
+    from sparsebtf.codec import encode, train
+    from sparsebtf.data.synth import resolve_cache_dir, synthesize
+    from sparsebtf.runtime import RuntimeBTF
+    from sparsebtf.storage import load_coded_with_model, save_coded, save_model
+
+    names = (glossy, "felt", "lobe") if lobe else (glossy, "felt")
+    folder = resolve_cache_dir() / "bench_render" / f"{'-'.join(names)}-v1"
+    paths = {n: folder / f"{n}.coded.h5" for n in names}
+    if not all(p.exists() for p in paths.values()):
+        btfs = [lobe_btf() if n == "lobe" else synthesize(n, size=20, directions="ubo2014",
+                                                          seed=7) for n in names]  # fmt: skip
+        log(f"training a K = 2 model on {', '.join(names)} (once, then cached in {folder})")
+        model = train(btfs, n_dictionaries=2, tau_train=(256, 32, 32), patch=10, sample=1.0,
+                      max_iter=2, progress=False)  # fmt: skip
+        folder.mkdir(parents=True, exist_ok=True)
+        save_model(model, folder / "model.h5")
+        for n, b in zip(names, btfs, strict=True):
+            coded = encode(b, model, tau=CODED_TAU, progress=False)
+            coded.params["model_file"] = str(folder / "model.h5")
+            save_coded(coded, paths[n])
+    return {n: RuntimeBTF(load_coded_with_model(p, folder / "model.h5")) for n, p in paths.items()}
+
+
+class Renderer:
+    """Renders of the built-in sphere scene with one light, timed after ``dr.sync_thread``."""
+
+    def __init__(self, backend: str) -> None:
+        import sparsebtf.mitsuba as sbm
+
+        self.variant = sbm.setup(backend)
+        self.why = sbm.variant_message
+        import drjit as dr
+        import mitsuba as mi
+
+        self.mi, self.dr = mi, dr
+
+    def __call__(self, bsdf: dict, light: str, size: int, spp: int, seed: int,
+                 max_pass: int = 256) -> tuple[np.ndarray, float]:
+        """(linear RGB image, render seconds); spp above ``max_pass`` in passes (new seeds)."""
+        from sparsebtf.rendering.mitsuba import preload
+        from sparsebtf.rendering.scenes import scene_dict
+
+        mi, dr = self.mi, self.dr
+        preload(bsdf)
+        scene = mi.load_dict(scene_dict(mi, bsdf, "sphere", size, size, light=light))
+        acc, seconds, done, k = 0.0, 0.0, 0, 0
+        while done < spp:
+            n = min(max_pass, spp - done)
+            t = time.perf_counter()
+            img = mi.render(scene, spp=n, seed=seed + 7919 * k)
+            dr.eval(img)
+            dr.sync_thread()
+            seconds += time.perf_counter() - t
+            acc = acc + np.array(img, dtype=np.float64)[..., :3] * n
+            done, k = done + n, k + 1
+        return acc / spp, seconds
+
+
+def rel_mse(img: np.ndarray, ref: np.ndarray) -> float:
+    return float(np.mean((img - ref) ** 2) / np.mean(ref**2))
+
+
+def noise(render: Renderer, rts: dict[str, Any], args: argparse.Namespace) -> tuple[dict, dict]:
+    """Relative MSE and time of both samplers per (material, light); the images."""
+    import sparsebtf.mitsuba as sbm
+
+    out: dict[str, Any] = {}
+    images: dict[tuple[str, str], dict[str, np.ndarray]] = {}
+    for name, rt in rts.items():
+        key = sbm.add_material(rt, f"bench-{name}")
+        for light in LIGHTS if name != "lobe" else ("sky",):
+            t0 = time.perf_counter()
+
+            def bsdf(sampler: str, key: str = key) -> dict:
+                return {"type": "sparsebtf", "key": key, "uv_scale": 2.0,
+                        "interpolation": "linear", **NOISE_SAMPLERS[sampler]}  # fmt: skip
+
+            half = max(1, args.ref_spp // 2)
+            refs, ref_secs = {}, {}
+            for i, s in enumerate(SAMPLERS):
+                refs[s], ref_secs[s] = render(bsdf(s), light, args.size, half, 100_000 + 1000 * i)
+            ref = 0.5 * (refs["cosine"] + refs["btf"])
+            row: dict[str, Any] = {"reference_halves_rel_mse": rel_mse(refs["cosine"],
+                                                                       refs["btf"]),
+                                   "reference_half_seconds": ref_secs}  # fmt: skip
+            # the reference's own error: each half has variance s², their difference 2s²,
+            # their mean s²/2, i.e. a quarter of the halves' difference
+            row["reference_noise_rel_mse"] = row["reference_halves_rel_mse"] / 4
+            for s in NOISE_SAMPLERS:
+                render(bsdf(s), light, args.size, 1, 0)  # compile the kernels
+            mses: dict[str, list] = {s: [] for s in NOISE_SAMPLERS}
+            secs: dict[str, list] = {s: [] for s in NOISE_SAMPLERS}
+            for seed in range(args.seeds):  # samplers interleaved: load drift hits all alike
+                for s in NOISE_SAMPLERS:
+                    img, sec = render(bsdf(s), light, args.size, args.spp, seed)
+                    mses[s].append(rel_mse(img, ref))
+                    secs[s].append(sec)
+                    if seed == 0:
+                        images.setdefault((name, light), {"reference": ref})[s] = img
+            for s in NOISE_SAMPLERS:
+                sec = float(np.median(secs[s]))
+                row[s] = {"rel_mse": float(np.mean(mses[s])), "rel_mse_per_seed": mses[s],
+                          "seconds": sec,
+                          "ns_per_sample_per_pixel": sec / (args.size**2 * args.spp) * 1e9}
+            # equal time: the spp cosine sampling gets in the BTF sampler's time, timed on the
+            # long reference halves (a short render's time is at the mercy of the load)
+            spp_eq = max(1, round(args.spp * ref_secs["btf"] / ref_secs["cosine"]))
+            eq = [rel_mse(render(bsdf("cosine"), light, args.size, spp_eq, seed)[0], ref)
+                  for seed in range(args.seeds)]  # fmt: skip
+            row["cosine_equal_time"] = {"spp": spp_eq, "rel_mse": float(np.mean(eq))}
+            row["mse_ratio_cosine_over_btf"] = row["cosine"]["rel_mse"] / row["btf"]["rel_mse"]
+            row["mse_ratio_cosine_over_btf_patch"] = (row["cosine"]["rel_mse"]
+                                                      / row["btf_patch"]["rel_mse"])  # fmt: skip
+            row["mse_ratio_equal_time"] = row["cosine_equal_time"]["rel_mse"] / row["btf"][
+                "rel_mse"]
+            noise_free = [row[s]["rel_mse"] - row["reference_noise_rel_mse"] for s in SAMPLERS]
+            row["mse_ratio_less_reference_noise"] = noise_free[0] / max(noise_free[1], 1e-30)
+            row["seconds_total"] = time.perf_counter() - t0
+            out[f"{name}/{light}"] = row
+            log(f"  {name:9s} {light:8s} cosine {row['cosine']['rel_mse']:.4g}  btf "
+                  f"{row['btf']['rel_mse']:.4g}  ratio {row['mse_ratio_cosine_over_btf']:.2f} "
+                  f"(equal time {row['mse_ratio_equal_time']:.2f})  "
+                  f"[{row['seconds_total']:.0f} s]")  # fmt: skip
+    return out, images
+
+
+def weight_variance(render: Renderer, rts: dict[str, Any], n: int = 200_000) -> dict:
+    """BSDF-level check: relative variance var/mean² of the luminance of sample()'s weight
+    eval/pdf (random uv, radiance transport) per sampler, material and incidence; what the
+    sampler changes before lighting and MIS dilute it in an image."""
+    import sparsebtf.mitsuba as sbm
+
+    mi, dr = render.mi, render.dr
+    rng = np.random.default_rng(0)
+    out: dict[str, Any] = {}
+    for name, rt in rts.items():
+        key = sbm.add_material(rt, f"bench-{name}")
+        for inc, wi in INCIDENCES.items():
+            w = np.array(wi) / np.linalg.norm(wi)
+            si = dr.zeros(mi.SurfaceInteraction3f, n)
+            si.wi = mi.Vector3f(*(float(x) for x in w))
+            si.uv = mi.Point2f(rng.uniform(size=(2, n)).astype(np.float32))
+            u1 = mi.Float(rng.uniform(size=n).astype(np.float32))
+            u2 = mi.Point2f(rng.uniform(size=(2, n)).astype(np.float32))
+            row = {}
+            for s, extra in NOISE_SAMPLERS.items():
+                b = mi.load_dict({"type": "sparsebtf", "key": key, "interpolation": "linear",
+                                  **extra})  # fmt: skip
+                _, weight = b.sample(mi.BSDFContext(), si, u1, u2)
+                lum = np.array(weight).reshape(3, -1).T @ [0.2126, 0.7152, 0.0722]
+                row[s] = float(np.var(lum) / np.mean(lum) ** 2)
+            out[f"{name}/{inc}"] = row
+            log(f"  {name:9s} {inc:7s} " + "  ".join(f"{s} {v:.3f}" for s, v in row.items()))
+    return out
+
+
+def timing(render: Renderer, args: argparse.Namespace) -> dict[str, Any]:
+    """Time per sample per pixel: full and quarter τ vs the dense reference, both samplers."""
+    import sparsebtf.mitsuba as sbm
+    from sparsebtf.runtime import RuntimeBTF
+
+    full = RuntimeBTF(synthetic_coded(40))
+    quarter_tau = {ch: t // 4 for ch, t in TAU.items()}
+    rng = np.random.default_rng(1)
+    d = ubo2014()
+    table = rng.uniform(0.05, 0.6, (20, 20, 151, 151, 3)).astype(np.float32)
+    plugins = {
+        "full_tau": {"type": "sparsebtf", "key": sbm.add_material(full, "bench-full")},
+        "quarter_tau": {"type": "sparsebtf",
+                        "key": sbm.add_material(full.with_tau(quarter_tau), "bench-quarter")},
+        "dense_20x20": {"type": "sparsebtf_dense",
+                        "key": sbm.add_material(ArrayBTF(table, d, d, name="dense20"),
+                                                "bench-dense")},
+    }  # fmt: skip
+    n = args.time_size**2 * args.time_spp
+    out: dict[str, Any] = {"tau": TAU, "quarter_tau": quarter_tau, "ns_per_sample_per_pixel": {},
+                           "all_seconds": {}, "first_render_seconds": {}}  # fmt: skip
+    runs = {f"{name}/{s}": {**p, "uv_scale": 2.0, "interpolation": "linear", "sampling": s}
+            for s in SAMPLERS for name, p in plugins.items()}  # fmt: skip
+    for k, b in runs.items():  # trace and compile every kernel first
+        out["first_render_seconds"][k] = render(b, "sky", args.time_size, args.time_spp, 0)[1]
+    for _ in range(args.repeat):  # interleaved rounds: a load change hits every setting alike
+        for k, b in runs.items():
+            sec = render(b, "sky", args.time_size, args.time_spp, 0)[1]
+            out["all_seconds"].setdefault(k, []).append(sec)
+    for k, secs in out["all_seconds"].items():
+        out["ns_per_sample_per_pixel"][k] = min(secs) / n * 1e9
+    t = out["ns_per_sample_per_pixel"]
+    for s in SAMPLERS:
+        out[f"ratio_full_over_dense/{s}"] = t[f"full_tau/{s}"] / t[f"dense_20x20/{s}"]
+        out[f"ratio_quarter_over_dense/{s}"] = t[f"quarter_tau/{s}"] / t[f"dense_20x20/{s}"]
+        log(f"  {s}: full {t[f'full_tau/{s}']:.0f} ns, quarter {t[f'quarter_tau/{s}']:.0f} ns,"
+            f" dense {t[f'dense_20x20/{s}']:.0f} ns per sample per pixel")
+    t = out["ns_per_sample_per_pixel"]
+    out["ratio_btf_over_cosine_time/full_tau"] = t["full_tau/btf"] / t["full_tau/cosine"]
+    return out
+
+
+def save_images(images: dict, results: dict, path: Path, spp: int, ref_spp: int) -> Path:
+    """One row per (material, light): [cosine | BTF sampling | reference], same exposure."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from sparsebtf.figures import save_figure
+    from sparsebtf.rendering.render import auto_exposure, tonemap_srgb
+
+    rows = list(images)
+    fig, axes = plt.subplots(len(rows), 3, figsize=(6.6, 2.3 * len(rows)), squeeze=False)
+    for r, (name, light) in enumerate(rows):
+        im = images[(name, light)]
+        ex = auto_exposure(im["reference"])
+        res = results[f"{name}/{light}"]
+        cols = [("cosine", f"cosine, {spp} spp\nrel. MSE {res['cosine']['rel_mse']:.3g}"),
+                ("btf", f"BTF sampling, {spp} spp\nrel. MSE {res['btf']['rel_mse']:.3g}"),
+                ("reference", f"{name}, {light}\nreference, {ref_spp} spp")]  # fmt: skip
+        for c, (k, title) in enumerate(cols):
+            ax = axes[r, c]
+            ax.imshow(tonemap_srgb(im[k], ex), interpolation="nearest")
+            ax.set_title(title, fontsize=7)
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=100)
+
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--size", type=int, default=256, help="image side (default 256)")
-    ap.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
-    ap.add_argument("--texels", type=int, default=40, help="texture side (default 40)")
-    ap.add_argument("--repeat", type=int, default=2, help="timed renders per setting")
-    ap.add_argument("--interpolation", default="linear")
-    ap.add_argument("--no-dense", action="store_true", help="skip the dense reference")
+    ap.add_argument("--backend", default="llvm", choices=["llvm", "cuda", "auto"],
+                    help="Mitsuba variant: llvm_ad_rgb (default) or cuda_ad_rgb")
+    ap.add_argument("--glossy", default="leather", choices=["leather", "wallpaper"])
+    ap.add_argument("--size", type=int, default=48, help="noise renders: image side")
+    ap.add_argument("--spp", type=int, default=16, help="noise renders: samples per pixel")
+    ap.add_argument("--ref-spp", type=int, default=1024, help="reference samples per pixel")
+    ap.add_argument("--seeds", type=int, default=2, help="noise renders per sampler")
+    ap.add_argument("--time-size", type=int, default=128, help="timing renders: image side")
+    ap.add_argument("--time-spp", type=int, default=8, help="timing renders: spp")
+    ap.add_argument("--repeat", type=int, default=3, help="timed renders per setting")
+    ap.add_argument("--no-lobe", action="store_true",
+                    help="skip the analytic glossy material (a mirror lobe, sky only)")
+    ap.add_argument("--skip-noise", action="store_true")
+    ap.add_argument("--skip-timing", action="store_true")
+    ap.add_argument("--out", default=None, help="folder for the side-by-side PNG")
     ap.add_argument("--json", action="store_true")
     args = ap.parse_args()
 
-    import sparsebtf.mitsuba as sbm
-    from sparsebtf.rendering.render import render_material
-    from sparsebtf.runtime import RuntimeBTF
-
     t0 = time.perf_counter()
-    coded = synthetic_coded(args.texels)
-    full = RuntimeBTF(coded)
-    quarter_tau = {ch: t // 4 for ch, t in TAU.items()}
-    quarter = full.with_tau(quarter_tau)
-    build_s = time.perf_counter() - t0
-    keys = {"full": sbm.add_material(full, "bench-full"),
-            "quarter": sbm.add_material(quarter, "bench-quarter")}  # fmt: skip
-    opts = {"scene": "sphere", "size": (args.size, args.size), "spp": args.spp, "seed": 0}
-    bsdf = {"type": "sparsebtf", "interpolation": args.interpolation, "uv_scale": 2.0}
-
-    def timed(plugin: dict) -> tuple[float, list[float], float]:
-        first = render_material(plugin, **opts)
-        times = [render_material(plugin, **opts)["seconds"] for _ in range(args.repeat)]
-        return first["seconds"], times, float(first.image.mean())
-
-    first_full, t_full, mean_full = timed({**bsdf, "key": keys["full"]})
-    first_q, t_q, mean_q = timed({**bsdf, "key": keys["quarter"]})
-    data = {
-        "machine": machine(),
-        "variant": sbm.variant,
-        "llvm": sbm.variant_message,
-        "image": f"{args.size}x{args.size}",
-        "spp": args.spp,
-        "interpolation": args.interpolation,
-        "texels": args.texels,
-        "tau": TAU,
-        "quarter_tau": quarter_tau,
-        "material_build_seconds": build_s,
-        "seconds": {
-            "full_tau_first_render": first_full,
-            "full_tau": min(t_full),
-            "quarter_tau_first_render": first_q,
-            "quarter_tau": min(t_q),
-        },
-        "all_seconds": {"full_tau": t_full, "quarter_tau": t_q},
-        "mean_pixel": {"full_tau": mean_full, "quarter_tau": mean_q},
-    }
-    data["ratios"] = {"full_over_quarter": min(t_full) / min(t_q)}
-    if not args.no_dense:
-        rng = np.random.default_rng(1)
-        d = ubo2014()
-        table = rng.uniform(0.05, 0.6, (20, 20, 151, 151, 3)).astype(np.float32)
-        key = sbm.add_material(ArrayBTF(table, d, d, name="dense20"), "bench-dense")
-        first_d, t_d, _ = timed({**bsdf, "type": "sparsebtf_dense", "key": key})
-        data["seconds"]["dense_20x20_first_render"] = first_d
-        data["seconds"]["dense_20x20"] = min(t_d)
-        data["all_seconds"]["dense_20x20"] = t_d
-        data["ratios"]["full_over_dense"] = min(t_full) / min(t_d)
-        data["ratios"]["quarter_over_dense"] = min(t_q) / min(t_d)
-    rows = [(f"seconds {k}", f"{v:.2f}") for k, v in data["seconds"].items()]
-    rows += [(f"ratio {k}", f"{v:.2f}") for k, v in data["ratios"].items()]
-    rows.insert(0, ("variant", f"{data['variant']} ({data['llvm']})"))
+    load0 = os.getloadavg()
+    render = Renderer(args.backend)
+    data: dict[str, Any] = {"machine": machine(), "variant": render.variant, "llvm": render.why,
+                            "load_average_start": load0}  # fmt: skip
+    data["settings"] = {k: getattr(args, k) for k in ("glossy", "size", "spp", "ref_spp", "seeds",
+                                                      "time_size", "time_spp", "repeat")}
+    rows = [("variant", f"{render.variant} ({render.why})")]
+    if not args.skip_noise:
+        log("noise: relative MSE against the reference")
+        rts = coded_materials(args.glossy, not args.no_lobe)
+        data["coded_tau"] = CODED_TAU
+        log("relative variance of the sample weight (BSDF only)")
+        data["weight_relative_variance"] = weight_variance(render, rts)
+        data["noise"], images = noise(render, rts, args)
+        if args.out:
+            png = Path(args.out) / "sampling.png"
+            data["png"] = str(save_images(images, data["noise"], png, args.spp, args.ref_spp))
+        for k, r in data["noise"].items():
+            rows.append((f"{k}: rel MSE cosine / btf ({args.spp} spp)",
+                         f"{r['cosine']['rel_mse']:.4g} / {r['btf']['rel_mse']:.4g} = "
+                         f"{r['mse_ratio_cosine_over_btf']:.2f}x"))  # fmt: skip
+            rows.append((f"{k}: rel MSE cosine / btf, per-patch tables",
+                         f"{r['mse_ratio_cosine_over_btf_patch']:.2f}x"))  # fmt: skip
+            rows.append((f"{k}: equal time (cosine {r['cosine_equal_time']['spp']} spp)",
+                         f"{r['mse_ratio_equal_time']:.2f}x"))  # fmt: skip
+            rows.append((f"{k}: reference halves rel MSE", f"{r['reference_halves_rel_mse']:.3g}"))
+    if not args.skip_timing:
+        log("time per sample per pixel")
+        data["timing"] = tm = timing(render, args)
+        for k, v in tm["ns_per_sample_per_pixel"].items():
+            rows.append((f"ns/sample/pixel {k}", f"{v:.0f}"))
+        for s in SAMPLERS:
+            rows.append((f"ratio full tau / dense ({s})",
+                         f"{tm[f'ratio_full_over_dense/{s}']:.2f}"))  # fmt: skip
+            rows.append((f"ratio quarter tau / dense ({s})",
+                         f"{tm[f'ratio_quarter_over_dense/{s}']:.2f}"))  # fmt: skip
+    data["load_average_end"] = os.getloadavg()
+    data["seconds"] = time.perf_counter() - t0
+    rows.append(("load average start / end", f"{load0[0]:.1f} / {data['load_average_end'][0]:.1f}"))
+    rows.append(("benchmark seconds", f"{data['seconds']:.0f}"))
     report(rows, data, args.json)
 
 

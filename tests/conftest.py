@@ -29,9 +29,10 @@ def official() -> Path:
 
 @pytest.fixture(autouse=True)
 def _cache_dir(tmp_path_factory, monkeypatch):
-    """Synthetic-material cache in a per-session temporary folder."""
+    """Synthetic-material cache in a per-session temporary folder; no bars, no cluster."""
     monkeypatch.setenv("SPARSEBTF_CACHE", str(tmp_path_factory.getbasetemp() / "cache"))
     monkeypatch.setenv("SPARSEBTF_PROGRESS", "0")
+    monkeypatch.delenv("SPARSEBTF_SCHEDULER", raising=False)  # tests run in process
 
 
 def smooth_btf(seed: int, size: int = 8, n_dirs: int = 13, name: str | None = None) -> ArrayBTF:

@@ -126,3 +126,18 @@ def test_write_dense_by_regions_equals_by_views(tmp_path):
         assert np.array_equal(fa.to_array(), btf.data)
     with pytest.raises(BTFInputError, match="'views' or 'regions'"):
         write_dense(tmp_path / "c.h5", btf, by="texels")
+
+
+@pytest.mark.parametrize("hint", [(1, 1), (2, 3), (20, 8)])
+@pytest.mark.parametrize("max_bytes", [100, 5000, 10**8])
+def test_iter_blocks_covers_every_value_once(hint, max_bytes) -> None:
+    rng = np.random.default_rng(4)
+    d = tiny(7)
+    arr = rng.uniform(0, 1, (5, 6, 7, 7, 3)).astype(np.float32)
+    btf = ArrayBTF(arr, d, d)
+    btf.block_hint = hint
+    blocks = list(btf.iter_blocks(max_bytes))
+    assert sum(b.size for b in blocks) == arr.size
+    total = sum(float(b.sum(dtype=np.float64)) for b in blocks)
+    assert np.isclose(total, arr.sum(dtype=np.float64))
+    assert max(b.nbytes for b in blocks) <= max(max_bytes, 12 * 7 * 3)

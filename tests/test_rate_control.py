@@ -154,10 +154,16 @@ def test_cli_encode_target_bytes(model, tmp_path, capsys):
     target = dicts + 2500
     out = tmp_path / "c.h5"
     rc = main(["encode", str(src), "-m", str(tmp_path / "model.h5"), "-o", str(out),
-               "--target-bytes", str(target)])
+               "--target-bytes", str(target), "--with-dictionaries"])
     assert rc == 0
     rep = storage_report(load_coded(out, load_model(tmp_path / "model.h5")))
     assert abs(rep["bytes_total"] - target) <= 0.01 * target
+    # the default counts the material's own bytes, and says so beside the ratio asked for
+    rc = main(["encode", str(src), "-m", str(tmp_path / "model.h5"), "-o", str(out),
+               "--target-ratio", "60"])
+    assert rc == 0 and "(asked 60)" in capsys.readouterr().out
+    rep = storage_report(load_coded(out, load_model(tmp_path / "model.h5")))
+    assert abs(rep["compression_ratio_per_material"] - 60) <= 0.01 * 60
     with pytest.raises(SystemExit):
         main(["encode", str(src), "-m", "x", "-o", "y", "--tau", "8", "--target-ratio", "5"])
     capsys.readouterr()

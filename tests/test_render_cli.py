@@ -56,6 +56,25 @@ def test_render_with_reference_writes_png_and_json(files, capsys):
     assert np.mean((a - b) ** 2) == pytest.approx(res["mse"], rel=1e-6)
 
 
+def test_render_sampling_option(files, capsys):
+    """--sampling cosine|btf: both render; with --reference the two renders of each pair share
+    their sampling, so coded and reference stay close (correlated noise) either way."""
+    scores = {}
+    for sampling in ("cosine", "btf"):
+        rc = main(["render", str(files / "m.coded.h5"), "-o", str(files / f"{sampling}.png"),
+                   "--size", "24", "--spp", "4", "--sampling", sampling, "--reference",
+                   str(files / "m.h5"), "--json"])  # fmt: skip
+        assert rc == 0
+        res = json.loads(capsys.readouterr().out)
+        assert res["sampling"] == sampling and f"sampling={sampling}" in res["plugin"]
+        scores[sampling] = (res["psnr"], res["ssim"])
+    assert all(p > 30 and s > 0.95 for p, s in scores.values()), scores
+    with pytest.raises(SystemExit) as exc:
+        main(["render", str(files / "m.coded.h5"), "-o", str(files / "x.png"), "--sampling",
+              "importance"])  # fmt: skip
+    assert exc.value.code == 2 and "--sampling" in capsys.readouterr().err
+
+
 def test_render_alone_cloth(files, capsys):
     out = files / "cloth.png"
     rc = main(["render", str(files / "m.coded.h5"), "-o", str(out), "--scene", "cloth",

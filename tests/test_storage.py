@@ -129,11 +129,13 @@ def test_model_round_trip_is_exact(tmp_path: Path, model: Model) -> None:
     assert back.provenance == model.provenance
     assert back.training == {"Y": {"history": [3.0, 2.5, 2.0], "seconds": 1.5, "hist": [2, 1, 1]}}
     with h5py.File(path, "r") as f:
-        assert f.attrs["format"] == "sparsebtf-model"
-        assert int(f.attrs["schema_version"]) == 1
-        assert f.attrs["content_hash"] == model.content_hash
+        # Strings are fixed-length UTF-8 (kept in the checksummed object headers): bytes in h5py.
+        assert f.attrs["format"].decode() == "sparsebtf-model"
+        assert int(f.attrs["schema_version"]) == 2
+        assert f.attrs["content_hash"].decode() == model.content_hash
         assert f["dictionaries/U/mode3"].shape == (K, 7, 7)
-        assert isinstance(f.attrs["library_version"], str)
+        assert f["dictionaries/U/mode3"].fletcher32
+        assert isinstance(f.attrs["library_version"].decode(), str)
 
 
 def test_coded_round_trip(files: tuple[Path, Path, CodedBTF], model: Model) -> None:
@@ -323,14 +325,19 @@ def test_unsupported_schema_version(files: tuple[Path, Path, CodedBTF]) -> None:
             loader(path)
 
 
-def test_corrupted_dictionary_fails_hash(files: tuple[Path, Path, CodedBTF]) -> None:
+def test_corrupted_dictionary_fails_checksum_and_hash(files: tuple[Path, Path, CodedBTF]) -> None:
     mpath = files[0]
     with h5py.File(mpath, "r") as f:
-        offset = f["dictionaries/V/mode3"].id.get_offset()
-    assert offset is not None
+        offset = f["dictionaries/V/mode3"].id.get_chunk_info(0).byte_offset
     raw = bytearray(mpath.read_bytes())
     raw[offset + 11] ^= 0x40
-    mpath.write_bytes(bytes(raw))
+    mpath.with_name("flipped.h5").write_bytes(bytes(raw))
+    # A flipped bit: the dataset's fletcher32 checksum names it.
+    with pytest.raises(FileFormatError, match=r"dictionaries/V/mode3: checksum mismatch"):
+        load_model(mpath.with_name("flipped.h5"))
+    # A consistent rewrite (new checksum) is still caught by the content hash.
+    with h5py.File(mpath, "a") as f:
+        f["dictionaries/V/mode3"][0, 0, 0] += 1e-3
     with pytest.raises(FileFormatError, match=r"m\.h5.*corrupted"):
         load_model(mpath)
 

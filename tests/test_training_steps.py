@@ -206,7 +206,7 @@ def test_train_records_the_coding_schedule(tmp_path, capsys):
     capsys.readouterr()
     assert main(["train", "synth:wood:8:1:tiny13", "-o", str(tmp_path / "x.h5"),
                  "--patch", "4", "--full-pass-every", "-1"]) == 2
-    assert "full_pass_every" in capsys.readouterr().err
+    assert "--full-pass-every" in capsys.readouterr().err
 
 
 def test_reseeded_dictionary_is_tried_by_every_point_in_the_next_pass(monkeypatch):

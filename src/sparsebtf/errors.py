@@ -17,3 +17,8 @@ class FileFormatError(SparseBTFError):
 
 class ModelMismatchError(SparseBTFError):
     """A coded file is used with a model (or another coded file) it does not belong with."""
+
+
+class OutputError(SparseBTFError):
+    """An output could not be written (full disk, read-only folder, bad path); the previous
+    file at the target, if any, is left as it was."""

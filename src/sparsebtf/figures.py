@@ -24,6 +24,7 @@ from .display import tone_map
 
 __all__ = [
     "comparison_grid",
+    "error_colorbar",
     "error_image",
     "quality_plot",
     "save_angular_images",
@@ -40,6 +41,32 @@ def error_image(
     err = np.abs(reference.astype(np.float64) - reconstruction).mean(axis=-1)
     norm = norm if norm is not None else max(float(reference.max()), 1e-12)
     return plt.get_cmap("inferno")(np.clip(scale * err / norm, 0, 1))[..., :3]
+
+
+def error_colorbar(fig: Any, ax: Any, scale: float, what: str = "of the reference's peak") -> Any:
+    """A colour bar beside an :func:`error_image` panel, in the units it shows: |error| as a
+    fraction of ``norm`` (colour 1 = ``1/scale``)."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import Normalize
+
+    bar = fig.colorbar(
+        ScalarMappable(Normalize(0.0, 1.0 / scale), cmap="inferno"), ax=ax, fraction=0.046,
+        pad=0.03,
+    )
+    bar.set_label(f"|error| {what}", fontsize=6)
+    bar.ax.tick_params(labelsize=5)
+    return bar
+
+
+#: Axis words for the fields :func:`quality_plot` is asked to draw.
+AXIS_WORDS = {
+    "bytes_total": "storage with the shared dictionaries (bytes, paper Table 4)",
+    "bytes_coefficients": "storage of the material's coefficients (bytes, paper Table 4)",
+    "mse_rgb": "mean squared error, linear RGB (lower is better)",
+    "mse_log": "mean squared error, log RGB (lower is better)",
+    "psnr_rgb": "PSNR, linear RGB (dB, higher is better)",
+    "ssim": "SSIM of angular images (higher is better)",
+}
 
 
 def save_png(path: str | os.PathLike[str], image: np.ndarray) -> Path:
@@ -104,6 +131,7 @@ def comparison_grid(
             axes[r, 1 + 2 * j].set_title(name, fontsize=8)
             axes[r, 2 + 2 * j].imshow(error_image(ref, img, norm=peak), interpolation="nearest")
             axes[r, 2 + 2 * j].set_title(f"|error| x2 ({name})", fontsize=7)
+            error_colorbar(fig, axes[r, 2 + 2 * j], 2.0, "/ image peak")
     for ax in axes.ravel():
         ax.set_xticks([])
         ax.set_yticks([])
@@ -136,8 +164,8 @@ def quality_plot(
                 )
     ax.set_xscale("log")
     ax.set_yscale("log")
-    ax.set_xlabel(x.replace("_", " ") + (" (paper accounting)" if x.startswith("bytes") else ""))
-    ax.set_ylabel(y.replace("_", " "))
+    ax.set_xlabel(AXIS_WORDS.get(x, x.replace("_", " ")))
+    ax.set_ylabel(AXIS_WORDS.get(y, y.replace("_", " ")))
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(fontsize=7)
     ax.set_title("SparseBTF: quality vs storage")

@@ -56,7 +56,7 @@ _ALL = ("all", "full", "none")
 def _tau_error(tau: object, why: str) -> BTFInputError:
     return BTFInputError(
         f"tau {tau!r}: {why} (give integers: one for all channels or 'Y,U,V' such as "
-        "'885,64,64'; or a fraction in (0, 1] of the coded tau such as 0.25)"
+        "'885,64,64'; or a fraction in (0, 1) of the coded tau such as 0.25)"
     )
 
 
@@ -75,6 +75,7 @@ def parse_tau(
     every stored coefficient (``full``). Where ``full``/``nominal`` are not given (encoding),
     only explicit counts are accepted. Every τ is an integer >= 1.
     """
+    given = tau
     if isinstance(tau, str):
         text = tau.strip()
         if text.lower() in _ALL:
@@ -88,28 +89,28 @@ def parse_tau(
                 try:
                     tau = float(text)
                 except ValueError:
-                    raise _tau_error(tau, "not a number") from None
+                    raise _tau_error(given, "not a number") from None
     if tau is None:
         if full is None:
-            raise _tau_error(tau, "a count is needed here")
+            raise _tau_error(given, "a count is needed here")
         return {ch: int(full[ch]) for ch in channels}
     if isinstance(tau, bool):
-        raise _tau_error(tau, "not a number")
+        raise _tau_error(given, "not a number")
     if isinstance(tau, numbers.Real) and not isinstance(tau, numbers.Integral):
         f = float(tau)
         if math.isfinite(f) and f.is_integer():
             tau = int(f)
         else:
             if full is None and nominal is None:
-                raise _tau_error(tau, "a fraction needs a coded BTF to be a fraction of")
-            if not 0 < f <= 1:
-                raise _tau_error(tau, "a fractional tau must be in (0, 1]")
+                raise _tau_error(given, "a fraction needs a coded BTF to be a fraction of")
+            if not 0 < f < 1:
+                raise _tau_error(given, "a fractional tau must be in (0, 1)")
             base = {**(full or {}), **(nominal or {})}
             return {ch: max(1, math.ceil(f * int(base[ch]))) for ch in channels}
     if isinstance(tau, Mapping):
         missing = [ch for ch in channels if ch not in tau]
         if missing:
-            raise _tau_error(dict(tau), f"no value for channel(s) {missing}")
+            raise _tau_error(given, f"no value for channel(s) {missing}")
         values: list[Any] = [tau[ch] for ch in channels]
     elif isinstance(tau, numbers.Integral):
         values = [tau]
@@ -120,16 +121,16 @@ def parse_tau(
         try:
             f = float(v)
         except (TypeError, ValueError):
-            raise _tau_error(tau, f"{v!r} is not an integer") from None
+            raise _tau_error(given, f"{v!r} is not an integer") from None
         if not (math.isfinite(f) and f.is_integer()):
-            raise _tau_error(tau, f"{v!r} is not an integer")
+            raise _tau_error(given, f"{v!r} is not an integer")
         counts.append(int(f))
     if len(counts) == 1:
         counts = counts * len(channels)
     if len(counts) != len(channels):
-        raise _tau_error(tau, f"needs one value per channel {tuple(channels)}, got {len(counts)}")
+        raise _tau_error(given, f"needs one value per channel {tuple(channels)}, got {len(counts)}")
     if any(c < 1 for c in counts):
-        raise _tau_error(tau, "every tau must be >= 1")
+        raise _tau_error(given, "every tau must be >= 1")
     return dict(zip(channels, counts, strict=True))
 
 
@@ -158,6 +159,8 @@ class Model:
     params : training parameters (tau_train per channel, n_dictionaries, sample, seed, ...).
     provenance : where it came from (materials, library version, time, release import ...).
     training : per channel diagnostics (objective history, membership histogram, seconds).
+    file : the model file it was last saved to or loaded from (None for a model only in
+        memory); not part of its content. Saving a coded BTF records it.
     """
 
     dictionaries: dict[str, list[np.ndarray]]
@@ -181,6 +184,7 @@ class Model:
                         f"channel {ch}, mode {n + 1}: expected (K, m, m), got {m.shape}"
                     )
         self._hash: str | None = None
+        self.file: str | None = None
 
     @property
     def channels(self) -> tuple[str, ...]:

@@ -16,8 +16,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-import h5py
-
+from ._h5check import HDF5_ERRORS, read_str_attr
+from ._hdf5 import open_h5, read_error
 from .data.btf import BTF
 from .data.dense_file import FORMAT as DENSE_FORMAT
 from .data.dense_file import DenseFileBTF
@@ -27,17 +27,18 @@ __all__ = ["file_format", "open_btf", "parse_synth_spec"]
 
 
 def file_format(path: str | os.PathLike[str]) -> str:
-    """The ``format`` attribute of one of our HDF5 files ("sparsebtf-dense", -model, -coded)."""
+    """The ``format`` attribute of one of our HDF5 files ("sparsebtf-dense", -model, -coded).
+
+    The file is opened behind the HDF5 watchdog (:func:`sparsebtf._hdf5.open_h5`).
+    """
     p = Path(path)
-    if not p.exists():
-        raise FileFormatError(f"{p}: no such file")
+    f = open_h5(p)
     try:
-        with h5py.File(p, "r") as f:
-            fmt = f.attrs.get("format")
-    except OSError as e:
-        raise FileFormatError(f"{p}: not a readable HDF5 file ({e})") from None
-    fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
-    if not isinstance(fmt, str):
+        with f:
+            fmt = read_str_attr(f, "format", str(p)) if "format" in f.attrs else None
+    except HDF5_ERRORS as e:
+        raise read_error(e, str(p)) from None
+    if fmt is None:
         raise FileFormatError(f"{p}: no 'format' attribute; not a SparseBTF file")
     return fmt
 

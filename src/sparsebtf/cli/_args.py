@@ -1,12 +1,164 @@
-"""Arguments several commands share: opening a BTF (with ``--crop``) and checking ``--tau``."""
+"""Arguments several commands share: opening a BTF (with ``--crop``), checking ``--tau``, the
+numeric options (finite, in range, units in the message), output paths (a file, in a writable
+folder, not one of the inputs; one file per input in a folder) and where the work runs
+(``--workers`` / ``--scheduler``).
+
+Numeric checks are declared beside each command's options, ``s.set_defaults(checks={...})``
+with :func:`number` / :func:`integer`, and run by :func:`check_args` before the command; every
+failure is one ``sparsebtf: error: …`` line (exit 2).
+"""
 
 from __future__ import annotations
 
+import argparse
+import math
+import os
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError
 
-__all__ = ["check_tau", "open_source", "parse_crop"]
+__all__ = [
+    "add_cluster_options",
+    "check_args",
+    "check_output_dir",
+    "check_output_file",
+    "check_tau",
+    "cluster_options",
+    "integer",
+    "number",
+    "open_source",
+    "output_files",
+    "parse_crop",
+]
+
+Check = Callable[[Any, str], None]
+
+
+def _range_text(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> str:
+    def f(x: float) -> str:
+        return str(x) if isinstance(x, int) else f"{x:g}"
+
+    if lo is not None and hi is not None:
+        return f"in {'(' if lo_open else '['}{f(lo)}, {f(hi)}{')' if hi_open else ']'}"
+    if lo is not None:
+        return f"{'>' if lo_open else '>='} {f(lo)}"
+    if hi is not None:
+        return f"{'<' if hi_open else '<='} {f(hi)}"
+    return "finite"
+
+
+def number(
+    lo: float | None = None,
+    hi: float | None = None,
+    *,
+    lo_open: bool = False,
+    hi_open: bool = False,
+    unit: str = "",
+) -> Check:
+    """A check that a float option is finite and in [lo, hi] (open ends with ``*_open``)."""
+
+    def check(value: Any, flag: str) -> None:
+        v = float(value)
+        ok = math.isfinite(v)
+        ok = ok and (lo is None or (v > lo if lo_open else v >= lo))
+        ok = ok and (hi is None or (v < hi if hi_open else v <= hi))
+        if not ok:
+            what = _range_text(lo, hi, lo_open, hi_open)
+            raise SparseBTFError(
+                f"{flag} must be a finite number {what}{f' {unit}' if unit else ''}, got {value!r}"
+            )
+
+    return check
+
+
+def integer(lo: int | None = None, hi: int | None = None, *, unit: str = "") -> Check:
+    """A check that an integer option lies in [lo, hi]."""
+
+    def check(value: Any, flag: str) -> None:
+        v = int(value)
+        if (lo is not None and v < lo) or (hi is not None and v > hi):
+            what = _range_text(lo, hi, False, False)
+            raise SparseBTFError(
+                f"{flag} must be an integer {what}{f' {unit}' if unit else ''}, got {value!r}"
+            )
+
+    return check
+
+
+def check_args(args: argparse.Namespace) -> None:
+    """Run the checks a command declared with ``set_defaults(checks={dest: check})``."""
+    for dest, check in (getattr(args, "checks", None) or {}).items():
+        value = getattr(args, dest, None)
+        if value is not None:
+            check(value, "--" + dest.replace("_", "-"))
+
+
+# --------------------------------------------------------------------------- output paths
+
+
+def _existing_ancestor(path: Path) -> Path:
+    for parent in path.parents:
+        if parent.exists():
+            return parent
+    return Path(".")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def check_output_file(
+    path: str | os.PathLike[str] | None, inputs: Iterable[Any] = (), flag: str = "-o"
+) -> Path | None:
+    """Check an output file before any work is done: not a folder, its folder (made if
+    missing) not under a file and writable, and not one of ``inputs`` (which would be
+    destroyed). Returns the path (None passes through)."""
+    if path is None:
+        return None
+    p = Path(path)
+    if not str(path):
+        raise SparseBTFError(f"{flag}: the output path is empty")
+    if p.is_dir():
+        raise SparseBTFError(f"{flag} {p}: is a folder; give a file name")
+    base = _existing_ancestor(p)
+    if not base.is_dir():
+        raise SparseBTFError(f"{flag} {p}: {base} is a file, not a folder")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise SparseBTFError(f"{flag} {p}: cannot write into {base} (permission denied or a "
+                             "read-only file system)")  # fmt: skip
+    for item in inputs:
+        if item is None or str(item).startswith("synth:"):
+            continue
+        if _same_file(p, Path(item)):
+            raise SparseBTFError(
+                f"{flag} {p} is also an input ({item}); writing it would destroy the input: "
+                "choose another output name"
+            )
+    return p
+
+
+def check_output_dir(path: str | os.PathLike[str] | None, flag: str) -> Path | None:
+    """Check an output folder: not an existing file, and creatable/writable."""
+    if path is None:
+        return None
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise SparseBTFError(f"{flag} {p}: is a file, not a folder")
+    base = p if p.exists() else _existing_ancestor(p)
+    if not base.is_dir():
+        raise SparseBTFError(f"{flag} {p}: {base} is a file, not a folder")
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise SparseBTFError(f"{flag} {p}: cannot write into {base} (permission denied or a "
+                             "read-only file system)")  # fmt: skip
+    return p
+
+
+# --------------------------------------------------------------------------- BTF sources
 
 
 def parse_crop(text: str | None) -> tuple[slice, slice] | None:
@@ -23,14 +175,24 @@ def parse_crop(text: str | None) -> tuple[slice, slice] | None:
 
 
 def open_source(source: str, model: str | None = None, crop: str | None = None) -> Any:
-    """The BTF a command argument names (``sparsebtf.open.open_btf``), cropped if asked."""
+    """The BTF a command argument names (``sparsebtf.open.open_btf``), cropped if asked.
+
+    The crop must lie inside the BTF: no clipping, no negative (from-the-end) indices.
+    """
     from ..open import open_btf
 
-    btf = open_btf(source, model)
     window = parse_crop(crop)
+    btf = open_btf(source, model)
     if window is not None:
         from ..data.crop import CroppedBTF
 
+        (r0, r1), (c0, c1) = ((w.start, w.stop) for w in window)
+        if not (0 <= r0 < r1 <= btf.height and 0 <= c0 < c1 <= btf.width):
+            raise SparseBTFError(
+                f"--crop {crop}: rows R0:R1 and columns C0:C1 must satisfy 0 <= R0 < R1 <= "
+                f"{btf.height} and 0 <= C0 < C1 <= {btf.width} ({source} is {btf.height}x"
+                f"{btf.width} texels)"
+            )
         btf = CroppedBTF(btf, *window)
     return btf
 
@@ -44,10 +206,75 @@ def check_tau(text: str | None, flag: str = "--tau") -> str | None:
 
     ones = dict.fromkeys(CHANNELS, 1)
     try:
+        if not text.strip():
+            raise SparseBTFError("empty")
         parse_tau(text, CHANNELS, full=ones, nominal=ones)
     except SparseBTFError:
         raise SparseBTFError(
             f"{flag} must be 'Y,U,V' integers (e.g. 885,64,64), one integer for every channel, "
-            f"or a fraction in (0, 1] of the coded tau (e.g. 0.25); got {text!r}"
+            f"or a fraction in (0, 1) of the coded tau (e.g. 0.25); got {text!r}"
         ) from None
     return text
+
+
+def _worker_count(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number of workers, got {text!r}") from None
+    if n < 1:
+        raise argparse.ArgumentTypeError(f"must be >= 1, got {n}")
+    return n
+
+
+def add_cluster_options(parser: argparse.ArgumentParser) -> None:
+    """``--workers N`` (a local Dask cluster) and ``--scheduler ADDRESS`` (a running one)."""
+    from ..execution import SCHEDULER_ENV
+
+    g = parser.add_mutually_exclusive_group()
+    g.add_argument(
+        "--workers", type=_worker_count, default=None, metavar="N",
+        help="run on a local Dask cluster of N single-threaded worker processes",
+    )  # fmt: skip
+    g.add_argument(
+        "--scheduler", default=None, metavar="ADDRESS",
+        help=f"run on the Dask cluster of this scheduler (e.g. tcp://10.0.0.5:8786; default: "
+        f"${SCHEDULER_ENV} if set, else this process; see docs/distributed.md)",
+    )  # fmt: skip
+
+
+def cluster_options(args: argparse.Namespace) -> dict[str, Any]:
+    """The ``workers`` / ``scheduler`` keywords of the Python API from the parsed options."""
+    return {"workers": args.workers, "scheduler": args.scheduler}
+
+
+def output_files(
+    sources: Sequence[str], output: str, inputs: Sequence[str | None] = ()
+) -> list[Path]:
+    """Where each input's output goes: ``output`` itself (one input), or
+    ``output/NAME.coded.h5`` (:func:`sparsebtf.codec.output_name`) when ``output`` is a folder:
+    ``DIR/``, an existing folder, or, for several inputs, a name without ``.h5``. Two inputs
+    may not share an output, nor an output overwrite an input (or one of ``inputs``)."""
+    from ..codec.many import output_name
+
+    file_like = output.lower().endswith((".h5", ".hdf5"))
+    folder = output.endswith(("/", os.sep)) or Path(output).is_dir()
+    if len(sources) > 1 and not folder:
+        if file_like:
+            raise SparseBTFError(
+                f"{len(sources)} inputs need an output folder (-o DIR/), not the file {output}"
+            )
+        folder = True
+    if folder:
+        check_output_dir(output, "-o")
+    paths = [Path(output) / output_name(s) for s in sources] if folder else [Path(output)]
+    seen: dict[Path, str] = {}
+    for s, p in zip(sources, paths, strict=True):
+        key = p.absolute()
+        if key in seen:
+            raise SparseBTFError(f"{seen[key]} and {s} would both be written to {p}")
+        if not s.startswith("synth:") and Path(s).absolute() == key:
+            raise SparseBTFError(f"{s}: its output {p} would overwrite the input")
+        check_output_file(p, [*sources, *inputs])
+        seen[key] = s
+    return paths

@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import BTFInputError
 from ..runtime.angular import SCHEMES
-from ._args import check_tau
+from ._args import check_output_dir, check_output_file, check_tau, integer, number
 from ._output import print_json
 
 __all__ = ["register"]
@@ -33,6 +33,8 @@ def direction(text: str, what: str) -> np.ndarray:
         raise BTFInputError(
             f"{what} must be 'azimuth,elevation' in degrees, got {text!r}"
         ) from None
+    if not np.isfinite(az):
+        raise BTFInputError(f"{what}: azimuth must be a finite number of degrees, got {text!r}")
     if not 0 < el <= np.pi / 2 + 1e-12:
         raise BTFInputError(f"{what}: elevation must be in (0, 90] degrees, got {np.degrees(el)}")
     return np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
@@ -60,6 +62,27 @@ def _weights(args: argparse.Namespace, n: int) -> list[float]:
     return [1 - args.alpha, args.alpha]
 
 
+def alpha_strip(tiles: list[np.ndarray], alphas: list[float], path: Path) -> Path:
+    """The sweep's images side by side, each labelled with its α (Figure 6 style)."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from ..figures import save_figure
+
+    h, w = tiles[0].shape[:2]
+    scale = max(1.0, 96 / max(h, w))
+    fig, axes = plt.subplots(1, len(tiles), squeeze=False,
+                             figsize=(len(tiles) * (w * scale / 100 + 0.1), h * scale / 100 + 0.4))
+    for ax, tile, a in zip(axes[0], tiles, alphas, strict=True):
+        ax.imshow(tile, interpolation="nearest")
+        ax.set_title(f"α = {a:.2f}", fontsize=8)
+        ax.set_xticks([])
+        ax.set_yticks([])
+    return save_figure(fig, path, dpi=100)
+
+
 def cmd_blend(args: argparse.Namespace) -> int:
     from ..display import tone_map
     from ..figures import save_png
@@ -76,6 +99,8 @@ def cmd_blend(args: argparse.Namespace) -> int:
         raise BTFInputError("--sweep needs --png DIR for the strip of renders")
     if args.sweep and len(args.inputs) != 2:
         raise BTFInputError("--sweep runs α from 0 to 1 between two inputs")
+    check_output_file(args.output, [*args.inputs, args.model])
+    check_output_dir(args.png, "--png")
     coded = [load_coded_with_model(p, args.model) for p in args.inputs]
     report: dict[str, Any] = {"inputs": [str(p) for p in args.inputs]}
     if weights:
@@ -99,9 +124,8 @@ def cmd_blend(args: argparse.Namespace) -> int:
             tiles.append(tile)
             frames.append({"alpha": float(alpha), "png": str(path),
                            "mean_rgb": img.reshape(-1, 3).mean(axis=0).tolist()})  # fmt: skip
-        gap = np.ones((tiles[0].shape[0], max(2, tiles[0].shape[1] // 20), 3))
-        strip = np.concatenate([x for t in tiles for x in (t, gap)][:-1], axis=1)
-        report["strip"] = str(save_png(folder / "blend_strip.png", strip))
+        report["strip"] = str(alpha_strip(tiles, [f["alpha"] for f in frames],
+                                          folder / "blend_strip.png"))  # fmt: skip
         report["sweep"] = frames
     if args.json:
         print_json(report)
@@ -117,22 +141,34 @@ def register(sub: Any) -> None:
     s = sub.add_parser(
         "blend",
         help="blend coded BTFs in coefficient space (Eq. 7-9); --sweep renders a strip",
-        description=__doc__,
+        description="Blend coded BTFs of one model in coefficient space (paper §3.5, "
+        "Eq. 7-9): a new material between them, or with --sweep a strip of renders from α = 0 "
+        "(the first input) to 1 (the second), labelled with α.",
+        epilog="examples:\n"
+        "  sparsebtf blend A.coded.h5 B.coded.h5 --alpha 0.3 -o mix.h5\n"
+        "  sparsebtf blend A.coded.h5 B.coded.h5 --sweep 11 --png strip/   # Figure 6\n"
+        "  sparsebtf blend A.h5 B.h5 C.h5 --weights 0.2,0.3,0.5 -o D.h5",
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    s.add_argument("inputs", nargs="+", help="coded files of one model (.h5)")
+    s.add_argument("inputs", nargs="+", metavar="CODED",
+                   help="coded files of one model (.h5), at least two")
     s.add_argument("--alpha", type=float, help="weight of the second input (Eq. 7), in [0, 1]")
     s.add_argument("--weights", help="one weight per input, comma separated, summing to 1")
     s.add_argument("-o", "--output", help="blended coded file to write")
     s.add_argument("--tau", help="sparsity of the result per channel (default: the inputs')")
-    s.add_argument("--model", help="model file (default: the one the coded files name)")
+    s.add_argument("-m", "--model",
+                   help="model file or bundled model name (default: the one the coded files "
+                   "name)")
     s.add_argument("--sweep", type=int, default=0, help="render N blends from α = 0 to 1")
     s.add_argument("--png", help="folder for the sweep's PNGs (blend_strip.png and one per α)")
     s.add_argument("--light", default=FIGURE6_LIGHT,
                    help=f"light 'azimuth,elevation' in degrees (default {FIGURE6_LIGHT})")
     s.add_argument("--view", default=FIGURE6_VIEW,
                    help=f"view 'azimuth,elevation' in degrees (default {FIGURE6_VIEW})")
-    s.add_argument("--interpolation", default="linear",
-                   choices=SCHEMES)
+    s.add_argument("--interpolation", default="linear", choices=SCHEMES,
+                   help="angular interpolation of the sweep's renders (default linear)")
     s.add_argument("--json", action="store_true", help="print the result as JSON")
-    s.set_defaults(func=cmd_blend)
+    s.set_defaults(func=cmd_blend, checks={
+        "alpha": number(0, 1, unit="(weight of the second input)"),
+        "sweep": integer(0, 10**4, unit="renders"),
+    })  # fmt: skip

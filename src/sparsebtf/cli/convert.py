@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ._args import open_source
+from ._args import check_output_file, open_source
 
 __all__ = ["register"]
 
@@ -13,6 +13,7 @@ __all__ = ["register"]
 def run(args: argparse.Namespace) -> int:
     from ..data.dense_file import write_dense
 
+    check_output_file(args.output, [args.input])
     btf = open_source(args.input, crop=args.crop)
     write_dense(args.output, btf, dtype=args.dtype, progress=None)
     print(f"wrote {args.output}: {btf.height}x{btf.width} texels, {len(btf.lights)} lights x "
@@ -21,9 +22,12 @@ def run(args: argparse.Namespace) -> int:
 
 
 def register(sub: Any) -> None:
-    s = sub.add_parser("convert", help="any BTF (.btf, .h5, synth:...) to our dense file")
-    s.add_argument("input", metavar="IN", help="a .btf, dense/coded .h5, or synth:CLASS[:SIZE]")
+    s = sub.add_parser("convert", help="any BTF (.btf, .zip, .h5, synth:...) to our dense file")
+    s.add_argument("input", metavar="IN", help="a UBO2014 .btf, UBO2003 .zip, dense or coded "
+                   ".h5, or synth:CLASS[:SIZE]")
     s.add_argument("-o", "--output", required=True, help="dense BTF file to write (.h5)")
-    s.add_argument("--crop", help="keep rows R0:R1 and columns C0:C1")
-    s.add_argument("--dtype", choices=["float32", "float16"], default="float32")
+    s.add_argument("--crop", metavar="R0:R1,C0:C1",
+                   help="keep rows R0..R1-1 and columns C0..C1-1 (0-based, end excluded)")
+    s.add_argument("--dtype", choices=["float32", "float16"], default="float32",
+                   help="value type of the dense file (default float32; float16 halves it)")
     s.set_defaults(func=run)

@@ -7,6 +7,8 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError
+from ._args import check_output_dir, check_output_file
+from ._model import MODEL_HELP
 
 __all__ = ["register"]
 
@@ -23,28 +25,38 @@ def run(args: argparse.Namespace) -> int:
     from ..runtime import coded_btf_view
     from ..storage import load_coded_with_model
 
+    if not args.output and not args.images:
+        raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --images L:V,...")
+    check_output_file(args.output, [args.coded, args.model])
+    check_output_dir(args.png, "--png")
+    pairs = _parse_pairs(args.images) if args.images else []
     coded = load_coded_with_model(args.coded, args.model)
+    check_output_file(args.output, [coded.model_file])
     view = coded_btf_view(coded)
     if args.images:
         from ..figures import save_angular_images
 
-        pairs = _parse_pairs(args.images)
+        for light, v in pairs:
+            for what, i, n in (("light", light, len(coded.lights)), ("view", v, len(coded.views))):
+                if not 0 <= i < n:
+                    raise SparseBTFError(f"--images {light}:{v}: {what} {i} is out of range "
+                                         f"[0, {n}) (0-based light:view indices)")  # fmt: skip
         outdir = Path(args.png or ".")
         for path in save_angular_images(view, pairs, outdir):
             print(f"wrote {path}")
     if args.output:
         write_dense(args.output, view, progress=None, by="regions")
         print(f"wrote {args.output}")
-    if not args.output and not args.images:
-        raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --images L:V,...")
     return 0
 
 
 def register(sub: Any) -> None:
     s = sub.add_parser("decode", help="reconstruct a coded BTF (dense file and/or PNG images)")
     s.add_argument("coded", help="coded file from 'sparsebtf encode'")
-    s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
+    s.add_argument("-m", "--model", help=MODEL_HELP + " (default: the one the coded file names)")
     s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")
-    s.add_argument("--images", help="angular images to write as PNG, e.g. 0:0,10:42 (light:view)")
-    s.add_argument("--png", help="folder for --images (default .)")
+    s.add_argument("--images", metavar="L:V,...",
+                   help="angular images to write as PNG: light:view index pairs, 0-based, "
+                   "e.g. 0:0,10:42")
+    s.add_argument("--png", metavar="DIR", help="folder for --images (default: the current one)")
     s.set_defaults(func=run)

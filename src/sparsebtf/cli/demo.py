@@ -3,8 +3,10 @@
 1. synthesise training materials and unseen test materials (cached on disk);
 2. train a model (three ensembles, Y/U/V) once;
 3. encode each test material at several sparsity levels τ (one projection pass per material);
-4. print a table (τ, bytes, ratio, MSE, PSNR, SSIM) and write ``results.json``;
-5. write reference / reconstruction / false-colour error PNGs and a quality–storage plot.
+4. code the same materials with the bundled ``release`` model (the authors' ensembles, trained
+   on 18 measured UBO2014 materials) at the release's τ, beside the trained model's rows;
+5. print a table (model, τ, bytes, ratios, MSE, PSNR, SSIM) and write ``results.json``; write
+   reference / reconstruction / false-colour error PNGs and a quality–storage plot.
 """
 
 from __future__ import annotations
@@ -17,6 +19,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from ._args import check_output_dir, integer
 
 __all__ = ["DemoConfig", "register", "run_demo"]
 
@@ -47,6 +51,8 @@ class DemoConfig:
         (1770, 128, 128),
     )
     ssim_images: int = 16
+    #: τ at which the bundled model codes the test materials (the release's).
+    bundled_tau: tuple[int, int, int] = (885, 64, 64)
 
     @classmethod
     def quick(cls) -> DemoConfig:
@@ -102,7 +108,7 @@ def run_demo(
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     print(
-        f"[1/4] synthesising {len(cfg.train_materials)} training and "
+        f"[1/5] synthesising {len(cfg.train_materials)} training and "
         f"{len(cfg.test_materials)} test materials ({cfg.directions} directions)"
     )
     train_btfs = [
@@ -114,7 +120,7 @@ def run_demo(
         for m, s in cfg.test_materials
     ]
     print(
-        f"[2/4] training K={cfg.n_dictionaries} dictionaries per channel, "
+        f"[2/5] training K={cfg.n_dictionaries} dictionaries per channel, "
         f"tau_train={cfg.tau_train}, {cfg.iters} iterations"
     )
     model = train(
@@ -132,40 +138,31 @@ def run_demo(
             f"(mean squared error per value, standardised), membership "
             f"{t['membership_counts']}"
         )
-    print(f"[3/4] encoding unseen materials at tau = {', '.join(map(str, cfg.taus))}")
+    print(f"[3/5] encoding unseen materials at tau = {', '.join(map(str, cfg.taus))}")
     rows: list[dict[str, Any]] = []
+
+    def row(btf: Any, coded: Any, path: Path, label: str, which: str) -> Any:
+        save_coded(coded, path)
+        view = coded_btf_view(coded)
+        m = compare(btf, view, stats=coded.stats, ssim_images=cfg.ssim_images)
+        rep = storage_report(coded, coded.model, path)
+        keys = ("nnz", "bytes_coefficients", "bytes_dictionaries", "bytes_total", "bytes_raw",
+                "compression_ratio", "compression_ratio_per_material", "file_bytes")
+        rows.append({
+            "material": btf.name, "model": which, "tau": label,
+            **{k: m[k] for k in ("mse_rgb", "psnr_rgb", "ssim", "mse_log", "mse_std")},
+            **{k: rep[k] for k in keys},
+            "ratio_coefficients_only": rep["bytes_raw"] / rep["bytes_coefficients"],
+        })  # fmt: skip
+        return view
+
     for btf in test_btfs:
         levels = encode_levels(btf, model, list(cfg.taus))
         recs = {}
         for taus, coded in zip(cfg.taus, levels, strict=True):
             label = "/".join(map(str, taus))
             path = out / f"{btf.name}_tau{taus[0]}.h5"
-            coded.params["model_file"] = str((out / "model.h5").resolve())
-            save_coded(coded, path)
-            view = coded_btf_view(coded)
-            m = compare(btf, view, stats=coded.stats, ssim_images=cfg.ssim_images)
-            rep = storage_report(coded, model, path)
-            rows.append(
-                {
-                    "material": btf.name,
-                    "tau": label,
-                    **{k: m[k] for k in ("mse_rgb", "psnr_rgb", "ssim", "mse_log", "mse_std")},
-                    **{
-                        k: rep[k]
-                        for k in (
-                            "nnz",
-                            "bytes_coefficients",
-                            "bytes_dictionaries",
-                            "bytes_total",
-                            "bytes_raw",
-                            "compression_ratio",
-                            "file_bytes",
-                        )
-                    },
-                    "ratio_coefficients_only": rep["bytes_raw"] / rep["bytes_coefficients"],
-                }
-            )
-            recs[f"tau {label}"] = view
+            recs[f"tau {label}"] = row(btf, coded, path, label, "trained")
         grid = comparison_grid(
             btf,
             {k: recs[k] for k in list(recs)[:: max(1, len(recs) // 2)]},
@@ -173,23 +170,28 @@ def run_demo(
             out / f"{btf.name}_comparison.png",
         )
         print(f"      wrote {grid}")
-    plot = quality_plot(rows, out / "quality_vs_storage.png", x="bytes_coefficients")
+    bundled = _bundled_rows(cfg, test_btfs, out, row)
+    plot = quality_plot([r for r in rows if r["model"] == "trained"],
+                        out / "quality_vs_storage.png", x="bytes_coefficients")  # fmt: skip
     print(
-        "[4/4] results (MSE on linear RGB; bytes as the paper's Table 4; the ensembles, "
-        "shared by every material, are counted in bytes_total)"
+        "[5/5] results. MSE on linear RGB. Bytes as the paper's Table 4. 'ratio/mat' = raw fp16 "
+        "bytes / the material's own codes; 'ratio+dict' also counts the model's dictionaries, "
+        "which every material coded on it shares"
     )
     header = (
-        f"{'material':<24} {'tau (Y/U/V)':<14} {'coef bytes':>11} {'total bytes':>12} "
-        f"{'ratio':>8} {'MSE':>10} {'PSNR dB':>8} {'SSIM':>6}"
+        f"{'material':<24} {'model':<8} {'tau (Y/U/V)':<14} {'coef bytes':>11} "
+        f"{'ratio/mat':>10} {'ratio+dict':>10} {'MSE':>10} {'PSNR dB':>8} {'SSIM':>6}"
     )
     print(header)
     print("-" * len(header))
-    for r in rows:
+    for r in sorted(rows, key=lambda r: r["material"]):
         print(
-            f"{r['material']:<24} {r['tau']:<14} {r['bytes_coefficients']:>11,d} "
-            f"{r['bytes_total']:>12,d} {r['compression_ratio']:>8.1f} {r['mse_rgb']:>10.3e} "
-            f"{r['psnr_rgb']:>8.2f} {r['ssim']:>6.3f}"
+            f"{r['material']:<24} {r['model']:<8} {r['tau']:<14} {r['bytes_coefficients']:>11,d} "
+            f"{r['compression_ratio_per_material']:>10.1f} {r['compression_ratio']:>10.1f} "
+            f"{r['mse_rgb']:>10.3e} {r['psnr_rgb']:>8.2f} {r['ssim']:>6.3f}"
         )
+    if bundled:
+        print(f"      ({bundled})")
     result = {
         "config": {k: getattr(cfg, k) for k in cfg.__dataclass_fields__},
         "model_hash": model.content_hash,
@@ -204,7 +206,37 @@ def run_demo(
     return result
 
 
+def _bundled_rows(cfg: DemoConfig, test_btfs: list[Any], out: Path, row: Any) -> str:
+    """Step 4: the test materials coded with the bundled ``release`` model, as more rows.
+
+    Returns a note for the table (what the bundled rows are, or why there are none)."""
+    from ..codec import encode
+    from ..storage.bundled import DEFAULT_MODEL, bundled_models, load_bundled
+
+    if DEFAULT_MODEL not in bundled_models():
+        print("[4/5] skipped: no bundled model in this installation")
+        return ""
+    release = load_bundled(DEFAULT_MODEL)
+    fits = [b for b in test_btfs if b.lights.equals(release.lights)
+            and b.views.equals(release.views) and b.height % release.patch == 0
+            and b.width % release.patch == 0]  # fmt: skip
+    if not fits:
+        print(f"[4/5] skipped: the bundled model covers {release.lights.name} directions and "
+              f"{release.patch}x{release.patch} patches, these test materials do not fit")
+        return ""
+    label = "/".join(map(str, cfg.bundled_tau))
+    print(f"[4/5] coding them with the bundled '{DEFAULT_MODEL}' model (the authors' ensembles, "
+          f"trained on 18 measured UBO2014 materials) at tau = {label}")
+    for btf in fits:
+        coded = encode(btf, release, tau=cfg.bundled_tau)
+        row(btf, coded, out / f"{btf.name}_release_tau{cfg.bundled_tau[0]}.h5", label, "release")
+    return (f"'release' rows: the bundled model, K = {release.n_dictionaries('Y')} per channel; "
+            f"ratio+dict counts its {release.dictionary_entries('Y') * 6 / 2**20:.1f} MiB of "
+            "dictionaries")
+
+
 def run(args: argparse.Namespace) -> int:
+    check_output_dir(args.out, "--out")
     run_demo(Path(args.out), quick=args.quick, seed=args.seed, as_json=args.json)
     return 0
 
@@ -213,6 +245,7 @@ def register(sub: Any) -> None:
     s = sub.add_parser("demo", help="synthesise, train, encode at several tau, report and plot")
     s.add_argument("--out", default="sparsebtf-demo", help="output folder (default sparsebtf-demo)")
     s.add_argument("--quick", action="store_true", help="smaller sizes (about a minute)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=int, default=0,
+                   help="shifts every material's seed and the training seed (default 0)")
     s.add_argument("--json", action="store_true", help="also print the results as JSON")
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, checks={"seed": integer(0, 2**32 - 1)})

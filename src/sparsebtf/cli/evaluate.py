@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from ._args import open_source
+from ._args import integer, open_source
+from ._model import MODEL_HELP
 from ._output import print_json, table
 
 __all__ = ["register"]
@@ -21,6 +22,7 @@ _STORAGE_KEYS = (
     "bytes_total",
     "bytes_raw",
     "compression_ratio",
+    "compression_ratio_per_material",
     "file_bytes",
 )
 
@@ -43,18 +45,41 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(out)
     else:
-        print(table([(k, v) for k, v in out.items()]))
+        print(quality_table(out))
     return 0
+
+
+def quality_table(out: dict[str, Any]) -> str:
+    """The numbers of ``eval`` as a table with words and units."""
+    nnz = out["nnz"]
+    return table([
+        ("MSE, linear RGB", f"{out['mse_rgb']:.4g}"),
+        ("PSNR, linear RGB", f"{out['psnr_rgb']:.2f} dB (peak {out['peak']:.4g})"),
+        ("SSIM", f"{out['ssim']:.4f} (mean over {out['ssim_images']} angular images)"),
+        ("MSE, log RGB", f"{out['mse_log']:.4g}"),
+        ("MSE, standardised", f"{out['mse_std']:.4g} (the codes' residual: "
+                              f"{out['mse_std_codes']:.4g})"),
+        ("coefficients", ", ".join(f"{ch} {n:,}" for ch, n in nnz.items())),
+        ("coefficient bytes", f"{out['bytes_coefficients']:,} (paper Table 4)"),
+        ("dictionary bytes", f"{out['bytes_dictionaries']:,} (shared by every material)"),
+        ("statistics bytes", f"{out['bytes_stats']:,}"),
+        ("raw bytes (fp16)", f"{out['bytes_raw']:,}"),
+        ("ratio per material", f"{out['compression_ratio_per_material']:.1f}"),
+        ("ratio with dictionaries", f"{out['compression_ratio']:.1f}"),
+        ("file bytes", f"{out['file_bytes']:,}"),
+    ])  # fmt: skip
 
 
 def register(sub: Any) -> None:
     s = sub.add_parser("eval", help="quality and storage of a coded BTF against its reference")
     s.add_argument("coded", help="coded file from 'sparsebtf encode'")
-    s.add_argument("--reference", required=True, metavar="BTF", help="the original BTF")
-    s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
-    s.add_argument("--crop", help="crop the reference like the coded BTF was cropped")
+    s.add_argument("--reference", required=True, metavar="BTF",
+                   help="the original BTF: dense .h5, UBO2014 .btf, UBO2003 .zip or synth:...")
+    s.add_argument("-m", "--model", help=MODEL_HELP + " (default: the one the coded file names)")
+    s.add_argument("--crop", metavar="R0:R1,C0:C1",
+                   help="crop the reference as the coded BTF was cropped (0-based, end excluded)")
     s.add_argument(
         "--ssim-images", type=int, default=16, help="angular images sampled for SSIM (default 16)"
     )
-    s.add_argument("--json", action="store_true")
-    s.set_defaults(func=run)
+    s.add_argument("--json", action="store_true", help="print one JSON object")
+    s.set_defaults(func=run, checks={"ssim_images": integer(0, 10**6, unit="angular images")})

@@ -6,6 +6,9 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from ..errors import SparseBTFError
+from ._args import check_output_dir, check_output_file
+from ._model import open_model_arg
 from ._output import print_json
 
 __all__ = ["register"]
@@ -15,22 +18,32 @@ def run(args: argparse.Namespace) -> int:
     from ..storage import save_coded, save_model
     from ..storage.release import import_release
 
-    model, coded, notes = import_release(args.folder, prefer=args.prefer)
-    save_model(model, args.output)
-    out_dir = Path(args.coded_dir) if args.coded_dir else Path(args.output).resolve().parent
+    if args.output is None and args.model is None:
+        raise SparseBTFError("give -o MODEL.h5 (the model file to write) or -m NAME (code the "
+                             "coefficients against a bundled model, e.g. -m release)")
+    check_output_file(args.output)
+    check_output_dir(args.coded_dir, "--coded-dir")
+    against = open_model_arg(args.model) if args.model else None
+    model, coded, notes = import_release(args.folder, prefer=args.prefer, model=against)
+    if args.output:
+        save_model(model, args.output)
+        model_path = str(Path(args.output).resolve())
+    out_dir = Path(args.coded_dir or (Path(args.output).resolve().parent if args.output else "."))
     written = {}
     for name, c in coded.items():
-        c.params["model_file"] = str(Path(args.output).resolve())
+        if args.output:
+            c.params["model_file"] = model_path
         path = out_dir / f"{name}.coded.h5"
         save_coded(c, path)
         written[name] = str(path)
     if args.json:
-        print_json({"model": args.output, "content_hash": model.content_hash,
+        print_json({"model": args.output or args.model, "content_hash": model.content_hash,
                     "coded": written, "notes": notes})
     else:
         for n in notes:
             print(n)
-        print(f"wrote {args.output} (model {model.content_hash[:12]})")
+        if args.output:
+            print(f"wrote {args.output} (model {model.content_hash[:12]})")
         for path in written.values():
             print(f"wrote {path}")
     return 0
@@ -40,10 +53,16 @@ def register(sub: Any) -> None:
     s = sub.add_parser("import-release",
                        help="the authors' released dictionaries/coefficients as our files")
     s.add_argument("folder", help="folder with DictEnsOrth4D{Y,U,V}.bin/.mat, Coeffs_*.bin, "
-                   "*_mean_std.bin, bonn_angles.bin")
-    s.add_argument("-o", "--output", required=True, help="model file to write (.h5)")
-    s.add_argument("--coded-dir", help="folder for <material>.coded.h5 (default: beside -o)")
+                   "*_mean_std.bin, bonn_angles.bin (the authors' GitHub release)")
+    s.add_argument("-o", "--output", help="model file to write (.h5)")
+    s.add_argument("-m", "--model",
+                   help="code the coefficients against this model instead (a bundled name such "
+                   "as 'release', or a file) after checking its dictionaries equal the folder's "
+                   "within float32 rounding; no model file is written unless -o is given")
+    s.add_argument("--coded-dir",
+                   help="folder for <material>.coded.h5 (default: beside -o, else the current "
+                   "folder)")
     s.add_argument("--prefer", choices=["mat", "bin"], default="mat",
                    help="dictionaries from the fp64 .mat (exact, default) or the fp16 .bin")
-    s.add_argument("--json", action="store_true")
+    s.add_argument("--json", action="store_true", help="print what was written as JSON")
     s.set_defaults(func=run)

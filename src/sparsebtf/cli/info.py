@@ -13,6 +13,7 @@ import numpy as np
 from .._json import json_default
 from ..data.btf import BTF
 from ..open import file_format, open_btf
+from ._model import MODEL_HELP
 from ._output import print_json, table
 
 __all__ = ["describe", "describe_btf", "register"]
@@ -38,7 +39,7 @@ def describe_btf(btf: BTF, scan: bool = True) -> dict[str, Any]:
     }
     if scan:
         lo, hi, total, nonfinite = np.inf, -np.inf, 0.0, 0
-        for _, block in btf.iter_view_blocks():
+        for block in btf.iter_blocks():
             finite = np.isfinite(block)
             nonfinite += int((~finite).sum())
             vals = block[finite]
@@ -68,7 +69,7 @@ def describe(
     size = Path(s).stat().st_size
     if fmt == "sparsebtf-dense":
         out = describe_btf(open_btf(s), scan)
-        out.update(format=fmt, file_bytes=size)
+        out.update(format=fmt, file_bytes=size, integrity=_integrity(s))
         return out
     if fmt == "sparsebtf-model":
         from ..storage import load_model
@@ -90,16 +91,22 @@ def describe(
             "training": m.training,
             "provenance": m.provenance,
             "file_bytes": size,
+            "integrity": _integrity(s),
         }
     if fmt == "sparsebtf-coded":
-        from ..storage import load_coded, load_model, storage_report
+        from ..errors import ModelMismatchError
+        from ..storage import load_coded, storage_report
+        from ..storage.bundled import bundled_name, find_model
 
         coded = load_coded(s)
         model = None
-        mpath = model_path or coded.model_file
-        if mpath and Path(mpath).exists():
-            model = load_model(mpath)
+        try:
+            model = find_model(coded, model_path, s)
             coded.attach(model)
+        except ModelMismatchError:
+            if model_path:
+                raise
+            model = None  # storage figures from the file's own parameters
         report = storage_report(coded, model, s)
         return {
             "kind": "coded",
@@ -109,14 +116,57 @@ def describe(
             "patch": coded.patch,
             "channels": list(coded.channels),
             "model_hash": coded.model_hash,
+            "model": (f"bundled '{bundled_name(coded.model_hash)}'"
+                      if bundled_name(coded.model_hash) else
+                      (model.file or "given") if model is not None else
+                      "not found (give -m MODEL.h5 for exact dictionary bytes)"),
             "params": coded.params,
             "directions": {
                 "lights": {"name": coded.lights.name, "count": len(coded.lights)},
                 "views": {"name": coded.views.name, "count": len(coded.views)},
             },
             **{k: v for k, v in report.items() if not isinstance(v, dict) or k == "nnz"},
+            "integrity": _integrity(s),
         }
     return {"kind": "unknown", "format": fmt, "file_bytes": size}
+
+
+def flat_rows(obj: dict[str, Any], prefix: str = "") -> list[tuple[str, str]]:
+    """A nested description as table rows: nested keys joined by dots, short lists inline,
+    long ones summarised, direction tables as "151 (ubo2014)"."""
+    rows: list[tuple[str, str]] = []
+    for k, v in obj.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and set(v) == {"name", "count"}:
+            rows.append((key, f"{v['count']} ({v['name']})"))
+        elif isinstance(v, dict) and v:
+            rows += flat_rows(v, key + ".")
+        elif isinstance(v, list | tuple) and len(v) > 12:
+            rows.append((key, f"[{len(v)} values: {_text(v[0])} … {_text(v[-1])}]"))
+        elif isinstance(v, list | tuple):
+            rows.append((key, ", ".join(_text(x) for x in v) or "(none)"))
+        else:
+            rows.append((key, _text(v)))
+    return rows
+
+
+def _text(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 1000:
+        return f"{v:,}"
+    if isinstance(v, dict | list):
+        return json.dumps(v, default=json_default)
+    return str(v)
+
+
+def _integrity(path: str) -> str:
+    """Which checksums protect the file (schema 2: fletcher32 on every dataset)."""
+    from .._h5check import integrity
+    from .._hdf5 import open_h5
+
+    with open_h5(path) as f:
+        return integrity(f)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -124,17 +174,17 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(info)
     else:
-        print(table([(k, v) for k, v in info.items() if not isinstance(v, dict | list)]))
-        for k, v in info.items():
-            if isinstance(v, dict | list):
-                print(f"{k}: {json.dumps(v, default=json_default)}")
+        print(table(flat_rows(info)))
     return 0
 
 
 def register(sub: Any) -> None:
     s = sub.add_parser("info", help="describe a BTF, model or coded file")
-    s.add_argument("file", help="a .h5 file of ours, or synth:CLASS[:SIZE[:SEED]]")
-    s.add_argument("-m", "--model", help="model file (for a coded file's storage figures)")
-    s.add_argument("--no-scan", action="store_true", help="skip the value-range scan")
+    s.add_argument("file", help="a .h5 file of ours (dense, model or coded), a UBO2014 .btf, a "
+                   "UBO2003 .zip, or synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]")
+    s.add_argument("-m", "--model",
+                   help=MODEL_HELP + " (for a coded file; default: the one it names)")
+    s.add_argument("--no-scan", action="store_true",
+                   help="skip the value-range scan (it reads the whole BTF)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
     s.set_defaults(func=run)

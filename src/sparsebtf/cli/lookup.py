@@ -3,7 +3,7 @@
 For texel (row, col) (the release's convention: ``point = row//p + (H/p)·(col//p)``), light
 index l and view index v, reports per channel the ``standardized`` value (Eq. 5 on the codes),
 the ``log`` value (x·σ + μ, the log-YUV domain) and ``rgb`` (exp(YUV⁻¹·log) − 1e-5), or null
-when a channel is missing (the release ships no Y coefficients).
+when a channel is missing (the release ships no Y coefficients; ``rgb_note`` says so).
 """
 
 from __future__ import annotations
@@ -20,6 +20,8 @@ from ..errors import BTFInputError, SparseBTFError
 from ..open import file_format, open_btf
 from ..points.grid import PatchGrid
 from ..points.preprocessing import from_log_yuv, gather_statistics, to_log_yuv
+from ._args import integer
+from ._model import MODEL_HELP
 from ._output import print_json, table
 
 __all__ = ["lookup", "register"]
@@ -27,9 +29,10 @@ __all__ = ["lookup", "register"]
 
 def _check(r: int, c: int, light: int, view: int, shape: tuple[int, ...]) -> None:
     h, w, nl, nv = shape[:4]
-    for name, val, n in (("row", r, h), ("col", c, w), ("light", light, nl), ("view", view, nv)):
+    for name, val, n in (("--texel row", r, h), ("--texel column", c, w),
+                         ("--light", light, nl), ("--view", view, nv)):  # fmt: skip
         if not 0 <= val < n:
-            raise BTFInputError(f"{name} {val} is out of range [0, {n})")
+            raise BTFInputError(f"{name} {val} is out of range [0, {n}) (0-based)")
 
 
 def lookup(
@@ -41,7 +44,9 @@ def lookup(
     model_path: str | None = None,
 ) -> dict[str, Any]:
     """The value at (row, col, light, view) of a coded or dense file, in every domain."""
-    fmt = file_format(path)
+    s = str(path)
+    fmt = "btf" if s.startswith("synth:") or s.lower().endswith((".btf", ".zip")) else (
+        file_format(path))  # fmt: skip
     out: dict[str, Any] = {"texel": [row, col], "light": light, "view": view}
     if fmt == "sparsebtf-coded":
         from ..runtime import decode_points_eq5
@@ -65,7 +70,13 @@ def lookup(
             rgb = from_log_yuv(np.array([log["Y"], log["U"], log["V"]]))
             out["rgb"] = [float(v) for v in rgb]
         else:
+            missing = [ch for ch in ("Y", "U", "V") if ch not in log]
             out["rgb"] = None
+            out["rgb_note"] = (
+                f"null: RGB needs Y, U and V, and this file codes no {', '.join(missing)}"
+                + (" (the authors' release ships no Y coefficients)"
+                   if coded.params.get("source") == "release" else "")
+            )  # fmt: skip
         return out
     btf = open_btf(path, model_path)
     _check(row, col, light, view, btf.shape)
@@ -92,16 +103,18 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(out)
     else:
-        print(table([(k, json.dumps(v, default=json_default)) for k, v in out.items()]))
+        print(table([(k, v if isinstance(v, str) else json.dumps(v, default=json_default))
+                     for k, v in out.items()]))  # fmt: skip
     return 0
 
 
 def register(sub: Any) -> None:
     s = sub.add_parser("lookup", help="one value of a coded or dense BTF, in every domain")
-    s.add_argument("file", help="coded or dense .h5 file")
-    s.add_argument("--texel", required=True, help="R,C (row, column; the release's convention)")
-    s.add_argument("--light", type=int, required=True, help="sampled light index")
-    s.add_argument("--view", type=int, required=True, help="sampled view index")
-    s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
-    s.add_argument("--json", action="store_true")
-    s.set_defaults(func=run)
+    s.add_argument("file", help="coded or dense .h5 file (or .btf, .zip, synth:...)")
+    s.add_argument("--texel", required=True,
+                   help="R,C: row and column, 0-based (the release's convention)")
+    s.add_argument("--light", type=int, required=True, help="light index, 0-based")
+    s.add_argument("--view", type=int, required=True, help="view index, 0-based")
+    s.add_argument("-m", "--model", help=MODEL_HELP + " (default: the one the coded file names)")
+    s.add_argument("--json", action="store_true", help="print one JSON object")
+    s.set_defaults(func=run, checks={"light": integer(0), "view": integer(0)})

@@ -20,6 +20,7 @@ from typing import Any
 
 from ..errors import SparseBTFError
 from ..runtime.angular import SCHEMES
+from ._args import check_output_file, integer, number
 
 __all__ = ["cmd_render", "register"]
 
@@ -37,6 +38,25 @@ def _parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _refuse_slow_scalar(args: argparse.Namespace, size: tuple[int, int]) -> None:
+    """Without a usable libLLVM, refuse (before minutes of waiting) a scalar render estimated
+    over a minute, naming the one install command; ``--backend scalar`` runs it anyway."""
+    if args.backend == "scalar":
+        return
+    from ..rendering.llvm import choose_variant
+    from ..rendering.render import scalar_seconds
+
+    variant, _ = choose_variant(args.backend)
+    seconds = scalar_seconds(size, args.spp, 2 if args.reference else 1)
+    if variant == "scalar_rgb" and seconds > 60:
+        raise SparseBTFError(
+            f"no usable libLLVM (>= 17) for Mitsuba's fast CPU backend; install one with "
+            f"'apt-get install libllvm19' (Debian/Ubuntu) or set DRJIT_LIBLLVM_PATH. Without it "
+            f"this render would take about {seconds / 60:.0f} min in the scalar fallback: "
+            f"lower --size/--spp (e.g. --size 32 --spp 4) or pass --backend scalar to wait"
+        )
+
+
 def cmd_render(args: argparse.Namespace) -> int:
     from ..rendering.mitsuba import add_material, dense_table
     from ..rendering.render import (
@@ -49,10 +69,15 @@ def cmd_render(args: argparse.Namespace) -> int:
     size = _parse_size(args.size)
     if not Path(args.coded).exists():
         raise SparseBTFError(f"{args.coded}: no such file")
+    inputs = [args.coded, args.model, args.reference, args.envmap]
+    check_output_file(args.output, inputs)
+    check_output_file(args.save_raw, [*inputs, args.output], flag="--save-raw")
+    _refuse_slow_scalar(args, size)
     common: dict[str, Any] = {
         "uv_scale": float(args.uv_scale),
         "interpolation": args.interpolation,
         "two_sided": not args.one_sided,
+        "sampling": args.sampling,
     }
     if args.interpolation == "gaussian":
         common["k"] = int(args.k)
@@ -89,6 +114,11 @@ def cmd_render(args: argparse.Namespace) -> int:
         key = add_material(ref_btf, f"cli-reference:{args.reference}")
         reference = {"type": "sparsebtf_dense", "key": key, "max_gib": float(args.max_gib),
                      **common}  # fmt: skip
+        if args.sampling == "btf":  # sample as the coded render does: correlated noise
+            from ..runtime import RuntimeBTF
+
+            reference["sampling_key"] = add_material(RuntimeBTF(coded, args.tau),
+                                                     f"cli-sampling:{args.coded}")  # fmt: skip
     opts = {
         "scene": args.scene,
         "size": size,
@@ -109,6 +139,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         "tau": args.tau,
         "interpolation": args.interpolation,
         "domain": args.domain,
+        "sampling": args.sampling,
         "uv_scale": args.uv_scale,
         "seconds": res["seconds"],
         "setup_seconds": res["setup_seconds"],
@@ -150,7 +181,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         line = f"wrote {args.output}: {res['variant']}, {size[0]}x{size[1]}, {args.spp} spp, " \
                f"{res['seconds']:.2f} s"
         if reference is not None:
-            line += (f"; vs reference: MSE {out['mse']:.4g}, PSNR {out['psnr']:.2f} dB, "
+            line += (f"; vs reference (linear RGB): MSE {out['mse']:.4g}, PSNR "
+                     f"{out['psnr']:.2f} dB (peak {out['peak']:.4g}), "
                      f"SSIM {out['ssim']:.4f} (reference render {out['reference_seconds']:.2f} s)")
         print(line)
     return 0
@@ -168,7 +200,8 @@ def register(sub: Any) -> None:
     )
     s.add_argument("coded", help="coded file (.h5 from 'sparsebtf encode' or 'import-release')")
     s.add_argument("-o", "--output", required=True, help="PNG to write")
-    s.add_argument("--model", help="model file (default: the one the coded file names)")
+    s.add_argument("-m", "--model", help="model file or bundled model name (default: the one "
+                   "the coded file names)")
     s.add_argument("--scene", choices=["sphere", "cloth"], default="sphere",
                    help="sphere on a plane (default) or a procedurally draped cloth")
     s.add_argument("--floor", choices=["material", "diffuse"], default=None,
@@ -189,8 +222,12 @@ def register(sub: Any) -> None:
     s.add_argument("--k", type=int, default=4, help="gaussian: neighbours (default 4)")
     s.add_argument("--beta", type=float, default=20.0, help="gaussian: sharpness (default 20)")
     s.add_argument("--one-sided", action="store_true", help="black back faces (default two-sided)")
+    s.add_argument("--sampling", choices=["btf", "cosine"], default="btf",
+                   help="direction sampling: btf (from the material's angular response, "
+                   "default) or cosine")
     s.add_argument("--reference", metavar="BTF",
-                   help="also render this uncompressed BTF (.h5, .btf, synth:...) and compare")
+                   help="also render this uncompressed BTF (.h5, .btf, .zip, synth:...) and "
+                   "compare")
     s.add_argument("--max-gib", type=float, default=2.0,
                    help="refuse references whose float32 table exceeds this (default 2 GiB)")
     s.add_argument("--max-depth", type=int, default=4, help="path length (default 4)")
@@ -201,4 +238,13 @@ def register(sub: Any) -> None:
                    help="Mitsuba variant: auto (llvm_ad_rgb, else scalar_rgb), cuda, llvm, scalar")
     s.add_argument("--save-raw", metavar="NPZ", help="also save the linear float renders (.npz)")
     s.add_argument("--json", action="store_true", help="print the numbers as JSON")
-    s.set_defaults(func=cmd_render)
+    s.set_defaults(func=cmd_render, checks={
+        "spp": integer(1, 2**20, unit="samples per pixel"),
+        "uv_scale": number(0, 1e6, lo_open=True),
+        "k": integer(1, 64, unit="neighbours"),
+        "beta": number(0, 1e6, lo_open=True),
+        "max_gib": number(0, lo_open=True, unit="GiB"),
+        "max_depth": integer(1, 1024, unit="bounces"),
+        "seed": integer(0, 2**31 - 1),
+        "exposure": number(0, lo_open=True),
+    })  # fmt: skip

@@ -6,7 +6,7 @@ import argparse
 from typing import Any
 
 from ..errors import SparseBTFError
-from ._args import open_source
+from ._args import check_output_file, integer, open_source
 
 __all__ = ["register"]
 
@@ -24,6 +24,8 @@ def run(args: argparse.Namespace) -> int:
         raise SparseBTFError("give --class CLASS to synthesise, or --from BTF to preview a BTF")
     if not args.output and not args.preview:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --preview OUT.png")
+    check_output_file(args.output, [args.source])
+    check_output_file(args.preview, [args.source, args.output], flag="--preview")
     if args.output:
         write_dense(args.output, btf, dtype=args.dtype, progress=None)
         print(
@@ -49,16 +51,21 @@ def register(sub: Any) -> None:
         "--from",
         dest="source",
         metavar="BTF",
-        help="instead of synthesising, preview/convert this BTF (.btf, .h5, synth:...)",
+        help="instead of synthesising, preview/convert this BTF (.h5, UBO2014 .btf, UBO2003 "
+        ".zip, synth:...)",
     )
-    s.add_argument("--size", type=int, default=64, help="texels per side (default 64)")
+    s.add_argument("--size", type=int, default=64,
+                   help="texels per side (default 64; a 100x100 UBO2014 BTF file is 2.8 GB)")
     s.add_argument(
         "--directions",
         default="ubo2014",
         help="ubo2014 (151), ubo2003 (81), tiny7/13/19 (default ubo2014)",
     )
-    s.add_argument("--seed", type=int, default=0)
-    s.add_argument("--dtype", choices=["float32", "float16"], default="float32")
+    s.add_argument("--seed", type=int, default=0,
+                   help="random seed of the material's texture and geometry (default 0)")
+    s.add_argument("--dtype", choices=["float32", "float16"], default="float32",
+                   help="value type of the dense file (default float32; float16 halves it)")
     s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")
     s.add_argument("--preview", help="PNG contact sheet of angular images to write")
-    s.set_defaults(func=run)
+    s.set_defaults(func=run, checks={"size": integer(1, 16384, unit="texels per side"),
+                                     "seed": integer(0, 2**32 - 1)})

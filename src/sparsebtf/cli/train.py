@@ -7,7 +7,7 @@ from typing import Any
 
 from ..learning.ensemble import CANDIDATES, FULL_PASS_EVERY
 from ..points.preprocessing import STD_MODES
-from ._args import open_source
+from ._args import check_output_file, integer, number, open_source
 from ._output import print_json
 
 __all__ = ["register"]
@@ -17,6 +17,7 @@ def run(args: argparse.Namespace) -> int:
     from ..codec import train
     from ..storage import save_model
 
+    check_output_file(args.output, args.btfs)
     btfs = [open_source(s, crop=args.crop) for s in args.btfs]
     model = train(
         btfs,
@@ -58,7 +59,8 @@ def run(args: argparse.Namespace) -> int:
 def register(sub: Any) -> None:
     s = sub.add_parser("train", help="learn a model (three dictionary ensembles) from BTFs")
     s.add_argument("btfs", nargs="+", metavar="BTF",
-                   help="training BTFs: dense .h5 files or synth:CLASS[:SIZE[:SEED]]")
+                   help="training BTFs: dense .h5, UBO2014 .btf, UBO2003 .zip or "
+                   "synth:CLASS[:SIZE[:SEED]]")
     s.add_argument("-o", "--output", required=True, help="model file to write (.h5)")
     s.add_argument("--dicts", type=int, default=8, help="dictionaries per ensemble K (default 8)")
     s.add_argument(
@@ -106,8 +108,19 @@ def register(sub: Any) -> None:
         f"{FULL_PASS_EVERY}; 0: only when needed); the last pass is always full",
     )
     s.add_argument("--batch", type=int, default=4, help="data points per batch (memory bound)")
-    s.add_argument("--seed", type=int, default=0)
+    s.add_argument("--seed", type=int, default=0,
+                   help="seed of the data-point sample and the initial dictionaries (default 0)")
     s.add_argument("--crop", help="use only rows R0:R1 and columns C0:C1 of every BTF")
     s.add_argument("--checkpoint-dir", help="save after each iteration and resume from here")
-    s.add_argument("--json", action="store_true")
-    s.set_defaults(func=run)
+    s.add_argument("--json", action="store_true", help="print the training summary as JSON")
+    s.set_defaults(func=run, checks={
+        "dicts": integer(1, 65535, unit="dictionaries per ensemble"),
+        "patch": integer(1, 4096, unit="texels"),
+        "sample": number(0, 1, lo_open=True, unit="(fraction of each BTF's data points)"),
+        "iters": integer(1, 10**6, unit="iterations"),
+        "tol": number(0, unit="(relative objective decrease)"),
+        "batch": integer(1, 4096, unit="data points per batch"),
+        "candidates": integer(1, 65535, unit="dictionaries per point"),
+        "full_pass_every": integer(0, 10**6, unit="iterations"),
+        "seed": integer(0, 2**32 - 1),
+    })  # fmt: skip

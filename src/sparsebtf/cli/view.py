@@ -11,10 +11,11 @@ The page needs WebGL2 with 32-bit float and integer textures (every desktop brow
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from typing import Any
 
-from ._args import check_tau
+from ._args import check_output_dir, check_tau, integer
 
 __all__ = ["register"]
 
@@ -23,7 +24,9 @@ def cmd_view(args: argparse.Namespace) -> int:
     from ..rendering.viewer import build_bundle, export, serve
     from ..runtime import RuntimeBTF
 
-    rt = RuntimeBTF.from_file(args.coded, args.model, check_tau(args.tau))
+    tau = check_tau(args.tau)
+    check_output_dir(args.export, "--export")
+    rt = RuntimeBTF.from_file(args.coded, args.model, tau)
     bundle = build_bundle(rt, neighbours=not args.no_neighbours)
     mib = bundle.manifest["bytes"] / 2**20
     if args.export:
@@ -34,6 +37,13 @@ def cmd_view(args: argparse.Namespace) -> int:
             "(browsers refuse to fetch data from file://)"
         )
         return 0
+    if not _is_loopback(args.host):
+        print(
+            f"sparsebtf: warning: serving on {args.host!r}, not the loopback address: any "
+            "machine that can reach this one can open the viewer and download the coded "
+            "material; use --host 127.0.0.1 to keep it local",
+            file=sys.stderr,
+        )
     server = serve(bundle, args.host, args.port)
     print(f"SparseBTF viewer of {args.coded} ({mib:.1f} MiB of textures) at {server.url}")
     print("press Ctrl-C to stop")
@@ -52,11 +62,28 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+def _is_loopback(host: str) -> bool:
+    """Whether ``host`` is this machine only (127.0.0.0/8, ::1, or a name resolving there)."""
+    import ipaddress
+    import socket
+
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        pass
+    try:
+        infos = socket.getaddrinfo(host, None)
+    except OSError:
+        return False
+    return bool(infos) and all(ipaddress.ip_address(i[4][0]).is_loopback for i in infos)
+
+
 def register(sub: Any) -> None:
     """Add the ``view`` subcommand to the main parser's subparsers."""
     s = sub.add_parser("view", help="real-time WebGL2 viewer of a coded BTF (browser)")
     s.add_argument("coded", help="coded BTF file (.h5 from 'sparsebtf encode')")
-    s.add_argument("-m", "--model", help="model file (default: the one named in the coded file)")
+    s.add_argument("-m", "--model", help="model file or bundled model name (default: the one "
+                   "the coded file names)")
     s.add_argument(
         "--tau",
         help="load-time level of detail: 'Y,U,V', one integer, or a fraction such as 0.5 "
@@ -71,4 +98,4 @@ def register(sub: Any) -> None:
         action="store_true",
         help="scan every direction per fragment instead of the 8-candidate tables",
     )
-    s.set_defaults(func=cmd_view)
+    s.set_defaults(func=cmd_view, checks={"port": integer(0, 65535, unit="(0: a free port)")})

@@ -5,13 +5,16 @@ by rate control (beyond §3.3).
 >>> coded = encode(btf_c, model, tau=(885, 64, 64), eps=1e-5)          # doctest: +SKIP
 
 Decoding reads codes and lives in :mod:`sparsebtf.runtime` (``coded_btf_view``, Eq. 4–6).
-Everything streams: statistics by view block, data points by patch.
+Everything streams: statistics by view block, data points by patch. :func:`encode_many` codes
+many BTFs in one run; every encoder takes ``client=`` / ``scheduler=`` / ``workers=`` to spread
+the work over a Dask cluster (:mod:`sparsebtf.execution`, ``docs/distributed.md``).
 """
 
 from __future__ import annotations
 
 from ..model import parse_tau
 from .encode import encode, encode_levels
+from .many import encode_many, output_name
 from .rate import WEIGHTINGS, encode_rate_levels, encode_to_size, material_target_bytes
 from .train import train
 
@@ -19,9 +22,11 @@ __all__ = [
     "WEIGHTINGS",
     "encode",
     "encode_levels",
+    "encode_many",
     "encode_rate_levels",
     "encode_to_size",
     "material_target_bytes",
+    "output_name",
     "parse_tau",
     "train",
 ]

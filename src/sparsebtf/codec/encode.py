@@ -1,44 +1,40 @@
 """Encode a BTF on a trained model (paper §3.3, Eq. 3): the sparsest, then least-error code of
 every data point on its best dictionary, streamed point by point.
+
+:class:`FixedTau` is the work: :meth:`FixedTau.code_range` codes a range of data points (a
+pure function of the BTF, the model and the statistics: what a task runs, in process or on a
+Dask worker); :mod:`.jobs` runs the ranges and the statistics pass on an executor.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from .._progress import bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.coding import SparseCodes, sparse_code_levels
 from ..learning.parallel import prefetch
 from ..model import CodedBTF, Model, TauSpec, parse_tau
-from ..points.grid import PatchGrid, iter_points
-from ..points.preprocessing import Preprocessor, Standardization, StdMode, gather_statistics
+from ..points.grid import iter_points
+from ..points.preprocessing import Preprocessor, Standardization, StdMode
+from .jobs import Header, Source, run_plan
 
-__all__ = ["coded_btf", "encode", "encode_levels", "material_statistics"]
-
-
-def material_statistics(
-    btf: BTF, model: Model, std_mode: StdMode | None, progress: bool | None
-) -> Standardization:
-    """The standardisation of ``btf`` in the model's preprocessing (the model's std mode
-    unless ``std_mode`` overrides it)."""
-    return gather_statistics(
-        btf, std_mode or model.std_mode, progress=progress, transform=model.transform
-    )
+__all__ = ["FixedTau", "coded_btf", "encode", "encode_levels"]
 
 
 def coded_btf(
-    btf: BTF,
+    btf: BTF | Header,
     model: Model,
     codes: dict[str, SparseCodes],
     stats: Standardization,
     params: dict[str, Any],
 ) -> CodedBTF:
-    """The coded BTF of ``btf`` on ``model`` (model attached), from its codes and statistics."""
+    """The coded BTF of ``btf`` (or its header) on ``model`` (model attached), from its codes
+    and statistics."""
     params = {
         **params,
         "std_mode": stats.mode,
@@ -62,12 +58,17 @@ def encode(
     dtype: str = "float32",
     allow_below_training: bool = False,
     progress: bool | None = None,
+    client: Any = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
 ) -> CodedBTF:
     """Sparse representation of one BTF on a trained model (paper §3.3, Eq. 3).
 
     ``tau`` caps the coefficients per data point and channel (release: Y 885, U 64, V 64);
     ``eps`` is the mean-squared-residual threshold. τ_t < τ_l is refused (the paper requires
-    τ_t >= τ_l) unless ``allow_below_training``.
+    τ_t >= τ_l) unless ``allow_below_training``. ``client`` (a ``dask.distributed.Client``),
+    ``scheduler`` (an address) or ``workers`` (a local cluster of that many processes) spread
+    the data points over a Dask cluster (:mod:`sparsebtf.execution`); the codes are the same.
     """
     return encode_levels(
         btf,
@@ -79,6 +80,9 @@ def encode(
         dtype=dtype,
         allow_below_training=allow_below_training,
         progress=progress,
+        client=client,
+        scheduler=scheduler,
+        workers=workers,
     )[0]
 
 
@@ -94,6 +98,70 @@ def _check_levels(levels: list[dict[str, int]], model: Model, allow_below: bool)
                 )
 
 
+@dataclass(frozen=True)
+class FixedTau:
+    """Encoding at fixed sparsity levels (τ per channel, ε): one coded BTF per level.
+
+    Build it with :meth:`for_model`, which checks the levels against the model.
+    """
+
+    taus: tuple[Any, ...]
+    levels: tuple[dict[str, int], ...]
+    eps: float = 1e-5
+    dtype: str = "float32"
+    desc: str = "encode"
+
+    @classmethod
+    def for_model(
+        cls, model: Model, taus: Sequence[TauSpec], eps: float = 1e-5, dtype: str = "float32",
+        allow_below_training: bool = False,
+    ) -> FixedTau:  # fmt: skip
+        levels = [parse_tau(t, model.channels) for t in taus]
+        _check_levels(levels, model, allow_below_training)
+        if eps < 0:
+            raise BTFInputError(f"eps must be >= 0, got {eps}")
+        return cls(tuple(taus), tuple(levels), eps, dtype)
+
+    def prepare(self, header: Header, model: Model) -> None:
+        return None
+
+    def code_range(
+        self, btf: BTF, model: Model, stats: Standardization, lo: int, hi: int, extra: None,
+        batch_size: int, tick: Callable[[int], object] | None = None,
+    ) -> list[dict[str, SparseCodes]]:  # fmt: skip
+        """Codes of data points ``[lo, hi)`` at every level: ``[level][channel]``."""
+        channels = model.channels
+        dt = np.dtype(self.dtype).type
+        pre = Preprocessor(stats)
+        parts: list[dict[str, list[SparseCodes]]] = [{ch: [] for ch in channels}
+                                                     for _ in self.levels]  # fmt: skip
+        points = np.arange(lo, hi)
+        for _, x in prefetch(iter_points(btf, pre, model.patch, points, batch_size)):
+            for c, ch in enumerate(channels):
+                xc = x if ch == "YUV" else np.ascontiguousarray(x[..., c])
+                coded = sparse_code_levels(
+                    xc, model.dictionaries[ch], [lv[ch] for lv in self.levels], self.eps, dt
+                )
+                for j, sc in enumerate(coded):
+                    parts[j][ch].append(sc)
+            if tick is not None:
+                tick(x.shape[0])
+        return [{ch: SparseCodes.concatenate(p[ch]) for ch in channels} for p in parts]
+
+    def finish(
+        self, header: Header, model: Model, stats: Standardization,
+        parts: list[list[dict[str, SparseCodes]]], extra: None,
+    ) -> list[CodedBTF]:  # fmt: skip
+        return [
+            coded_btf(
+                header, model,
+                {ch: SparseCodes.concatenate([p[j][ch] for p in parts]) for ch in model.channels},
+                stats, {"tau": taus_c, "eps": self.eps, "dtype": self.dtype},
+            )
+            for j, taus_c in enumerate(self.levels)
+        ]  # fmt: skip
+
+
 def encode_levels(
     btf: BTF,
     model: Model,
@@ -105,33 +173,14 @@ def encode_levels(
     dtype: str = "float32",
     allow_below_training: bool = False,
     progress: bool | None = None,
+    client: Any = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
 ) -> list[CodedBTF]:
     """:func:`encode` at several sparsity levels from one pass (projections are shared)."""
-    model.check_directions(btf)
-    grid = PatchGrid.for_btf(btf, model.patch)
-    channels = model.channels
-    levels = [parse_tau(t, channels) for t in taus]
-    _check_levels(levels, model, allow_below_training)
-    if eps < 0:
-        raise BTFInputError(f"eps must be >= 0, got {eps}")
-    stats = material_statistics(btf, model, std_mode, progress)
-    pre = Preprocessor(stats)
-    dt = np.dtype(dtype).type
-    parts: list[dict[str, list[SparseCodes]]] = [{ch: [] for ch in channels} for _ in levels]
-    with bar(grid.n_points, f"encode {btf.name}", "pt", progress) as pb:
-        for _, x in prefetch(iter_points(btf, pre, model.patch, None, batch_size)):
-            for c, ch in enumerate(channels):
-                xc = x if ch == "YUV" else np.ascontiguousarray(x[..., c])
-                coded = sparse_code_levels(
-                    xc, model.dictionaries[ch], [lv[ch] for lv in levels], eps, dt
-                )
-                for j, sc in enumerate(coded):
-                    parts[j][ch].append(sc)
-            pb.update(x.shape[0])
-    return [
-        coded_btf(
-            btf, model, {ch: SparseCodes.concatenate(parts[j][ch]) for ch in channels}, stats,
-            {"tau": taus_c, "eps": eps, "dtype": dtype},
-        )
-        for j, taus_c in enumerate(levels)
-    ]  # fmt: skip
+    plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training)
+    (coded,) = run_plan(
+        [Source.of(btf)], model, plan, std_mode=std_mode, batch_size=batch_size,
+        progress=progress, client=client, scheduler=scheduler, workers=workers,
+    )  # fmt: skip
+    return coded

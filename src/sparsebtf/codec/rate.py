@@ -3,16 +3,18 @@
 :func:`encode_rate_levels` streams a BTF's data points once, keeps the top candidates of each
 point's chosen dictionary and spends one coefficient budget over every point and channel
 (:func:`sparsebtf.learning.rate_control.allocate`); sizes count by Table 4
-(:mod:`sparsebtf.learning.cost`).
+(:mod:`sparsebtf.learning.cost`). :class:`RateTargets` is that work as an encoding plan
+(:mod:`.jobs`): candidates by point range (in process or on Dask workers), one allocation.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
-from .._progress import bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.coding import topk_abs
@@ -23,9 +25,16 @@ from ..learning.tensor import project
 from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid, iter_points
 from ..points.preprocessing import YUV_TO_RGB, Preprocessor, Standardization, StdMode
-from .encode import coded_btf, material_statistics
+from .encode import coded_btf
+from .jobs import Header, Source, run_plan
 
-__all__ = ["WEIGHTINGS", "encode_rate_levels", "encode_to_size", "material_target_bytes"]
+__all__ = [
+    "WEIGHTINGS",
+    "RateTargets",
+    "encode_rate_levels",
+    "encode_to_size",
+    "material_target_bytes",
+]
 
 
 #: Error weightings of the rate control (see :func:`encode_rate_levels`).
@@ -33,7 +42,7 @@ WEIGHTINGS = ("rgb", "log", "uniform")
 
 
 def material_target_bytes(
-    btf: BTF,
+    btf: BTF | Header,
     model: Model,
     *,
     target_bytes: int | None = None,
@@ -100,73 +109,84 @@ def _point_weights(
     return np.einsum("bjr,rc,jc->bc", g, m2, sd2)[:, :c] / sd2.shape[0]
 
 
-def encode_rate_levels(
-    btf: BTF,
-    model: Model,
-    targets: Sequence[int],
-    *,
-    weighting: str = "rgb",
-    split: Sequence[float] | None = None,
-    candidate_factor: float = 4.0,
-    std_mode: StdMode | None = None,
-    batch_size: int = 4,
-    dtype: str = "float32",
-    progress: bool | None = None,
-) -> list[CodedBTF]:
-    """Encode to per-material byte targets by rate control (one projection pass for all).
+@dataclass(frozen=True)
+class RateTargets:
+    """Rate control to per-material byte targets (see :func:`encode_rate_levels`).
 
-    Beyond the paper, whose τ_t is fixed per point (§3.3, Table 3): one coefficient budget per
-    target is spread over every data point and channel, largest weighted gain w·s² first
-    (exact by Parseval, :mod:`sparsebtf.learning.rate_control`). ``targets`` are bytes per
-    material by Table 4 (coefficients + membership/counts, dictionaries excluded; see
-    :func:`material_target_bytes`). Each point's dictionary is the one with the least error at
-    the point's reference count (the target split over channels as ``split``, default the
-    release's 885:64:64, or equal for identity preprocessing); its top
-    ``candidate_factor`` × that count (+16) coefficients are the candidates. ``weighting``
-    is one of :data:`WEIGHTINGS` (see :func:`_point_weights`). Results hit each target to
-    within one coefficient (5 bytes) unless the candidate pool runs out (a warning).
+    ``targets``: bytes per material by Table 4, one per level; or None, then each BTF's single
+    target comes from ``target_bytes`` / ``target_ratio`` / ``per_material`` by
+    :func:`material_target_bytes` (the BTFs of one call may differ in size).
     """
-    if weighting not in WEIGHTINGS:
-        raise BTFInputError(f"weighting must be one of {WEIGHTINGS}, got {weighting!r}")
-    if not targets:
-        raise BTFInputError("give at least one target size")
-    if candidate_factor < 1:
-        raise BTFInputError(f"candidate_factor must be >= 1, got {candidate_factor}")
-    model.check_directions(btf)
-    channels = model.channels
-    if "YUV" in channels:
-        raise BTFInputError("rate control supports the 4D (Y, U, V) models only")
-    grid = PatchGrid.for_btf(btf, model.patch)
-    n_pts = grid.n_points
-    shape = model.mode_sizes
-    size = int(np.prod(shape))
-    loc_w = location_width(shape)
-    if split is None:
-        split = PAPER_SPLIT if model.transform == "log_yuv" else (1.0, 1.0, 1.0)
-    refs = [
-        reference_counts(int(t), n_pts, channels, loc_w, split, size) for t in targets
-    ]
-    ncand = [
-        {ch: min(size, int(candidate_factor * r[ch]) + 16) for ch in channels} for r in refs
-    ]
-    nmax = {ch: max(nc[ch] for nc in ncand) for ch in channels}
-    stats = material_statistics(btf, model, std_mode, progress)
-    pre = Preprocessor(stats)
-    dt = np.dtype(dtype).type
-    n_lv = len(targets)
-    # per level, channel: lists of per-point rows
-    parts: list[dict[str, dict[str, list]]] = [
-        {ch: {"m": [], "idx": [], "val": [], "e": [], "w": []} for ch in channels}
-        for _ in range(n_lv)
-    ]
-    mats = {
-        ch: [[np.asarray(d[k], dtype=dt) for d in model.dictionaries[ch]]
-             for k in range(model.n_dictionaries(ch))]
-        for ch in channels
-    }
-    with bar(n_pts, f"rate-encode {btf.name}", "pt", progress) as pb:
-        for _, x in prefetch(iter_points(btf, pre, model.patch, None, batch_size)):
-            w = _point_weights(x, pre, stats, channels, weighting)
+
+    targets: tuple[int, ...] | None = None
+    target_bytes: int | None = None
+    target_ratio: float | None = None
+    per_material: bool = False
+    weighting: str = "rgb"
+    split: tuple[float, ...] | None = None
+    candidate_factor: float = 4.0
+    dtype: str = "float32"
+    desc: str = "rate-encode"
+
+    def check(self, model: Model) -> RateTargets:
+        """Refuse bad parameters before any work; returns self."""
+        if self.weighting not in WEIGHTINGS:
+            raise BTFInputError(f"weighting must be one of {WEIGHTINGS}, got {self.weighting!r}")
+        if self.targets is not None and not self.targets:
+            raise BTFInputError("give at least one target size")
+        if self.candidate_factor < 1:
+            raise BTFInputError(f"candidate_factor must be >= 1, got {self.candidate_factor}")
+        if "YUV" in model.channels:
+            raise BTFInputError("rate control supports the 4D (Y, U, V) models only")
+        return self
+
+    def prepare(self, header: Header, model: Model) -> dict[str, Any]:
+        """The BTF's targets, reference counts and candidate counts per level."""
+        targets = self.targets
+        if targets is None:
+            targets = (material_target_bytes(
+                header, model, target_bytes=self.target_bytes, target_ratio=self.target_ratio,
+                per_material=self.per_material,
+            ),)  # fmt: skip
+        channels = model.channels
+        n_pts = PatchGrid.for_btf(header, model.patch).n_points  # type: ignore[arg-type]
+        shape = model.mode_sizes
+        size = int(np.prod(shape))
+        split = self.split
+        if split is None:
+            split = PAPER_SPLIT if model.transform == "log_yuv" else (1.0, 1.0, 1.0)
+        loc_w = location_width(shape)
+        refs = [reference_counts(int(t), n_pts, channels, loc_w, split, size) for t in targets]
+        ncand = [
+            {ch: min(size, int(self.candidate_factor * r[ch]) + 16) for ch in channels}
+            for r in refs
+        ]
+        nmax = {ch: max(nc[ch] for nc in ncand) for ch in channels}
+        return {"targets": targets, "refs": refs, "ncand": ncand, "nmax": nmax, "split": split}
+
+    def code_range(
+        self, btf: BTF, model: Model, stats: Standardization, lo: int, hi: int,
+        extra: dict[str, Any], batch_size: int, tick: Callable[[int], object] | None = None,
+    ) -> list[dict[str, dict[str, np.ndarray]]]:  # fmt: skip
+        """Candidates of data points ``[lo, hi)``: ``[level][channel]`` → arrays m (n,),
+        idx (n, candidates), val, e (energy), w (weight)."""
+        channels = model.channels
+        refs, ncand, nmax = extra["refs"], extra["ncand"], extra["nmax"]
+        pre = Preprocessor(stats)
+        dt = np.dtype(self.dtype).type
+        n_lv = len(refs)
+        parts: list[dict[str, dict[str, list]]] = [
+            {ch: {"m": [], "idx": [], "val": [], "e": [], "w": []} for ch in channels}
+            for _ in range(n_lv)
+        ]
+        mats = {
+            ch: [[np.asarray(d[k], dtype=dt) for d in model.dictionaries[ch]]
+                 for k in range(model.n_dictionaries(ch))]
+            for ch in channels
+        }  # fmt: skip
+        points = np.arange(lo, hi)
+        for _, x in prefetch(iter_points(btf, pre, model.patch, points, batch_size)):
+            w = _point_weights(x, pre, stats, channels, self.weighting)
             for c, ch in enumerate(channels):
                 xc = np.ascontiguousarray(x[..., c], dtype=dt)
                 flat = xc.reshape(xc.shape[0], -1)
@@ -195,36 +215,95 @@ def encode_rate_levels(
                         d["val"].append(opts[k][1][:n].astype(np.float32))
                         d["e"].append(float(energy[i]))
                         d["w"].append(float(w[i, c]))
-            pb.update(x.shape[0])
-    out = []
-    for lv, target in enumerate(targets):
-        cands = {
-            ch: ChannelCandidates(
-                shape,
-                np.asarray(parts[lv][ch]["m"], dtype=np.int64),
-                np.stack(parts[lv][ch]["idx"]).astype(np.int64),
-                np.stack(parts[lv][ch]["val"]),
-                np.asarray(parts[lv][ch]["e"]),
-                np.asarray(parts[lv][ch]["w"]),
-            )
-            for ch in channels
-        }
-        codes, summary = allocate(cands, int(target), loc_w)
-        params = {
-            "tau": {ch: int(codes[ch].counts.max()) for ch in channels},
-            "eps": 0.0,
-            "dtype": dtype,
-            "rate_control": {
-                "target_material_bytes": int(target),
-                "material_bytes": summary["bytes"],
-                "weighting": weighting,
-                "reference_counts": refs[lv],
-                "candidates": ncand[lv],
-                "split": list(split),
-            },
-        }
-        out.append(coded_btf(btf, model, codes, stats, params))
-    return out
+            if tick is not None:
+                tick(x.shape[0])
+        return [
+            {ch: {"m": np.asarray(d["m"], dtype=np.int64),
+                  "idx": np.stack(d["idx"]).astype(np.int64), "val": np.stack(d["val"]),
+                  "e": np.asarray(d["e"]), "w": np.asarray(d["w"])}
+             for ch, d in lv.items()}
+            for lv in parts
+        ]  # fmt: skip
+
+    def finish(
+        self, header: Header, model: Model, stats: Standardization,
+        parts: list[list[dict[str, dict[str, np.ndarray]]]], extra: dict[str, Any],
+    ) -> list[CodedBTF]:  # fmt: skip
+        """One coefficient budget per level over every point and channel (allocate)."""
+        channels = model.channels
+        shape = model.mode_sizes
+        loc_w = location_width(shape)
+        out = []
+        for lv, target in enumerate(extra["targets"]):
+            def joined(ch: str, key: str, lv: int = lv) -> np.ndarray:
+                return np.concatenate([p[lv][ch][key] for p in parts])
+
+            cands = {
+                ch: ChannelCandidates(
+                    shape, joined(ch, "m"), joined(ch, "idx"), joined(ch, "val"),
+                    joined(ch, "e"), joined(ch, "w"),
+                )
+                for ch in channels
+            }  # fmt: skip
+            codes, summary = allocate(cands, int(target), loc_w)
+            params = {
+                "tau": {ch: int(codes[ch].counts.max()) for ch in channels},
+                "eps": 0.0,
+                "dtype": self.dtype,
+                "rate_control": {
+                    "target_material_bytes": int(target),
+                    "material_bytes": summary["bytes"],
+                    "weighting": self.weighting,
+                    "reference_counts": extra["refs"][lv],
+                    "candidates": extra["ncand"][lv],
+                    "split": list(extra["split"]),
+                },
+            }
+            out.append(coded_btf(header, model, codes, stats, params))
+        return out
+
+
+def encode_rate_levels(
+    btf: BTF,
+    model: Model,
+    targets: Sequence[int],
+    *,
+    weighting: str = "rgb",
+    split: Sequence[float] | None = None,
+    candidate_factor: float = 4.0,
+    std_mode: StdMode | None = None,
+    batch_size: int = 4,
+    dtype: str = "float32",
+    progress: bool | None = None,
+    client: Any = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
+) -> list[CodedBTF]:
+    """Encode to per-material byte targets by rate control (one projection pass for all).
+
+    Beyond the paper, whose τ_t is fixed per point (§3.3, Table 3): one coefficient budget per
+    target is spread over every data point and channel, largest weighted gain w·s² first
+    (exact by Parseval, :mod:`sparsebtf.learning.rate_control`). ``targets`` are bytes per
+    material by Table 4 (coefficients + membership/counts, dictionaries excluded; see
+    :func:`material_target_bytes`). Each point's dictionary is the one with the least error at
+    the point's reference count (the target split over channels as ``split``, default the
+    release's 885:64:64, or equal for identity preprocessing); its top
+    ``candidate_factor`` × that count (+16) coefficients are the candidates. ``weighting``
+    is one of :data:`WEIGHTINGS` (see :func:`_point_weights`). Results hit each target to
+    within one coefficient (5 bytes) unless the candidate pool runs out (a warning).
+    ``client`` / ``scheduler`` / ``workers``: run the candidate pass on a Dask cluster
+    (:mod:`sparsebtf.execution`), with the same result.
+    """
+    plan = RateTargets(
+        tuple(int(t) for t in targets), weighting=weighting,
+        split=None if split is None else tuple(split), candidate_factor=candidate_factor,
+        dtype=dtype,
+    ).check(model)  # fmt: skip
+    (coded,) = run_plan(
+        [Source.of(btf)], model, plan, std_mode=std_mode, batch_size=batch_size,
+        progress=progress, client=client, scheduler=scheduler, workers=workers,
+    )  # fmt: skip
+    return coded
 
 
 def encode_to_size(
@@ -239,6 +318,9 @@ def encode_to_size(
     batch_size: int = 4,
     dtype: str = "float32",
     progress: bool | None = None,
+    client: Any = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
 ) -> CodedBTF:
     """Encode ``btf`` to a target size or compression ratio by rate control.
 
@@ -254,7 +336,5 @@ def encode_to_size(
     )
     return encode_rate_levels(
         btf, model, [target], weighting=weighting, std_mode=std_mode, batch_size=batch_size,
-        dtype=dtype, progress=progress,
+        dtype=dtype, progress=progress, client=client, scheduler=scheduler, workers=workers,
     )[0]
-
-

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from .._limits import check_allocation, format_bytes, memory_budget
 from ..errors import BTFInputError
 from .directions import DirectionSet
 
@@ -69,6 +70,8 @@ class BTF(abc.ABC):
     views: DirectionSet
     name: str
     attrs: dict[str, Any]
+    #: (rows, views) a scan should read at once to follow the storage (a file's chunks).
+    block_hint: tuple[int, int] = (1, 1)
 
     def __init__(
         self,
@@ -117,12 +120,17 @@ class BTF(abc.ABC):
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Validated int64 index arrays of a read request (errors name the axis)."""
         h, w, nl, nv, _ = self.shape
-        return (
+        out = (
             as_index(rows, h, "row"),
             as_index(cols, w, "col"),
             as_index(lights, nl, "light"),
             as_index(views, nv, "view"),
         )
+        # Every read's float32 result must fit the memory budget (sizes may come from a file).
+        n = int(np.prod([ix.size for ix in out], dtype=np.int64))
+        check_allocation(12 * n, f"{self.name}: reading {'x'.join(str(ix.size) for ix in out)}x3"
+                         " values at once", BTFInputError)  # fmt: skip
+        return out
 
     # -- access ----------------------------------------------------------------------------
     @abc.abstractmethod
@@ -159,13 +167,35 @@ class BTF(abc.ABC):
         for v in range(len(self.views)):
             yield v, self.view_block(v)
 
+    def iter_blocks(self, max_bytes: int = 64 * 2**20) -> Iterator[np.ndarray]:
+        """Yield the whole BTF as (h, w, L, v, 3) float32 blocks of about ``max_bytes`` (bands
+        of rows of a few views, or tiles), following :attr:`block_hint` where it fits: a scan
+        whose memory does not grow with the BTF."""
+        h, w, nl, nv, _ = self.shape
+        hint_rows, vstep = (max(1, int(x)) for x in self.block_hint)
+        vstep = min(vstep, nv) if 12 * w * nl * vstep * hint_rows <= max_bytes else 1
+        row_bytes = 12 * w * nl * vstep
+        rstep = max(1, max_bytes // max(row_bytes, 1))
+        if rstep >= hint_rows:
+            rstep -= rstep % hint_rows
+        cstep = w if row_bytes <= max_bytes else max(1, max_bytes // (12 * nl * vstep))
+        for v0 in range(0, nv, vstep):
+            for r0 in range(0, h, rstep):
+                for c0 in range(0, w, cstep):
+                    yield self.read(
+                        slice(r0, min(r0 + rstep, h)), slice(c0, min(c0 + cstep, w)),
+                        slice(None), slice(v0, min(v0 + vstep, nv)),
+                    )  # fmt: skip
+
     def to_array(self) -> np.ndarray:
-        """The whole BTF in memory. Only for small BTFs: refuses above 2 GiB."""
+        """The whole BTF in memory. Only for small BTFs: refuses above the memory budget
+        (2 GiB unless ``$SPARSEBTF_MAX_MEMORY_GB`` says otherwise)."""
         nbytes = self.n_values * 4
-        if nbytes > 2 * 2**30:
+        if nbytes > memory_budget():
             raise BTFInputError(
-                f"{self.name}: refusing to load {nbytes / 2**30:.1f} GiB into memory; "
-                "stream it by region or view block instead"
+                f"{self.name}: refusing to load {nbytes / 2**30:.1f} GiB into memory (budget "
+                f"{format_bytes(memory_budget())}, $SPARSEBTF_MAX_MEMORY_GB); stream it by region "
+                "or view block instead"
             )
         return self.read(slice(None), slice(None), slice(None), slice(None))
 

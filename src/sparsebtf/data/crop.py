@@ -12,25 +12,29 @@ class CroppedBTF(BTF):
     """Rows ``rows`` and columns ``cols`` (step 1) of ``base``; nothing is copied."""
 
     def __init__(self, base: BTF, rows: slice, cols: slice) -> None:
-        r = np.arange(base.height)[rows]
-        c = np.arange(base.width)[cols]
-        if r.size == 0 or c.size == 0 or (rows.step or 1) != 1 or (cols.step or 1) != 1:
-            raise BTFInputError(
-                f"{base.name}: crop rows {rows.start}:{rows.stop}, cols {cols.start}:{cols.stop} "
-                f"is empty or strided inside {base.height}x{base.width}"
-            )
+        r0, r1 = _bounds(rows, base.height, "rows", base.name)
+        c0, c1 = _bounds(cols, base.width, "cols", base.name)
         super().__init__(
-            r.size,
-            c.size,
-            base.lights,
-            base.views,
-            base.name,
-            {**base.attrs, "crop": [int(r[0]), int(r[-1]) + 1, int(c[0]), int(c[-1]) + 1]},
-        )
+            r1 - r0, c1 - c0, base.lights, base.views, base.name,
+            {**base.attrs, "crop": [r0, r1, c0, c1]},
+        )  # fmt: skip
         self.base = base
-        self._r0, self._c0 = int(r[0]), int(c[0])
+        self._r0, self._c0 = r0, c0
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
         r = as_index(rows, self.height, "row") + self._r0
         c = as_index(cols, self.width, "col") + self._c0
         return self.base.read(r, c, lights, views)
+
+
+def _bounds(window: slice, n: int, axis: str, name: str) -> tuple[int, int]:
+    """[start, stop) of a crop window, which must lie inside [0, n): no clipping, no negative
+    (count-from-the-end) indices, no steps."""
+    start = 0 if window.start is None else int(window.start)
+    stop = n if window.stop is None else int(window.stop)
+    if (window.step or 1) != 1 or not 0 <= start < stop <= n:
+        raise BTFInputError(
+            f"{name}: crop {axis} {start}:{stop} must satisfy 0 <= start < stop <= {n} (the "
+            f"BTF has {n} {axis}) with step 1"
+        )
+    return start, stop

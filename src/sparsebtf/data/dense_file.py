@@ -1,8 +1,8 @@
 """Our dense BTF file: one chunked HDF5 dataset, readable from h5py or MATLAB without this code.
 
-Layout (schema ``sparsebtf-dense`` version 1, documented in ``docs/format.md``)::
+Layout (schema ``sparsebtf-dense`` version 2, documented in ``docs/format.md``)::
 
-    /                      attrs: format="sparsebtf-dense", schema_version=1, name, attrs_json
+    /                      attrs: format="sparsebtf-dense", schema_version=2, name, attrs_json
     /btf                   (H, W, L, V, 3) float32 or float16, linear RGB, chunked
     /lights/xyz            (L, 3) float64 unit vectors, tangent frame (z = normal)
     /lights/theta, /phi    (L,) float64 radians (polar from the normal, azimuth)
@@ -10,7 +10,9 @@ Layout (schema ``sparsebtf-dense`` version 1, documented in ``docs/format.md``):
 
 The chunk is (20, 20, 8, 8, 3) by default (clipped to the shape): a 20×20 spatial tile with
 all directions is read without waste (two 10×10 data points per side), and one angular image
-reads 64× its size, not the whole file. Writes stream view blocks, atomically.
+reads 64× its size, not the whole file. Writes stream view blocks, atomically. Schema 2 adds
+the fletcher32 checksum to every dataset and HDF5 1.10 structures with metadata checksums
+(:mod:`sparsebtf._hdf5`); schema 1 files (no checksums) still load.
 """
 
 from __future__ import annotations
@@ -24,37 +26,52 @@ import h5py
 import numpy as np
 
 from .._atomic import atomic_output
+from .._h5check import (
+    HDF5_ERRORS,
+    checked_dataset,
+    read_array,
+    read_int_attr,
+    read_json_attr,
+    read_str_attr,
+    require,
+)
+from .._hdf5 import check_written, create, create_dataset, open_h5, read_error, write_str_attr
+from .._limits import memory_budget
 from .._progress import progress as _progress
-from ..errors import BTFInputError, FileFormatError
+from ..errors import BTFInputError, FileFormatError, SparseBTFError
 from .btf import BTF, Index
 from .directions import DirectionSet, from_vectors
 
 __all__ = ["DEFAULT_CHUNK", "FORMAT", "SCHEMA_VERSION", "DenseFileBTF", "write_dense"]
 
 FORMAT = "sparsebtf-dense"
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
+_SUPPORTED = (1, 2)
 DEFAULT_CHUNK = (20, 20, 8, 8, 3)
 
 
 def write_directions(group: h5py.Group, d: DirectionSet) -> None:
     """Write a direction table (name attr, xyz, theta, phi) into ``group``."""
-    group.attrs["name"] = d.name
-    group.create_dataset("xyz", data=d.xyz)
-    group.create_dataset("theta", data=d.theta)
-    group.create_dataset("phi", data=d.phi)
+    write_str_attr(group, "name", d.name)
+    create_dataset(group, "xyz", data=d.xyz)
+    create_dataset(group, "theta", data=d.theta)
+    create_dataset(group, "phi", data=d.phi)
 
 
 def read_directions(group: h5py.Group, where: str) -> DirectionSet:
-    """Read a direction table written by :func:`write_directions`; errors name the file field."""
-    if "xyz" not in group:
-        raise FileFormatError(f"{where}: missing dataset 'xyz'")
-    xyz = np.asarray(group["xyz"], dtype=np.float64)
-    if xyz.ndim != 2 or xyz.shape[1] != 3:
-        raise FileFormatError(f"{where}/xyz: expected shape (n, 3), got {xyz.shape}")
-    name = group.attrs.get("name", "custom")
-    name = name.decode() if isinstance(name, bytes) else str(name)
+    """Read a direction table written by :func:`write_directions`; errors name the file field.
+
+    ``xyz`` is checked (float, (n, 3), a size the file holds, finite, on the upper
+    hemisphere) before and after it is read.
+    """
+    if not isinstance(group, h5py.Group):
+        raise FileFormatError(f"{where}: expected a group, found a dataset")
+    xyz = read_array(group, "xyz", where, kinds="f", shape=(None, 3), finite=True)
+    if xyz.shape[0] == 0:
+        raise FileFormatError(f"{where}/xyz: expected at least one direction, found 0")
+    name = read_str_attr(group, "name", where) if "name" in group.attrs else "custom"
     try:
-        return from_vectors(xyz, name=name)
+        return from_vectors(xyz.astype(np.float64), name=name)
     except BTFInputError as e:
         raise FileFormatError(f"{where}/xyz: {e}") from None
 
@@ -89,12 +106,12 @@ def write_dense(
     nv = shape[3]
     step = chunk[3]
     with atomic_output(target) as tmp:
-        with h5py.File(tmp, "w") as f:
-            f.attrs["format"] = FORMAT
+        with create(tmp) as f:
+            write_str_attr(f, "format", FORMAT)
             f.attrs["schema_version"] = SCHEMA_VERSION
-            f.attrs["name"] = btf.name
-            f.attrs["attrs_json"] = json.dumps(meta, sort_keys=True, default=str)
-            ds = f.create_dataset("btf", shape=shape, dtype=dtype, chunks=chunk)
+            write_str_attr(f, "name", btf.name)
+            write_str_attr(f, "attrs_json", json.dumps(meta, sort_keys=True, default=str))
+            ds = create_dataset(f, "btf", shape=shape, dtype=dtype, chunks=chunk)
             write_directions(f.create_group("lights"), btf.lights)
             write_directions(f.create_group("views"), btf.views)
             if by == "views":
@@ -123,55 +140,35 @@ def write_dense(
                         f"col {c}, light {li}, view {vj}, channel {ch}"
                     )
                 ds[rows, cols, :, views, :] = block
+                check_written(f)  # a full disk stops the write here
     return target
 
 
 class DenseFileBTF(BTF):
     """A BTF stored in our dense HDF5 file; reads only the chunks a request touches."""
 
+    #: HDF5 chunk cache per open file in bytes (None: an eighth of the memory budget).
+    chunk_cache: int | None = None
+
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path)
-        if not self.path.exists():
-            raise FileFormatError(f"{self.path}: no such file")
+        # Checksummed chunks are read and verified whole: a chunk cache of an eighth of the
+        # memory budget keeps the chunks shared by neighbouring patches or views.
+        cache = self.chunk_cache or memory_budget() // 8
+        f = open_h5(self.path, rdcc_nbytes=cache, rdcc_nslots=max(10007, cache // 2**14 | 1))
         try:
-            f = h5py.File(self.path, "r")
-        except OSError as e:
-            raise FileFormatError(f"{self.path}: not a readable HDF5 file ({e})") from None
-        fmt = f.attrs.get("format")
-        fmt = fmt.decode() if isinstance(fmt, bytes) else fmt
-        if fmt != FORMAT:
+            ds, lights, views, name, attrs = _open_dense(f, str(self.path))
+        except SparseBTFError:
             f.close()
-            raise FileFormatError(f"{self.path}: attribute 'format' is {fmt!r}, not {FORMAT!r}")
-        version = int(f.attrs.get("schema_version", -1))
-        if version != SCHEMA_VERSION:
+            raise
+        except HDF5_ERRORS as e:
             f.close()
-            raise FileFormatError(
-                f"{self.path}: schema_version {version} is not supported (this reader: "
-                f"{SCHEMA_VERSION})"
-            )
-        if "btf" not in f:
-            f.close()
-            raise FileFormatError(f"{self.path}: missing dataset 'btf'")
-        ds = f["btf"]
-        if ds.ndim != 5 or ds.shape[4] != 3:
-            f.close()
-            raise FileFormatError(
-                f"{self.path}/btf: expected shape (H, W, L, V, 3), got {ds.shape}"
-            )
-        lights = read_directions(f["lights"], f"{self.path}/lights")
-        views = read_directions(f["views"], f"{self.path}/views")
-        if (len(lights), len(views)) != ds.shape[2:4]:
-            f.close()
-            raise FileFormatError(
-                f"{self.path}: /btf has {ds.shape[2]} lights x {ds.shape[3]} views but the "
-                f"direction tables have {len(lights)} x {len(views)}"
-            )
-        name = f.attrs.get("name", self.path.stem)
-        name = name.decode() if isinstance(name, bytes) else str(name)
-        attrs = json.loads(f.attrs.get("attrs_json", "{}"))
+            raise read_error(e, str(self.path)) from None
         super().__init__(ds.shape[0], ds.shape[1], lights, views, name, attrs)
         self._file = f
         self._ds = ds
+        if ds.chunks is not None:  # scans read whole chunks: their rows and views at once
+            self.block_hint = (int(ds.chunks[0]), int(ds.chunks[3]))
 
     @property
     def dtype(self) -> np.dtype:
@@ -192,7 +189,10 @@ class DenseFileBTF(BTF):
             return np.empty((*(ix.size for ix in idx), 3), dtype=np.float32)
         # HDF5 reads hyperslabs: read the bounding box, then pick the requested entries.
         box = tuple(slice(int(ix.min()), int(ix.max()) + 1) for ix in idx)
-        data = np.asarray(self._ds[box], dtype=np.float32)
+        try:
+            data = np.asarray(self._ds[box], dtype=np.float32)
+        except HDF5_ERRORS as e:
+            raise read_error(e, f"{self.path}/btf") from None
         rel = [ix - ix.min() for ix in idx]
         if all(
             r.size == (b.stop - b.start) and np.all(np.diff(r) == 1)
@@ -200,3 +200,33 @@ class DenseFileBTF(BTF):
         ):
             return data
         return data[np.ix_(*rel, np.arange(3))]
+
+
+def _open_dense(
+    f: h5py.File, where: str
+) -> tuple[h5py.Dataset, DirectionSet, DirectionSet, str, dict[str, Any]]:
+    """Check a dense file's attributes, ``/btf`` (without reading it) and direction tables."""
+    fmt = read_str_attr(f, "format", where) if "format" in f.attrs else None
+    if fmt != FORMAT:
+        raise FileFormatError(f"{where}: attribute 'format' is {fmt!r}, not {FORMAT!r}")
+    version = read_int_attr(f, "schema_version", where)
+    if version not in _SUPPORTED:
+        raise FileFormatError(
+            f"{where}: schema_version {version} is not supported (this reader: "
+            f"{', '.join(map(str, _SUPPORTED))})"
+        )
+    ds = checked_dataset(f, "btf", where, kinds="f", shape=(None, None, None, None, 3), whole=False)
+    if min(ds.shape) < 1:
+        raise FileFormatError(
+            f"{where}/btf: expected a non-empty (H, W, L, V, 3), found {ds.shape}"
+        )
+    lights = read_directions(require(f, "lights", where), f"{where}/lights")
+    views = read_directions(require(f, "views", where), f"{where}/views")
+    if (len(lights), len(views)) != ds.shape[2:4]:
+        raise FileFormatError(
+            f"{where}: /btf has {ds.shape[2]} lights x {ds.shape[3]} views but the "
+            f"direction tables have {len(lights)} x {len(views)}"
+        )
+    name = read_str_attr(f, "name", where) if "name" in f.attrs else Path(where).stem
+    attrs = read_json_attr(f, "attrs_json", where)
+    return ds, lights, views, name, attrs

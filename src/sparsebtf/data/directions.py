@@ -151,10 +151,17 @@ def from_angles(theta: np.ndarray, phi: np.ndarray, name: str = "custom") -> Dir
         raise BTFInputError(f"theta and phi differ in length: {theta.size} vs {phi.size}")
     if theta.size == 0:
         raise BTFInputError("a direction set needs at least one direction")
+    bad = ~(np.isfinite(theta) & np.isfinite(phi))
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise BTFInputError(
+            f"direction {i}: angles must be finite, got theta={theta[i]}, phi={phi[i]} (radians)"
+        )
     if np.any(theta < -1e-12) or np.any(theta > np.pi / 2 + 1e-9):
         bad = int(np.flatnonzero((theta < -1e-12) | (theta > np.pi / 2 + 1e-9))[0])
         raise BTFInputError(
-            f"direction {bad}: polar angle {np.degrees(theta[bad]):.3f}° is outside [0°, 90°]"
+            f"direction {bad}: polar angle {float(theta[bad]) * 180 / np.pi:.3f}° is outside "
+            "[0°, 90°]"
         )
     st = np.sin(theta)
     xyz = np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=1)

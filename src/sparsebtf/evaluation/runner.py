@@ -134,7 +134,7 @@ def run_quality(
 ) -> dict[str, Any]:
     """Run the benchmark into folder ``out``; returns (and writes) the results object.
 
-    ``materials`` are extra test BTFs (any source :func:`~sparsebtf.data.io.open_btf`
+    ``materials`` are extra test BTFs (any source :func:`~sparsebtf.open.open_btf`
     accepts: ``.btf``, dense ``.h5``, ``synth:…``); they need the benchmark's directions and
     a size that is a multiple of the patch. ``seed`` shifts every material seed and the
     training seed. ``previous`` (an earlier run's ``results.json``) adds how each verdict

@@ -9,20 +9,24 @@ distinct angle pairs found, each ordered by (θ, φ) with φ in [0°, 360°).
 
 * ``.jpg`` members (UBO2003, ATRIUM LDR): 8-bit gamma-encoded RGB, converted to linear with
   an inverse gamma of 2.2, ``(u / 255) ** 2.2``.
-* ``.hdr`` members (ATRIUM HDR): Radiance RGBE, decoded here in numpy: magic line, ``KEY=value``
-  lines up to a blank line, a resolution line in any of the 8 orders, flat or new-style RLE
-  scanlines. ``f = m · 2^(e − 136)`` (no +0.5, like FreeImage), divided by ``EXPOSURE`` when the
-  header has one. Images are returned with row 0 at the top and column 0 at the left per the
-  Radiance convention (``-Y H +X W`` is the standard order); BX's 256×256-only header hack is
-  not reproduced (its output equals ``np.rot90`` of ours for ``+X 256 -Y 256`` files).
+* ``.hdr`` members (ATRIUM HDR): Radiance RGBE, decoded in numpy by :mod:`.rgbe`. Images are
+  returned with row 0 at the top and column 0 at the left per the Radiance convention
+  (``-Y H +X W`` is the standard order); BX's 256×256-only header hack is not reproduced (its
+  output equals ``np.rot90`` of ours for ``+X 256 -Y 256`` files).
 
-Images are decoded only when a read needs them; the last few decoded images are cached.
+Images are decoded only when a read needs them; the last few decoded images are cached. Every
+member read is guarded: a damaged archive (bad CRC, truncated or corrupt compressed data, an
+unsupported compression) is a :class:`FileFormatError` naming the archive and the member, and
+an image's size is checked against its member's bytes and the memory budget before decoding.
 """
 
 from __future__ import annotations
 
+import io
 import re
+import struct
 import zipfile
+import zlib
 from collections import OrderedDict
 from collections.abc import Sequence
 from pathlib import Path
@@ -30,9 +34,11 @@ from typing import IO
 
 import numpy as np
 
+from .._limits import check_allocation
 from ..data.btf import BTF, Index
 from ..data.directions import DirectionSet, from_angles
 from ..errors import BTFInputError, FileFormatError
+from .rgbe import decode_rgbe, encode_rgbe, hdr_size
 
 __all__ = [
     "UBO2003BTF",
@@ -48,251 +54,30 @@ _NAME_RE = re.compile(
     r"(?:^|[ _])tl(\d{1,3})[ _]pl(\d{1,3})[ _]tv(\d{1,3})[ _]pv(\d{1,3})\.(?:jpe?g|hdr)$",
     re.IGNORECASE,
 )
-_RES_RE = re.compile(rb"^([-+])([XY]) (\d+) ([-+])([XY]) (\d+)$")
+#: What reading a damaged zip member can raise (CRC and size checks, truncated or corrupt
+#: DEFLATE/BZIP2/LZMA streams, encrypted or unsupported members).
+_ZIP_ERRORS = (
+    OSError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, RuntimeError,
+    NotImplementedError, ValueError, KeyError, struct.error, LookupError,
+)  # fmt: skip
+#: A JPEG can hold at most this many pixels per byte (an empty 8×8 block still takes a few
+#: bits; measured BTF images hold under 10). A larger claim is a damaged header.
+_JPEG_PIXELS_PER_BYTE = 1024
+#: Bytes the JPEG path holds per pixel (uint8 RGB and float32 RGB).
+_JPEG_BYTES_PER_PIXEL = 3 + 12
 
 Angles = tuple[int, int, int, int]
 
 
 # ---------------------------------------------------------------------------------------------
-# Radiance RGBE
-# ---------------------------------------------------------------------------------------------
-def _rgbe_to_float(rgbe: np.ndarray) -> np.ndarray:
-    """(..., 4) uint8 RGBE → (..., 3) float32 with f = m·2^(e−136), 0 where e = 0."""
-    e = rgbe[..., 3].astype(np.int32)
-    scale = np.where(e > 0, np.ldexp(1.0, e - 136), 0.0)
-    return (rgbe[..., :3].astype(np.float64) * scale[..., None]).astype(np.float32)
-
-
-def _float_to_rgbe(img: np.ndarray) -> np.ndarray:
-    """(..., 3) non-negative floats → (..., 4) uint8 RGBE (mantissa truncated, like rgbe.c)."""
-    x = np.maximum(np.asarray(img, dtype=np.float64), 0.0)
-    v = x.max(axis=-1)
-    m, e = np.frexp(v)
-    ok = v >= 1e-32
-    scale = np.where(ok, m * 256.0 / np.where(ok, v, 1.0), 0.0)
-    out = np.zeros((*x.shape[:-1], 4), dtype=np.uint8)
-    out[..., :3] = np.clip(np.floor(x * scale[..., None]), 0, 255).astype(np.uint8)
-    out[..., 3] = np.where(ok, np.clip(e + 128, 0, 255), 0).astype(np.uint8)
-    return out
-
-
-def _parse_resolution(line: bytes, where: str) -> tuple[str, str, int, str, str, int]:
-    """Parse ``-Y 256 +X 256`` style lines: (sign1, axis1, n1, sign2, axis2, n2)."""
-    m = _RES_RE.match(line.strip())
-    if m is None or m.group(2) == m.group(5):
-        raise FileFormatError(f"{where}: bad Radiance resolution line {line[:40]!r}")
-    s1, a1, n1, s2, a2, n2 = m.groups()
-    if int(n1) < 1 or int(n2) < 1:
-        raise FileFormatError(f"{where}: resolution line {line[:40]!r} has a zero size")
-    return s1.decode(), a1.decode(), int(n1), s2.decode(), a2.decode(), int(n2)
-
-
-def _read_header(buf: bytes, where: str) -> tuple[dict[str, str], float, tuple, int]:
-    """Parse a Radiance header: (KEY=value dict, exposure, resolution tuple, data offset)."""
-    pos = 0
-
-    def line() -> bytes:
-        nonlocal pos
-        end = buf.find(b"\n", pos)
-        if end < 0:
-            raise FileFormatError(f"{where}: Radiance header is truncated (no end of line)")
-        out = buf[pos:end]
-        pos = end + 1
-        return out
-
-    magic = line().rstrip(b"\r")
-    if magic not in (b"#?RADIANCE", b"#?RGBE"):
-        raise FileFormatError(
-            f"{where}: not a Radiance HDR file (magic {magic[:16]!r}, "
-            "expected '#?RADIANCE' or '#?RGBE')"
-        )
-    keys: dict[str, str] = {}
-    exposure = 1.0
-    for _ in range(10000):
-        text = line().rstrip(b"\r")
-        if not text.strip():
-            break
-        if text.startswith(b"#"):
-            continue
-        if b"=" not in text:
-            raise FileFormatError(f"{where}: bad Radiance header line {text[:40]!r}")
-        k, v = text.decode("latin-1").split("=", 1)
-        k, v = k.strip(), v.strip()
-        keys[k] = v
-        if k == "EXPOSURE":
-            try:
-                exposure *= float(v)
-            except ValueError as exc:
-                raise FileFormatError(
-                    f"{where}: header field EXPOSURE={v!r} is not a number"
-                ) from exc
-            if not exposure > 0:
-                raise FileFormatError(f"{where}: header field EXPOSURE={v!r} must be positive")
-    else:
-        raise FileFormatError(f"{where}: Radiance header has no end (no blank line)")
-    fmt = keys.get("FORMAT", "32-bit_rle_rgbe")
-    if fmt != "32-bit_rle_rgbe":
-        raise FileFormatError(f"{where}: header field FORMAT={fmt!r} is not 32-bit_rle_rgbe")
-    res = _parse_resolution(line().rstrip(b"\r"), where)
-    return keys, exposure, res, pos
-
-
-def _orient(raw: np.ndarray, res: tuple) -> np.ndarray:
-    """Map scanline-ordered pixels (n_slow, n_fast, c) to image order (row top, col left)."""
-    s1, a1, _, s2, _, _ = res
-    if a1 == "X":  # scanlines are columns
-        raw = raw.transpose(1, 0, 2)
-        ys, xs = s2, s1
-    else:
-        ys, xs = s1, s2
-    if ys == "+":  # increasing Y: bottom row first
-        raw = raw[::-1]
-    if xs == "-":  # decreasing X: right column first
-        raw = raw[:, ::-1]
-    return raw
-
-
-def decode_rgbe(data: bytes, where: str = "<hdr>") -> np.ndarray:
-    """Decode a Radiance ``.hdr`` file to (H, W, 3) float32 linear RGB (top row first)."""
-    _, exposure, res, pos = _read_header(data, where)
-    n_slow, n_fast = res[2], res[5]
-    buf = np.frombuffer(data, dtype=np.uint8)
-    out = np.empty((n_slow, n_fast, 4), dtype=np.uint8)
-    for s in range(n_slow):
-        head = buf[pos : pos + 4]
-        if head.size < 4:
-            raise FileFormatError(f"{where}: pixel data truncated at scanline {s} of {n_slow}")
-        rle = 8 <= n_fast < 32768 and head[0] == 2 and head[1] == 2 and head[2] < 128
-        if not rle:
-            end = pos + 4 * n_fast
-            if end > buf.size:
-                raise FileFormatError(f"{where}: pixel data truncated at scanline {s} of {n_slow}")
-            out[s] = buf[pos:end].reshape(n_fast, 4)
-            pos = end
-            continue
-        width = (int(head[2]) << 8) | int(head[3])
-        if width != n_fast:
-            raise FileFormatError(f"{where}: RLE scanline {s} has width {width}, expected {n_fast}")
-        pos += 4
-        for ch in range(4):
-            i = 0
-            row = out[s, :, ch]
-            while i < n_fast:
-                if pos >= buf.size:
-                    raise FileFormatError(f"{where}: RLE data truncated at scanline {s}")
-                count = int(buf[pos])
-                pos += 1
-                if count > 128:
-                    count -= 128
-                    if i + count > n_fast or pos >= buf.size:
-                        raise FileFormatError(f"{where}: bad RLE run in scanline {s}")
-                    row[i : i + count] = buf[pos]
-                    pos += 1
-                else:
-                    if count == 0 or i + count > n_fast or pos + count > buf.size:
-                        raise FileFormatError(f"{where}: bad RLE run in scanline {s}")
-                    row[i : i + count] = buf[pos : pos + count]
-                    pos += count
-                i += count
-    img = _orient(_rgbe_to_float(out), res)
-    if exposure != 1.0:
-        img = img / np.float32(exposure)
-    return np.ascontiguousarray(img, dtype=np.float32)
-
-
-def _rle_channel(values: np.ndarray) -> bytes:
-    """New-style RLE of one channel of one scanline (runs ≥ 4 coded as runs)."""
-    out = bytearray()
-    n = values.size
-    i = 0
-    while i < n:
-        j = i
-        while j < n and j - i < 127 and values[j] == values[i]:
-            j += 1
-        if j - i >= 4:
-            out += bytes((128 + j - i, int(values[i])))
-            i = j
-            continue
-        # literal run until the next run of ≥ 4 or 128 bytes
-        k = i
-        while k < n and k - i < 128:
-            r = k
-            while r < n and r - k < 4 and values[r] == values[k]:
-                r += 1
-            if r - k >= 4:
-                break
-            k += 1
-        out += bytes((k - i,)) + values[i:k].tobytes()
-        i = k
-    return bytes(out)
-
-
-def encode_rgbe(
-    img: np.ndarray, rle: bool = True, order: str = "-Y +X", exposure: float | None = None
-) -> bytes:
-    """Encode (H, W, 3) non-negative floats as a Radiance ``.hdr`` file.
-
-    ``order`` is the resolution line's axis order, e.g. ``"-Y +X"`` (standard) or ``"+X -Y"``;
-    pixels are laid out so :func:`decode_rgbe` returns ``img``. ``rle`` selects new-style RLE
-    scanlines (only possible for scanline lengths 8..32767; flat otherwise). ``exposure`` is
-    written as ``EXPOSURE=`` and the stored values are multiplied by it.
-    """
-    a = np.asarray(img, dtype=np.float64)
-    if a.ndim != 3 or a.shape[2] != 3:
-        raise BTFInputError(f"HDR image must have shape (H, W, 3), got {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise BTFInputError("HDR image values must be finite")
-    parts = order.split()
-    if (
-        len(parts) != 2
-        or {p[1:] for p in parts} != {"X", "Y"}
-        or any(p[0] not in "+-" for p in parts)
-    ):
-        raise BTFInputError(f"resolution order must be like '-Y +X', got {order!r}")
-    h, w = a.shape[:2]
-    if exposure is not None:
-        a = a * exposure
-    sizes = {"Y": h, "X": w}
-    res = (
-        parts[0][0],
-        parts[0][1],
-        sizes[parts[0][1]],
-        parts[1][0],
-        parts[1][1],
-        sizes[parts[1][1]],
-    )
-    # Inverse of _orient.
-    raw = a
-    s1, a1, _, s2, _, _ = res
-    ys, xs = (s2, s1) if a1 == "X" else (s1, s2)
-    if xs == "-":
-        raw = raw[:, ::-1]
-    if ys == "+":
-        raw = raw[::-1]
-    if a1 == "X":
-        raw = raw.transpose(1, 0, 2)
-    rgbe = _float_to_rgbe(raw)
-    head = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n"
-    if exposure is not None:
-        head += f"EXPOSURE={exposure!r}\n".encode()
-    head += f"\n{res[0]}{res[1]} {res[2]} {res[3]}{res[4]} {res[5]}\n".encode()
-    body = bytearray(head)
-    n_fast = rgbe.shape[1]
-    for s in range(rgbe.shape[0]):
-        if rle and 8 <= n_fast < 32768:
-            body += bytes((2, 2, n_fast >> 8, n_fast & 255))
-            for ch in range(4):
-                body += _rle_channel(np.ascontiguousarray(rgbe[s, :, ch]))
-        else:
-            body += rgbe[s].tobytes()
-    return bytes(body)
-
-
-# ---------------------------------------------------------------------------------------------
 # Image sizes without decoding
 # ---------------------------------------------------------------------------------------------
-def _jpeg_size(f: IO[bytes], where: str) -> tuple[int, int]:
-    """(height, width) from a JPEG's SOF marker, reading only the segment headers."""
+def _jpeg_size(f: IO[bytes], where: str, size: int | None = None) -> tuple[int, int]:
+    """(height, width) from a JPEG's SOF marker, reading only the segment headers.
+
+    ``size`` is the member's byte count: more pixels than that many bytes can hold (see
+    ``_JPEG_PIXELS_PER_BYTE``) or a zero size is a damaged header.
+    """
     if f.read(2) != b"\xff\xd8":
         raise FileFormatError(f"{where}: not a JPEG file (no SOI marker)")
     while True:
@@ -312,7 +97,15 @@ def _jpeg_size(f: IO[bytes], where: str) -> tuple[int, int]:
             sof = f.read(5)
             if len(sof) < 5:
                 raise FileFormatError(f"{where}: JPEG frame header truncated")
-            return int.from_bytes(sof[1:3], "big"), int.from_bytes(sof[3:5], "big")
+            h, w = int.from_bytes(sof[1:3], "big"), int.from_bytes(sof[3:5], "big")
+            if h < 1 or w < 1:
+                raise FileFormatError(f"{where}: JPEG frame header gives a {h}x{w} image")
+            if size is not None and h * w > _JPEG_PIXELS_PER_BYTE * size:
+                raise FileFormatError(
+                    f"{where}: JPEG frame header claims {h}x{w} pixels, more than its {size} "
+                    "bytes can hold; the image is damaged"
+                )
+            return h, w
         if length < 2:
             raise FileFormatError(f"{where}: bad JPEG segment length {length}")
         skipped = f.read(length - 2)
@@ -320,12 +113,21 @@ def _jpeg_size(f: IO[bytes], where: str) -> tuple[int, int]:
             raise FileFormatError(f"{where}: JPEG truncated")
 
 
-def _hdr_size(f: IO[bytes], where: str) -> tuple[int, int]:
+def _hdr_size(f: IO[bytes], where: str, size: int | None = None) -> tuple[int, int]:
     """(height, width) of a Radiance file from its header only."""
-    data = f.read(65536)
-    res = _read_header(data, where)[2]
-    sizes = {res[1]: res[2], res[4]: res[5]}
-    return sizes["Y"], sizes["X"]
+    return hdr_size(f.read(65536), where, size)
+
+
+def _member_size(
+    zf: zipfile.ZipFile, info: zipfile.ZipInfo, kind: str, where: str
+) -> tuple[int, int]:
+    """An image member's (height, width) from its header; damaged members are named."""
+    size_of = _hdr_size if kind == "hdr" else _jpeg_size
+    try:
+        with zf.open(info) as f:
+            return size_of(f, where, info.file_size)
+    except _ZIP_ERRORS as exc:
+        raise FileFormatError(f"{where}: cannot read ({type(exc).__name__}: {exc})") from None
 
 
 def _decode_jpeg(data: bytes, where: str) -> np.ndarray:
@@ -334,6 +136,8 @@ def _decode_jpeg(data: bytes, where: str) -> np.ndarray:
 
     try:
         u8 = np.asarray(iio.imread(data, extension=".jpg"))
+    except MemoryError:
+        raise
     except Exception as exc:
         raise FileFormatError(f"{where}: cannot decode JPEG ({exc})") from exc
     if u8.ndim == 2:
@@ -418,9 +222,21 @@ class UBO2003BTF(BTF):
         where = f"{self.path}: member {member!r}"
         try:
             with zipfile.ZipFile(self.path) as zf:
-                data = zf.read(member)
-        except (OSError, zipfile.BadZipFile, KeyError) as exc:
-            raise FileFormatError(f"{where}: cannot read ({exc})") from exc
+                info = zf.getinfo(member)
+                check_allocation(info.file_size, where, FileFormatError)
+                data = zf.read(info)
+        except _ZIP_ERRORS as exc:
+            raise FileFormatError(f"{where}: cannot read ({type(exc).__name__}: {exc})") from None
+        # The header's size is checked before decoding: a damaged one must not allocate.
+        size_of = _hdr_size if self.kind == "hdr" else _jpeg_size
+        got = size_of(io.BytesIO(data), where, len(data))
+        if got != (self.height, self.width):
+            raise FileFormatError(
+                f"{where}: image is {got[0]}x{got[1]}, the archive's images are "
+                f"{self.height}x{self.width}"
+            )
+        if self.kind == "jpeg":
+            check_allocation(got[0] * got[1] * _JPEG_BYTES_PER_PIXEL, where, FileFormatError)
         img = decode_rgbe(data, where) if self.kind == "hdr" else _decode_jpeg(data, where)
         if img.shape[:2] != (self.height, self.width):
             raise FileFormatError(
@@ -459,15 +275,17 @@ def read_ubo2003_zip(path: str | Path, cache_size: int = 8, check_sizes: bool = 
     """
     p = Path(path)
     where = str(p)
+    if p.exists() and not p.is_file():
+        raise FileFormatError(f"{where}: not a regular file (a folder, FIFO or device)")
     try:
         zf = zipfile.ZipFile(p)
-    except (OSError, zipfile.BadZipFile) as exc:
-        raise FileFormatError(f"{where}: not a readable zip archive ({exc})") from exc
+    except _ZIP_ERRORS as exc:
+        raise FileFormatError(f"{where}: not a readable zip archive ({exc})") from None
     with zf:
         found: dict[Angles, str] = {}
         kinds: dict[str, str] = {}
         for info in zf.infolist():
-            if info.is_dir():
+            if not info.filename or info.filename.endswith("/"):
                 continue
             ext = Path(info.filename).suffix.lower()
             if ext not in _IMAGE_EXT:
@@ -501,14 +319,11 @@ def read_ubo2003_zip(path: str | Path, cache_size: int = 8, check_sizes: bool = 
         for i, lt in enumerate(lights):
             for j, vw in enumerate(views):
                 members[i, j] = found[(*lt, *vw)]
-        size_of = _hdr_size if kind == "hdr" else _jpeg_size
         first = str(members[0, 0])
-        with zf.open(first) as f:
-            size = size_of(f, f"{where}: member {first!r}")
+        size = _member_size(zf, zf.getinfo(first), kind, f"{where}: member {first!r}")
         if check_sizes:
             for name in members.ravel():
-                with zf.open(str(name)) as f:
-                    s = size_of(f, f"{where}: member {name!r}")
+                s = _member_size(zf, zf.getinfo(str(name)), kind, f"{where}: member {name!r}")
                 if s != size:
                     raise FileFormatError(
                         f"{where}: member {name!r} is {s[0]}x{s[1]} but member {first!r} is "

@@ -144,7 +144,15 @@ class UBO2014BTF(BTF):
     _acc: np.dtype
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
-        """Decoded linear RGB at the outer product of the indices: (h, w, l, v, 3) float32."""
+        """Decoded linear RGB at the outer product of the indices: (h, w, l, v, 3) float32.
+
+        Factors that overflow (a damaged payload) give Inf/NaN values, which consumers report
+        (``info`` counts them, ``write_dense`` refuses them), without numpy warnings here.
+        """
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+            return self._read(rows, cols, lights, views)
+
+    def _read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
         r, c, li, vi = self.indices(rows, cols, lights, views)
         w, nl = self.width, len(self.lights)
         pix = (r[:, None] * w + c[None, :]).ravel()
@@ -309,6 +317,12 @@ def _parse_as(f: BinaryIO, p: Path, fsize: int, divide_cosine: bool, magic: byte
     nv = cur.u32("view count")
     if nv == 0:
         raise FileFormatError(f"{p}: field 'view count' is 0")
+    # Each view takes at least 12 bytes (direction + light count): check before allocating.
+    if 12 * nv > fsize - cur.pos:
+        raise FileFormatError(
+            f"{p}: field 'view count' is {nv}, but its table alone would need {12 * nv} bytes "
+            f"and only {fsize - cur.pos} remain (a damaged header or a truncated file)"
+        )
     vt = np.empty((nv, 2))
     lt: np.ndarray | None = None
     for v in range(nv):

@@ -17,18 +17,21 @@ The inverse is exact (``np.linalg.inv`` of the forward matrix): the float64 roun
 rounding level. :data:`YUV_TO_RGB_RELEASE` holds the rounded inverse of the release's shader
 for renderers that must match it bit for bit.
 
-Statistics are gathered in one streaming pass over view blocks (:func:`gather_statistics`).
+Statistics are gathered in one streaming pass over view blocks (:func:`gather_statistics`), or
+by view ranges in separate tasks (:func:`statistic_sums`, :func:`combine_statistics`).
 """
 
 from __future__ import annotations
 
+import itertools
 import warnings
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from .._progress import progress as _progress
+from .._progress import bar
 from ..data.btf import BTF, LOG_EPS, Index, as_index
 from ..data.validate import check_finite
 from ..errors import BTFInputError
@@ -42,13 +45,18 @@ __all__ = [
     "YUV_TO_RGB_RELEASE",
     "Preprocessor",
     "Standardization",
+    "StatisticSums",
     "Transform",
+    "check_std_mode",
+    "combine_statistics",
     "from_log_yuv",
     "gather_statistics",
     "inverse_log_transform",
     "log_transform",
     "rgb_to_yuv",
+    "statistic_sums",
     "to_log_yuv",
+    "warn_negatives",
     "yuv_to_rgb",
 ]
 
@@ -79,6 +87,12 @@ YUV_TO_RGB_RELEASE = np.array(
         [1.0, 2.03211, 0.0],
     ]
 )
+
+
+def check_std_mode(mode: str) -> None:
+    """Refuse a standardisation mode other than :data:`STD_MODES`."""
+    if mode not in STD_MODES:
+        raise BTFInputError(f"standardisation mode must be 'shared' or 'per_channel', got {mode!r}")
 
 
 def log_transform(rgb: np.ndarray, eps: float = EPS) -> np.ndarray:
@@ -137,10 +151,7 @@ class Standardization:
             raise BTFInputError(
                 f"preprocessing transform must be one of {TRANSFORMS}, got {self.transform!r}"
             )
-        if self.mode not in STD_MODES:
-            raise BTFInputError(
-                f"standardisation mode must be 'shared' or 'per_channel', got {self.mode!r}"
-            )
+        check_std_mode(self.mode)
         if self.mean.shape != self.std.shape or self.mean.ndim != 3:
             raise BTFInputError(
                 f"mean and std must both be (L, V, C); got {self.mean.shape} and {self.std.shape}"
@@ -229,55 +240,80 @@ class Preprocessor:
         return from_log_yuv(self.stats.invert(z, lights, views), self.stats.eps, release_matrix)
 
 
-def gather_statistics(
-    btf: BTF,
-    mode: StdMode = "shared",
-    eps: float = EPS,
-    progress: bool | None = None,
-    transform: Transform = "log_yuv",
-) -> Standardization:
-    """μ and σ of every angular image of ``btf`` in log-YUV, in one pass over view blocks.
+@dataclass(frozen=True, eq=False)
+class StatisticSums:
+    """Sums over the texels of one BTF's log-YUV values, for the views ``[v0, v1)``.
 
-    Memory is one view block (H·W·L·3 values). NaN/Inf abort with their count and first
-    location; negative values are clamped to 0 with one warning giving the total count.
-    ``transform="identity"`` reads nothing and returns μ = 0, σ = 1 (no processing at all).
+    Each view's sums are independent of the others, so a BTF's statistics can be gathered
+    by view ranges in separate tasks (or machines) and combined by
+    :func:`combine_statistics` into exactly what one pass gives. Sums are shifted by the first
+    texel (``shift``) to keep Σ(x − μ)² accurate in float32.
+
+    Attributes
+    ----------
+    views : (v0, v1).
+    shift, s1, s2 : (L, v1 − v0, 3) float64: the first texel, Σ(x − shift), Σ(x − shift)².
+    n_texels : H·W.
+    negatives : values clamped to 0.
     """
-    if mode not in STD_MODES:
-        raise BTFInputError(f"standardisation mode must be 'shared' or 'per_channel', got {mode!r}")
-    if transform not in TRANSFORMS:
-        raise BTFInputError(
-            f"preprocessing transform must be one of {TRANSFORMS}, got {transform!r}"
-        )
+
+    views: tuple[int, int]
+    shift: np.ndarray
+    s1: np.ndarray
+    s2: np.ndarray
+    n_texels: int
+    negatives: int
+
+
+def statistic_sums(
+    btf: BTF,
+    views: tuple[int, int] | None = None,
+    eps: float = EPS,
+    tick: Callable[[int], object] | None = None,
+) -> StatisticSums:
+    """The :class:`StatisticSums` of ``btf`` over ``views`` (default: all), one view block
+    at a time (memory: H·W·L·3 values); ``tick(1)`` after each view. NaN/Inf abort with
+    their count and first location."""
     h, w, nl, nv, _ = btf.shape
-    if transform == "identity":
-        c = 1 if mode == "shared" else 3
-        return Standardization(
-            mode=mode, mean=np.zeros((nl, nv, c)), std=np.ones((nl, nv, c)), eps=eps,
-            transform="identity",
-        )
+    v0, v1 = views if views is not None else (0, nv)
+    if not 0 <= v0 < v1 <= nv:
+        raise BTFInputError(f"{btf.name}: view range [{v0}, {v1}) is not inside [0, {nv})")
     n = h * w
     if n < 2:
         raise BTFInputError(f"{btf.name}: standardisation needs at least 2 texels, got {n}")
-    s1 = np.zeros((nl, nv, 3))
-    s2 = np.zeros((nl, nv, 3))
-    shift = np.zeros((nl, nv, 3))
+    s1 = np.zeros((nl, v1 - v0, 3))
+    s2 = np.zeros((nl, v1 - v0, 3))
+    shift = np.zeros((nl, v1 - v0, 3))
     negatives = 0
-    for v, block in _progress(
-        btf.iter_view_blocks(), total=nv, desc="statistics", enabled=progress
-    ):
+    for j, v in enumerate(range(v0, v1)):
+        block = btf.view_block(v)
         check_finite(block[:, :, :, None, :], btf.name, offset=(0, 0, 0, v))
-        neg = block < 0
-        negatives += int(neg.sum())
+        negatives += int((block < 0).sum())
         # float32 transforms (the release computed its statistics in single precision),
         # float64 accumulators.
         x = to_log_yuv(np.maximum(block, 0, dtype=np.float32), np.float32(eps)).reshape(n, nl, 3)
-        # Shifted sums (about the first texel) keep Σ(x − μ)² accurate in float32.
-        shift[:, v] = x[0]
+        shift[:, j] = x[0]
         x -= x[0]
-        s1[:, v] = x.sum(axis=0, dtype=np.float64)
-        s2[:, v] = np.square(x).sum(axis=0, dtype=np.float64)
-    if negatives:
-        warnings.warn(f"{btf.name}: clamped {negatives} negative values to 0", stacklevel=2)
+        s1[:, j] = x.sum(axis=0, dtype=np.float64)
+        s2[:, j] = np.square(x).sum(axis=0, dtype=np.float64)
+        if tick is not None:
+            tick(1)
+    return StatisticSums((v0, v1), shift, s1, s2, n, negatives)
+
+
+def combine_statistics(
+    parts: Sequence[StatisticSums], mode: StdMode = "shared", eps: float = EPS
+) -> Standardization:
+    """The :class:`Standardization` from :class:`StatisticSums` of consecutive view ranges
+    covering every view (bit for bit the same whatever the ranges)."""
+    check_std_mode(mode)
+    if not parts or parts[0].views[0] != 0 or any(
+        a.views[1] != b.views[0] for a, b in itertools.pairwise(parts)
+    ):
+        raise BTFInputError("statistic sums must cover consecutive view ranges from view 0")
+    n = parts[0].n_texels
+    shift, s1, s2 = (np.concatenate([getattr(p, a) for p in parts], axis=1)
+                     for a in ("shift", "s1", "s2"))  # fmt: skip
     # With y = x − K: Σ(x − μ)² = Σy² + 2(K − μ)Σy + n(K − μ)².
     if mode == "shared":
         mean = (shift + s1 / n).mean(axis=2, keepdims=True)
@@ -290,3 +326,42 @@ def gather_statistics(
         std = np.sqrt(np.maximum(s2 - s1**2 / n, 0) / (n - 1))
     std = np.where(std > 0, std, 1.0)
     return Standardization(mode=mode, mean=mean, std=std, eps=eps)
+
+
+def warn_negatives(name: str, parts: Sequence[StatisticSums]) -> None:
+    """One warning with the total count of negative values clamped to 0, if any."""
+    negatives = sum(p.negatives for p in parts)
+    if negatives:
+        warnings.warn(f"{name}: clamped {negatives} negative values to 0", stacklevel=3)
+
+
+def gather_statistics(
+    btf: BTF,
+    mode: StdMode = "shared",
+    eps: float = EPS,
+    progress: bool | None = None,
+    transform: Transform = "log_yuv",
+) -> Standardization:
+    """μ and σ of every angular image of ``btf`` in log-YUV, in one pass over view blocks.
+
+    Memory is one view block (H·W·L·3 values). NaN/Inf abort with their count and first
+    location; negative values are clamped to 0 with one warning giving the total count.
+    ``transform="identity"`` reads nothing and returns μ = 0, σ = 1 (no processing at all).
+    The pass is :func:`statistic_sums` + :func:`combine_statistics`.
+    """
+    check_std_mode(mode)
+    if transform not in TRANSFORMS:
+        raise BTFInputError(
+            f"preprocessing transform must be one of {TRANSFORMS}, got {transform!r}"
+        )
+    _, _, nl, nv, _ = btf.shape
+    if transform == "identity":
+        c = 1 if mode == "shared" else 3
+        return Standardization(
+            mode=mode, mean=np.zeros((nl, nv, c)), std=np.ones((nl, nv, c)), eps=eps,
+            transform="identity",
+        )
+    with bar(nv, "statistics", "view", progress) as pb:
+        sums = statistic_sums(btf, eps=eps, tick=pb.update)
+    warn_negatives(btf.name, [sums])
+    return combine_statistics([sums], mode, eps)

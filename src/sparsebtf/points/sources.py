@@ -20,9 +20,10 @@ from typing import Any
 
 import numpy as np
 
+from .._hdf5 import check_written, close_file, create_file
 from .._progress import bar
 from ..data.btf import BTF
-from ..errors import BTFInputError
+from ..errors import BTFInputError, OutputError
 from .grid import PatchGrid, iter_points, sample_points
 from .preprocessing import Preprocessor, StdMode, Transform, gather_statistics
 
@@ -116,29 +117,41 @@ class StagedPoints:
         batch_size: int = 4,
         progress: bool | None = None,
     ) -> None:
-        import h5py
 
         self.path = path
-        self._file = h5py.File(path, "w")
+        # Written through the sink of sparsebtf._hdf5: libhdf5 does not survive a failed write
+        # (a full temporary folder), so the failure is raised here, as one OutputError.
+        self._file = create_file(path)
         n = source.n_points
         shape = (source.patch, source.patch, *source.mode_sizes[2:4])
         full = (*shape, 3) if tuple(channels) == ("YUV",) else shape
-        self._ds = {
-            ch: self._file.create_dataset(ch, shape=(n, *full), dtype="float32", chunks=(1, *full))
-            for ch in channels
-        }
-        with bar(n, f"stage points {'/'.join(channels)}", "pt", progress) as pb:
-            for g, x in source.batches(batch_size):
-                lo, hi = int(g[0]), int(g[-1]) + 1
-                for ch in channels:
-                    self._ds[ch][lo:hi] = x if ch == "YUV" else x[..., "YUV".index(ch)]
-                pb.update(hi - lo)
+        try:
+            self._ds = {
+                ch: self._file.create_dataset(ch, shape=(n, *full), dtype="float32",
+                                              chunks=(1, *full))
+                for ch in channels
+            }  # fmt: skip
+            with bar(n, f"stage points {'/'.join(channels)}", "pt", progress) as pb:
+                for g, x in source.batches(batch_size):
+                    lo, hi = int(g[0]), int(g[-1]) + 1
+                    for ch in channels:
+                        self._ds[ch][lo:hi] = x if ch == "YUV" else x[..., "YUV".index(ch)]
+                    check_written(self._file)
+                    pb.update(hi - lo)
+        except OSError as e:
+            with contextlib.suppress(OSError):
+                close_file(self._file)
+            raise OutputError(
+                f"{e.strerror or e} while staging the training points in {path}; give a "
+                "stage_dir (or TMPDIR) with room, or stage=False to stream them"
+            ) from None
 
     def source(self, channel: str) -> _StagedChannel:
         return _StagedChannel(self._ds[channel])
 
     def close(self) -> None:
-        self._file.close()
+        with contextlib.suppress(OSError):  # the points were read; a failed flush is moot
+            close_file(self._file)
 
 
 class _StagedChannel:

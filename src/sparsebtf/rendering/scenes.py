@@ -14,7 +14,9 @@ per unit length). World space is y-up, as Mitsuba's ``envmap`` expects.
   nearly square).
 * :func:`procedural_sky` — a lat-long HDR sky: a zenith-to-horizon gradient, a dark ground
   and a soft sun, as an (H, W, 3) float32 array for ``envmap``.
-* :func:`scene_dict` — a complete ``mi.load_dict`` scene with a BSDF dict on the object(s).
+* :func:`scene_dict` — a complete ``mi.load_dict`` scene with a BSDF dict on the object(s),
+  lit by the environment map (``light="sky"``) or by a small bright spherical area light over
+  a dimmed environment (``light="emitter"``: the case where direction sampling matters most).
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import numpy as np
 from ..errors import BTFInputError
 
 __all__ = [
+    "LIGHTS",
     "SCENES",
     "cloth_mesh",
     "plane_mesh",
@@ -38,6 +41,7 @@ __all__ = [
 ]
 
 SCENES = ("sphere", "cloth")
+LIGHTS = ("sky", "emitter")
 MeshArrays = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
@@ -190,15 +194,21 @@ def scene_dict(
     max_depth: int = 4,
     floor: str | None = None,
     env_scale: float = 1.0,
+    light: str = "sky",
 ) -> dict[str, Any]:
     """A ``mi.load_dict`` scene with ``bsdf`` (a dict or a loaded BSDF) on the object.
 
     ``scene``: "sphere" (a unit sphere on a floor; the floor carries the material too, tiled
     5x over 10 units, unless ``floor="diffuse"``) or "cloth" (a draped sheet over a grey floor,
     two-sided shading recommended; ``floor="material"`` puts the material on the floor).
+    ``light``: "sky" (the environment map alone) or "emitter" (a sphere light of radius 0.15
+    and radiance 400 up and to the right of the camera, giving about the sky's irradiance,
+    over the environment at 5 %).
     """
     if scene not in SCENES:
         raise BTFInputError(f"unknown scene {scene!r}; choose one of {', '.join(SCENES)}")
+    if light not in LIGHTS:
+        raise BTFInputError(f"unknown light {light!r}; choose one of {', '.join(LIGHTS)}")
     floor = floor or ("material" if scene == "sphere" else "diffuse")
     if floor not in ("material", "diffuse"):
         raise BTFInputError(f"floor must be 'material' or 'diffuse', got {floor!r}")
@@ -232,8 +242,19 @@ def scene_dict(
             },
             "sampler": {"type": "independent"},
         },
-        "emitter": environment(mi, envmap, env_scale),
+        "emitter": environment(mi, envmap, env_scale * (0.05 if light == "emitter" else 1.0)),
         **shapes,
+        **({"lamp": _lamp()} if light == "emitter" else {}),
+    }
+
+
+def _lamp() -> dict[str, Any]:
+    """The small bright emitter of ``light="emitter"``."""
+    return {
+        "type": "sphere",
+        "center": [2.2, 3.6, 2.8],
+        "radius": 0.15,
+        "emitter": {"type": "area", "radiance": {"type": "rgb", "value": [400.0, 390.0, 370.0]}},
     }
 
 

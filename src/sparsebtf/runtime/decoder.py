@@ -125,7 +125,8 @@ class RuntimeBTF:
         tau: TauSpec = None,
         dtype: type = np.float32,
     ) -> RuntimeBTF:
-        """Load a coded file (and the model it names, or ``model``) for rendering."""
+        """Load a coded file for rendering, with ``model`` (a file or a bundled model's name)
+        or else the model it names (a bundled model by hash, or its recorded model file)."""
         from ..storage import load_coded_with_model
 
         return cls(load_coded_with_model(path, model), tau, dtype)

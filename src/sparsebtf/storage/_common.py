@@ -4,22 +4,18 @@ from __future__ import annotations
 
 import contextlib
 import json
-import os
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import h5py
-import numpy as np
 
+from .._h5check import HDF5_ERRORS, read_int_attr, read_str_attr
+from .._hdf5 import open_h5, read_error
 from .._json import json_default
 from ..errors import FileFormatError, SparseBTFError
 
-#: What h5py raises on damaged files (besides our own errors, which pass through).
-_HDF5_ERRORS = (
-    OSError, KeyError, RuntimeError, TypeError, ValueError, IndexError, OverflowError,
-    MemoryError,
-)
+__all__ = ["check_geometry", "check_str_param", "check_tau_param", "open_checked", "to_json"]
 
 
 def to_json(obj: Any) -> str:
@@ -27,85 +23,19 @@ def to_json(obj: Any) -> str:
     return json.dumps(obj, sort_keys=True, default=json_default)
 
 
-def as_str(value: Any) -> str:
-    """An HDF5 string attribute as ``str`` (h5py may return ``bytes`` or numpy strings)."""
-    if isinstance(value, bytes):
-        return value.decode()
-    if isinstance(value, np.ndarray) and value.shape == ():
-        return as_str(value[()])
-    return str(value)
-
-
-def read_json_attr(obj: h5py.HLObject, key: str, where: str) -> dict[str, Any]:
-    """Parse a JSON string attribute (absent → ``{}``); errors name the file and field."""
-    if key not in obj.attrs:
-        return {}
-    try:
-        out = json.loads(as_str(obj.attrs[key]))
-    except (ValueError, TypeError) as e:
-        raise FileFormatError(f"{where}: attribute {key!r} is not valid JSON ({e})") from None
-    if not isinstance(out, dict):
-        raise FileFormatError(f"{where}: attribute {key!r} must hold a JSON object")
-    return out
-
-
-def read_int_attr(obj: h5py.HLObject, key: str, where: str) -> int:
-    if key not in obj.attrs:
-        raise FileFormatError(f"{where}: missing attribute {key!r}")
-    try:
-        return int(np.asarray(obj.attrs[key]).item())
-    except (ValueError, TypeError) as e:
-        raise FileFormatError(f"{where}: attribute {key!r} is not an integer ({e})") from None
-
-
-def read_str_attr(obj: h5py.HLObject, key: str, where: str) -> str:
-    if key not in obj.attrs:
-        raise FileFormatError(f"{where}: missing attribute {key!r}")
-    return as_str(obj.attrs[key])
-
-
-def require(group: h5py.Group, name: str, where: str) -> Any:
-    """``group[name]`` or a :class:`FileFormatError` naming the missing dataset/group."""
-    if name not in group:
-        groups = ("lights", "views", "stats", "codes", "dictionaries")
-        kind = "group" if name in groups else "dataset"
-        raise FileFormatError(f"{where}: missing {kind} {name!r}")
-    return group[name]
-
-
-def read_array(group: h5py.Group, name: str, where: str) -> np.ndarray:
-    """A whole dataset as an array; a size larger than the (uncompressed) file is corruption."""
-    obj = require(group, name, where)
-    if not isinstance(obj, h5py.Dataset):
-        raise FileFormatError(f"{where}/{name}: expected a dataset, found a group")
-    claimed = int(obj.size) * int(obj.dtype.itemsize)
-    available = os.path.getsize(obj.file.filename)
-    if claimed > available:
-        raise FileFormatError(
-            f"{where}/{name}: shape {obj.shape} needs {claimed} bytes but the file has "
-            f"{available}; the file is damaged"
-        )
-    return np.asarray(obj[()])
-
-
 @contextlib.contextmanager
 def open_checked(path: Path, fmt: str, versions: tuple[int, ...]) -> Iterator[h5py.File]:
-    """Open ``path`` read-only and check its ``format`` and ``schema_version`` attributes.
+    """Open ``path`` read-only (behind the HDF5 watchdog) and check its ``format`` and
+    ``schema_version`` attributes.
 
-    Errors raised by h5py/HDF5 while the block runs (not HDF5, truncated, damaged metadata:
-    ``OSError``, ``KeyError``, ``RuntimeError``, ``TypeError``, ``ValueError`` …) become a
-    :class:`FileFormatError` naming the file. (A few damaged metadata blocks make libhdf5
-    itself loop; that cannot be caught from Python.)
+    Errors raised by h5py/HDF5 while the block runs (truncated, damaged metadata or data,
+    checksum failures: ``OSError``, ``KeyError``, ``RuntimeError``, ``TypeError`` …) become a
+    :class:`FileFormatError` naming the file.
     """
-    if not path.exists():
-        raise FileFormatError(f"{path}: no such file")
-    try:
-        f = h5py.File(path, "r")
-    except OSError as e:
-        raise FileFormatError(f"{path}: not a readable HDF5 file, or truncated ({e})") from None
+    f = open_h5(path)
     try:
         with f:
-            found = as_str(f.attrs["format"]) if "format" in f.attrs else None
+            found = read_str_attr(f, "format", str(path)) if "format" in f.attrs else None
             if found != fmt:
                 raise FileFormatError(f"{path}: attribute 'format' is {found!r}, not {fmt!r}")
             version = read_int_attr(f, "schema_version", str(path))
@@ -118,10 +48,37 @@ def open_checked(path: Path, fmt: str, versions: tuple[int, ...]) -> Iterator[h5
             yield f
     except SparseBTFError:
         raise
-    except _HDF5_ERRORS as e:
+    except HDF5_ERRORS as e:
+        raise read_error(e, str(path)) from None
+
+
+def check_tau_param(params: dict[str, Any], key: str, where: str) -> None:
+    """``params[key]``, when present, must map channel names to integers >= 1 (a file's
+    ``tau`` / ``tau_train``): other values would fail deep inside the runtime."""
+    value = params.get(key)
+    if value is None:
+        return
+    ok = isinstance(value, dict) and all(
+        isinstance(k, str) and isinstance(v, int) and not isinstance(v, bool) and v >= 1
+        for k, v in value.items()
+    )
+    if not ok:
         raise FileFormatError(
-            f"{path}: damaged or truncated HDF5 file ({type(e).__name__}: {e})"
-        ) from None
+            f"{where}: attribute 'params_json': {key!r} must map channels to integers >= 1, "
+            f"found {str(value)[:80]}"
+        )
+
+
+def check_str_param(params: dict[str, Any], key: str, where: str, choices: Any = None) -> None:
+    """``params[key]``, when present, must be a string (one of ``choices`` if given)."""
+    value = params.get(key)
+    if value is None:
+        return
+    if not isinstance(value, str) or (choices is not None and value not in choices):
+        want = f"one of {tuple(choices)}" if choices is not None else "a string"
+        raise FileFormatError(
+            f"{where}: attribute 'params_json': {key!r} must be {want}, found {str(value)[:80]}"
+        )
 
 
 def check_geometry(

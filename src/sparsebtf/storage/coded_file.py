@@ -1,6 +1,6 @@
 """Coded BTF file: the sparse coefficients of one material, in HDF5 (schema in ``docs/format.md``).
 
-Layout (``format="sparsebtf-coded"``, ``schema_version=1``)::
+Layout (``format="sparsebtf-coded"``, ``schema_version=2``; schema 1 lacks the checksums)::
 
     /                       attrs: format, schema_version, model_hash, library_version, name,
                             height, width, patch, channels (JSON list), params_json, attrs_json
@@ -18,6 +18,11 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=1``)::
 Points are in release order (``point = row_block + n_row_blocks·col_block``); within a point
 the coefficients keep their order, by decreasing magnitude, so truncating τ is a prefix read.
 Location packing follows the 3-bytes-per-coefficient accounting of the paper's Table 4.
+Schema 2 adds the fletcher32 checksum to every dataset and HDF5 structures with metadata
+checksums (:mod:`sparsebtf._hdf5`): a flipped bit in values, locations, membership, counts,
+errors or statistics is reported as corruption naming the dataset. The reader checks every
+attribute and dataset (dtype, shape, size against the file and the memory budget, finiteness)
+before using it.
 """
 
 from __future__ import annotations
@@ -32,23 +37,23 @@ import numpy as np
 
 from .. import library_version
 from .._atomic import atomic_output
+from .._h5check import (
+    checked_dataset,
+    read_array,
+    read_float_attr,
+    read_int_attr,
+    read_json_attr,
+    read_str_attr,
+    require,
+)
+from .._hdf5 import create, create_dataset, write_str_attr
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes
 from ..learning.cost import location_width
 from ..model import CodedBTF, Model
-from ..points.preprocessing import EPS, Standardization
-from ._common import (
-    as_str,
-    check_geometry,
-    open_checked,
-    read_array,
-    read_int_attr,
-    read_json_attr,
-    read_str_attr,
-    require,
-    to_json,
-)
+from ..points.preprocessing import EPS, STD_MODES, Standardization
+from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 
 __all__ = [
     "CODED_FORMAT",
@@ -60,8 +65,10 @@ __all__ = [
 ]
 
 CODED_FORMAT = "sparsebtf-coded"
-CODED_SCHEMA_VERSION = 1
-_SUPPORTED = (1,)
+CODED_SCHEMA_VERSION = 2
+_SUPPORTED = (1, 2)
+_MAX_SIDE = 2**20  # texels per side
+_MAX_PATCH = 4096
 _FP16_MAX = float(np.finfo(np.float16).max)
 
 
@@ -169,31 +176,36 @@ def save_coded(coded: CodedBTF, path: str | os.PathLike[str]) -> Path:
 
     Values are rounded to binary16 (round-to-nearest-even, as the release's ``.bin`` files);
     a channel with a finite value beyond ±65504 is kept in float32 instead, with a warning.
-    Locations are packed to 3 bytes (4 when ∏m ≥ 2^24). Returns the path written.
+    Locations are packed to 3 bytes (4 when ∏m ≥ 2^24). The file of the attached model (if it
+    was saved or loaded from one) is recorded as ``params["model_file"]`` unless one is set
+    already, so the coded file finds its model. Returns the path written.
     """
     _check_coded(coded)
+    params = dict(coded.params)
+    if not params.get("model_file") and coded.model is not None and coded.model.file:
+        params["model_file"] = coded.model.file
     target = Path(path)
-    with atomic_output(target) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["format"] = CODED_FORMAT
+    with atomic_output(target) as tmp, create(tmp) as f:
+        write_str_attr(f, "format", CODED_FORMAT)
         f.attrs["schema_version"] = CODED_SCHEMA_VERSION
-        f.attrs["model_hash"] = coded.model_hash
-        f.attrs["library_version"] = library_version()
-        f.attrs["name"] = coded.name
+        write_str_attr(f, "model_hash", coded.model_hash)
+        write_str_attr(f, "library_version", library_version())
+        write_str_attr(f, "name", coded.name)
         f.attrs["height"] = int(coded.height)
         f.attrs["width"] = int(coded.width)
         f.attrs["patch"] = int(coded.patch)
-        f.attrs["channels"] = json.dumps(list(coded.channels))
-        f.attrs["params_json"] = to_json(coded.params)
-        f.attrs["attrs_json"] = to_json(coded.attrs)
+        write_str_attr(f, "channels", json.dumps(list(coded.channels)))
+        write_str_attr(f, "params_json", to_json(params))
+        write_str_attr(f, "attrs_json", to_json(coded.attrs))
         root = f.create_group("codes")
         for ch in coded.channels:
             k = coded.dictionary_count(ch)
             _write_codes(root.create_group(ch), coded.codes[ch], k, coded.name, ch)
         st = f.create_group("stats")
-        st.attrs["mode"] = coded.stats.mode
+        write_str_attr(st, "mode", coded.stats.mode)
         st.attrs["eps"] = float(coded.stats.eps)
-        st.create_dataset("mean", data=np.asarray(coded.stats.mean, dtype="<f4"))
-        st.create_dataset("std", data=np.asarray(coded.stats.std, dtype="<f4"))
+        create_dataset(st, "mean", data=np.asarray(coded.stats.mean, dtype="<f4"))
+        create_dataset(st, "std", data=np.asarray(coded.stats.std, dtype="<f4"))
         write_directions(f.create_group("lights"), coded.lights)
         write_directions(f.create_group("views"), coded.views)
     return target
@@ -209,9 +221,9 @@ def _write_codes(g: h5py.Group, c: SparseCodes, k: int | None, name: str, ch: st
         g.attrs["n_dictionaries"] = k
     k_eff = k if k is not None else (int(c.membership.max()) + 1 if c.n_points else 1)
     m_dtype = "<u1" if k_eff <= 255 else "<u2" if k_eff <= 65535 else "<u4"
-    g.create_dataset("membership", data=np.asarray(c.membership).astype(m_dtype))
+    create_dataset(g, "membership", data=np.asarray(c.membership).astype(m_dtype))
     big = c.n_points and int(c.counts.max()) > 65535
-    g.create_dataset("counts", data=np.asarray(c.counts).astype("<u4" if big else "<u2"))
+    create_dataset(g, "counts", data=np.asarray(c.counts).astype("<u4" if big else "<u2"))
     vals = np.asarray(c.values)
     if vals.size and float(np.max(np.abs(vals))) > _FP16_MAX:
         warnings.warn(
@@ -219,11 +231,11 @@ def _write_codes(g: h5py.Group, c: SparseCodes, k: int | None, name: str, ch: st
             f"binary16; storing this channel's values in float32",
             stacklevel=3,
         )
-        g.create_dataset("values", data=vals.astype("<f4"))
+        create_dataset(g, "values", data=vals.astype("<f4"))
     else:
-        g.create_dataset("values", data=vals.astype("<f2"))
-    g.create_dataset("locations", data=pack_locations(c.locations, sizes))
-    g.create_dataset("errors", data=np.asarray(c.errors).astype("<f4"))
+        create_dataset(g, "values", data=vals.astype("<f2"))
+    create_dataset(g, "locations", data=pack_locations(c.locations, sizes))
+    create_dataset(g, "errors", data=np.asarray(c.errors).astype("<f4"))
 
 
 # --------------------------------------------------------------------------- reading
@@ -248,11 +260,13 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
     where = str(p)
     with open_checked(p, CODED_FORMAT, _SUPPORTED) as f:
         model_hash = read_str_attr(f, "model_hash", where)
-        name = as_str(f.attrs.get("name", p.stem))
-        height = read_int_attr(f, "height", where)
-        width = read_int_attr(f, "width", where)
-        patch = read_int_attr(f, "patch", where)
+        name = read_str_attr(f, "name", where) if "name" in f.attrs else p.stem
+        height = read_int_attr(f, "height", where, 1, _MAX_SIDE)
+        width = read_int_attr(f, "width", where, 1, _MAX_SIDE)
+        patch = read_int_attr(f, "patch", where, 1, _MAX_PATCH)
         params = read_json_attr(f, "params_json", where)
+        check_tau_param(params, "tau", where)
+        check_str_param(params, "model_file", where)
         attrs = read_json_attr(f, "attrs_json", where)
         root = require(f, "codes", where)
         channels = _channels(f, root, where)
@@ -265,6 +279,8 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         ks: dict[str, int] = {}
         for ch in channels:
             g = require(root, ch, f"{where}/codes")
+            if not isinstance(g, h5py.Group):
+                raise FileFormatError(f"{where}/codes/{ch}: expected a group, found a dataset")
             codes[ch], k = _read_codes(g, f"{where}/codes/{ch}", n_points)
             if k is not None:
                 ks[ch] = k
@@ -333,53 +349,58 @@ def _channels(f: h5py.File, root: h5py.Group, where: str) -> list[str]:
     if "channels" not in f.attrs:
         return list(root.keys())
     try:
-        channels = json.loads(as_str(f.attrs["channels"]))
-    except ValueError:
+        channels = json.loads(read_str_attr(f, "channels", where))
+    except (ValueError, RecursionError):
         raise FileFormatError(f"{where}: attribute 'channels' is not a JSON list") from None
     if (
         not isinstance(channels, list)
         or not channels
-        or not all(isinstance(c, str) for c in channels)
+        or not all(isinstance(c, str) and c for c in channels)
     ):
         raise FileFormatError(f"{where}: attribute 'channels' must be a non-empty list of names")
     return channels
 
 
-def _read_codes(g: h5py.Group, where: str, n_points: int) -> tuple[SparseCodes, int | None]:
+def _mode_sizes(g: h5py.Group, where: str) -> tuple[int, ...]:
+    """The ``mode_sizes`` attribute: 4 or 5 positive integers whose product fits 4 bytes."""
     if "mode_sizes" not in g.attrs:
         raise FileFormatError(f"{where}: missing attribute 'mode_sizes'")
-    sizes = tuple(int(m) for m in np.asarray(g.attrs["mode_sizes"]).reshape(-1))
-    k = read_int_attr(g, "n_dictionaries", where) if "n_dictionaries" in g.attrs else None
-    membership = read_array(g, "membership", where)
-    counts = read_array(g, "counts", where)
-    values = read_array(g, "values", where)
-    packed = read_array(g, "locations", where)
-    errors = read_array(g, "errors", where)
-    for label, arr in (("membership", membership), ("counts", counts), ("errors", errors)):
-        if arr.shape != (n_points,):
-            raise FileFormatError(
-                f"{where}/{label}: expected shape ({n_points},) (one entry per point), got "
-                f"{arr.shape}"
-            )
-    for label, arr in (("membership", membership), ("counts", counts)):
-        if arr.dtype.kind != "u":
-            raise FileFormatError(
-                f"{where}/{label}: expected an unsigned integer type, got {arr.dtype}"
-            )
-    if values.ndim != 1 or values.dtype.kind != "f":
+    raw = np.asarray(g.attrs["mode_sizes"])
+    if raw.dtype.kind not in "iu" or raw.ndim != 1 or raw.size not in (4, 5):
         raise FileFormatError(
-            f"{where}/values: expected a 1D float array, got {values.shape} {values.dtype}"
+            f"{where}: attribute 'mode_sizes' must be 4 or 5 integers, found {raw.dtype} "
+            f"{raw.shape}"
         )
+    sizes = tuple(int(m) for m in raw)
+    if min(sizes) < 1 or int(np.prod(sizes, dtype=object)) > 2**32:
+        raise FileFormatError(
+            f"{where}: attribute 'mode_sizes' is {sizes}; expected positive sizes whose product "
+            "is at most 2^32"
+        )
+    return sizes
+
+
+def _read_codes(g: h5py.Group, where: str, n_points: int) -> tuple[SparseCodes, int | None]:
+    sizes = _mode_sizes(g, where)
+    k = read_int_attr(g, "n_dictionaries", where, 1, 2**32) if "n_dictionaries" in g.attrs else None
+    membership = read_array(g, "membership", where, kinds="u", shape=(n_points,))
+    counts = read_array(g, "counts", where, kinds="u", shape=(n_points,))
+    errors = read_array(g, "errors", where, kinds="f", shape=(n_points,))
     total = int(counts.sum(dtype=np.int64))
-    if total != values.shape[0]:
+    values_ds = checked_dataset(g, "values", where, kinds="f", shape=(None,))
+    if total != values_ds.shape[0]:
         raise FileFormatError(
-            f"{where}: counts sum to {total} coefficients but 'values' holds {values.shape[0]}"
+            f"{where}: counts sum to {total} coefficients but 'values' holds {values_ds.shape[0]}"
         )
-    if packed.shape[:1] != values.shape:
+    width = location_width(sizes)
+    loc_ds = checked_dataset(g, "locations", where, kinds="u", shape=(None, None))
+    if loc_ds.shape != (total, width) or loc_ds.dtype.itemsize != 1:
         raise FileFormatError(
-            f"{where}/locations: {packed.shape[0] if packed.ndim else 0} locations for "
-            f"{values.shape[0]} values"
+            f"{where}/locations: expected ({total}, {width}) uint8 (one packed location per "
+            f"value), found {loc_ds.shape} {loc_ds.dtype}"
         )
+    values = read_array(g, "values", where, kinds="f", finite=True)
+    packed = read_array(g, "locations", where, kinds="u")
     try:
         locations = unpack_locations(packed, sizes)
         codes = SparseCodes(
@@ -396,12 +417,27 @@ def _read_codes(g: h5py.Group, where: str, n_points: int) -> tuple[SparseCodes, 
 
 
 def _read_stats(g: h5py.Group, where: str) -> Standardization:
-    mean = read_array(g, "mean", where).astype(np.float64)
-    std = read_array(g, "std", where).astype(np.float64)
+    mean = read_array(g, "mean", where, kinds="f", shape=(None, None, None), finite=True)
+    std = read_array(g, "std", where, kinds="f", shape=(None, None, None), finite=True)
     mode = read_str_attr(g, "mode", where)
-    eps = float(np.asarray(g.attrs.get("eps", EPS)).item())
+    if mode not in STD_MODES:
+        raise FileFormatError(f"{where}: attribute 'mode' is {mode!r}, expected one of {STD_MODES}")
+    if mean.shape != std.shape:
+        raise FileFormatError(
+            f"{where}: 'mean' is {mean.shape} but 'std' is {std.shape}; they must agree"
+        )
+    if std.size and float(std.min()) <= 0:
+        first = tuple(int(i[0]) for i in np.nonzero(std <= 0))
+        raise FileFormatError(f"{where}/std: standard deviations must be > 0, found "
+                              f"{float(std[first])} at index {first}")  # fmt: skip
+    eps = read_float_attr(g, "eps", where, default=EPS, positive=True)
     try:
-        return Standardization(mode=mode, mean=mean, std=std, eps=eps)  # type: ignore[arg-type]
+        return Standardization(
+            mode=mode,  # type: ignore[arg-type]
+            mean=mean.astype(np.float64),
+            std=std.astype(np.float64),
+            eps=eps,
+        )
     except BTFInputError as e:
         raise FileFormatError(f"{where}: {e}") from None
 
@@ -409,17 +445,15 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
 def load_coded_with_model(
     path: str | os.PathLike[str], model_path: str | os.PathLike[str] | None = None
 ) -> CodedBTF:
-    """Read a coded file with its model attached: ``model_path``, else the model file it names.
+    """Read a coded file with its model attached.
 
-    Encoding records the model's path in ``params["model_file"]``; the model's content hash is
-    checked either way (:class:`~sparsebtf.errors.ModelMismatchError` for the wrong model).
+    The model is ``model_path`` (a model file, or the name of a bundled model such as
+    ``"release"``), else found from the file: a bundled model whose content hash is the one
+    the codes name, else the model file recorded at encoding (``params["model_file"]``). The
+    content hash is checked either way (:class:`~sparsebtf.errors.ModelMismatchError` for the
+    wrong model).
     """
-    from .model_file import load_model
+    from .bundled import find_model
 
     coded = load_coded(path)
-    mpath = model_path or coded.model_file
-    if not mpath:
-        raise ModelMismatchError(
-            f"{path}: pass --model MODEL.h5 (the coded file names no model file)"
-        )
-    return coded.attach(load_model(mpath))
+    return coded.attach(find_model(coded, model_path, str(path)))

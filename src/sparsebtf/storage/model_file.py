@@ -1,19 +1,26 @@
 """Model file: the K orthonormal dictionaries per channel, in HDF5 (schema in ``docs/format.md``).
 
-Layout (``format="sparsebtf-model"``, ``schema_version=1``)::
+Layout (``format="sparsebtf-model"``, ``schema_version=2``; schema 1 lacks the checksums)::
 
     /                         attrs: format, schema_version, content_hash, library_version,
                               patch, channels (JSON list), params_json, provenance_json,
                               training_json
     /dictionaries/<CH>        attrs: n_dictionaries (K), mode_sizes (N,) int64
-    /dictionaries/<CH>/modeN  (K, m_n, m_n) float64; [k, row, col]: row = sample index
+    /dictionaries/<CH>/modeN  (K, m_n, m_n) float64 (float32 / float16 when that type holds
+                              every value exactly); [k, row, col]: row = sample index
                               (texel offset or direction), col = atom index (paper Eq. 4/5)
     /lights, /views           direction tables (xyz, theta, phi), as in the dense file
 
-Dictionaries are stored in float64 so :attr:`Model.content_hash` — the address coded files
-refer to — is recomputed exactly on load; a mismatch means the file was corrupted. (The
+Dictionaries are stored so that their float64 values come back bit for bit: in float64, or in
+the narrowest of float16 / float32 that represents every value exactly (a model rounded to
+float32, like the bundled one, takes half the bytes). So :attr:`Model.content_hash` — the
+address coded files refer to, always computed on float64 values — is recomputed exactly on
+load; a mismatch means the file was corrupted. (The
 release stores binary16 dictionaries; Table 4 of the paper counts 2 bytes per entry, which
-:mod:`sparsebtf.storage.accounting` follows regardless of the file's dtype.)
+:mod:`sparsebtf.storage.accounting` follows regardless of the file's dtype.) Schema 2 adds the
+fletcher32 checksum to every dataset and HDF5 structures with metadata checksums
+(:mod:`sparsebtf._hdf5`); every dataset is checked for dtype, shape, size and finiteness before
+it is used.
 """
 
 from __future__ import annotations
@@ -27,33 +34,36 @@ import numpy as np
 
 from .. import library_version
 from .._atomic import atomic_output
-from ..data.dense_file import read_directions, write_directions
-from ..errors import BTFInputError, FileFormatError
-from ..model import Model, dictionaries_hash
-from ._common import (
+from .._h5check import (
     as_str,
-    check_geometry,
-    open_checked,
+    checked_dataset,
     read_array,
     read_int_attr,
     read_json_attr,
     read_str_attr,
     require,
-    to_json,
 )
+from .._hdf5 import create, create_dataset, write_str_attr
+from ..data.dense_file import read_directions, write_directions
+from ..errors import BTFInputError, FileFormatError
+from ..model import Model, dictionaries_hash
+from ..points.preprocessing import STD_MODES, TRANSFORMS
+from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 
-__all__ = ["MODEL_FORMAT", "MODEL_SCHEMA_VERSION", "load_model", "save_model"]
+__all__ = ["MODEL_FORMAT", "MODEL_SCHEMA_VERSION", "exact_dtype", "load_model", "save_model"]
 
 MODEL_FORMAT = "sparsebtf-model"
-MODEL_SCHEMA_VERSION = 1
-_SUPPORTED = (1,)
+MODEL_SCHEMA_VERSION = 2
+_SUPPORTED = (1, 2)
+_MAX_PATCH = 4096
 
 
 def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
     """Write ``model`` to ``path`` (HDF5, atomically: an interrupted write leaves no file).
 
-    Every ensemble is stored in float64, so the content hash that coded files refer to is
-    preserved exactly. Returns the path written.
+    Every mode is stored in the narrowest of float16 / float32 / float64 that holds its values
+    exactly (:func:`exact_dtype`), contiguous and uncompressed, so the content hash that coded
+    files refer to is preserved exactly. Returns the path written; ``model.file`` remembers it.
     """
     target = Path(path)
     for ch in model.channels:
@@ -62,16 +72,16 @@ def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
             sizes, model.patch, len(model.lights), len(model.views), f"model channel {ch}",
             BTFInputError,
         )
-    with atomic_output(target) as tmp, h5py.File(tmp, "w") as f:
-        f.attrs["format"] = MODEL_FORMAT
+    with atomic_output(target) as tmp, create(tmp) as f:
+        write_str_attr(f, "format", MODEL_FORMAT)
         f.attrs["schema_version"] = MODEL_SCHEMA_VERSION
-        f.attrs["content_hash"] = model.content_hash
-        f.attrs["library_version"] = library_version()
+        write_str_attr(f, "content_hash", model.content_hash)
+        write_str_attr(f, "library_version", library_version())
         f.attrs["patch"] = int(model.patch)
-        f.attrs["channels"] = json.dumps(list(model.channels))
-        f.attrs["params_json"] = to_json(model.params)
-        f.attrs["provenance_json"] = to_json(model.provenance)
-        f.attrs["training_json"] = to_json(model.training)
+        write_str_attr(f, "channels", json.dumps(list(model.channels)))
+        write_str_attr(f, "params_json", to_json(model.params))
+        write_str_attr(f, "provenance_json", to_json(model.provenance))
+        write_str_attr(f, "training_json", to_json(model.training))
         root = f.create_group("dictionaries")
         for ch in model.channels:
             mats = model.dictionaries[ch]
@@ -79,10 +89,23 @@ def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
             g.attrs["n_dictionaries"] = model.n_dictionaries(ch)
             g.attrs["mode_sizes"] = np.array([m.shape[1] for m in mats], dtype=np.int64)
             for n, m in enumerate(mats, start=1):
-                g.create_dataset(f"mode{n}", data=np.asarray(m, dtype="<f8"))
+                a = np.asarray(m, dtype="<f8")
+                create_dataset(g, f"mode{n}", data=a.astype(exact_dtype(a)))
         write_directions(f.create_group("lights"), model.lights)
         write_directions(f.create_group("views"), model.views)
+    model.file = str(target.resolve())
     return target
+
+
+def exact_dtype(values: np.ndarray) -> str:
+    """The narrowest of ``<f2``, ``<f4``, ``<f8`` whose cast gives back ``values`` exactly
+    (as float64 bit patterns, so the content hash cannot change)."""
+    a = np.asarray(values, dtype="<f8")
+    with np.errstate(over="ignore"):
+        for dt in ("<f2", "<f4"):
+            if np.array_equal(a.astype(dt).astype("<f8").view("<u8"), a.view("<u8")):
+                return dt
+    return "<f8"
 
 
 def load_model(path: str | os.PathLike[str]) -> Model:
@@ -97,13 +120,15 @@ def load_model(path: str | os.PathLike[str]) -> Model:
     with open_checked(p, MODEL_FORMAT, _SUPPORTED) as f:
         where = str(p)
         stored_hash = read_str_attr(f, "content_hash", where)
-        patch = read_int_attr(f, "patch", where)
+        patch = read_int_attr(f, "patch", where, 1, _MAX_PATCH)
         root = require(f, "dictionaries", where)
         channels = _channel_list(f, root, where)
         dictionaries: dict[str, list[np.ndarray]] = {}
         for ch in channels:
             g = require(root, ch, f"{where}/dictionaries")
             gw = f"{where}/dictionaries/{ch}"
+            if not isinstance(g, h5py.Group):
+                raise FileFormatError(f"{gw}: expected a group of datasets mode1..modeN")
             names = sorted(
                 (k for k in g if k.startswith("mode") and k[4:].isdigit()), key=lambda k: int(k[4:])
             )
@@ -113,10 +138,12 @@ def load_model(path: str | os.PathLike[str]) -> Model:
                 )
             mats = []
             for k in names:
-                arr = read_array(g, k, gw).astype(np.float64)
-                if arr.ndim != 3 or arr.shape[1] != arr.shape[2]:
-                    raise FileFormatError(f"{gw}/{k}: expected shape (K, m, m), got {arr.shape}")
-                mats.append(arr)
+                ds = checked_dataset(g, k, gw, kinds="f", shape=(None, None, None))
+                if ds.shape[1] != ds.shape[2] or min(ds.shape) < 1:
+                    raise FileFormatError(
+                        f"{gw}/{k}: expected shape (K, m, m) with K, m >= 1, found {ds.shape}"
+                    )
+                mats.append(read_array(g, k, gw, kinds="f", finite=True).astype(np.float64))
             if len({m.shape[0] for m in mats}) != 1:
                 raise FileFormatError(
                     f"{gw}: modes disagree on the number of dictionaries "
@@ -126,6 +153,9 @@ def load_model(path: str | os.PathLike[str]) -> Model:
         lights = read_directions(require(f, "lights", where), f"{where}/lights")
         views = read_directions(require(f, "views", where), f"{where}/views")
         params = read_json_attr(f, "params_json", where)
+        check_tau_param(params, "tau_train", where)
+        check_str_param(params, "std_mode", where, STD_MODES)
+        check_str_param(params, "preprocessing", where, TRANSFORMS)
         provenance = read_json_attr(f, "provenance_json", where)
         training = read_json_attr(f, "training_json", where)
 
@@ -141,12 +171,14 @@ def load_model(path: str | os.PathLike[str]) -> Model:
             f"file records {stored_hash[:12]}…"
         )
     try:
-        return Model(
+        model = Model(
             dictionaries=dictionaries, patch=patch, lights=lights, views=views,
             params=params, provenance=provenance, training=training,
         )
     except BTFInputError as e:
         raise FileFormatError(f"{where}: {e}") from None
+    model.file = str(p.resolve())
+    return model
 
 
 def _channel_list(f: h5py.File, root: h5py.Group, where: str) -> list[str]:
@@ -154,9 +186,15 @@ def _channel_list(f: h5py.File, root: h5py.Group, where: str) -> list[str]:
     if "channels" in f.attrs:
         try:
             channels = json.loads(as_str(f.attrs["channels"]))
-        except ValueError:
+        except (ValueError, TypeError, RecursionError):
             raise FileFormatError(f"{where}: attribute 'channels' is not a JSON list") from None
-        if not isinstance(channels, list) or not all(isinstance(c, str) for c in channels):
+        if (
+            not isinstance(channels, list)
+            or not channels
+            or not all(isinstance(c, str) and c for c in channels)
+        ):
             raise FileFormatError(f"{where}: attribute 'channels' is not a JSON list of names")
         return channels
+    if not isinstance(root, h5py.Group):
+        raise FileFormatError(f"{where}/dictionaries: expected a group")
     return list(root.keys())

@@ -14,6 +14,10 @@ Byte layouts are in ``shared/specs/official-release-format.md`` §2:
 
 The release's patch numbering and texel convention equal ours. Coefficients are stored in
 column-major scan order there; we sort each point's by decreasing magnitude on import.
+
+Every reader checks sizes and counts against the file's length (and the memory budget) before
+allocating, opens the ``.mat`` files behind the HDF5 watchdog (:mod:`sparsebtf._hdf5`), and
+reports a damaged file as a :class:`FileFormatError` naming the file and the field.
 """
 
 from __future__ import annotations
@@ -23,26 +27,39 @@ import re
 from pathlib import Path
 from typing import Any
 
-import h5py
 import numpy as np
 
+from .._h5check import HDF5_ERRORS, read_array
+from .._hdf5 import open_h5, read_error
+from .._limits import check_allocation
 from ..data.directions import DirectionSet, from_angles, ubo2014
-from ..errors import FileFormatError
+from ..errors import BTFInputError, FileFormatError, ModelMismatchError, SparseBTFError
 from ..learning.coding import SparseCodes
 from ..model import CodedBTF, Model
 from ..points.preprocessing import Standardization
 
 __all__ = [
+    "check_same_dictionaries",
     "import_release",
     "read_angles",
     "read_coefficients",
     "read_dictionaries",
     "read_mean_std",
+    "release_model",
 ]
 
 RELEASE = "behnazkavoosi/SparseBTF (MIT), HEAD bc5d927"
 MODE_SIZES = (10, 10, 151, 151)
 COEFF_RE = re.compile(r"^Coeffs_BTF_(?P<mat>.+)_(?P<eps>[0-9.eE+-]+)_(?P<ch>[YUV])\.bin$")
+
+
+def _regular_size(p: Path) -> int:
+    """The size of a regular file (a FIFO or device would block a read), or an error."""
+    if not p.exists():
+        raise FileFormatError(f"{p}: no such file")
+    if not p.is_file():
+        raise FileFormatError(f"{p}: not a regular file (a folder, FIFO or device)")
+    return p.stat().st_size
 
 
 def read_dictionaries(
@@ -58,29 +75,9 @@ def read_dictionaries(
     p = Path(path)
     k = n_dictionaries
     if p.suffix == ".mat":
-        try:
-            with h5py.File(p, "r") as f:
-                mats = []
-                for n, m in enumerate(mode_sizes, start=1):
-                    name = f"DictDim{n}"
-                    if name not in f:
-                        raise FileFormatError(f"{p}: missing variable {name!r}")
-                    a = np.asarray(f[name], dtype=np.float64)
-                    if a.shape != (k, m, m):
-                        raise FileFormatError(
-                            f"{p}: {name} has shape {a.shape}, expected {(k, m, m)}"
-                        )
-                    mats.append(np.ascontiguousarray(a.transpose(0, 2, 1)))
-                extra = {}
-                if "EnsHist" in f:
-                    extra["EnsHist"] = [int(v) for v in np.asarray(f["EnsHist"]).ravel()]
-                if "TrainTime" in f:
-                    extra["TrainTime"] = float(np.asarray(f["TrainTime"]).ravel()[0])
-                return mats, extra
-        except OSError as e:
-            raise FileFormatError(f"{p}: not a readable MATLAB v7.3 (HDF5) file ({e})") from None
+        return _read_mat_dictionaries(p, k, mode_sizes)
     expected = 2 * k * sum(m * m for m in mode_sizes)
-    size = p.stat().st_size if p.exists() else -1
+    size = _regular_size(p)
     if size != expected:
         raise FileFormatError(
             f"{p}: {size} bytes, expected {expected} (fp16, K = {k}, modes {mode_sizes})"
@@ -97,16 +94,46 @@ def read_dictionaries(
     return mats, {}
 
 
+def _read_mat_dictionaries(
+    p: Path, k: int, mode_sizes: tuple[int, ...]
+) -> tuple[list[np.ndarray], dict[str, Any]]:
+    """``DictDim1..4`` (read by h5py as (K, col, row)), each checked before it is read."""
+    f = open_h5(p)
+    try:
+        with f:
+            mats = []
+            for n, m in enumerate(mode_sizes, start=1):
+                a = read_array(f, f"DictDim{n}", str(p), kinds="f", shape=(k, m, m), finite=True)
+                mats.append(np.ascontiguousarray(a.astype(np.float64).transpose(0, 2, 1)))
+            extra: dict[str, Any] = {}
+            if "EnsHist" in f:
+                hist = read_array(f, "EnsHist", str(p), finite=True)
+                if hist.size > 2**16:
+                    raise FileFormatError(f"{p}/EnsHist: {hist.size} entries, expected about K")
+                extra["EnsHist"] = [int(v) for v in hist.ravel()]
+            if "TrainTime" in f:
+                t = read_array(f, "TrainTime", str(p), finite=True).ravel()
+                if t.size < 1:
+                    raise FileFormatError(f"{p}/TrainTime: empty")
+                extra["TrainTime"] = float(t[0])
+            return mats, extra
+    except SparseBTFError:
+        raise
+    except HDF5_ERRORS as e:
+        raise read_error(e, str(p)) from None
+
+
 def read_coefficients(
     path: str | os.PathLike[str], n_points: int = 1600, n_dictionaries: int = 8
 ) -> SparseCodes:
     """One channel's codes; each point's coefficients sorted by decreasing magnitude."""
     p = Path(path)
-    if not p.exists():
-        raise FileFormatError(f"{p}: no such file")
+    size = _regular_size(p)
+    # Words, then int32 locations, int64 membership/counts and float32 values: ~10x the file.
+    check_allocation(10 * size, f"{p}: coefficients", FileFormatError)
     raw = np.fromfile(p, dtype="<u2")
     if raw.size < 4:
-        raise FileFormatError(f"{p}: {p.stat().st_size} bytes, too short for the dims header")
+        raise FileFormatError(f"{p}: {size} bytes, too short for the dims header")
     dims = tuple(int(v) for v in raw[:4].view("<i2"))
     if any(d <= 0 for d in dims):
         raise FileFormatError(f"{p}: header dims {dims} are not positive")
@@ -120,7 +147,10 @@ def read_coefficients(
     member = raw[4 + 4 * n : 4 + 4 * n + n_points].view("<i2").astype(np.int64)
     counts = raw[4 + 4 * n + n_points : 4 + 4 * n + 2 * n_points].view("<i2").astype(np.int64)
     values = raw[4 + 4 * n + 2 * n_points :].view("<f2").astype(np.float32)
-    if int(counts.sum()) != n or np.any(counts < 0):
+    if np.any(counts < 0):
+        i = int(np.flatnonzero(counts < 0)[0])
+        raise FileFormatError(f"{p}: NNZ[{i}] = {counts[i]} is negative")
+    if int(counts.sum()) != n:
         raise FileFormatError(f"{p}: NNZ sums to {int(counts.sum())}, but the file holds {n}")
     bad = (member < 0) | (member >= n_dictionaries)
     if bad.any():
@@ -132,11 +162,17 @@ def read_coefficients(
     if over.any():
         i, j = (int(v[0]) for v in np.nonzero(over))
         raise FileFormatError(f"{p}: LNZ[{i}] mode {j + 1} = {lnz[i, j]} >= dims {dims[j]}")
+    if not np.all(np.isfinite(values)):
+        i = int(np.flatnonzero(~np.isfinite(values))[0])
+        raise FileFormatError(f"{p}: value {i} is {values[i]}; values must be finite")
     # sort each point's coefficients by decreasing |v| (ties: storage order)
     owner = np.repeat(np.arange(n_points), counts)
     order = np.lexsort((np.arange(n), -np.abs(values), owner))
     errors = np.full(n_points, np.nan)  # unknown: the release does not store residuals
-    return SparseCodes(dims, member, counts, values[order], lnz[order], errors)
+    try:
+        return SparseCodes(dims, member, counts, values[order], lnz[order], errors)
+    except BTFInputError as e:
+        raise FileFormatError(f"{p}: {e}") from None
 
 
 def read_mean_std(
@@ -145,7 +181,7 @@ def read_mean_std(
     """The release's shared standardisation (index ``view·L + light``)."""
     p = Path(path)
     j = n_lights * n_views
-    size = p.stat().st_size if p.exists() else -1
+    size = _regular_size(p)
     if size != 16 * j:
         raise FileFormatError(f"{p}: {size} bytes, expected {16 * j} (2 × {j} float64)")
     a = np.fromfile(p, dtype="<f8")
@@ -159,17 +195,29 @@ def read_mean_std(
 def read_angles(path: str | os.PathLike[str]) -> DirectionSet:
     """``bonn_angles.bin``: φ and elevation (radians) of the 151 directions."""
     p = Path(path)
+    size = _regular_size(p)
+    if size == 0 or size % 24:
+        raise FileFormatError(f"{p}: {size} bytes; expected 3 rows of float64 (a multiple of 24)")
+    check_allocation(2 * size, f"{p}: directions", FileFormatError)
     a = np.fromfile(p, dtype="<f8")
-    if a.size % 3:
-        raise FileFormatError(f"{p}: {a.size} doubles, expected 3 rows")
+    if not np.all(np.isfinite(a)):
+        i = int(np.flatnonzero(~np.isfinite(a))[0])
+        raise FileFormatError(f"{p}: value {i} is {a[i]}; angles must be finite")
     phi, elev, _ = a.reshape(3, -1)
-    return from_angles(np.pi / 2 - elev, phi, name="ubo2014")
+    try:
+        return from_angles(np.pi / 2 - elev, phi, name="ubo2014")
+    except BTFInputError as e:
+        raise FileFormatError(f"{p}: {e}") from None
 
 
-def import_release(
-    directory: str | os.PathLike[str], prefer: str = "mat", height: int = 400, width: int = 400
-) -> tuple[Model, dict[str, CodedBTF], list[str]]:
-    """The release in ``directory`` as (model, coded BTFs by material, notes for the user)."""
+def release_model(
+    directory: str | os.PathLike[str], prefer: str = "mat"
+) -> tuple[Model, list[str]]:
+    """The release's Y/U/V ensembles in ``directory`` as a :class:`Model` (and notes).
+
+    ``prefer``: the fp64 ``.mat`` files (exact, default) or the fp16 ``.bin`` files; the other
+    kind is used for a channel that lacks the preferred one.
+    """
     d = Path(directory)
     if not d.is_dir():
         raise FileFormatError(f"{d}: not a folder")
@@ -195,6 +243,11 @@ def import_release(
     directions = (
         read_angles(d / "bonn_angles.bin") if (d / "bonn_angles.bin").exists() else ubo2014()
     )
+    if len(directions) != MODE_SIZES[2]:
+        raise FileFormatError(
+            f"{d / 'bonn_angles.bin'}: {len(directions)} directions, the release's dictionaries "
+            f"have {MODE_SIZES[2]}"
+        )
     model = Model(
         dicts,
         10,
@@ -204,11 +257,74 @@ def import_release(
         provenance={"release": RELEASE, "licence": "MIT (LICENSE-SparseBTF)", "folder": str(d)},
         training=training,
     )
+    return model, notes
+
+
+#: Largest difference between the release's dictionaries and a model they are coded against
+#: (``import_release(model=...)``): float32 rounding of entries <= 1 is below 2^-25.
+MATCH_TOLERANCE = 2.0**-24
+
+
+def check_same_dictionaries(a: Model, b: Model, tolerance: float = MATCH_TOLERANCE) -> float:
+    """The largest entry difference of two models' ensembles; refuses more than ``tolerance``
+    (or different channels / shapes)."""
+    worst = 0.0
+    for ch in a.channels:
+        if ch not in b.dictionaries:
+            raise ModelMismatchError(f"channel {ch} is in the release but not in the model")
+        for n, (u, v) in enumerate(zip(a.dictionaries[ch], b.dictionaries[ch], strict=True)):
+            if u.shape != v.shape:
+                raise ModelMismatchError(
+                    f"channel {ch}, mode {n + 1}: release {u.shape}, model {v.shape}"
+                )
+            worst = max(worst, float(np.abs(u - v).max()))
+    if worst > tolerance:
+        raise ModelMismatchError(
+            f"the release's dictionaries differ from the model's by up to {worst:.3g} "
+            f"(more than {tolerance:.3g}): not the same ensembles"
+        )
+    return worst
+
+
+def import_release(
+    directory: str | os.PathLike[str],
+    prefer: str = "mat",
+    height: int = 400,
+    width: int = 400,
+    model: Model | None = None,
+) -> tuple[Model, dict[str, CodedBTF], list[str]]:
+    """The release in ``directory`` as (model, coded BTFs by material, notes for the user).
+
+    With ``model`` (e.g. the bundled ``release`` model, the same ensembles rounded to
+    float32), the coefficients are coded against it instead, after checking that the folder's
+    dictionaries equal it within :data:`MATCH_TOLERANCE`; it is returned as the model.
+    """
+    d = Path(directory)
+    own, notes = release_model(d, prefer)
+    if model is not None:
+        worst = check_same_dictionaries(own, model)
+        if not (own.lights.equals(model.lights) and own.views.equals(model.views)):
+            raise ModelMismatchError(
+                f"{d}: the release's {len(own.lights)} directions differ from the model's"
+            )
+        notes.append(
+            f"codes refer to model {model.content_hash[:12]} (its dictionaries differ from the "
+            f"folder's by at most {worst:.2g})"
+        )
+    else:
+        model = own
+    dicts = own.dictionaries
+    directions = own.lights
     groups: dict[str, dict[str, tuple[Path, float]]] = {}
     for f in sorted(d.glob("Coeffs_BTF_*.bin")):
         m = COEFF_RE.match(f.name)
         if m:
-            groups.setdefault(m["mat"], {})[m["ch"]] = (f, float(m["eps"]))
+            try:
+                eps = float(m["eps"])
+            except ValueError:
+                notes.append(f"{f.name}: skipped, its ε field {m['eps']!r} is not a number")
+                continue
+            groups.setdefault(m["mat"], {})[m["ch"]] = (f, eps)
     coded: dict[str, CodedBTF] = {}
     n_points = (height // 10) * (width // 10)
     for mat, files in groups.items():
@@ -226,6 +342,11 @@ def import_release(
                 notes.append(f"{mat}: {ch} coefficients skipped, no {ch} dictionaries")
                 continue
             codes[ch] = read_coefficients(files[ch][0], n_points)
+            if tuple(codes[ch].mode_sizes) != MODE_SIZES:
+                raise FileFormatError(
+                    f"{files[ch][0]}: header dims {tuple(codes[ch].mode_sizes)}, the release's "
+                    f"dictionaries have {MODE_SIZES}"
+                )
         if not codes:
             continue
         eps = next(iter(files.values()))[1]

@@ -5,8 +5,10 @@ Use :mod:`sparsebtf.mitsuba` (``import sparsebtf.mitsuba``), which picks a varia
 
 * :mod:`.materials` — material sources (files, :func:`add_material`), per-process caches, the
   parameter checks, :func:`preload`; plain Python/NumPy,
-* :mod:`.kernels` — the lookups: Dr.Jit kernels (Eq. 5/6, the dense reference) and their
-  scalar NumPy counterparts,
+* :mod:`.kernels` — the lookups and the sampler: Dr.Jit kernels (neighbour search, Eq. 5/6,
+  the dense reference, BTF-driven sampling) and their scalar NumPy counterparts,
+* :mod:`.sampling` — the sampling tables from a material's angular response, and a NumPy
+  reference of the sampler (no Mitsuba),
 * :mod:`.plugins` — the Mitsuba BSDF classes, built for the variant active when it is imported
   (only :func:`register` imports it),
 * :mod:`.variant` — :func:`setup` (choose and set the variant) and :func:`register`.
@@ -21,10 +23,13 @@ YUV channel (paper Eq. 5, with Eq. 6's coefficient-space angular interpolation):
 
 followed by the inverse preprocessing (de-standardisation with μ, σ blended by the same
 weights, YUV → RGB, exp). On the ``llvm_ad_*``/``cuda_ad_*`` variants everything is Dr.Jit:
-``dr.gather`` from flat arrays (:meth:`sparsebtf.runtime.RuntimeBTF.arrays`), a symbolic
-``dr.while_loop`` over the coefficients of each channel and one over the sampled directions
-(brute-force k-nearest by chord distance, as :func:`sparsebtf.runtime.angular_weights`). On
-``scalar_rgb`` the lookup calls :meth:`RuntimeBTF.evaluate` per ray (tiny renders only).
+``dr.gather`` from flat arrays (:meth:`sparsebtf.runtime.RuntimeBTF.arrays`; value and location
+of a coefficient in one 8-byte gather, U1·U2 from one product table), a symbolic
+``dr.while_loop`` over the coefficients of each channel and one over the candidate directions
+of the query's grid cell (k-nearest by chord distance, as
+:func:`sparsebtf.runtime.angular_weights`; the lists of
+:func:`sparsebtf.runtime.angular.candidate_lists` are provably complete). On ``scalar_rgb``
+the lookup calls :meth:`RuntimeBTF.evaluate` per ray (tiny renders only).
 
 Convention (what ``eval`` returns). Mitsuba calls ``eval(ctx, si, wo)`` with ``si.wi`` towards
 the camera (the previous path vertex) and ``wo`` towards the light, both in the local shading
@@ -46,26 +51,35 @@ runs from the north pole down) the local y of both directions is negated, so the
 angular behaviour stays consistent with its texture (a mirror image of the sample, as the
 texture itself is mirrored there).
 
-Sampling: cosine-weighted hemisphere (on the side of ``si.wi``); ``pdf`` is cos θ_o/π and
-``sample`` returns eval/pdf, so ``sample``, ``pdf`` and ``eval`` agree (checked with
-``mitsuba.chi2`` in ``tests/test_mitsuba.py``).
+Sampling (``sampling``): ``btf`` (default) draws the unknown direction (the light in radiance
+transport, the view in importance transport) from tables built from the material's own mean
+angular response (:mod:`.sampling`: per bin of the known direction a distribution over
+equal-area cells, mixed over the known direction's angular neighbours, with a share
+``sampling_mix`` of cosine sampling so the density is positive over the whole hemisphere);
+``cosine`` samples cos θ/π. ``pdf`` is the density ``sample`` draws from, bit for bit, and
+``sample`` returns eval/pdf (checked with ``mitsuba.chi2`` in ``tests/test_mitsuba.py``).
 
 Parameters (``mi.load_dict({"type": "sparsebtf", ...})``):
 
-============== ========= ==============================================================
-filename       string    coded file (``sparsebtf encode`` / ``import-release``)
-model          string    model file; default: the one the coded file names
-key            string    instead of ``filename``: a material added with
-                         :func:`sparsebtf.mitsuba.add_material` (a RuntimeBTF/CodedBTF)
-tau            string    level of detail τ' at load time: "885,64,64", "32" or a fraction
-                         "0.25" of the coded τ (default: every stored coefficient)
-uv_scale       float     texture tiling: uv ↦ uv·uv_scale (default 1; wraps)
-interpolation  string    nearest | linear (release 2-NN, default) | barycentric | gaussian
-domain         string    standardized (Eq. 6, default) | log (the release shader)
-k              integer   neighbours of the gaussian scheme (default 4)
-beta           float     gaussian sharpness β in exp(−β d²) (default 20)
-two_sided      boolean   shade back faces like front faces (default false)
-============== ========= ==============================================================
+================ ========= ==============================================================
+filename         string    coded file (``sparsebtf encode`` / ``import-release``)
+model            string    model file or bundled model name; default: the coded file's
+                           (a bundled model by hash, else the model file it recorded)
+key              string    instead of ``filename``: a material added with
+                           :func:`sparsebtf.mitsuba.add_material` (a RuntimeBTF/CodedBTF)
+tau              string    level of detail τ' at load time: "885,64,64", "32" or a fraction
+                           "0.25" of the coded τ (default: every stored coefficient)
+uv_scale         float     texture tiling: uv ↦ uv·uv_scale (default 1; wraps)
+interpolation    string    nearest | linear (release 2-NN, default) | barycentric | gaussian
+domain           string    standardized (Eq. 6, default) | log (the release shader)
+k                integer   neighbours of the gaussian scheme (default 4)
+beta             float     gaussian sharpness β in exp(−β d²) (default 20)
+two_sided        boolean   shade back faces like front faces (default false)
+sampling         string    btf (default) | cosine
+sampling_tables  string    material (default: one table) | patch (one per data point)
+sampling_grid    integer   cells per side of the equal-area grid (32; 16 for patch tables)
+sampling_mix     float     share of cosine sampling in the mixture (default 0.2)
+================ ========= ==============================================================
 
 ``sparsebtf_dense`` — the uncompressed reference
 ------------------------------------------------
@@ -73,8 +87,11 @@ The same lookup from a dense (H, W, L, V, 3) table: texel by uv, the same angula
 and weights, the weighted blend taken of ln(x + 1e-5) (the log domain of the coded decoder,
 so ``nearest`` is an exact table lookup and the blends are comparable), then exp(·) − 1e-5.
 Parameters: ``filename`` (any BTF: dense ``.h5``, ``synth:…``, UBO2014 ``.btf``, a coded file)
-or ``key``, ``uv_scale``, ``interpolation``, ``k``, ``beta``, ``two_sided`` as above, and
-``max_gib`` (float, default 2): larger tables are refused with an error (crop the BTF first,
+or ``key``, ``uv_scale``, ``interpolation``, ``k``, ``beta``, ``two_sided``, ``sampling``,
+``sampling_grid``, ``sampling_mix`` as above (tables from the mean over texels of the table),
+``sampling_key`` (use the sampling tables of that coded material, so a coded render and its
+reference draw the same directions from the same random numbers) and ``max_gib`` (float,
+default 2): larger tables are refused with an error (crop the BTF first,
 ``sparsebtf convert --crop``).
 """
 

@@ -1,19 +1,22 @@
-"""The lookups behind both plugins, apart from the plugin classes (as Mitsuba 3's ``ad/bsdfs``).
+"""The lookups and the sampler behind both plugins, apart from the plugin classes (as Mitsuba 3's
+``ad/bsdfs``).
 
 Dr.Jit kernels (the ``llvm_ad_*``/``cuda_ad_*`` variants), evaluated for a wavefront of shading
 points at once:
 
-* :func:`knn_scan` — the k nearest sampled light and view directions of each query, brute force
-  by chord distance in one symbolic ``dr.while_loop`` (as
-  :func:`sparsebtf.runtime.angular_weights`),
-* :func:`neighbour_weights` — the runtime's interpolation schemes on those neighbours,
+* :func:`find_neighbours` — the k nearest sampled directions of each query and their weights
+  (:func:`neighbour_weights`, the runtime's schemes). Each query scans only the candidate list
+  of its grid cell (:class:`Candidates`, :func:`sparsebtf.runtime.angular.candidate_lists`,
+  provably complete), 2–3 directions on average instead of all 151;
 * :func:`coded_lookup` — Eq. 5/6 from the flat renderer arrays (:class:`CodedArrays`), then the
-  inverse preprocessing,
-* :func:`dense_lookup` — the log-domain blend of a dense table (:class:`DenseArrays`).
+  inverse preprocessing; :func:`dense_lookup` — the log-domain blend of a dense table
+  (:class:`DenseArrays`). Both take the neighbours found once per query by the plugin;
+* :func:`btf_sample` / :func:`btf_pdf` — BTF-driven importance sampling from the tables of
+  :mod:`.sampling` (:class:`SamplingArrays`), mixed with cosine sampling.
 
 Scalar lookups (``scalar_rgb``, one ray at a time in NumPy): :func:`scalar_coded` calls
 :meth:`sparsebtf.runtime.RuntimeBTF.evaluate`, :func:`scalar_dense` blends the table with
-:func:`sparsebtf.runtime.angular_weights`.
+:func:`sparsebtf.runtime.angular_weights`; sampling there uses :mod:`.sampling`'s NumPy twins.
 
 The kernels take the ``mitsuba`` and ``drjit`` modules as arguments (``mi``, ``dr``) instead of
 importing them, so this module loads without Mitsuba and the arrays they build belong to
@@ -28,50 +31,91 @@ from typing import Any
 import numpy as np
 
 from ...points.preprocessing import EPS as LOG_EPS
+from ...runtime.angular import candidate_lists
+from .sampling import ONE_MINUS_EPS, SamplingTables
 
 __all__ = [
+    "Candidates",
     "CodedArrays",
     "DenseArrays",
+    "SamplingArrays",
+    "btf_pdf",
+    "btf_sample",
     "coded_lookup",
     "dense_lookup",
-    "knn_scan",
+    "find_neighbours",
     "neighbour_weights",
+    "point_of",
     "scalar_coded",
     "scalar_dense",
     "texel",
 ]
 
+#: Build the U1 ⊗ U2 product table (one gather per coefficient instead of two) up to this
+#: many entries (K·p⁴; 80 000 for K = 8, p = 10).
+D12_MAX = 1 << 22
+#: Grid of the candidate lists (that of :func:`sparsebtf.runtime.angular.neighbour_table`).
+N_ELEVATION, N_PHI = 64, 256
 
-# -- Dr.Jit kernels -----------------------------------------------------------------------------
-def knn_scan(
-    mi: Any, dr: Any, tables: list[tuple[Any, int, Any]], k: int, active: Any
-) -> list[tuple[list[Any], list[Any]]]:
-    """k nearest sampled directions of each query, by squared chord distance (one symbolic loop).
 
-    ``tables``: [(flat xyz Float, n, query Vector3f)], scanned together over j < max n.
-    Returns per table (indices [UInt32]*k, squared distances [Float]*k), nearest first;
-    ties keep the lower index (as :func:`sparsebtf.runtime.angular_weights`).
+# -- neighbours ---------------------------------------------------------------------------------
+class Candidates:
+    """One direction set as Dr.Jit arrays: flat xyz and, per grid cell, the directions that can
+    be among the ``k`` nearest of a query there
+    (:func:`~sparsebtf.runtime.angular.candidate_lists`)."""
+
+    def __init__(self, mi: Any, xyz: np.ndarray, k: int) -> None:
+        offsets, indices = candidate_lists(xyz, k, N_PHI, N_ELEVATION)
+        self.n = int(xyz.shape[0])
+        self.xyz = mi.Float(np.asarray(xyz, dtype=np.float32).ravel())
+        self.offsets = mi.UInt32(offsets.astype(np.uint32))
+        self.indices = mi.UInt32(indices.astype(np.uint32))
+
+
+def _cell(mi: Any, dr: Any, q: Any) -> Any:
+    """Grid cell e·N_PHI + a of unit queries (as :func:`sparsebtf.runtime.angular.cell_of`)."""
+    el = dr.asin(dr.clip(q.z, 0.0, 1.0))
+    az = dr.atan2(q.y, q.x)
+    e = dr.minimum(mi.UInt32(el * (2.0 / dr.pi * N_ELEVATION)), N_ELEVATION - 1)
+    a = dr.minimum(mi.UInt32(dr.maximum(az + dr.pi, 0.0) * (0.5 / dr.pi * N_PHI)), N_PHI - 1)
+    return e * N_PHI + a
+
+
+def find_neighbours(mi: Any, dr: Any, prm: dict[str, Any], queries: list[tuple[Candidates, Any]],
+                    active: Any) -> list[tuple[list[Any], list[Any]]]:
+    """Angular neighbours of each query: per query (indices [UInt32]*k, weights [Float]*k).
+
+    ``queries``: [(direction set, query Vector3f)], searched together in one symbolic loop over
+    the candidates of each query's cell; the k nearest by squared chord distance, nearest first,
+    ties to the lower index (as :func:`sparsebtf.runtime.angular_weights`), then the weights of
+    ``prm["interpolation"]`` (``k``, ``beta``).
     """
-    big = 1e30
-    n_max = max(n for _, n, _ in tables)
+    k, big = prm["k"], 1e30
+    qs = [dr.normalize(q) for _, q in queries]
+    starts, counts = [], []
+    for (cand, _), q in zip(queries, qs, strict=True):
+        c = _cell(mi, dr, q)
+        s0 = dr.gather(mi.UInt32, cand.offsets, c, active)
+        starts.append(s0)
+        counts.append(dr.select(active, dr.gather(mi.UInt32, cand.offsets, c + 1, active) - s0, 0))
+    n_max = counts[0]
+    for c in counts[1:]:
+        n_max = dr.maximum(n_max, c)
     state: list[Any] = [mi.UInt32(0)]
-    for _ in tables:
+    for _ in queries:
         state += [dr.zeros(mi.UInt32, 1) for _ in range(k)] + [mi.Float(big) for _ in range(k)]
-
-    def cond(*st):
-        return st[0] < n_max
 
     def body(*st):
         st = list(st)
         j = st[0]
         out = [j + 1]
-        for t, (flat, n, q) in enumerate(tables):
+        for t, ((cand, _), q) in enumerate(zip(queries, qs, strict=True)):
             ii = list(st[1 + t * 2 * k : 1 + t * 2 * k + k])
             dd = list(st[1 + t * 2 * k + k : 1 + (t + 1) * 2 * k])
-            ok = j < n
-            x = dr.gather(mi.Vector3f, flat, dr.minimum(j, n - 1), active & ok)
+            ok = j < counts[t]
+            ci = dr.gather(mi.UInt32, cand.indices, starts[t] + j, ok)
+            x = dr.gather(mi.Vector3f, cand.xyz, ci, ok)
             cd = dr.select(ok, dr.squared_norm(q - x), big)
-            ci = mi.UInt32(j)
             for s in range(k):
                 sw = cd < dd[s]
                 dd[s], cd = dr.select(sw, cd, dd[s]), dr.select(sw, dd[s], cd)
@@ -79,12 +123,14 @@ def knn_scan(
             out += ii + dd
         return tuple(out)
 
-    res = dr.while_loop(tuple(state), cond, body, label="sparsebtf_knn")
+    res = dr.while_loop(tuple(state), lambda *st: st[0] < n_max, body, label="sparsebtf_knn")
     outs = []
-    for t in range(len(tables)):
+    for t, ((cand, _), q) in enumerate(zip(queries, qs, strict=True)):
         ii = list(res[1 + t * 2 * k : 1 + t * 2 * k + k])
         dd = list(res[1 + t * 2 * k + k : 1 + (t + 1) * 2 * k])
-        outs.append((ii, dd))
+        w = neighbour_weights(mi, dr, prm["interpolation"], cand.xyz, q, ii, dd, prm["beta"],
+                              active)  # fmt: skip
+        outs.append((ii[: len(w)], w))
     return outs
 
 
@@ -143,7 +189,12 @@ def texel(mi: Any, dr: Any, uv: Any, height: int, width: int) -> tuple[Any, Any]
 
 
 class CodedArrays:
-    """The flat renderer arrays of one coded material as Dr.Jit arrays of the active variant."""
+    """The flat renderer arrays of one coded material as Dr.Jit arrays of the active variant.
+
+    Per channel: ``packed`` interleaves each coefficient's value (float32 bits) and packed
+    location, so one 8-byte gather reads both; ``d12`` = U1[k, i1, l1]·U2[k, i2, l2] at
+    [k, i1, i2, l1, l2] (K·p⁴ floats, when at most :data:`D12_MAX`) replaces two gathers by one.
+    """
 
     def __init__(self, mi: Any, rt: Any) -> None:
         a = rt.arrays(neighbours=False)
@@ -152,51 +203,64 @@ class CodedArrays:
         self.n_rb = int(m["n_rb"])
         self.n_lights, self.n_views = int(m["n_lights"]), int(m["n_views"])
         self.eps = float(m["eps"])
-        self.lights = mi.Float(a["lights_xyz"].ravel())
-        self.views = mi.Float(a["views_xyz"].ravel())
         self.n_stats = int(a["mean"].shape[0])
         self.mean = mi.Float(a["mean"].ravel())
         self.std = mi.Float(a["std"].ravel())
         self.yuv_to_rgb = [[float(v) for v in row] for row in a["yuv_to_rgb"]]
         self.channels = []
         for ch in ("Y", "U", "V"):
-            d1 = a[f"dict1_{ch}"]
+            d1, d2 = a[f"dict1_{ch}"], a[f"dict2_{ch}"]
+            values, locations = a[f"values_{ch}"], a[f"locations_{ch}"]
+            packed = np.empty(2 * values.size, dtype=np.uint32)
+            packed[0::2] = values.astype(np.float32).view(np.uint32)
+            packed[1::2] = locations
+            k, p = d1.shape[0], d1.shape[1]
+            d12 = None
+            if k * p**4 <= D12_MAX:
+                d12 = np.einsum("kax,kby->kabxy", d1.astype(np.float64), d2.astype(np.float64))
+                d12 = mi.Float(d12.astype(np.float32).ravel())
             self.channels.append(
                 {
                     "membership": mi.UInt32(a[f"membership_{ch}"].astype(np.uint32)),
                     "offsets": mi.UInt32(a[f"offsets_{ch}"].astype(np.uint32)),
-                    "values": mi.Float(a[f"values_{ch}"]),
-                    "locations": mi.UInt32(a[f"locations_{ch}"]),
+                    "packed": mi.UInt32(packed),
+                    "d12": d12,
                     "dict1": mi.Float(d1.ravel()),
-                    "dict2": mi.Float(a[f"dict2_{ch}"].ravel()),
+                    "dict2": mi.Float(d2.ravel()),
                     "dict3": mi.Float(a[f"dict3_{ch}"].ravel()),
                     "dict4": mi.Float(a[f"dict4_{ch}"].ravel()),
-                    "p": int(d1.shape[1]),
+                    "p": int(p),
                     "L": int(a[f"dict3_{ch}"].shape[1]),
                     "V": int(a[f"dict4_{ch}"].shape[1]),
                 }
             )
 
 
-def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: Any,
-                 light: Any, view: Any, active: Any) -> Any:
-    """Eq. 5/6 for a wavefront of queries: linear RGB (Color3f), Dr.Jit variants.
-
-    ``uv`` (tiled, wraps), ``light``/``view`` in the BTF's local frame; ``prm`` needs
-    ``interpolation``, ``k``, ``beta`` and ``domain``. The decoder's floor (−eps) is kept:
-    the plugin clamps to 0.
-    """
-    k, scheme = prm["k"], prm["interpolation"]
+def point_of(mi: Any, dr: Any, data: CodedArrays, uv: Any) -> tuple[Any, Any, Any]:
+    """(data point, i1, i2) of the texel under ``uv`` (the release's point order)."""
     row, col = texel(mi, dr, uv, data.height, data.width)
     p = data.patch
-    pt = row // p + data.n_rb * (col // p)
-    i1, i2 = row % p, col % p
-    ql, qv = dr.normalize(light), dr.normalize(view)
-    (li, dl), (vi, dv) = knn_scan(
-        mi, dr, [(data.lights, data.n_lights, ql), (data.views, data.n_views, qv)], k, active
-    )
-    lw = neighbour_weights(mi, dr, scheme, data.lights, ql, li, dl, prm["beta"], active)
-    vw = neighbour_weights(mi, dr, scheme, data.views, qv, vi, dv, prm["beta"], active)
+    return row // p + data.n_rb * (col // p), row % p, col % p
+
+
+def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: Any,
+                 light_nb: tuple[list, list], view_nb: tuple[list, list], active: Any) -> Any:
+    """Eq. 5/6 for a wavefront of queries: linear RGB (Color3f), Dr.Jit variants.
+
+    ``uv`` (tiled, wraps); ``light_nb``/``view_nb``: the (indices, weights) of
+    :func:`find_neighbours`; ``prm`` needs ``domain``. The decoder's floor (−eps) is kept: the
+    plugin clamps to 0.
+
+    Per coefficient the loop reads one packed (value, location) pair, U1·U2 from ``d12`` and
+    the kl + kv angular factors: 2 + kl + kv gathers (4 + kl + kv before the packing and d12).
+    Blending the neighbours' U3/U4 rows once per query into ``dr.alloc_local`` arrays (as the
+    numba kernel does) measured 12 % faster outside a render, but Dr.Jit 1.5's LLVM backend
+    fails to compile local arrays inside Mitsuba's recorded virtual calls ("use of undefined
+    value %arr"), so it is not done.
+    """
+    li, lw = light_nb
+    vi, vw = view_nb
+    pt, i1, i2 = point_of(mi, dr, data, uv)
     kl, kv = len(lw), len(vw)
     nl, nv = data.n_lights, data.n_views
     log_domain = prm["domain"] == "log"
@@ -205,26 +269,25 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
         s_idx = c if data.n_stats == 3 else 0
         kk = dr.gather(mi.UInt32, ch["membership"], pt, active)
         s0 = dr.gather(mi.UInt32, ch["offsets"], pt, active)
-        s1 = dr.gather(mi.UInt32, ch["offsets"], pt + 1, active)
+        s1 = dr.select(active, dr.gather(mi.UInt32, ch["offsets"], pt + 1, active), s0)
         pp, cl, cv = ch["p"], ch["L"], ch["V"]
-        b1 = kk * (pp * pp) + i1 * pp
-        b2 = kk * (pp * pp) + i2 * pp
         b3 = [kk * (cl * cl) + li[a] * cl for a in range(kl)]
         b4 = [kk * (cv * cv) + vi[b] * cv for b in range(kv)]
+        b12 = kk * pp**4 + (i1 * pp + i2) * (pp * pp)
+        b1, b2 = kk * (pp * pp) + i1 * pp, kk * (pp * pp) + i2 * pp
         n_acc = kl * kv if log_domain else 1
-        s1 = dr.select(active, s1, s0)
 
-        def cond(s, *acc, s1=s1):
-            return s < s1
-
-        def body(s, *acc, ch=ch, b1=b1, b2=b2, b3=b3, b4=b4):
-            v = dr.gather(mi.Float, ch["values"], s)
-            code = dr.gather(mi.UInt32, ch["locations"], s)
+        def body(s, *acc, ch=ch, pp=pp, b12=b12, b1=b1, b2=b2, b3=b3, b4=b4):
+            vc = dr.gather(mi.Vector2u, ch["packed"], s)
+            v, code = dr.reinterpret_array(mi.Float, vc.x), vc.y
             l1, l2 = code & 0xFF, (code >> 8) & 0xFF
             l3, l4 = (code >> 16) & 0xFF, code >> 24
-            a = v * dr.gather(mi.Float, ch["dict1"], b1 + l1) * dr.gather(
-                mi.Float, ch["dict2"], b2 + l2
-            )
+            if ch["d12"] is not None:
+                a = v * dr.gather(mi.Float, ch["d12"], b12 + l1 * pp + l2)
+            else:
+                a = v * dr.gather(mi.Float, ch["dict1"], b1 + l1) * dr.gather(
+                    mi.Float, ch["dict2"], b2 + l2
+                )
             g3 = [dr.gather(mi.Float, ch["dict3"], b + l3) for b in b3]
             g4 = [dr.gather(mi.Float, ch["dict4"], b + l4) for b in b4]
             if log_domain:
@@ -241,7 +304,7 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
 
         res = dr.while_loop(
             (mi.UInt32(s0), *[mi.Float(0.0) for _ in range(n_acc)]),
-            cond,
+            lambda s, *acc, s1=s1: s < s1,
             body,
             label=f"sparsebtf_sum_{'YUV'[c]}",
         )
@@ -271,27 +334,20 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
 
 
 class DenseArrays:
-    """A dense log table and its direction sets as Dr.Jit arrays of the active variant."""
+    """A dense log table as a Dr.Jit array of the active variant."""
 
-    def __init__(self, mi: Any, table: np.ndarray, lights: np.ndarray, views: np.ndarray) -> None:
+    def __init__(self, mi: Any, table: np.ndarray) -> None:
         self.height, self.width, self.n_lights, self.n_views = (int(v) for v in table.shape[:4])
         self.table = mi.Float(table.ravel())
-        self.lights = mi.Float(lights.ravel())
-        self.views = mi.Float(views.ravel())
 
 
-def dense_lookup(mi: Any, dr: Any, data: DenseArrays, prm: dict[str, Any], uv: Any,
-                 light: Any, view: Any, active: Any) -> Any:
+def dense_lookup(mi: Any, dr: Any, data: DenseArrays, uv: Any, light_nb: tuple[list, list],
+                 view_nb: tuple[list, list], active: Any) -> Any:
     """exp(Σ w_a w_b ln(x + 1e-5)) − 1e-5 over the angular neighbours of a dense table (the
     reference lookup, ``nearest`` an exact table value): linear RGB (Color3f)."""
-    k, scheme = prm["k"], prm["interpolation"]
+    li, lw = light_nb
+    vi, vw = view_nb
     row, col = texel(mi, dr, uv, data.height, data.width)
-    ql, qv = dr.normalize(light), dr.normalize(view)
-    (li, dl), (vi, dv) = knn_scan(
-        mi, dr, [(data.lights, data.n_lights, ql), (data.views, data.n_views, qv)], k, active
-    )
-    lw = neighbour_weights(mi, dr, scheme, data.lights, ql, li, dl, prm["beta"], active)
-    vw = neighbour_weights(mi, dr, scheme, data.views, qv, vi, dv, prm["beta"], active)
     base = (row * data.width + col) * (data.n_lights * data.n_views)
     acc = mi.Color3f(0.0)
     for x in range(len(lw)):
@@ -299,6 +355,74 @@ def dense_lookup(mi: Any, dr: Any, data: DenseArrays, prm: dict[str, Any], uv: A
             idx = base + li[x] * data.n_views + vi[y]
             acc += (lw[x] * vw[y]) * dr.gather(mi.Color3f, data.table, idx, active)
     return dr.exp(acc) - LOG_EPS
+
+
+# -- BTF-driven sampling --------------------------------------------------------------------------
+class SamplingArrays:
+    """:class:`.sampling.SamplingTables` as Dr.Jit arrays: per mode the flat CDF rows and the
+    number of bins of the known set."""
+
+    def __init__(self, mi: Any, tables: SamplingTables) -> None:
+        self.grid, self.mix = tables.grid, tables.mix
+        self.n_cells = tables.n_cells
+        self.per_row = {m: c.shape[0] > 1 for m, c in tables.cdf.items()}
+        self.n_cond = {m: int(c.shape[1]) for m, c in tables.cdf.items()}
+        self.cdf = {m: mi.Float(c.ravel()) for m, c in tables.cdf.items()}
+
+
+def _row_base(sa: SamplingArrays, mode: str, row: Any, b: Any) -> Any:
+    """Offset of the CDF row of known bin ``b`` (in table ``row`` when per point)."""
+    if sa.per_row[mode]:
+        return (row * sa.n_cond[mode] + b) * sa.n_cells
+    return b * sa.n_cells
+
+
+def btf_pdf(mi: Any, dr: Any, sa: SamplingArrays, mode: str, row: Any,
+            known_nb: tuple[list, list], wo: Any, active: Any) -> Any:
+    """Density of :func:`btf_sample` per solid angle at ``wo`` (BTF frame), 0 below the horizon:
+    mix·cos θ/π + (1 − mix)·Σ_a w_a P(cell(wo) | b_a)·grid²/2π (:mod:`.sampling`)."""
+    g = sa.grid
+    sq = dr.clip(mi.warp.uniform_hemisphere_to_square(wo), 0.0, 1.0)
+    cell = dr.minimum(mi.UInt32(sq.y * g), g - 1) * g + dr.minimum(mi.UInt32(sq.x * g), g - 1)
+    cdf = sa.cdf[mode]
+    p_tab = mi.Float(0.0)
+    for b, w in zip(*known_nb, strict=True):
+        base = _row_base(sa, mode, row, b) + cell
+        hi = dr.gather(mi.Float, cdf, base, active)
+        lo = dr.gather(mi.Float, cdf, base - 1, active & (cell > 0))
+        p_tab += w * (hi - lo)
+    pdf = sa.mix * dr.inv_pi * wo.z + (1.0 - sa.mix) * (sa.n_cells / (2 * np.pi)) * p_tab
+    return dr.select(active & (wo.z > 0), pdf, 0.0)
+
+
+def btf_sample(mi: Any, dr: Any, sa: SamplingArrays, mode: str, row: Any,
+               known_nb: tuple[list, list], u1: Any, u2: Any, active: Any) -> Any:
+    """A direction (BTF frame, upper hemisphere) from :func:`btf_pdf`'s density.
+
+    u1 < mix: cosine-weighted from u2. Otherwise u1 rescaled picks a neighbour b_a of the known
+    direction with probability w_a, then a cell from its CDF row (binary search), and u2 a
+    uniform point of that cell (equal-area map): as :func:`.sampling.sample`.
+    """
+    ii, ww = known_nb
+    use_cos = u1 < sa.mix
+    u = dr.clip((u1 - sa.mix) / (1.0 - sa.mix), 0.0, ONE_MINUS_EPS)
+    b, lo, wsel, acc = ii[0], mi.Float(0.0), ww[0], ww[0]
+    for a in range(1, len(ww)):
+        take = u >= acc
+        b = dr.select(take, ii[a], b)
+        lo = dr.select(take, acc, lo)
+        wsel = dr.select(take, ww[a], wsel)
+        acc = acc + ww[a]
+    ur = dr.clip((u - lo) / dr.maximum(wsel, 1e-12), 0.0, ONE_MINUS_EPS)
+    base = _row_base(sa, mode, row, b)
+    cdf = sa.cdf[mode]
+    cell = dr.binary_search(
+        0, sa.n_cells - 1, lambda i: dr.gather(mi.Float, cdf, base + i, active) <= ur
+    )
+    g = sa.grid
+    sq = mi.Point2f((mi.Float(cell % g) + u2.x) / g, (mi.Float(cell // g) + u2.y) / g)
+    return dr.select(use_cos, mi.warp.square_to_cosine_hemisphere(u2),
+                     mi.warp.square_to_uniform_hemisphere(sq))
 
 
 # -- scalar (numpy) lookups ---------------------------------------------------------------------

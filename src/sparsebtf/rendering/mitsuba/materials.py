@@ -31,11 +31,15 @@ __all__ = [
     "add_material",
     "cached",
     "coded_params",
+    "coded_sampling",
     "common_params",
+    "dense_sampling",
     "dense_table",
     "load_dense",
     "load_runtime",
     "preload",
+    "sampling_params",
+    "sampling_tables",
     "source_id",
 ]
 
@@ -45,6 +49,12 @@ DENSE_PLUGIN = "sparsebtf_dense"
 DENSE_MAX_GIB = 2.0
 #: ``domain`` values of the ``sparsebtf`` plugin (Eq. 6 blend, or the release shader's).
 DOMAINS = ("standardized", "log")
+#: ``sampling`` values: cosine-weighted hemisphere, or BTF-driven (:mod:`.sampling`).
+SAMPLINGS = ("btf", "cosine")
+#: ``sampling_tables`` values: one table per material, or one per data point (coded only).
+SAMPLING_TABLES = ("material", "patch")
+#: Per-patch sampling tables above this size (GiB) are refused by default.
+SAMPLING_MAX_GIB = 1.0
 
 # Mitsuba may construct plugins from several threads while loading a scene.
 _lock = threading.Lock()
@@ -132,10 +142,13 @@ def dense_table(btf: Any, max_gib: float = DENSE_MAX_GIB) -> np.ndarray:
         raise BTFInputError(
             f"reference BTF {btf.name!r} ({h}x{w} texels, {nl} lights x {nv} views) needs "
             f"{need / 2**30:.1f} GiB as a float32 table, above the {max_gib:g} GiB limit; crop "
-            "it first (sparsebtf convert BTF -o crop.h5 --crop R0:R1,C0:C1) or raise max_gib"
+            "it first (sparsebtf convert BTF -o crop.h5 --crop R0:R1,C0:C1) or raise max_gib "
+            "(sparsebtf render --max-gib)"
         )
-    arr = np.asarray(btf.to_array(), dtype=np.float32)
-    return np.log(np.maximum(arr, 0) + np.float32(LOG_EPS)).astype(np.float32)
+    arr = np.array(btf.to_array(), dtype=np.float32)  # one copy; the log is taken in place
+    np.maximum(arr, 0, out=arr)
+    arr += np.float32(LOG_EPS)
+    return np.log(arr, out=arr)
 
 
 def load_dense(source: tuple, max_gib: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -185,7 +198,53 @@ def common_params(props: Any, what: str) -> dict[str, Any]:
         "beta": beta,
         "uv_scale": uv_scale,
         "two_sided": bool(props.get("two_sided", False)),
+        **sampling_params(props, what),
     }
+
+
+def sampling_params(props: Any, what: str) -> dict[str, Any]:
+    """``sampling``, ``sampling_tables``, ``sampling_grid``, ``sampling_mix``, checked."""
+    sampling = str(props.get("sampling", "btf"))
+    if sampling not in SAMPLINGS:
+        raise BTFInputError(f"{what}: sampling must be btf or cosine, got {sampling!r}")
+    tables = str(props.get("sampling_tables", "material"))
+    if tables not in SAMPLING_TABLES:
+        raise BTFInputError(f"{what}: sampling_tables must be material or patch, got {tables!r}")
+    if tables == "patch" and what != PLUGIN:
+        raise BTFInputError(f"{what}: sampling_tables 'patch' needs a coded material ({PLUGIN})")
+    grid = int(props.get("sampling_grid", 32 if tables == "material" else 16))
+    if not 2 <= grid <= 256:
+        raise BTFInputError(f"{what}: sampling_grid must be in [2, 256], got {grid}")
+    mix = float(props.get("sampling_mix", 0.2))
+    if not (math.isfinite(mix) and 0.0 < mix <= 1.0):
+        raise BTFInputError(f"{what}: sampling_mix (cosine share) must be in (0, 1], got {mix}")
+    return {"sampling": sampling, "sampling_tables": tables, "sampling_grid": grid,
+            "sampling_mix": mix}  # fmt: skip
+
+
+def sampling_tables(prm: dict[str, Any], ck: tuple, make_response: Callable[[], np.ndarray],
+                    lights: np.ndarray, views: np.ndarray, rows: int, what: str) -> Any:
+    """The :class:`.sampling.SamplingTables` of a plugin (cached per process), or None for
+    cosine sampling. ``make_response()`` gives the angular response, (L, V) or (rows, L, V);
+    per-patch tables above :data:`SAMPLING_MAX_GIB` are refused before they are built."""
+    from .sampling import build_tables, table_bytes
+
+    if prm["sampling"] != "btf":
+        return None
+    n_rows = rows if prm["sampling_tables"] == "patch" else 1
+    need = table_bytes(n_rows, len(lights), len(views), prm["sampling_grid"])
+    if need > SAMPLING_MAX_GIB * 2**30:
+        raise BTFInputError(
+            f"{what}: per-patch sampling tables need {need / 2**30:.2f} GiB ({n_rows} points x "
+            f"({len(lights)} + {len(views)}) bins x {prm['sampling_grid']}^2 cells x 4 bytes), "
+            f"above {SAMPLING_MAX_GIB:g} GiB; lower sampling_grid or use sampling_tables "
+            "'material'"
+        )
+    key = (prm["sampling_tables"], prm["sampling_grid"], prm["sampling_mix"],
+           prm["interpolation"], prm["k"], prm["beta"])  # fmt: skip
+    return cached(("tables", *ck, *key), lambda: build_tables(
+        make_response(), lights, views, prm["interpolation"], prm["k"], prm["beta"],
+        prm["sampling_grid"], prm["sampling_mix"]))  # fmt: skip
 
 
 def coded_params(props: Any) -> dict[str, Any]:
@@ -198,6 +257,43 @@ def coded_params(props: Any) -> dict[str, Any]:
     return prm
 
 
+def coded_sampling(prm: dict[str, Any], source: tuple, tau: Any, rt: Any) -> Any:
+    """:func:`sampling_tables` of a coded material: the response of its codes
+    (:func:`sparsebtf.runtime.response.angular_response`, per point for per-patch tables)."""
+    from ...runtime.response import angular_response
+
+    per_point = prm["sampling_tables"] == "patch"
+    return sampling_tables(
+        prm, ("coded", source, str(tau)), lambda: angular_response(rt, per_point),
+        rt.coded.lights.xyz, rt.coded.views.xyz, int(rt.meta["n_points"]), PLUGIN,
+    )  # fmt: skip
+
+
+def dense_sampling(prm: dict[str, Any], source: tuple, max_gib: float, data: tuple,
+                   sampling_key: str | None = None) -> Any:
+    """:func:`sampling_tables` of a dense material (``data`` as :func:`load_dense` returns it):
+    the mean over texels of its linear values, or, with ``sampling_key``, the tables of that
+    coded material (:func:`add_material`), so a coded render and its reference draw the same
+    directions from the same random numbers (correlated noise)."""
+    from .sampling import dense_response
+
+    table, lights, views = data
+    if sampling_key is not None:
+        coded = source_id({"key": sampling_key}, DENSE_PLUGIN)
+        rt = load_runtime(coded, None)
+        if not (np.allclose(rt.coded.lights.xyz, lights, atol=1e-6)
+                and np.allclose(rt.coded.views.xyz, views, atol=1e-6)):  # fmt: skip
+            raise BTFInputError(
+                f"{DENSE_PLUGIN}: sampling_key {sampling_key!r} has {len(rt.coded.lights)}x"
+                f"{len(rt.coded.views)} directions that differ from this BTF's "
+                f"{len(lights)}x{len(views)}"
+            )
+        return coded_sampling(prm, coded, None, rt)
+    return sampling_tables(prm, ("dense", source, max_gib),
+                           lambda: dense_response(table, LOG_EPS), lights, views, 1,
+                           DENSE_PLUGIN)  # fmt: skip
+
+
 def preload(bsdf: dict[str, Any]) -> Any:
     """Load what a plugin dict needs, outside Mitsuba, so errors surface as themselves.
 
@@ -207,10 +303,17 @@ def preload(bsdf: dict[str, Any]) -> Any:
     """
     kind = bsdf.get("type")
     if kind == PLUGIN:
-        coded_params(bsdf)
-        return load_runtime(source_id(bsdf, PLUGIN), bsdf.get("tau"))
+        prm = coded_params(bsdf)
+        source = source_id(bsdf, PLUGIN)
+        rt = load_runtime(source, bsdf.get("tau"))
+        coded_sampling(prm, source, bsdf.get("tau"), rt)
+        return rt
     if kind == DENSE_PLUGIN:
-        common_params(bsdf, DENSE_PLUGIN)
+        prm = common_params(bsdf, DENSE_PLUGIN)
         max_gib = float(bsdf.get("max_gib", DENSE_MAX_GIB))
-        return load_dense(source_id(bsdf, DENSE_PLUGIN), max_gib)
+        source = source_id(bsdf, DENSE_PLUGIN)
+        data = load_dense(source, max_gib)
+        skey = str(bsdf["sampling_key"]) if "sampling_key" in bsdf else None
+        dense_sampling(prm, source, max_gib, data, skey)
+        return data
     return None

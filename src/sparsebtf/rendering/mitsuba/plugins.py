@@ -7,23 +7,32 @@ reloads it when the active variant differs from :data:`VARIANT`, the one it was 
 then registers its classes. Do not import it directly.
 
 Parameters and conventions (which direction is the light, the local frame, sampling): the
-table in :mod:`sparsebtf.rendering.mitsuba`. The lookups themselves live in :mod:`.kernels`,
-material loading and parameter checks in :mod:`.materials`.
+table in :mod:`sparsebtf.rendering.mitsuba`. The lookups and the sampler live in
+:mod:`.kernels` (NumPy sampling tables in :mod:`.sampling`), material loading and parameter
+checks in :mod:`.materials`.
 """
 
 from __future__ import annotations
 
+import hashlib
 from typing import Any
 
 import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from . import sampling as np_sampling
 from .kernels import (
+    Candidates,
     CodedArrays,
     DenseArrays,
+    SamplingArrays,
+    btf_pdf,
+    btf_sample,
     coded_lookup,
     dense_lookup,
+    find_neighbours,
+    point_of,
     scalar_coded,
     scalar_dense,
 )
@@ -33,7 +42,9 @@ from .materials import (
     PLUGIN,
     cached,
     coded_params,
+    coded_sampling,
     common_params,
+    dense_sampling,
     load_dense,
     load_runtime,
     source_id,
@@ -43,14 +54,28 @@ __all__ = ["VARIANT", "SparseBTFBSDF", "SparseBTFDenseBSDF"]
 
 #: The Mitsuba variant these classes were built for.
 VARIANT: str = mi.variant()
+_GLOSSY = mi.BSDFFlags.GlossyReflection
+
+
+def _flip(v: Any, back: Any, flip: Any) -> Any:
+    """Mitsuba's local frame ↔ the BTF's (its own inverse): z mirrored on two-sided back-face
+    hits, y negated where the uv parametrisation is left-handed."""
+    v = dr.select(back, mi.Vector3f(v.x, v.y, -v.z), v)
+    return dr.select(flip, mi.Vector3f(v.x, -v.y, v.z), v)
 
 
 class _Base(mi.BSDF):
-    """What both plugins share: flags, the BTF frame, cosine-weighted sampling, the pdf.
+    """What both plugins share: flags, the BTF frame, neighbours, cosine and BTF sampling.
 
-    Subclasses set ``self.prm`` (:func:`.materials.common_params`) and implement
-    ``_jit_lookup(uv, light, view, active)`` (Dr.Jit variants) and
-    ``_scalar_lookup(uv, light, view)`` (``scalar_rgb``; NumPy float64 arrays in, RGB out).
+    Subclasses set ``self.prm`` (:func:`.materials.common_params`), ``self.np_dirs``
+    ({"lights", "views"}: (N, 3) float32), ``self.np_tables`` (:class:`.sampling.SamplingTables`
+    or None) and, on Dr.Jit variants, ``self.cand`` ({"lights", "views"}: :class:`Candidates`)
+    and ``self.tables`` (:class:`SamplingArrays` or None); they implement
+    ``_jit_lookup(uv, light_nb, view_nb, active)``, ``_jit_row(uv)`` (the sampling table row)
+    and ``_scalar_lookup(uv, light, view)`` (NumPy float64 arrays in, RGB out).
+
+    Roles: in radiance transport ``si.wi`` is the view (known) and ``wo`` the light (sampled);
+    in importance transport the reverse (:data:`.sampling.MODES`).
     """
 
     # A class attribute, not a module global: a reload for another variant rebinds the
@@ -58,100 +83,211 @@ class _Base(mi.BSDF):
     _scalar: bool = not dr.is_jit_v(mi.Float)
     prm: dict[str, Any]
 
-    def _setup_flags(self, two_sided: bool) -> None:
-        flags = (
-            mi.BSDFFlags.GlossyReflection
-            | mi.BSDFFlags.FrontSide
-            | mi.BSDFFlags.SpatiallyVarying
-        )
-        if two_sided:
+    def _setup(self, source: tuple, level: tuple, tables: Any) -> None:
+        """Flags, and the Dr.Jit candidate lists and sampling tables (cached per variant;
+        ``level`` tells apart loads of one source, as in the material's own cache key)."""
+        flags = _GLOSSY | mi.BSDFFlags.FrontSide | mi.BSDFFlags.SpatiallyVarying
+        if self.prm["two_sided"]:
             flags = flags | mi.BSDFFlags.BackSide
         self.m_flags = flags
         self.m_components = [flags]
-
-    def _frame(self, si: Any, wo: Any, active: Any, importance: bool = False):
-        """(uv, light, view, active) in the BTF's frame; see the package docstring."""
-        wi = mi.Vector3f(si.wi)
-        wo = mi.Vector3f(wo)
-        if self.prm["two_sided"]:
-            back = wi.z < 0
-            wi = dr.select(back, mi.Vector3f(wi.x, wi.y, -wi.z), wi)
-            wo = dr.select(back, mi.Vector3f(wo.x, wo.y, -wo.z), wo)
-        active = active & (wi.z > 0) & (wo.z > 0)
-        flip = dr.dot(si.sh_frame.t, si.dp_dv) < 0
-        wi = dr.select(flip, mi.Vector3f(wi.x, -wi.y, wi.z), wi)
-        wo = dr.select(flip, mi.Vector3f(wo.x, -wo.y, wo.z), wo)
-        uv = mi.Point2f(si.uv) * self.prm["uv_scale"]
-        light, view = (wi, wo) if importance else (wo, wi)
-        return uv, light, view, active
-
-    def _value(self, ctx: Any, si: Any, wo: Any, active: Any) -> Any:
-        importance = ctx.mode == mi.TransportMode.Importance
-        uv, light, view, active = self._frame(si, wo, active, importance)
+        self.np_tables = tables
         if self._scalar:
-            if not active:
-                return mi.Color3f(0.0)
-            rgb = self._scalar_lookup(
-                np.array([uv.x, uv.y], dtype=np.float64),
-                np.array([light.x, light.y, light.z], dtype=np.float64),
-                np.array([view.x, view.y, view.z], dtype=np.float64),
-            )
-            return mi.Color3f(*(max(float(v), 0.0) for v in rgb))
-        rgb = self._jit_lookup(uv, light, view, active)
+            return
+        k = self.prm["k"]
+        self.cand = {}
+        for name, xyz in self.np_dirs.items():
+            digest = hashlib.sha1(np.ascontiguousarray(xyz).tobytes()).hexdigest()
+            self.cand[name] = cached(("cand", mi.variant(), digest, k),
+                                     lambda xyz=xyz: Candidates(mi, xyz, k))  # fmt: skip
+        self.tables = None
+        if tables is not None:
+            p = self.prm
+            ck = ("jittables", mi.variant(), source, *level, p["sampling_tables"],
+                  p["sampling_grid"], p["sampling_mix"], p["interpolation"], p["k"], p["beta"])
+            self.tables = cached(ck, lambda: SamplingArrays(mi, tables))
+
+    # -- frames and roles -----------------------------------------------------------------------
+    def _frame(self, si: Any, active: Any):
+        """(uv, known direction in the BTF frame, back, flip, active)."""
+        wi = mi.Vector3f(si.wi)
+        back = (wi.z < 0) if self.prm["two_sided"] else mi.Bool(False)
+        flip = dr.dot(si.sh_frame.t, si.dp_dv) < 0
+        known = _flip(wi, back, flip)
+        uv = mi.Point2f(si.uv) * self.prm["uv_scale"]
+        return uv, known, back, flip, active & (known.z > 0)
+
+    @staticmethod
+    def _mode(ctx: Any) -> str:
+        return "importance" if ctx.mode == mi.TransportMode.Importance else "radiance"
+
+    @staticmethod
+    def _sets(mode: str) -> tuple[str, str]:
+        """(known set, sampled set)."""
+        return ("lights", "views") if mode == "importance" else ("views", "lights")
+
+    def _value(self, mode: str, uv: Any, known_nb: Any, w_nb: Any, active: Any) -> Any:
+        light_nb, view_nb = (known_nb, w_nb) if mode == "importance" else (w_nb, known_nb)
+        rgb = self._jit_lookup(uv, light_nb, view_nb, active)
         return dr.select(active, dr.maximum(rgb, 0.0), 0.0)
 
-    def _pdf(self, ctx: Any, si: Any, wo: Any, active: Any) -> Any:
-        cos_i = mi.Frame3f.cos_theta(si.wi)
-        cos_o = mi.Frame3f.cos_theta(wo)
-        if self.prm["two_sided"]:
-            ok = cos_i * cos_o > 0
-            return dr.select(active & ok, dr.abs(cos_o) * dr.inv_pi, 0.0)
-        ok = (cos_i > 0) & (cos_o > 0)
-        return dr.select(active & ok, cos_o * dr.inv_pi, 0.0)
+    def _density(self, mode: str, uv: Any, known_nb: Any, w: Any, active: Any) -> Any:
+        if self.tables is None:
+            return dr.select(active & (w.z > 0), w.z * dr.inv_pi, 0.0)
+        return btf_pdf(mi, dr, self.tables, mode, self._jit_row(uv), known_nb, w, active)
 
-    def _jit_lookup(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
-        raise NotImplementedError
-
-    def _scalar_lookup(self, uv: np.ndarray, light: np.ndarray, view: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
-
+    # -- the BSDF interface ---------------------------------------------------------------------
     def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
         """BTF(uv, ω_light = ``wo``, ω_view = ``si.wi``), no extra cosine (roles swapped in
         importance transport); 0 below the horizon unless ``two_sided``."""
-        if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection):
-            return mi.Color3f(0.0)
-        return self._value(ctx, si, wo, active)
+        return self.eval_pdf(ctx, si, wo, active, want_pdf=False)[0]
 
     def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-        """cos θ_o / π on the side of ``si.wi``."""
-        if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection):
+        """Density of :meth:`sample` per solid angle at ``wo`` (cosine or BTF-driven)."""
+        if not ctx.is_enabled(_GLOSSY):
             return mi.Float(0.0)
-        return self._pdf(ctx, si, wo, active)
+        if self._scalar:
+            return self._scalar_eval_pdf(ctx, si, wo, active, want_value=False)[1]
+        mode = self._mode(ctx)
+        uv, known, back, flip, active = self._frame(si, active)
+        w = _flip(mi.Vector3f(wo), back, flip)
+        known_nb = None
+        if self.tables is not None:
+            (known_nb,) = find_neighbours(mi, dr, self.prm,
+                                          [(self.cand[self._sets(mode)[0]], known)], active)
+        return self._density(mode, uv, known_nb, w, active)
 
-    def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-        return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
+    def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True, want_pdf: bool = True):
+        if not ctx.is_enabled(_GLOSSY):
+            return mi.Color3f(0.0), mi.Float(0.0)
+        if self._scalar:
+            return self._scalar_eval_pdf(ctx, si, wo, active)
+        mode = self._mode(ctx)
+        known_set, sampled_set = self._sets(mode)
+        uv, known, back, flip, active = self._frame(si, active)
+        w = _flip(mi.Vector3f(wo), back, flip)
+        known_nb, w_nb = find_neighbours(mi, dr, self.prm,
+                                         [(self.cand[known_set], known),
+                                          (self.cand[sampled_set], w)], active)  # fmt: skip
+        value = self._value(mode, uv, known_nb, w_nb, active & (w.z > 0))
+        pdf = self._density(mode, uv, known_nb, w, active) if want_pdf else mi.Float(0.0)
+        return value, pdf
 
     def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True):
-        """Cosine-weighted hemisphere sampling on the side of ``si.wi``; weight = eval/pdf."""
+        """A direction from the BTF-driven density (``sampling = "btf"``) or the cosine-weighted
+        hemisphere, on the side of ``si.wi``; weight = eval/pdf."""
         bs = dr.zeros(mi.BSDFSample3f)
-        cos_i = mi.Frame3f.cos_theta(si.wi)
-        wo = mi.warp.square_to_cosine_hemisphere(sample2)
-        if self.prm["two_sided"]:
-            wo = dr.select(cos_i < 0, mi.Vector3f(wo.x, wo.y, -wo.z), wo)
-            active = active & (cos_i != 0)
-        else:
-            active = active & (cos_i > 0)
-        if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection):
+        if not ctx.is_enabled(_GLOSSY):
             return bs, mi.Color3f(0.0)
-        bs.wo = wo
-        bs.pdf = self._pdf(ctx, si, wo, active)
+        if self._scalar:
+            return self._scalar_sample(ctx, si, sample1, sample2, active)
+        mode = self._mode(ctx)
+        known_set, sampled_set = self._sets(mode)
+        uv, known, back, flip, active = self._frame(si, active)
+        if self.tables is None:
+            w = mi.warp.square_to_cosine_hemisphere(sample2)
+            known_nb, w_nb = find_neighbours(mi, dr, self.prm,
+                                             [(self.cand[known_set], known),
+                                              (self.cand[sampled_set], w)], active)  # fmt: skip
+        else:
+            (known_nb,) = find_neighbours(mi, dr, self.prm, [(self.cand[known_set], known)],
+                                          active)  # fmt: skip
+            w = btf_sample(mi, dr, self.tables, mode, self._jit_row(uv), known_nb, sample1,
+                           sample2, active)  # fmt: skip
+            (w_nb,) = find_neighbours(mi, dr, self.prm, [(self.cand[sampled_set], w)], active)
+        active = active & (w.z > 0)
+        bs.wo = _flip(w, back, flip)
+        bs.pdf = self._density(mode, uv, known_nb, w, active)
         bs.eta = 1.0
-        bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
+        bs.sampled_type = mi.UInt32(+_GLOSSY)
         bs.sampled_component = mi.UInt32(0)
-        value = self._value(ctx, si, wo, active)
+        value = self._value(mode, uv, known_nb, w_nb, active)
         ok = active & (bs.pdf > 0)
-        weight = dr.select(ok, value / dr.select(ok, bs.pdf, 1.0), 0.0)
-        return bs, weight
+        return bs, dr.select(ok, value / dr.select(ok, bs.pdf, 1.0), 0.0)
+
+    # -- scalar_rgb: one ray at a time in NumPy -------------------------------------------------
+    def _scalar_frame(self, si: Any) -> tuple[np.ndarray, np.ndarray, bool, bool]:
+        wi = np.array([si.wi.x, si.wi.y, si.wi.z], dtype=np.float64)
+        back = bool(self.prm["two_sided"] and wi[2] < 0)
+        flip = bool(dr.dot(si.sh_frame.t, si.dp_dv) < 0)
+        uv = np.array([si.uv.x, si.uv.y], dtype=np.float64) * self.prm["uv_scale"]
+        return uv, self._scalar_flip(wi, back, flip), back, flip
+
+    @staticmethod
+    def _scalar_flip(v: np.ndarray, back: bool, flip: bool) -> np.ndarray:
+        return v * np.array([1.0, -1.0 if flip else 1.0, -1.0 if back else 1.0])
+
+    def _scalar_known_nb(self, mode: str, known: np.ndarray):
+        from ...runtime import angular_weights
+
+        kk = self.prm["k"] if self.prm["interpolation"] == "gaussian" else None
+        return angular_weights(self.np_dirs[self._sets(mode)[0]], known[None, :],
+                               self.prm["interpolation"], kk, self.prm["beta"])  # fmt: skip
+
+    def _scalar_density(self, mode: str, uv: np.ndarray, known: np.ndarray,
+                        w: np.ndarray) -> float:
+        if w[2] <= 0 or known[2] <= 0:
+            return 0.0
+        if self.np_tables is None:
+            return float(np.float32(w[2] / np.pi))
+        idx, wt = self._scalar_known_nb(mode, known)
+        rows = np.array([self._scalar_row(uv)])
+        p = np_sampling.pdf(self.np_tables, mode, rows, idx, wt, w[None, :])[0]
+        return float(np.float32(p))  # as stored in BSDFSample3f (float32 in scalar_rgb)
+
+    def _scalar_value(self, mode: str, uv: np.ndarray, known: np.ndarray,
+                      w: np.ndarray) -> Any:
+        if w[2] <= 0 or known[2] <= 0:
+            return mi.Color3f(0.0)
+        light, view = (known, w) if mode == "importance" else (w, known)
+        rgb = self._scalar_lookup(uv, light, view)
+        return mi.Color3f(*(max(float(v), 0.0) for v in rgb))
+
+    def _scalar_eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any,
+                         want_value: bool = True):
+        if not active:
+            return mi.Color3f(0.0), 0.0
+        mode = self._mode(ctx)
+        uv, known, back, flip = self._scalar_frame(si)
+        w = self._scalar_flip(np.array([wo.x, wo.y, wo.z], dtype=np.float64), back, flip)
+        value = self._scalar_value(mode, uv, known, w) if want_value else mi.Color3f(0.0)
+        return value, self._scalar_density(mode, uv, known, w)
+
+    def _scalar_sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any):
+        bs = dr.zeros(mi.BSDFSample3f)
+        mode = self._mode(ctx)
+        uv, known, back, flip = self._scalar_frame(si)
+        if not active or known[2] <= 0:
+            return bs, mi.Color3f(0.0)
+        u2 = np.array([[sample2.x, sample2.y]], dtype=np.float64)
+        if self.np_tables is None:
+            w = np_sampling.square_to_cosine_hemisphere(u2)[0]
+        else:
+            idx, wt = self._scalar_known_nb(mode, known)
+            rows = np.array([self._scalar_row(uv)])
+            w = np_sampling.sample(self.np_tables, mode, rows, idx, wt,
+                                   np.array([float(sample1)]), u2)[0]  # fmt: skip
+        w = w.astype(np.float32).astype(np.float64)  # bs.wo holds float32: pdf(bs.wo) = bs.pdf
+        bs.wo = mi.Vector3f(*self._scalar_flip(w, back, flip))
+        bs.pdf = self._scalar_density(mode, uv, known, w)
+        bs.eta = 1.0
+        bs.sampled_type = +_GLOSSY
+        bs.sampled_component = 0
+        value = self._scalar_value(mode, uv, known, w)
+        return bs, (value / bs.pdf if bs.pdf > 0 else mi.Color3f(0.0))
+
+    def _scalar_row(self, uv: np.ndarray) -> int:
+        return 0
+
+    # -- subclass hooks -------------------------------------------------------------------------
+    def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any) -> Any:
+        raise NotImplementedError
+
+    def _jit_row(self, uv: Any) -> Any:
+        return mi.UInt32(0)
+
+    def _scalar_lookup(self, uv: np.ndarray, light: np.ndarray, view: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
 
     def traverse(self, cb: Any) -> None:
         pass  # nothing differentiable is exposed
@@ -165,8 +301,9 @@ class SparseBTFBSDF(_Base):
 
     Parameters (table in :mod:`sparsebtf.rendering.mitsuba`): ``filename`` (+ ``model``) or
     ``key``, ``tau``, ``uv_scale``, ``interpolation``, ``domain``, ``k``, ``beta``,
-    ``two_sided``. The material is loaded once per process (:func:`.materials.load_runtime`),
-    its Dr.Jit arrays once per variant.
+    ``two_sided``, ``sampling``, ``sampling_tables``, ``sampling_grid``, ``sampling_mix``. The
+    material and its sampling tables are loaded once per process (:mod:`.materials`), their
+    Dr.Jit arrays once per variant.
     """
 
     def __init__(self, props: Any) -> None:
@@ -176,13 +313,30 @@ class SparseBTFBSDF(_Base):
         tau = props.get("tau") if "tau" in props else None
         self.rt = load_runtime(source, tau)
         self.meta = dict(self.rt.meta)
-        self._setup_flags(self.prm["two_sided"])
+        self.np_dirs = {"lights": self.rt.coded.lights.xyz.astype(np.float32),
+                        "views": self.rt.coded.views.xyz.astype(np.float32)}  # fmt: skip
+        tables = coded_sampling(self.prm, source, tau, self.rt)
         if not self._scalar:
             self.data = cached(("jit", mi.variant(), source, str(tau)),
                                lambda: CodedArrays(mi, self.rt))  # fmt: skip
+        self._setup(source, (str(tau),), tables)
 
-    def _jit_lookup(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
-        return coded_lookup(mi, dr, self.data, self.prm, uv, light, view, active)
+    def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any) -> Any:
+        return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active)
+
+    def _jit_row(self, uv: Any) -> Any:
+        if self.prm["sampling_tables"] != "patch":
+            return mi.UInt32(0)
+        return point_of(mi, dr, self.data, uv)[0]
+
+    def _scalar_row(self, uv: np.ndarray) -> int:
+        if self.prm["sampling_tables"] != "patch":
+            return 0
+        from ...runtime import texels_from_uv
+
+        row, col = texels_from_uv(uv[None, :], self.meta["height"], self.meta["width"])
+        p = self.meta["patch"]
+        return int(row[0] // p + self.meta["n_rb"] * (col[0] // p))
 
     def _scalar_lookup(self, uv: np.ndarray, light: np.ndarray, view: np.ndarray) -> np.ndarray:
         return scalar_coded(self.rt, self.prm, uv, light, view)
@@ -192,16 +346,22 @@ class SparseBTFBSDF(_Base):
         return (
             f"SparseBTF[{m['name']}, {m['height']}x{m['width']}, tau={m['tau']}, "
             f"{self.prm['interpolation']}/{self.prm['domain']}, "
-            f"uv_scale={self.prm['uv_scale']}]"
+            f"uv_scale={self.prm['uv_scale']}, sampling={self._sampling_text()}]"
         )
+
+    def _sampling_text(self) -> str:
+        if self.prm["sampling"] != "btf":
+            return "cosine"
+        return f"btf/{self.prm['sampling_tables']}/{self.prm['sampling_grid']}"
 
 
 class SparseBTFDenseBSDF(_Base):
     """``sparsebtf_dense``: a dense (uncompressed) BTF table, the reference.
 
     Parameters (table in :mod:`sparsebtf.rendering.mitsuba`): ``filename`` (any BTF) or
-    ``key``, ``uv_scale``, ``interpolation``, ``k``, ``beta``, ``two_sided``, and ``max_gib``
-    (default 2): larger tables are refused.
+    ``key``, ``uv_scale``, ``interpolation``, ``k``, ``beta``, ``two_sided``, ``sampling``
+    (material tables only), ``sampling_grid``, ``sampling_mix``, ``sampling_key`` (the tables
+    of that coded material) and ``max_gib`` (default 2): larger tables are refused.
     """
 
     def __init__(self, props: Any) -> None:
@@ -210,17 +370,21 @@ class SparseBTFDenseBSDF(_Base):
         source = source_id(props, DENSE_PLUGIN)
         max_gib = float(props.get("max_gib", DENSE_MAX_GIB))
         self.np_data = load_dense(source, max_gib)
-        self._setup_flags(self.prm["two_sided"])
+        self.np_dirs = {"lights": self.np_data[1], "views": self.np_data[2]}
+        skey = str(props.get("sampling_key")) if "sampling_key" in props else None
+        tables = dense_sampling(self.prm, source, max_gib, self.np_data, skey)
         if not self._scalar:
             self.data = cached(("jitdense", mi.variant(), source, max_gib),
-                               lambda: DenseArrays(mi, *self.np_data))  # fmt: skip
+                               lambda: DenseArrays(mi, self.np_data[0]))  # fmt: skip
+        self._setup(source, (max_gib, ("key", skey)), tables)
 
-    def _jit_lookup(self, uv: Any, light: Any, view: Any, active: Any) -> Any:
-        return dense_lookup(mi, dr, self.data, self.prm, uv, light, view, active)
+    def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any) -> Any:
+        return dense_lookup(mi, dr, self.data, uv, light_nb, view_nb, active)
 
     def _scalar_lookup(self, uv: np.ndarray, light: np.ndarray, view: np.ndarray) -> np.ndarray:
         return scalar_dense(self.np_data, self.prm, uv, light, view)
 
     def to_string(self) -> str:
         h, w, nl, nv = self.np_data[0].shape[:4]
-        return f"SparseBTFDense[{h}x{w}, {nl}x{nv} directions, {self.prm['interpolation']}]"
+        return (f"SparseBTFDense[{h}x{w}, {nl}x{nv} directions, {self.prm['interpolation']}, "
+                f"sampling={self.prm['sampling']}]")  # fmt: skip

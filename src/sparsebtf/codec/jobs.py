@@ -1,0 +1,270 @@
+"""Encoding as tasks on an executor (:mod:`sparsebtf.execution`): the same steps in one
+process and on a Dask cluster.
+
+For every BTF: open it where the task runs (:class:`Source`) and read its header; gather its
+statistics by view ranges (:func:`~sparsebtf.points.preprocessing.statistic_sums`) and
+combine them here; code its data points by point ranges (starts on batch boundaries, so every
+batch is the one a single pass reads: the codes are bit for bit those of a one-process run);
+join the ranges in order. What is computed per range and how the ranges are joined is an
+:class:`EncodingPlan` (fixed τ: :mod:`.encode`; rate control: :mod:`.rate`).
+
+On a cluster the workers open the sources themselves: paths must name files on storage
+every worker sees (``docs/distributed.md``); BTF objects are sent to the workers.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Protocol
+
+from ..data.btf import BTF
+from ..data.directions import DirectionSet
+from ..errors import FileFormatError, SparseBTFError
+from ..execution import Executor, executor, worker_label
+from ..model import Model
+from ..points.grid import PatchGrid
+from ..points.preprocessing import (
+    EPS,
+    StdMode,
+    check_std_mode,
+    combine_statistics,
+    gather_statistics,
+    statistic_sums,
+    warn_negatives,
+)
+
+__all__ = ["EncodingPlan", "Header", "Source", "run_plan"]
+
+#: Longest point range of one task, in batches: bounds what a lost worker costs.
+RANGE_BATCHES = 8
+
+
+@dataclass(frozen=True)
+class Source:
+    """A BTF to encode: a path or ``synth:`` spec (opened where the task runs), or a BTF
+    object (sent to the workers), cropped to ``crop`` = (rows, cols) if given."""
+
+    spec: str | BTF
+    crop: tuple[slice, slice] | None = None
+
+    @classmethod
+    def of(cls, source: str | os.PathLike[str] | BTF, crop: tuple[slice, slice] | None = None
+           ) -> Source:  # fmt: skip
+        """Paths become absolute here, so that workers in other folders find them."""
+        if isinstance(source, BTF):
+            return cls(source, crop)
+        s = str(source)
+        return cls(s if s.startswith("synth:") else str(Path(s).absolute()), crop)
+
+    @property
+    def label(self) -> str:
+        return self.spec if isinstance(self.spec, str) else self.spec.name
+
+    def open(self) -> BTF:
+        """The BTF (paths: opened once per process; errors on a worker name the worker)."""
+        if isinstance(self.spec, BTF):
+            btf = self.spec
+        else:
+            try:
+                btf = _open_path(self.spec, _stamp(self.spec))
+            except (SparseBTFError, OSError) as e:
+                where = worker_label()
+                if where is None:
+                    raise
+                raise FileFormatError(
+                    f"{where} cannot open {self.spec}: {e} (every worker must see the inputs: "
+                    "shared storage, docs/distributed.md)"
+                ) from None
+        if self.crop is not None:
+            from ..data.crop import CroppedBTF
+
+            btf = CroppedBTF(btf, *self.crop)
+        return btf
+
+
+def _stamp(path: str) -> tuple[int, int] | None:
+    """Size and modification time: a rewritten file is opened anew."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return None
+    return st.st_size, st.st_mtime_ns
+
+
+@functools.lru_cache(maxsize=8)
+def _open_path(spec: str, stamp: tuple[int, int] | None) -> BTF:
+    from ..open import open_btf
+
+    return open_btf(spec)
+
+
+@dataclass(frozen=True)
+class Header:
+    """What the client needs of a BTF without reading its values (a worker opened it)."""
+
+    name: str
+    height: int
+    width: int
+    lights: DirectionSet
+    views: DirectionSet
+    attrs: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, btf: BTF) -> Header:
+        return cls(btf.name, btf.height, btf.width, btf.lights, btf.views, dict(btf.attrs))
+
+    @property
+    def shape(self) -> tuple[int, int, int, int, int]:
+        return (self.height, self.width, len(self.lights), len(self.views), 3)
+
+    @property
+    def n_values(self) -> int:
+        return self.height * self.width * len(self.lights) * len(self.views) * 3
+
+
+class EncodingPlan(Protocol):
+    """What an encoding computes per point range and how it joins the ranges of one BTF.
+
+    A plan is pickled to the workers with each task: keep it small (parameters only).
+    """
+
+    desc: str
+
+    def prepare(self, header: Header, model: Model) -> Any:
+        """Check one BTF before any work; what its tasks need beyond the model (small)."""
+        ...
+
+    def code_range(
+        self, btf: BTF, model: Model, stats: Any, lo: int, hi: int, extra: Any, batch_size: int,
+        tick: Callable[[int], object] | None = None,
+    ) -> Any:  # fmt: skip
+        """The work on data points ``[lo, hi)`` (``tick(n)`` after each batch of n points)."""
+        ...
+
+    def finish(
+        self, header: Header, model: Model, stats: Any, parts: list[Any], extra: Any
+    ) -> list[Any]:
+        """The coded BTFs (one per level) from the range results, in point order."""
+        ...
+
+
+def _as_btf(x: Source | BTF) -> BTF:
+    return x.open() if isinstance(x, Source) else x
+
+
+def _header(x: Source | BTF) -> Header:
+    return Header.of(_as_btf(x))
+
+
+def _sums(x: Source | BTF, views: tuple[int, int], eps: float, tick: Any = None) -> Any:
+    return statistic_sums(_as_btf(x), views, eps, tick)
+
+
+def _range(
+    plan: EncodingPlan, x: Source | BTF, model: Model, stats: Any, lo: int, hi: int, extra: Any,
+    batch_size: int, tick: Any = None,
+) -> Any:  # fmt: skip
+    return plan.code_range(_as_btf(x), model, stats, lo, hi, extra, batch_size, tick)
+
+
+def run_plan(
+    sources: Sequence[Source],
+    model: Model,
+    plan: EncodingPlan,
+    *,
+    std_mode: StdMode | None = None,
+    batch_size: int = 4,
+    progress: bool | None = None,
+    client: Any = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
+) -> Iterator[list[Any]]:
+    """Encode ``sources`` by ``plan``; yield each one's result, in order, as it completes.
+
+    Runs in process, or on the cluster of ``client`` / ``scheduler`` / ``workers``
+    (:func:`sparsebtf.execution.executor`). Every BTF is checked before work starts.
+    """
+    if batch_size < 1:
+        raise SparseBTFError(f"batch size must be >= 1, got {batch_size}")
+    with executor(client=client, scheduler=scheduler, workers=workers) as ex:
+        yield from _run(ex, list(sources), model, plan, std_mode, batch_size, progress)
+
+
+def _run(
+    ex: Executor, sources: list[Source], model: Model, plan: EncodingPlan,
+    std_mode: StdMode | None, batch_size: int, progress: bool | None,
+) -> Iterator[list[Any]]:  # fmt: skip
+    mode = std_mode or model.std_mode
+    check_std_mode(mode)
+    # In process the tasks share one opened BTF. On a cluster each worker opens a path
+    # itself; a BTF object travels once, as a shared value, not with every task.
+    opened = [
+        ex.submit(Source.open, s) if not ex.distributed
+        else s if isinstance(s.spec, str) else ex.constant(s)
+        for s in sources
+    ]  # fmt: skip
+    headers: list[Header] = ex.gather([ex.submit(_header, o) for o in opened])
+    n_points = []
+    for h in headers:
+        model.check_directions(h)  # type: ignore[arg-type]
+        n_points.append(PatchGrid.for_btf(h, model.patch).n_points)  # type: ignore[arg-type]
+    extras = [plan.prepare(h, model) for h in headers]
+    stats = _statistics(ex, opened, headers, model, mode, progress)
+    model_h = ex.constant(model)
+    stats_h = [ex.constant(s) for s in stats]
+    owner, weights, tasks = [], [], []
+    at_most = RANGE_BATCHES * batch_size
+    for b, o in enumerate(opened):
+        for lo, hi in ex.chunks(n_points[b], batch_size, at_most=at_most, total=sum(n_points)):
+            tasks.append(ex.submit(
+                _range, plan, o, model_h, stats_h[b], lo, hi, extras[b], batch_size, ticks=True
+            ))  # fmt: skip
+            owner.append(b)
+            weights.append(hi - lo)
+    what = headers[0].name if len(headers) == 1 else f"{len(headers)} BTFs"
+    results = ex.results(
+        tasks, weights=weights, desc=f"{plan.desc} {what}", unit="pt", progress=progress
+    )
+    del tasks  # each range's result is released once read
+    for b, parts in _by_owner(results, owner):
+        yield plan.finish(headers[b], model, stats[b], parts, extras[b])
+
+
+def _by_owner(results: Iterator[Any], owner: list[int]) -> Iterator[tuple[int, list[Any]]]:
+    """Group ordered task results into (input, its results) as soon as an input is complete."""
+    parts: list[Any] = []
+    for i, part in enumerate(results):
+        parts.append(part)
+        if i + 1 == len(owner) or owner[i + 1] != owner[i]:
+            yield owner[i], parts
+            parts = []
+
+
+def _statistics(
+    ex: Executor, opened: list[Any], headers: list[Header], model: Model, mode: StdMode,
+    progress: bool | None,
+) -> list[Any]:  # fmt: skip
+    """Each BTF's standardisation in the model's preprocessing, from view-range tasks."""
+    if model.transform != "log_yuv":
+        return [
+            gather_statistics(h, mode, transform=model.transform)  # type: ignore[arg-type]
+            for h in headers
+        ]
+    owner, weights, tasks = [], [], []
+    views = sum(len(h.views) for h in headers)
+    for b, (o, h) in enumerate(zip(opened, headers, strict=True)):
+        for lo, hi in ex.chunks(len(h.views), 1, per_worker=2, total=views):
+            tasks.append(ex.submit(_sums, o, (lo, hi), EPS, ticks=True))
+            owner.append(b)
+            weights.append(hi - lo)
+    out: list[Any] = []
+    results = ex.results(tasks, weights=weights, desc="statistics", unit="view", progress=progress)
+    del tasks
+    for b, parts in _by_owner(results, owner):
+        warn_negatives(headers[b].name, parts)
+        out.append(combine_statistics(parts, mode))
+    return out
