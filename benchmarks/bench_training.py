@@ -153,19 +153,44 @@ def _memory_child(points: int, iters: int, lazy: int) -> None:
         src = training_points([lazy_source(lazy, 100)], 10, 1.0, 0, progress=False)
     else:
         src = training_source(points)
-    base = peak_rss_bytes()
     t = time.perf_counter()
     with channel_sources(src, ("Y",), stage=True, batch_size=4) as source:
         staged = time.perf_counter() - t
+        before = peak_rss_bytes()  # statistics and staging
+        reset = _reset_peak_rss()
+        held = _vm_bytes("VmRSS") if reset else None  # what the sources keep (chunk caches)
         ens = DictionaryEnsemble(
             n_dictionaries=8, tau=256, max_iter=iters, tol=0, random_state=0, progress=False
         ).fit(source("Y"))
+        training = _vm_bytes("VmHWM") if reset else None
     print(json.dumps({
         "points": src.n_points, "source": f"lazy {lazy}x{lazy}" if lazy else "7 x 40x40 synth",
         "iterations": iters, "peak_rss_bytes": peak_rss_bytes(),
-        "peak_rss_before_training_bytes": base, "stage_seconds": staged,
-        "fit_seconds": ens.fit_seconds_, "staged_bytes": src.n_bytes // 3,
+        "peak_rss_staging_bytes": before, "peak_rss_training_bytes": training,
+        "rss_held_before_training_bytes": held,
+        "added_by_training_bytes": None if held is None else training - held,
+        "stage_seconds": staged, "fit_seconds": ens.fit_seconds_,
+        "staged_bytes": src.n_bytes // 3,
     }))  # fmt: skip
+
+
+def _reset_peak_rss() -> bool:
+    """Reset this process's peak resident set to its current size (Linux clear_refs 5)."""
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _vm_bytes(field: str) -> int:
+    """VmRSS (resident now) or VmHWM (peak since the last reset) of /proc/self/status."""
+    with open("/proc/self/status") as f:
+        for line in f:
+            if line.startswith(f"{field}:"):
+                return int(line.split()[1]) * 1024
+    raise OSError(f"no {field} in /proc/self/status")
 
 
 def memory(a: argparse.Namespace) -> None:
@@ -177,14 +202,21 @@ def memory(a: argparse.Namespace) -> None:
         done = subprocess.run(cmd, capture_output=True, text=True, check=True)
         out.append(json.loads(done.stdout.strip().splitlines()[-1]))
     data = {"machine": machine(), "runs": out, "load_average": os.getloadavg()}
+    def mib(v: int | None) -> str:
+        return "?" if v is None else f"{v / 2**20:.0f} MiB"
+
     rows = [
         (f"{r['points']} points ({r['source']}), {r['iterations']} iteration(s)",
-         f"peak RSS {r['peak_rss_bytes'] / 2**20:.0f} MiB (staged channel Y "
-         f"{r['staged_bytes'] / 2**30:.1f} GiB, fit {r['fit_seconds']:.0f} s)")
+         f"training adds {mib(r['added_by_training_bytes'])} to the "
+         f"{mib(r['rss_held_before_training_bytes'])} held before it (peak "
+         f"{mib(r['peak_rss_training_bytes'])}); statistics and staging peak "
+         f"{mib(r['peak_rss_staging_bytes'])}; staged channel Y "
+         f"{r['staged_bytes'] / 2**30:.1f} GiB, fit {r['fit_seconds']:.0f} s")
         for r in out
     ]  # fmt: skip
-    growth = out[-1]["peak_rss_bytes"] / out[0]["peak_rss_bytes"]
-    rows.append(("peak RSS ratio, last / first run",
+    key = "added_by_training_bytes" if out[0]["added_by_training_bytes"] else "peak_rss_bytes"
+    growth = out[-1][key] / out[0][key]
+    rows.append(("memory added by training, last / first run",
                  f"{growth:.2f} for {out[-1]['points'] / out[0]['points']:.0f}x the points"))
     data["peak_ratio"] = growth
     report(rows, data, a.json)
