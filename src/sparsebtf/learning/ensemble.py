@@ -367,14 +367,24 @@ class DictionaryEnsemble:
         ranking: np.ndarray | None,
         desc: str,
     ) -> BatchCoding:
-        """Coding map over every batch (all K, or each point's ``ranking`` row), reduced."""
-        parts = []
+        """Coding map over every batch (all K, or each point's ``ranking`` row), reduced.
+
+        The Z⁽ᵇ⁾ and H⁽ᵃ⁾ of each batch are summed as they come (H is 0.6 MB per batch at
+        K = 8: kept per batch they grew with the number of points)."""
+        parts: list[BatchCoding] = []
+        sums: list[np.ndarray | None] = [None, None]
         with bar(src.n_points, desc, "pt", self.progress) as pb:
             for idx, xb in prefetch(src.batches(self.batch_size)):
                 cand = None if ranking is None else ranking[idx]
-                parts.append(code_step(xb, dicts, self.tau, self.eps, dt, cand))
+                part = code_step(xb, dicts, self.tau, self.eps, dt, cand)
+                for j, v in enumerate((part.z_last, part.pair)):
+                    if v is not None:
+                        sums[j] = v if sums[j] is None else sums[j] + v
+                parts.append(BatchCoding(part.codes, part.ranking, None, None))
                 pb.update(xb.shape[0])
-        return BatchCoding.combine(parts)
+        out = BatchCoding.combine(parts)
+        out.z_last, out.pair = sums
+        return out
 
     def _update_dictionaries(
         self, src: PointSource, dicts: list[np.ndarray], coding: BatchCoding, dt: type, desc: str
