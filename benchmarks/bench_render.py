@@ -24,6 +24,9 @@ a quarter of it, and the dense reference plugin on a 20×20-texel table, each wi
 samplers; best of ``--repeat`` interleaved rounds after one render each that compiles the
 kernels.
 
+``--integrator bsdf`` renders the noise part with Mitsuba's ``direct`` integrator taking BSDF
+samples only (no emitter sampling, so no MIS): the image-level effect of the sampler alone.
+
     python benchmarks/bench_render.py [--json] [--out docs/rendering]
     python benchmarks/bench_render.py --backend cuda      # on a machine with an NVIDIA GPU
 """
@@ -49,6 +52,9 @@ SAMPLERS = ("cosine", "btf")
 #: The noise renders also try per-patch tables (one per data point).
 NOISE_SAMPLERS = {"cosine": {"sampling": "cosine"}, "btf": {"sampling": "btf"},
                   "btf_patch": {"sampling": "btf", "sampling_tables": "patch"}}
+#: ``--integrator``: the path tracer of the scenes (emitter sampling + MIS), or direct lighting
+#: from BSDF samples alone
+INTEGRATORS = {"path": None, "bsdf": {"type": "direct", "emitter_samples": 0, "bsdf_samples": 1}}
 INCIDENCES = {"normal": (0.0, 0.0, 1.0), "45 deg": (0.5, 0.5, 0.7071), "75 deg": (0.9, 0.25, 0.26)}
 
 
@@ -100,9 +106,10 @@ def coded_materials(glossy: str, lobe: bool) -> dict[str, Any]:
 class Renderer:
     """Renders of the built-in sphere scene with one light, timed after ``dr.sync_thread``."""
 
-    def __init__(self, backend: str) -> None:
+    def __init__(self, backend: str, integrator: str = "path") -> None:
         import sparsebtf.mitsuba as sbm
 
+        self.integrator = INTEGRATORS[integrator]
         self.variant = sbm.setup(backend)
         self.why = sbm.variant_message
         import drjit as dr
@@ -118,7 +125,10 @@ class Renderer:
 
         mi, dr = self.mi, self.dr
         preload(bsdf)
-        scene = mi.load_dict(scene_dict(mi, bsdf, "sphere", size, size, light=light))
+        desc = scene_dict(mi, bsdf, "sphere", size, size, light=light)
+        if self.integrator is not None:
+            desc["integrator"] = dict(self.integrator)
+        scene = mi.load_dict(desc)
         acc, seconds, done, k = 0.0, 0.0, 0, 0
         while done < spp:
             n = min(max_pass, spp - done)
@@ -315,6 +325,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="timed renders per setting")
     ap.add_argument("--no-lobe", action="store_true",
                     help="skip the analytic glossy material (a mirror lobe, sky only)")
+    ap.add_argument("--integrator", default="path", choices=sorted(INTEGRATORS),
+                    help="noise renders: path tracer (default) or BSDF samples only (direct)")
     ap.add_argument("--skip-noise", action="store_true")
     ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--out", default=None, help="folder for the side-by-side PNG")
@@ -324,10 +336,12 @@ def main() -> None:
     t0 = time.perf_counter()
     load0 = os.getloadavg()
     render = Renderer(args.backend)
+    noise_render = render if args.integrator == "path" else Renderer(args.backend, args.integrator)
     data: dict[str, Any] = {"machine": machine(), "variant": render.variant, "llvm": render.why,
                             "load_average_start": load0}  # fmt: skip
-    data["settings"] = {k: getattr(args, k) for k in ("glossy", "size", "spp", "ref_spp", "seeds",
-                                                      "time_size", "time_spp", "repeat")}
+    keys = ("glossy", "size", "spp", "ref_spp", "seeds", "time_size", "time_spp", "repeat",
+            "integrator")
+    data["settings"] = {k: getattr(args, k) for k in keys}
     rows = [("variant", f"{render.variant} ({render.why})")]
     if not args.skip_noise:
         log("noise: relative MSE against the reference")
@@ -335,7 +349,7 @@ def main() -> None:
         data["coded_tau"] = CODED_TAU
         log("relative variance of the sample weight (BSDF only)")
         data["weight_relative_variance"] = weight_variance(render, rts)
-        data["noise"], images = noise(render, rts, args)
+        data["noise"], images = noise(noise_render, rts, args)
         if args.out:
             png = Path(args.out) / "sampling.png"
             data["png"] = str(save_images(images, data["noise"], png, args.spp, args.ref_spp))
