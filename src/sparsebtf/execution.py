@@ -72,6 +72,7 @@ __all__ = [
     "DaskExecutor",
     "Executor",
     "InProcess",
+    "PairwiseSum",
     "executor",
     "worker_label",
 ]
@@ -96,6 +97,35 @@ def _pairwise_sum(items: list[Any], add: Callable[[Any, Any], Any]) -> Any:
 
 def _add(a: Any, b: Any) -> Any:
     return a + b
+
+
+class PairwiseSum:
+    """The sum of values added one by one, paired as :meth:`Executor.tree_sum` pairs them.
+
+    Keeps one partial sum per set bit of the count so far (a binary counter), so summing n
+    values holds log2(n) of them instead of n; the final right-to-left fold gives the same
+    pairing as the level-by-level tree (``tests/test_distributed_training.py`` checks it), so
+    a stream summed in process has the same bits as the tree summed on a cluster.
+    """
+
+    def __init__(self, add: Callable[[Any, Any], Any] = _add) -> None:
+        self._add = add
+        self._stack: list[tuple[int, Any]] = []  # (number of values, their sum)
+
+    def add(self, value: Any) -> None:
+        size = 1
+        while self._stack and self._stack[-1][0] == size:
+            value = self._add(self._stack.pop()[1], value)
+            size *= 2
+        self._stack.append((size, value))
+
+    def total(self) -> Any:
+        if not self._stack:
+            raise SparseBTFError("nothing to sum")
+        value = self._stack[-1][1]
+        for _, left in reversed(self._stack[:-1]):
+            value = self._add(left, value)
+        return value
 
 
 class Executor(abc.ABC):
@@ -246,8 +276,12 @@ class InProcess(Executor):
                 pb.update(weights[i])
                 yield value
 
-    def tree_sum(self, handles: Sequence[Any]) -> _Deferred:
-        return _Deferred.of(_pairwise_sum([h.result() for h in handles], _add))
+    def tree_sum(self, handles: Iterable[Any]) -> _Deferred:
+        """Eager, holding log2(n) partial sums (a generator of handles: one value at a time)."""
+        acc = PairwiseSum()
+        for h in handles:
+            acc.add(h.result())
+        return _Deferred.of(acc.total())
 
 
 class DaskExecutor(Executor):
