@@ -15,6 +15,7 @@ import hashlib
 import os
 import time
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -191,6 +192,8 @@ def train(
     channels = ("YUV",) if colour_mode else CHANNELS
     taus = parse_tau(tau_train, channels)
     t0 = time.perf_counter()
+    if checkpoint_dir is not None:
+        Path(checkpoint_dir).mkdir(parents=True, exist_ok=True)
     sources = [Source.of(b, crop) for b in btfs]
     opened = [s.open() for s in sources]
     points = training_points(opened, patch, sample, seed, std_mode, preprocessing, progress)
