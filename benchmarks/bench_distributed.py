@@ -1,4 +1,4 @@
-"""Distributed encoding on Dask: the in-process default vs 1 and 2 local worker processes.
+"""Distributed encoding and training on Dask: the in-process default vs 1 and 2 local workers.
 
 In one run: encoding throughput of the default (this process, one thread per core) and of a
 ``LocalCluster`` of 1 and 2 single-threaded worker processes on the same machine; parallel
@@ -8,13 +8,21 @@ between workers and to the client); the overhead of the Dask path for a small jo
 start-up, and a test-size encode on a running cluster against in process); and whether every
 run gave the same codes, bit for bit.
 
-    python benchmarks/bench_distributed.py [--size 40] [--dicts 8] [--workers 1,2] [--json]
+    python benchmarks/bench_distributed.py [--part encode|train] [--size 40] [--dicts 8]
+                                           [--workers 1,2] [--json]
 
 The source is a dense file at UBO2014 angular resolution (size × size texels × 151 × 151),
 written from the low-rank source of ``bench_encode.py``; the workers open it by path, as they
 would from shared storage on a cluster. The model is K random orthonormal dictionaries per
 channel (the encoder's cost does not depend on training). τ = (885, 64, 64), ε = 1e-5.
-Phase B of issue 12 adds the training half (``--part train``).
+
+``--part train``: ``sparsebtf.codec.train`` on the same kind of source (every data point,
+K = 8, τ_l = 256/32/32, ``--iters`` iterations with one candidate and the last pass full,
+``--partition`` points per task) in process and on 1 and 2 worker processes: time, CPU time,
+efficiency, per-task time (load, coding, cross products), bytes per iteration (dictionaries
+out, sums back), whether every run gave the same dictionaries bit for bit, the small-job
+overhead; then the single-core cost per paper-scale data point of each step, from which a
+paper-scale training (2880 points per channel) on 16 and 64 machines of 2 cores is projected.
 """
 
 from __future__ import annotations
@@ -39,7 +47,7 @@ from sparsebtf.codec import encode_many
 from sparsebtf.data.dense_file import write_dense
 from sparsebtf.execution import executor
 
-PARTS = ("encode",)
+PARTS = ("encode", "train")
 
 
 def _same_codes(a: Any, b: Any) -> bool:
@@ -203,6 +211,8 @@ def _encode_small(btf: Any, model: Any, where: dict[str, Any]) -> tuple[float, A
 
 
 def main() -> None:
+    from bench_distributed_train import training_half
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--part", choices=PARTS, default="encode")
     ap.add_argument("--size", type=int, default=40)
@@ -211,11 +221,14 @@ def main() -> None:
     ap.add_argument("--tau", default="885,64,64")
     ap.add_argument("--batch", type=int, default=2, help="data points per batch (default 2)")
     ap.add_argument("--workers", default="1,2", help="local cluster sizes, comma-separated")
+    ap.add_argument("--iters", type=int, default=2, help="training iterations (--part train)")
+    ap.add_argument("--partition", type=int, default=4,
+                    help="training points per task (--part train; default 4)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     a.workers = [int(w) for w in a.workers.split(",")]
     with tempfile.TemporaryDirectory(prefix="bench-distributed-") as tmp:
-        rows, data = encoding_half(a, tmp)
+        rows, data = (training_half if a.part == "train" else encoding_half)(a, tmp)
     data["machine"] = machine()
     data["load_average"] = os.getloadavg()
     rows.append(("load average (1, 5, 15 min)", ", ".join(f"{v:.1f}" for v in os.getloadavg())))

@@ -81,10 +81,11 @@ def pair_modes(mode_sizes: Sequence[int]) -> tuple[int, int | None]:
 
 
 def _coefficient_matrix(cols: np.ndarray, values: np.ndarray, width: int) -> np.ndarray:
-    """E (τ, width) with E[s, cols[s]] = v_s: Σ_s v_s f_s e_{cols[s]}ᵀ = Fᵀ E as one GEMM."""
-    e = np.zeros((cols.size, width))
-    e[np.arange(cols.size), cols] = values
-    return e
+    """E (τ, width) with E[s, cols[s]] = v_s: Σ_s v_s f_s e_{cols[s]}ᵀ = Fᵀ E as one GEMM.
+
+    Built by comparison and ``where`` (no in-place scatter: array-API backends have none)."""
+    hit = cols[:, None] == np.arange(width)[None, :]
+    return np.where(hit, np.asarray(values, dtype=np.float64)[:, None], 0.0)
 
 
 @dataclass(eq=False)
