@@ -30,18 +30,15 @@ from __future__ import annotations
 import argparse
 import os
 import pickle
-import resource
 import statistics
-import sys
 import tempfile
 import time
 from collections import Counter
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from _common import machine, peak_rss_bytes, report
+from _common import cpu_seconds, machine, peak_rss_bytes, report, small_job, task_seconds
 from bench_encode import lazy_source, random_model
 from sparsebtf.codec import encode_many
 from sparsebtf.data.dense_file import write_dense
@@ -70,37 +67,14 @@ def _import_codec() -> None:
     import sparsebtf.codec.jobs  # noqa: F401
 
 
-def _cpu_seconds() -> float:
-    """User + system CPU time of this process so far (every thread)."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
-
-
-def _task_seconds(records: list[dict], name: str) -> list[float]:
-    """Compute time of each task of ``name`` in a Dask task stream."""
-    return [
-        sum(s["stop"] - s["start"] for s in r["startstops"] if s["action"] == "compute")
-        for r in records
-        if f"-{name}-" in r["key"]
-    ]
-
-
-def _small_job() -> tuple[Any, Any]:
-    """The test suite's shapes: 16×16 texels, 13 directions, 4×4 patches, K = 3."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from tests.conftest import smooth_btf, tiny_model
-
-    return smooth_btf(7, size=16), tiny_model(1)
-
-
 def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]], dict]:
     path = f"{tmp}/source.h5"
     write_dense(path, lazy_source(a.size, a.rank))
     model = random_model(a.dicts)
     n_points = (a.size // 10) ** 2
-    c0 = _cpu_seconds()
+    c0 = cpu_seconds()
     t0, ref = _encode(path, model, a)
-    cpu0 = _cpu_seconds() - c0
+    cpu0 = cpu_seconds() - c0
     moved = {
         "model_bytes": len(pickle.dumps(model)),
         "statistics_bytes": len(pickle.dumps(ref.stats)),
@@ -109,7 +83,7 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
     runs: dict[str, Any] = {
         "in_process": {"seconds": t0, "points_per_s": n_points / t0, "cpu_seconds": cpu0}
     }
-    small_btf, small_model = _small_job()
+    small_btf, small_model = small_job()
     small_local = min(
         _encode_small(small_btf, small_model, {"client": None})[0] for _ in range(3)
     )
@@ -123,10 +97,10 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             client = ex.client  # type: ignore[attr-defined]
             client.run(_import_codec)  # start-up: every worker imports what tasks need
             start = time.perf_counter() - t
-            cpu = sum(client.run(_cpu_seconds).values()) + _cpu_seconds()
+            cpu = sum(client.run(cpu_seconds).values()) + cpu_seconds()
             with get_task_stream(client=client) as ts:
                 tn, coded = _encode(path, model, a, client=ex)
-            cpu = sum(client.run(_cpu_seconds).values()) + _cpu_seconds() - cpu
+            cpu = sum(client.run(cpu_seconds).values()) + cpu_seconds() - cpu
             peak = max(client.run(peak_rss_bytes).values())
             if n == a.workers[0]:
                 small["cluster_start_seconds"] = start
@@ -134,9 +108,9 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
                     _encode_small(small_btf, small_model, {"client": ex})[0] for _ in range(3)
                 )
         same &= _same_codes(ref, coded)
-        ranges = _task_seconds(ts.data, "_range")
+        ranges = task_seconds(ts.data, "_range")
         placed = Counter(r["worker"] for r in ts.data if "-_range-" in r["key"])
-        sums = _task_seconds(ts.data, "_sums")
+        sums = task_seconds(ts.data, "_sums")
         runs[f"workers_{n}"] = {
             "workers": n,
             "seconds": tn,
@@ -146,11 +120,11 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             "cluster_start_seconds": start,
             "tasks": len(ts.data),
             "range_tasks": len(ranges),
-            "range_task_seconds_median": statistics.median(ranges),
+            "rangetask_seconds_median": statistics.median(ranges),
             "range_task_points": n_points / max(1, len(ranges)),
             "range_tasks_per_worker": sorted(placed.values()),
             "statistics_tasks": len(sums),
-            "statistics_task_seconds_median": statistics.median(sums),
+            "statisticstask_seconds_median": statistics.median(sums),
             # Dask's own transfer counters use sizeof() estimates, which miss our objects:
             # bytes are the pickled sizes, placed where the task stream says tasks ran.
             "bytes_between_workers": (len(placed) - 1) * (moved["model_bytes"]
@@ -185,9 +159,9 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             f"{r['cpu_seconds']:.1f} s ({r['cpu_vs_in_process']:.2f}x in-process); "
             f"worker peak memory {r['worker_peak_rss_bytes'] / 2**30:.2f} GiB; "
             f"{r['range_tasks']} range tasks of {r['range_task_points']:.0f} points (median "
-            f"{r['range_task_seconds_median']:.2f} s, per worker "
+            f"{r['rangetask_seconds_median']:.2f} s, per worker "
             f"{'/'.join(map(str, r['range_tasks_per_worker']))}), {r['statistics_tasks']} "
-            f"statistics tasks (median {r['statistics_task_seconds_median']:.2f} s); "
+            f"statistics tasks (median {r['statisticstask_seconds_median']:.2f} s); "
             f"between workers {r['bytes_between_workers'] / 2**20:.2f} MiB",
         ))  # fmt: skip
     rows += [

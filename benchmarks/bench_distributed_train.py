@@ -12,8 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from _common import peak_rss_bytes
-from bench_distributed import _cpu_seconds, _small_job, _task_seconds
+from _common import cpu_seconds, peak_rss_bytes, small_job, task_seconds
 from bench_encode import lazy_source
 from sparsebtf.codec import train
 from sparsebtf.data.dense_file import DenseFileBTF, write_dense
@@ -118,18 +117,25 @@ def _projection(cost: dict[str, float], bytes_: dict[str, int]) -> dict[str, Any
     return out
 
 
+def _t(seconds: float) -> str:
+    """Seconds as s, min or h."""
+    if seconds < 120:
+        return f"{seconds:.1f} s"
+    return f"{seconds / 60:.1f} min" if seconds < 7200 else f"{seconds / 3600:.2f} h"
+
+
 def training_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]], dict]:
     a.tau_train = tuple(int(v) for v in a.tau.split(",")) if a.tau != "885,64,64" else (
         256, 32, 32)
     path = f"{tmp}/source.h5"
     write_dense(path, lazy_source(a.size, a.rank))
     n_points = (a.size // 10) ** 2
-    c0 = _cpu_seconds()
+    c0 = cpu_seconds()
     t0, ref = _train(path, a)
-    cpu0 = _cpu_seconds() - c0
+    cpu0 = cpu_seconds() - c0
     runs: dict[str, Any] = {"in_process": {"seconds": t0, "cpu_seconds": cpu0,
                                            "points_per_s": 3 * a.iters * n_points / t0}}
-    small_btf, _ = _small_job()
+    small_btf, _ = small_job()
     kw_small = dict(n_dictionaries=3, tau_train=(16, 4, 4), patch=4, sample=1.0, max_iter=2,
                     progress=False)  # fmt: skip
     t = time.perf_counter()
@@ -144,10 +150,10 @@ def training_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             client = ex.client  # type: ignore[attr-defined]
             client.run(_import_training)
             start = time.perf_counter() - t
-            cpu = sum(client.run(_cpu_seconds).values()) + _cpu_seconds()
+            cpu = sum(client.run(cpu_seconds).values()) + cpu_seconds()
             with get_task_stream(client=client) as ts:
                 tn, model = _train(path, a, client=ex)
-            cpu = sum(client.run(_cpu_seconds).values()) + _cpu_seconds() - cpu
+            cpu = sum(client.run(cpu_seconds).values()) + cpu_seconds() - cpu
             peak = max(client.run(peak_rss_bytes).values())
             if n == a.workers[0]:
                 small["cluster_start_seconds"] = start
@@ -156,7 +162,7 @@ def training_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
                 small["on_cluster_seconds"] = time.perf_counter() - t
                 same &= _same(small_ref, small_model)
         same &= _same(ref, model)
-        tasks = {f: _task_seconds(ts.data, f) for f in
+        tasks = {f: task_seconds(ts.data, f) for f in
                  ("load_partition", "code_partition", "cross_partition", "_add")}  # fmt: skip
         runs[f"workers_{n}"] = {
             "workers": n, "seconds": tn, "cpu_seconds": cpu,
@@ -230,11 +236,11 @@ def training_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
         p = proj[f"machines_{machines}"]
         rows.append((
             f"paper scale, {machines} x 2 cores",
-            f"iteration {p['iteration_partial_s'] / 60:.1f} min (partial) / "
-            f"{p['iteration_full_s'] / 60:.1f} min (full), of which network "
-            f"{p['communication_s']:.1f} s; loading {p['load_s'] / 60:.1f} min per channel; "
-            f"10 iterations x 3 channels "
-            f"{p['training_10_iterations_h']:.1f} h; points per worker "
+            f"iteration {_t(p['iteration_partial_s'])} (partial) / "
+            f"{_t(p['iteration_full_s'])} (full), of which network "
+            f"{p['communication_s']:.1f} s; loading {_t(p['load_s'])} per channel; "
+            f"10 iterations x 3 channels {_t(p['training_10_iterations_h'] * 3600)}; "
+            f"points per worker "
             f"{p['points_per_worker_gib']:.2f} GiB; balance {p['efficiency']:.2f}",
         ))  # fmt: skip
     return rows, data

@@ -190,3 +190,24 @@ def test_resume_checks(paths, tmp_path, capsys):
                  "--checkpoint-dir", str(ck), "--resume"])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and "data:" in err and err.count("\n") == 1
+
+
+def test_bench_quality_passes_the_cluster_to_its_runs(monkeypatch, tmp_path):
+    import sparsebtf.evaluation.runner as runner
+
+    seen = {}
+
+    def fake_run(out, cfg, **kw):
+        seen.update(kw)
+        return {"summary": {}}
+
+    monkeypatch.setattr(runner, "run_quality", fake_run)
+    assert main(["bench", "quality", "--quick", "--out", str(tmp_path / "q"),
+                 "--scheduler", "tcp://127.0.0.1:8786"]) == 0  # fmt: skip
+    assert seen["scheduler"] == "tcp://127.0.0.1:8786" and seen["workers"] is None
+    # and the runner hands its executor to every training and encoding call
+    import inspect
+
+    src = inspect.getsource(runner._run_quality)
+    calls = src.count("train(") + src.count("encode_levels(") + src.count("encode_rate_levels(")
+    assert src.count("client=ex") == calls

@@ -29,26 +29,16 @@ the value itself into the task graph for the same reason, so nothing is ever los
 worker: a killed worker costs the tasks it was running, which run again elsewhere.
 :meth:`Executor.results` releases each result once read; do not keep the list of handles.
 
-Intended use by distributed training (phase B of issue 12, on the trainer of issue 13)::
-
-    parts = [ex.submit(load_partition, spec) for spec in partition_specs]  # held all along
-    d = ex.constant(dictionaries)
-    codes = [ex.submit(code_step, p, d, tau) for p in parts]     # stay on the workers
-    for it in range(max_iter):
-        small = ex.gather([ex.submit(summary, c) for c in codes])  # membership, errors
-        for mode in range(n_modes):                               # Gauss-Seidel over modes
-            z = ex.gather([ex.tree_sum([ex.submit(cross_products, p, c, d, mode)
-                                        for p, c in zip(parts, codes)])])[0]
-            dictionaries[mode] = procrustes_all(z)                # on the client
-            d = ex.constant(dictionaries)                         # broadcast every update
-        codes = [ex.submit(code_step, p, d, tau) for p in parts]
-
-``spec`` describes a partition by its source (BTF paths, point indices, statistics), never by
-its data, so a partition lost with its worker is rebuilt from the BTFs by Dask's lineage (in
-process, ``load_partition`` may return a lazy view of today's staged file, keeping memory at
-one batch). Partitions are fixed numbers of points (not a share per worker) and sums use the
-fixed tree of :meth:`Executor.tree_sum`, so the model does not depend on the number of workers
-and equals a one-process run (where the same tasks run in order here).
+Training uses it through :mod:`sparsebtf.learning.partitions` (one task per fixed-size
+partition of the training points: a load task on a cluster, whose result stays in worker
+memory across iterations; coding and cross-product tasks next to it; dictionaries broadcast
+with :meth:`Executor.constant` each pass; sums by :meth:`Executor.tree_sum`, or in process by
+:class:`PairwiseSum`, the same pairing one value at a time), encoding through
+:mod:`sparsebtf.codec.jobs`. A partition is described by its source (BTF paths, point
+indices, statistics), never by its data, so one lost with its worker is rebuilt from the BTFs
+by Dask's lineage; partitions are fixed numbers of points (not a share per worker) and sums
+use a fixed tree, so the model does not depend on the number of workers and equals a
+one-process run (where the same tasks run in order here).
 """
 
 from __future__ import annotations

@@ -49,6 +49,7 @@ from .coding import SparseCodes, reconstruct_points, sparse_code
 from .parallel import parallel_map
 from .partitions import (
     PARTITION_POINTS,
+    ArraySource,
     Coded,
     coding_pass,
     cross_pass,
@@ -111,36 +112,6 @@ class PointSource(Protocol):
     def part(self, lo: int, hi: int) -> PointSource:
         """Points ``[lo, hi)`` as a source (optional: a view through ``take`` otherwise)."""
         ...
-
-
-class ArraySource:
-    """A :class:`PointSource` over an in-memory (N, m_1, …, m_N) array."""
-
-    def __init__(self, data: np.ndarray) -> None:
-        if data.ndim < 2:
-            raise BTFInputError(
-                f"data points must be an (N, m_1, ..., m_N) array, got {data.shape}"
-            )
-        self.data = data
-
-    @property
-    def n_points(self) -> int:
-        return int(self.data.shape[0])
-
-    @property
-    def mode_sizes(self) -> tuple[int, ...]:
-        return tuple(int(s) for s in self.data.shape[1:])
-
-    def batches(self, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        for s in range(0, self.n_points, batch_size):
-            e = min(s + batch_size, self.n_points)
-            yield np.arange(s, e), self.data[s:e]  # a view: no copy of the points
-
-    def take(self, indices: np.ndarray) -> np.ndarray:
-        return self.data[np.asarray(indices)]
-
-    def part(self, lo: int, hi: int) -> ArraySource:
-        return ArraySource(self.data[lo:hi])
 
 
 def random_orthonormal(m: int, rng: np.random.Generator) -> np.ndarray:

@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from ..errors import BTFInputError
 from ..execution import Executor, PairwiseSum
 from .coding import SparseCodes
 from .parallel import prefetch
@@ -39,6 +40,7 @@ from .steps import BatchCoding, code_step, cross_products, pair_modes, sparse_cr
 
 __all__ = [
     "PARTITION_POINTS",
+    "ArraySource",
     "Coded",
     "RangeSource",
     "code_partition",
@@ -58,6 +60,36 @@ PARTITION_POINTS = 8
 def partition_bounds(n_points: int, size: int) -> list[tuple[int, int]]:
     """``[lo, hi)`` of each partition of ``size`` points (the last one may be shorter)."""
     return [(lo, min(lo + size, n_points)) for lo in range(0, n_points, size)]
+
+
+class ArraySource:
+    """A :class:`PointSource` over an in-memory (N, m_1, …, m_N) array."""
+
+    def __init__(self, data: np.ndarray) -> None:
+        if data.ndim < 2:
+            raise BTFInputError(
+                f"data points must be an (N, m_1, ..., m_N) array, got {data.shape}"
+            )
+        self.data = data
+
+    @property
+    def n_points(self) -> int:
+        return int(self.data.shape[0])
+
+    @property
+    def mode_sizes(self) -> tuple[int, ...]:
+        return tuple(int(s) for s in self.data.shape[1:])
+
+    def batches(self, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+        for s in range(0, self.n_points, batch_size):
+            e = min(s + batch_size, self.n_points)
+            yield np.arange(s, e), self.data[s:e]  # a view: no copy of the points
+
+    def take(self, indices: np.ndarray) -> np.ndarray:
+        return self.data[np.asarray(indices)]
+
+    def part(self, lo: int, hi: int) -> ArraySource:
+        return ArraySource(self.data[lo:hi])
 
 
 class RangeSource:
@@ -89,10 +121,8 @@ def part_of(source: Any, lo: int, hi: int) -> Any:
     return part(lo, hi) if part is not None else RangeSource(source, lo, hi)
 
 
-def load_points(part: Any, batch_size: int) -> Any:
+def load_points(part: Any, batch_size: int) -> ArraySource:
     """Task: the points of a partition, read once into memory (float32, as staged)."""
-    from .ensemble import ArraySource
-
     xs = [np.asarray(x, dtype=np.float32) for _, x in part.batches(batch_size)]
     return ArraySource(np.concatenate(xs))
 
