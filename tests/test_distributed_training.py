@@ -8,11 +8,6 @@ from __future__ import annotations
 
 import os
 import signal
-import subprocess
-import sys
-import threading
-import time
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -23,6 +18,7 @@ from sparsebtf.data.dense_file import write_dense
 from sparsebtf.execution import PairwiseSum, _pairwise_sum
 from sparsebtf.storage import load_model
 
+from ._cluster import cli_cluster, command_in_thread, wait_for
 from ._workers import slow_coding
 from .conftest import smooth_btf
 
@@ -87,41 +83,27 @@ def test_cluster_training_equals_one_process_training(paths, one_process, tmp_pa
     assert not (tmp_path / "cluster.h5.checkpoint").exists()  # removed once the model is written
 
 
-def _train_in_thread(argv: list) -> tuple[threading.Thread, dict]:
-    result: dict = {}
-
-    def target():
-        result["code"] = main([str(a) for a in argv])
-
-    th = threading.Thread(target=target)
-    th.start()
-    return th, result
-
-
-def _wait_for(path: Path, timeout: float = 60.0) -> None:
-    t = time.monotonic()
-    while not path.exists():
-        assert time.monotonic() - t < timeout, f"{path} never appeared"
-        time.sleep(0.02)
-
-
 def test_worker_killed_mid_training_changes_nothing(paths, one_process, tmp_path):
     out = tmp_path / "model.h5"
     marks = tmp_path / "marks"
     marks.mkdir()
     with local_cluster() as cluster, distributed.Client(cluster) as c:
         c.run(slow_coding, str(marks), 0.05)
-        th, result = _train_in_thread(
-            ["train", *paths, "-o", out, *OPTIONS, "--scheduler", cluster.scheduler_address]
-        )
-        # After the first iteration of Y: every worker holds partitions and codes.
-        _wait_for(tmp_path / "model.h5.checkpoint" / "train_Y.npz")
-        assert th.is_alive()
-        victim = int(next(iter(marks.iterdir())).name)
-        os.kill(victim, signal.SIGKILL)
-        th.join(timeout=180)
+        with distributed.get_task_stream(client=c) as ts:
+            th, result = command_in_thread(
+                ["train", *paths, "-o", out, *OPTIONS, "--scheduler", cluster.scheduler_address]
+            )
+            # After the first iteration of Y: every worker holds partitions and codes.
+            wait_for(tmp_path / "model.h5.checkpoint" / "train_Y.npz")
+            assert th.is_alive()
+            victim = int(next(iter(marks.iterdir())).name)
+            os.kill(victim, signal.SIGKILL)
+            th.join(timeout=180)
         assert result.get("code") == 0
         assert victim not in c.run(os.getpid).values()  # the nanny started a new process
+    # 4 partitions per channel were loaded once each, and the victim's again (lineage).
+    loads = sum("load_partition" in r["key"] for r in ts.data)
+    assert loads > 3 * 4
     assert_same_model(load_model(out), one_process)
 
 
@@ -129,35 +111,14 @@ def test_scheduler_lost_mid_training_then_resume_equals_one_run(paths, one_proce
                                                                capsys):  # fmt: skip
     marks = tmp_path / "marks"
     marks.mkdir()
-    sched_file = tmp_path / "scheduler.json"
-    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-    sched = subprocess.Popen(
-        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-         "--port", "0", "--no-dashboard", "--scheduler-file", str(sched_file)], **quiet,
-    )  # fmt: skip
-    worker = None
     out = tmp_path / "model.h5"
     ck = tmp_path / "model.h5.checkpoint"
-    try:
-        _wait_for(sched_file, 30)
-        with distributed.Client(scheduler_file=str(sched_file), timeout=30) as c:
-            address = c.scheduler.address
-            worker = subprocess.Popen(
-                [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads",
-                 "1", "--no-dashboard", "--host", "127.0.0.1"], **quiet,
-            )  # fmt: skip
-            c.wait_for_workers(1, timeout=30)
-            c.run(slow_coding, str(marks), 0.05)
-        th, result = _train_in_thread(["train", *paths, "-o", out, *OPTIONS, "--scheduler",
-                                       address])  # fmt: skip
-        _wait_for(ck / "train_Y.npz")
+    with cli_cluster(tmp_path, lambda c: c.run(slow_coding, str(marks), 0.05)) as (address, sched):
+        th, result = command_in_thread(["train", *paths, "-o", out, *OPTIONS, "--scheduler",
+                                        address])  # fmt: skip
+        wait_for(ck / "train_Y.npz")
         sched.send_signal(signal.SIGKILL)
         th.join(timeout=90)
-    finally:
-        for p in (sched, worker):
-            if p is not None:
-                p.kill()
-                p.wait()
     assert result.get("code") == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith(f"sparsebtf: error: lost the Dask scheduler at {address}")
