@@ -63,7 +63,7 @@ def partition_bounds(n_points: int, size: int) -> list[tuple[int, int]]:
 
 
 class ArraySource:
-    """A :class:`PointSource` over an in-memory (N, m_1, …, m_N) array."""
+    """A :class:`~.ensemble.PointSource` over an in-memory (N, m_1, …, m_N) array."""
 
     def __init__(self, data: np.ndarray) -> None:
         if data.ndim < 2:
