@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 import platform
 import resource
+import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -99,3 +101,25 @@ def synthetic_coded(
     return CodedBTF(codes, stats, size, size, 10, d, d, model.content_hash, {"tau": tau},
                     f"synthetic{size}", {}, model)  # fmt: skip
 
+
+def cpu_seconds() -> float:
+    """User + system CPU time of this process so far (every thread)."""
+    r = resource.getrusage(resource.RUSAGE_SELF)
+    return r.ru_utime + r.ru_stime
+
+
+def task_seconds(records: list[dict], name: str) -> list[float]:
+    """Compute time of each task of ``name`` in a Dask task stream."""
+    return [
+        sum(s["stop"] - s["start"] for s in r["startstops"] if s["action"] == "compute")
+        for r in records
+        if f"-{name}-" in r["key"]
+    ]
+
+
+def small_job() -> tuple[Any, Any]:
+    """The test suite's shapes: 16×16 texels, 13 directions, 4×4 patches, K = 3."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from tests.conftest import smooth_btf, tiny_model
+
+    return smooth_btf(7, size=16), tiny_model(1)

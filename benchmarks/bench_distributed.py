@@ -1,4 +1,4 @@
-"""Distributed encoding on Dask: the in-process default vs 1 and 2 local worker processes.
+"""Distributed encoding and training on Dask: the in-process default vs 1 and 2 local workers.
 
 In one run: encoding throughput of the default (this process, one thread per core) and of a
 ``LocalCluster`` of 1 and 2 single-threaded worker processes on the same machine; parallel
@@ -8,13 +8,21 @@ between workers and to the client); the overhead of the Dask path for a small jo
 start-up, and a test-size encode on a running cluster against in process); and whether every
 run gave the same codes, bit for bit.
 
-    python benchmarks/bench_distributed.py [--size 40] [--dicts 8] [--workers 1,2] [--json]
+    python benchmarks/bench_distributed.py [--part encode|train] [--size 40] [--dicts 8]
+                                           [--workers 1,2] [--json]
 
 The source is a dense file at UBO2014 angular resolution (size × size texels × 151 × 151),
 written from the low-rank source of ``bench_encode.py``; the workers open it by path, as they
 would from shared storage on a cluster. The model is K random orthonormal dictionaries per
 channel (the encoder's cost does not depend on training). τ = (885, 64, 64), ε = 1e-5.
-Phase B of issue 12 adds the training half (``--part train``).
+
+``--part train``: ``sparsebtf.codec.train`` on the same kind of source (every data point,
+K = 8, τ_l = 256/32/32, ``--iters`` iterations with one candidate and the last pass full,
+``--partition`` points per task) in process and on 1 and 2 worker processes: time, CPU time,
+efficiency, per-task time (load, coding, cross products), bytes per iteration (dictionaries
+out, sums back), whether every run gave the same dictionaries bit for bit, the small-job
+overhead; then the single-core cost per paper-scale data point of each step, from which a
+paper-scale training (2880 points per channel) on 16 and 64 machines of 2 cores is projected.
 """
 
 from __future__ import annotations
@@ -22,24 +30,21 @@ from __future__ import annotations
 import argparse
 import os
 import pickle
-import resource
 import statistics
-import sys
 import tempfile
 import time
 from collections import Counter
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from _common import machine, peak_rss_bytes, report
+from _common import cpu_seconds, machine, peak_rss_bytes, report, small_job, task_seconds
 from bench_encode import lazy_source, random_model
 from sparsebtf.codec import encode_many
 from sparsebtf.data.dense_file import write_dense
 from sparsebtf.execution import executor
 
-PARTS = ("encode",)
+PARTS = ("encode", "train")
 
 
 def _same_codes(a: Any, b: Any) -> bool:
@@ -62,37 +67,14 @@ def _import_codec() -> None:
     import sparsebtf.codec.jobs  # noqa: F401
 
 
-def _cpu_seconds() -> float:
-    """User + system CPU time of this process so far (every thread)."""
-    r = resource.getrusage(resource.RUSAGE_SELF)
-    return r.ru_utime + r.ru_stime
-
-
-def _task_seconds(records: list[dict], name: str) -> list[float]:
-    """Compute time of each task of ``name`` in a Dask task stream."""
-    return [
-        sum(s["stop"] - s["start"] for s in r["startstops"] if s["action"] == "compute")
-        for r in records
-        if f"-{name}-" in r["key"]
-    ]
-
-
-def _small_job() -> tuple[Any, Any]:
-    """The test suite's shapes: 16×16 texels, 13 directions, 4×4 patches, K = 3."""
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from tests.conftest import smooth_btf, tiny_model
-
-    return smooth_btf(7, size=16), tiny_model(1)
-
-
 def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]], dict]:
     path = f"{tmp}/source.h5"
     write_dense(path, lazy_source(a.size, a.rank))
     model = random_model(a.dicts)
     n_points = (a.size // 10) ** 2
-    c0 = _cpu_seconds()
+    c0 = cpu_seconds()
     t0, ref = _encode(path, model, a)
-    cpu0 = _cpu_seconds() - c0
+    cpu0 = cpu_seconds() - c0
     moved = {
         "model_bytes": len(pickle.dumps(model)),
         "statistics_bytes": len(pickle.dumps(ref.stats)),
@@ -101,7 +83,7 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
     runs: dict[str, Any] = {
         "in_process": {"seconds": t0, "points_per_s": n_points / t0, "cpu_seconds": cpu0}
     }
-    small_btf, small_model = _small_job()
+    small_btf, small_model = small_job()
     small_local = min(
         _encode_small(small_btf, small_model, {"client": None})[0] for _ in range(3)
     )
@@ -115,10 +97,10 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             client = ex.client  # type: ignore[attr-defined]
             client.run(_import_codec)  # start-up: every worker imports what tasks need
             start = time.perf_counter() - t
-            cpu = sum(client.run(_cpu_seconds).values()) + _cpu_seconds()
+            cpu = sum(client.run(cpu_seconds).values()) + cpu_seconds()
             with get_task_stream(client=client) as ts:
                 tn, coded = _encode(path, model, a, client=ex)
-            cpu = sum(client.run(_cpu_seconds).values()) + _cpu_seconds() - cpu
+            cpu = sum(client.run(cpu_seconds).values()) + cpu_seconds() - cpu
             peak = max(client.run(peak_rss_bytes).values())
             if n == a.workers[0]:
                 small["cluster_start_seconds"] = start
@@ -126,9 +108,9 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
                     _encode_small(small_btf, small_model, {"client": ex})[0] for _ in range(3)
                 )
         same &= _same_codes(ref, coded)
-        ranges = _task_seconds(ts.data, "_range")
+        ranges = task_seconds(ts.data, "_range")
         placed = Counter(r["worker"] for r in ts.data if "-_range-" in r["key"])
-        sums = _task_seconds(ts.data, "_sums")
+        sums = task_seconds(ts.data, "_sums")
         runs[f"workers_{n}"] = {
             "workers": n,
             "seconds": tn,
@@ -138,11 +120,11 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             "cluster_start_seconds": start,
             "tasks": len(ts.data),
             "range_tasks": len(ranges),
-            "range_task_seconds_median": statistics.median(ranges),
+            "rangetask_seconds_median": statistics.median(ranges),
             "range_task_points": n_points / max(1, len(ranges)),
             "range_tasks_per_worker": sorted(placed.values()),
             "statistics_tasks": len(sums),
-            "statistics_task_seconds_median": statistics.median(sums),
+            "statisticstask_seconds_median": statistics.median(sums),
             # Dask's own transfer counters use sizeof() estimates, which miss our objects:
             # bytes are the pickled sizes, placed where the task stream says tasks ran.
             "bytes_between_workers": (len(placed) - 1) * (moved["model_bytes"]
@@ -177,9 +159,9 @@ def encoding_half(a: argparse.Namespace, tmp: str) -> tuple[list[tuple[str, Any]
             f"{r['cpu_seconds']:.1f} s ({r['cpu_vs_in_process']:.2f}x in-process); "
             f"worker peak memory {r['worker_peak_rss_bytes'] / 2**30:.2f} GiB; "
             f"{r['range_tasks']} range tasks of {r['range_task_points']:.0f} points (median "
-            f"{r['range_task_seconds_median']:.2f} s, per worker "
+            f"{r['rangetask_seconds_median']:.2f} s, per worker "
             f"{'/'.join(map(str, r['range_tasks_per_worker']))}), {r['statistics_tasks']} "
-            f"statistics tasks (median {r['statistics_task_seconds_median']:.2f} s); "
+            f"statistics tasks (median {r['statisticstask_seconds_median']:.2f} s); "
             f"between workers {r['bytes_between_workers'] / 2**20:.2f} MiB",
         ))  # fmt: skip
     rows += [
@@ -203,6 +185,8 @@ def _encode_small(btf: Any, model: Any, where: dict[str, Any]) -> tuple[float, A
 
 
 def main() -> None:
+    from bench_distributed_train import training_half
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--part", choices=PARTS, default="encode")
     ap.add_argument("--size", type=int, default=40)
@@ -211,11 +195,14 @@ def main() -> None:
     ap.add_argument("--tau", default="885,64,64")
     ap.add_argument("--batch", type=int, default=2, help="data points per batch (default 2)")
     ap.add_argument("--workers", default="1,2", help="local cluster sizes, comma-separated")
+    ap.add_argument("--iters", type=int, default=2, help="training iterations (--part train)")
+    ap.add_argument("--partition", type=int, default=4,
+                    help="training points per task (--part train; default 4)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     a.workers = [int(w) for w in a.workers.split(",")]
     with tempfile.TemporaryDirectory(prefix="bench-distributed-") as tmp:
-        rows, data = encoding_half(a, tmp)
+        rows, data = (training_half if a.part == "train" else encoding_half)(a, tmp)
     data["machine"] = machine()
     data["load_average"] = os.getloadavg()
     rows.append(("load average (1, 5, 15 min)", ", ".join(f"{v:.1f}" for v in os.getloadavg())))

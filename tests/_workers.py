@@ -21,3 +21,18 @@ def slow_reads(marks: str, delay: float) -> None:
         return read(self, rows, cols, lights, views)
 
     DenseFileBTF.read = slow
+
+
+def slow_coding(marks: str, delay: float) -> None:
+    """On a worker: every coding step of training waits ``delay`` s and leaves a mark named by
+    the worker's pid (a worker that left a mark is training)."""
+    import sparsebtf.learning.partitions as partitions
+
+    step = partitions.code_step
+
+    def slow(*args, **kw):
+        Path(marks, str(os.getpid())).touch()
+        time.sleep(delay)
+        return step(*args, **kw)
+
+    partitions.code_step = slow

@@ -10,7 +10,6 @@ import os
 import signal
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from sparsebtf.errors import FileFormatError
 from sparsebtf.execution import InProcess, executor
 from sparsebtf.storage import load_coded, save_coded, save_model
 
+from ._cluster import cli_cluster, command_in_thread
 from ._workers import slow_reads
 from .conftest import smooth_btf, tiny_model
 
@@ -195,17 +195,6 @@ def _wait_for_mark(marks: Path, timeout: float = 30.0) -> int:
     raise AssertionError("no worker started reading")
 
 
-def _encode_in_thread(argv: list) -> tuple[threading.Thread, dict]:
-    result: dict = {}
-
-    def target():
-        result["code"] = main([str(a) for a in argv])
-
-    th = threading.Thread(target=target)
-    th.start()
-    return th, result
-
-
 def test_worker_killed_mid_encoding_changes_nothing(inputs, tmp_path):
     tmp, paths = inputs
     marks = tmp_path / "marks"
@@ -213,7 +202,7 @@ def test_worker_killed_mid_encoding_changes_nothing(inputs, tmp_path):
     out = tmp / "out"
     with local_cluster() as cluster, distributed.Client(cluster) as c:
         c.run(slow_reads, str(marks), 0.03)
-        th, result = _encode_in_thread(
+        th, result = command_in_thread(
             ["encode", *paths, "-m", tmp / "model.h5", "-o", f"{out}/", "--tau", "16,4,4",
              "--scheduler", cluster.scheduler_address]
         )  # fmt: skip
@@ -246,37 +235,14 @@ def test_scheduler_lost_mid_run_is_one_line_and_leaves_no_partial_file(inputs, t
     tmp, paths = inputs
     marks = tmp_path / "marks"
     marks.mkdir()
-    sched_file = tmp_path / "scheduler.json"
-    quiet = {"stdout": subprocess.DEVNULL, "stderr": subprocess.DEVNULL}
-    sched = subprocess.Popen(
-        [sys.executable, "-m", "distributed.cli.dask_scheduler", "--host", "127.0.0.1",
-         "--port", "0", "--no-dashboard", "--scheduler-file", str(sched_file)], **quiet,
-    )  # fmt: skip
-    worker = None
-    try:
-        t = time.monotonic()
-        while not sched_file.exists() and time.monotonic() - t < 30:
-            time.sleep(0.05)
-        with distributed.Client(scheduler_file=str(sched_file), timeout=30) as c:
-            address = c.scheduler.address
-            worker = subprocess.Popen(
-                [sys.executable, "-m", "distributed.cli.dask_worker", address, "--nthreads",
-                 "1", "--no-dashboard", "--host", "127.0.0.1"], **quiet,
-            )  # fmt: skip
-            c.wait_for_workers(1, timeout=30)
-            c.run(slow_reads, str(marks), 0.03)
-        out = tmp / "out"
-        th, result = _encode_in_thread(
+    out = tmp / "out"
+    with cli_cluster(tmp_path, lambda c: c.run(slow_reads, str(marks), 0.03)) as (address, sched):
+        th, result = command_in_thread(
             ["encode", *paths, "-m", tmp / "model.h5", "-o", f"{out}/", "--scheduler", address]
         )
         _wait_for_mark(marks)
         sched.send_signal(signal.SIGKILL)
         th.join(timeout=60)
-    finally:
-        for p in (sched, worker):
-            if p is not None:
-                p.kill()
-                p.wait()
     assert result.get("code") == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert err[-1].startswith(f"sparsebtf: error: lost the Dask scheduler at {address}")

@@ -210,16 +210,16 @@ def test_train_records_the_coding_schedule(tmp_path, capsys):
 
 
 def test_reseeded_dictionary_is_tried_by_every_point_in_the_next_pass(monkeypatch):
-    import sparsebtf.learning.ensemble as ensemble
+    import sparsebtf.learning.partitions as partitions
 
     widths = []
-    real = ensemble.code_step
+    real = partitions.code_step
 
-    def spy(batch, dicts, tau, eps, dtype, candidates=None):
+    def spy(batch, dicts, tau, eps, dtype, candidates=None, sums=None):
         widths.append(None if candidates is None else candidates.shape[1])
-        return real(batch, dicts, tau, eps, dtype, candidates)
+        return real(batch, dicts, tau, eps, dtype, candidates, sums)
 
-    monkeypatch.setattr(ensemble, "code_step", spy)
+    monkeypatch.setattr(partitions, "code_step", spy)
     x = _mixture(16, n=12)
     ens = DictionaryEnsemble(
         n_dictionaries=6, max_iter=3, candidates=1, full_pass_every=0, init="random",

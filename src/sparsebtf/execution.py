@@ -29,26 +29,16 @@ the value itself into the task graph for the same reason, so nothing is ever los
 worker: a killed worker costs the tasks it was running, which run again elsewhere.
 :meth:`Executor.results` releases each result once read; do not keep the list of handles.
 
-Intended use by distributed training (phase B of issue 12, on the trainer of issue 13)::
-
-    parts = [ex.submit(load_partition, spec) for spec in partition_specs]  # held all along
-    d = ex.constant(dictionaries)
-    codes = [ex.submit(code_step, p, d, tau) for p in parts]     # stay on the workers
-    for it in range(max_iter):
-        small = ex.gather([ex.submit(summary, c) for c in codes])  # membership, errors
-        for mode in range(n_modes):                               # Gauss-Seidel over modes
-            z = ex.gather([ex.tree_sum([ex.submit(cross_products, p, c, d, mode)
-                                        for p, c in zip(parts, codes)])])[0]
-            dictionaries[mode] = procrustes_all(z)                # on the client
-            d = ex.constant(dictionaries)                         # broadcast every update
-        codes = [ex.submit(code_step, p, d, tau) for p in parts]
-
-``spec`` describes a partition by its source (BTF paths, point indices, statistics), never by
-its data, so a partition lost with its worker is rebuilt from the BTFs by Dask's lineage (in
-process, ``load_partition`` may return a lazy view of today's staged file, keeping memory at
-one batch). Partitions are fixed numbers of points (not a share per worker) and sums use the
-fixed tree of :meth:`Executor.tree_sum`, so the model does not depend on the number of workers
-and equals a one-process run (where the same tasks run in order here).
+Training uses it through :mod:`sparsebtf.learning.partitions` (one task per fixed-size
+partition of the training points: a load task on a cluster, whose result stays in worker
+memory across iterations; coding and cross-product tasks next to it; dictionaries broadcast
+with :meth:`Executor.constant` each pass; sums by :meth:`Executor.tree_sum`, or in process by
+:class:`PairwiseSum`, the same pairing one value at a time), encoding through
+:mod:`sparsebtf.codec.jobs`. A partition is described by its source (BTF paths, point
+indices, statistics), never by its data, so one lost with its worker is rebuilt from the BTFs
+by Dask's lineage; partitions are fixed numbers of points (not a share per worker) and sums
+use a fixed tree, so the model does not depend on the number of workers and equals a
+one-process run (where the same tasks run in order here).
 """
 
 from __future__ import annotations
@@ -72,6 +62,7 @@ __all__ = [
     "DaskExecutor",
     "Executor",
     "InProcess",
+    "PairwiseSum",
     "executor",
     "worker_label",
 ]
@@ -96,6 +87,35 @@ def _pairwise_sum(items: list[Any], add: Callable[[Any, Any], Any]) -> Any:
 
 def _add(a: Any, b: Any) -> Any:
     return a + b
+
+
+class PairwiseSum:
+    """The sum of values added one by one, paired as :meth:`Executor.tree_sum` pairs them.
+
+    Keeps one partial sum per set bit of the count so far (a binary counter), so summing n
+    values holds log2(n) of them instead of n; the final right-to-left fold gives the same
+    pairing as the level-by-level tree (``tests/test_distributed_training.py`` checks it), so
+    a stream summed in process has the same bits as the tree summed on a cluster.
+    """
+
+    def __init__(self, add: Callable[[Any, Any], Any] = _add) -> None:
+        self._add = add
+        self._stack: list[tuple[int, Any]] = []  # (number of values, their sum)
+
+    def add(self, value: Any) -> None:
+        size = 1
+        while self._stack and self._stack[-1][0] == size:
+            value = self._add(self._stack.pop()[1], value)
+            size *= 2
+        self._stack.append((size, value))
+
+    def total(self) -> Any:
+        if not self._stack:
+            raise SparseBTFError("nothing to sum")
+        value = self._stack[-1][1]
+        for _, left in reversed(self._stack[:-1]):
+            value = self._add(left, value)
+        return value
 
 
 class Executor(abc.ABC):
@@ -246,8 +266,12 @@ class InProcess(Executor):
                 pb.update(weights[i])
                 yield value
 
-    def tree_sum(self, handles: Sequence[Any]) -> _Deferred:
-        return _Deferred.of(_pairwise_sum([h.result() for h in handles], _add))
+    def tree_sum(self, handles: Iterable[Any]) -> _Deferred:
+        """Eager, holding log2(n) partial sums (a generator of handles: one value at a time)."""
+        acc = PairwiseSum()
+        for h in handles:
+            acc.add(h.result())
+        return _Deferred.of(acc.total())
 
 
 class DaskExecutor(Executor):

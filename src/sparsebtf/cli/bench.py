@@ -22,13 +22,13 @@ PREVIOUS_HELP = ("an earlier run's results.json: write beside each verdict how i
 def cmd_bench_quality(args: argparse.Namespace) -> int:
     from ..evaluation.benchmark_set import BenchConfig
     from ..evaluation.runner import run_quality
-    from ._args import check_output_dir
+    from ._args import check_output_dir, cluster_options
 
     check_output_dir(args.out, "--out")
     check_output_dir(args.docs, "--docs")
     cfg = getattr(args, "config", None) or (BenchConfig.quick() if args.quick else BenchConfig())
     result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed,
-                         previous=args.previous)
+                         previous=args.previous, **cluster_options(args))
     if args.docs:
         from ..evaluation.report import regenerate
 
@@ -63,8 +63,9 @@ def register(sub: Any) -> None:
                    help="also write DIR/results.md and DIR/results/*.png from this run")
     q.add_argument("--json", action="store_true", help="print the verdicts as JSON")
     q.add_argument("--previous", metavar="RESULTS_JSON", help=PREVIOUS_HELP)
-    from ._args import integer
+    from ._args import add_cluster_options, integer
 
+    add_cluster_options(q)
     q.set_defaults(func=cmd_bench_quality, checks={"seed": integer(0, 2**31 - 1)})
     r = bs.add_parser("report", help="rewrite DOCS/results.md from a finished run's results.json")
     r.add_argument("run", help="folder of a 'bench quality' run (holds results.json)")

@@ -1,26 +1,88 @@
-"""``sparsebtf train``: learn a model (three dictionary ensembles) from BTFs (§3.2)."""
+"""``sparsebtf train``: learn a model (three dictionary ensembles) from BTFs (§3.2), in this
+process or on a Dask cluster (``--workers`` / ``--scheduler``), saving a checkpoint after each
+iteration (``--resume`` continues an interrupted run)."""
 
 from __future__ import annotations
 
 import argparse
+import shutil
+from pathlib import Path
 from typing import Any
 
+from ..errors import SparseBTFError
+from ..execution import ClusterError
 from ..learning.ensemble import CANDIDATES, FULL_PASS_EVERY
 from ..points.preprocessing import STD_MODES
-from ._args import check_output_file, integer, number, open_source
+from ._args import (
+    add_cluster_options,
+    check_output_dir,
+    check_output_file,
+    cluster_options,
+    integer,
+    number,
+    open_source,
+    parse_crop,
+)
 from ._output import print_json
 
 __all__ = ["register"]
 
 
+def checkpoint_dir(args: argparse.Namespace) -> Path:
+    """``--checkpoint-dir``, or ``OUTPUT.checkpoint`` beside the model."""
+    if args.checkpoint_dir:
+        return Path(args.checkpoint_dir)
+    out = Path(args.output)
+    return out.with_name(out.name + ".checkpoint")
+
+
+def _check_resume(folder: Path, resume: bool) -> None:
+    """A run starts clean or resumes on purpose: never both by accident."""
+    found = sorted(p.name for p in folder.glob("train_*.npz")) if folder.is_dir() else []
+    if resume and not found:
+        raise SparseBTFError(
+            f"--resume: no checkpoint in {folder} (an interrupted 'sparsebtf train' with the "
+            "same -o, or --checkpoint-dir, leaves one there)"
+        )
+    if found and not resume:
+        raise SparseBTFError(
+            f"{folder} holds the checkpoints of an earlier run ({', '.join(found)}); add "
+            "--resume to continue it, or delete the folder to start over"
+        )
+
+
 def run(args: argparse.Namespace) -> int:
-    from ..codec import train
     from ..storage import save_model
 
     check_output_file(args.output, args.btfs)
-    btfs = [open_source(s, crop=args.crop) for s in args.btfs]
-    model = train(
-        btfs,
+    ck = checkpoint_dir(args)
+    check_output_dir(str(ck), "--checkpoint-dir")
+    _check_resume(ck, args.resume)
+    for s in args.btfs:  # one clear line for a bad input, before any work
+        open_source(s, crop=args.crop)
+    try:
+        model = _train(args, ck)
+    except ClusterError as e:
+        if ck.is_dir() and not any(ck.iterdir()):
+            ck.rmdir()
+            raise
+        raise ClusterError(f"{e}; rerun with --resume to continue from {ck}") from None
+    except BaseException:
+        if ck.is_dir() and not any(ck.iterdir()):  # nothing to resume from: leave no folder
+            ck.rmdir()
+        raise
+    save_model(model, args.output)
+    if not args.checkpoint_dir:  # the default folder has served its purpose
+        shutil.rmtree(ck, ignore_errors=True)
+    _report(args, model)
+    return 0
+
+
+def _train(args: argparse.Namespace, ck: Path) -> Any:
+    from ..codec import train
+
+    return train(
+        args.btfs,
         n_dictionaries=args.dicts,
         tau_train=args.tau_train,
         patch=args.patch,
@@ -33,9 +95,13 @@ def run(args: argparse.Namespace) -> int:
         full_pass_every=args.full_pass_every,
         batch_size=args.batch,
         seed=args.seed,
-        checkpoint_dir=args.checkpoint_dir,
+        checkpoint_dir=str(ck),
+        crop=parse_crop(args.crop),
+        **cluster_options(args),
     )
-    save_model(model, args.output)
+
+
+def _report(args: argparse.Namespace, model: Any) -> None:
     summary = {
         "model": args.output,
         "content_hash": model.content_hash,
@@ -53,7 +119,6 @@ def run(args: argparse.Namespace) -> int:
                 f"{t['membership_counts']}, {t['seconds']:.1f} s"
             )
         print(f"wrote {args.output} (model {model.content_hash[:12]})")
-    return 0
 
 
 def register(sub: Any) -> None:
@@ -111,7 +176,13 @@ def register(sub: Any) -> None:
     s.add_argument("--seed", type=int, default=0,
                    help="seed of the data-point sample and the initial dictionaries (default 0)")
     s.add_argument("--crop", help="use only rows R0:R1 and columns C0:C1 of every BTF")
-    s.add_argument("--checkpoint-dir", help="save after each iteration and resume from here")
+    s.add_argument("--checkpoint-dir",
+                   help="save a checkpoint after each iteration here (default: OUTPUT.checkpoint "
+                   "beside the model, removed once the model is written)")
+    s.add_argument("--resume", action="store_true",
+                   help="continue an interrupted run from its last finished iteration (same "
+                   "inputs and options; an error names what differs)")
+    add_cluster_options(s)
     s.add_argument("--json", action="store_true", help="print the training summary as JSON")
     s.set_defaults(func=run, checks={
         "dicts": integer(1, 65535, unit="dictionaries per ensemble"),

@@ -2,13 +2,20 @@
 
 The training set is a seeded fraction of the data points of a few BTFs (§3.1,
 :mod:`sparsebtf.points.sources`); each channel's ensemble is learned by
-:class:`~sparsebtf.learning.ensemble.DictionaryEnsemble` (Eq. 2).
+:class:`~sparsebtf.learning.ensemble.DictionaryEnsemble` (Eq. 2), in this process or on a Dask
+cluster (:mod:`sparsebtf.execution`, :mod:`sparsebtf.learning.partitions`). On a cluster each
+partition of the training points is described by its BTF sources (paths or ``synth:`` specs,
+opened by the workers: shared storage, ``docs/distributed.md``), point indices and statistics,
+and loaded once into a worker's memory (:func:`load_partition`).
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,15 +23,18 @@ import numpy as np
 from .. import library_version
 from ..data.btf import BTF
 from ..errors import BTFInputError
+from ..execution import Executor, executor
 from ..learning.ensemble import (
     CANDIDATES,
     FULL_PASS_EVERY,
     DictionaryEnsemble,
     PointSource,
 )
+from ..learning.partitions import PARTITION_POINTS, load_points
 from ..model import CHANNELS, Model, TauSpec, parse_tau
 from ..points.preprocessing import TRANSFORMS, StdMode, Transform
-from ..points.sources import channel_sources, training_points
+from ..points.sources import BTFPointSource, channel_sources, training_points
+from .jobs import Source
 
 __all__ = ["train"]
 
@@ -42,10 +52,14 @@ def _train_channel(
     candidates: int,
     full_pass_every: int,
     batch_size: int,
+    partition_size: int,
     dtype: str,
     seed: int,
     checkpoint_dir: str | None,
     progress: bool | None,
+    ex: Executor,
+    partition: Callable[[int, int], Any] | None,
+    data_key: str,
 ) -> tuple[list[np.ndarray], dict[str, Any]]:
     """Fit one channel's ensemble; its dictionaries and training diagnostics."""
     ens = DictionaryEnsemble(
@@ -57,12 +71,13 @@ def _train_channel(
         candidates=candidates,
         full_pass_every=full_pass_every,
         batch_size=batch_size,
+        partition_size=partition_size,
         dtype=dtype,
         random_state=seed + c,
-        checkpoint=None if checkpoint_dir is None else f"{checkpoint_dir}/train_{ch}.npz",
+        checkpoint=None if checkpoint_dir is None else checkpoint_path(checkpoint_dir, ch),
         progress=progress,
     )
-    ens.fit(src, desc=f"train {ch}")
+    ens.fit(src, desc=f"train {ch}", executor=ex, partition=partition, data_key=data_key)
     return ens.dictionaries_, {
         "objective": [float(v) for v in ens.objective_],
         # which coding passes tried all K dictionaries; the last one always did
@@ -71,11 +86,53 @@ def _train_channel(
         "n_iter": int(ens.n_iter_),
         "seconds": float(ens.fit_seconds_),
         "n_points": int(src.n_points),
+        "iteration_seconds": [float(v) for v in ens.iteration_seconds_],
     }
 
 
+def checkpoint_path(checkpoint_dir: str | os.PathLike[str], channel: str) -> str:
+    """The checkpoint file of one channel's ensemble in ``checkpoint_dir``."""
+    return os.path.join(checkpoint_dir, f"train_{channel}.npz")
+
+
+def load_partition(items: list[tuple[Any, Any, np.ndarray]], patch: int,
+                   channel: int | None, batch_size: int) -> Any:  # fmt: skip
+    """Task (on a worker): a partition's points in memory, from its description: per BTF its
+    :class:`~.jobs.Source` (opened here), :class:`Preprocessor` and point indices."""
+    opened = [(s.open() if isinstance(s, Source) else s, pre, idx) for s, pre, idx in items]
+    return load_points(BTFPointSource(opened, patch, channel), batch_size)
+
+
+def _data_key(points: BTFPointSource, channel: str) -> str:
+    """A fingerprint of one channel's training points: materials, sizes, sampled point
+    indices and statistics (a checkpoint of other data is refused)."""
+    h = hashlib.sha256(f"{channel}:{points.patch}".encode())
+    for btf, pre, idx in points.items:
+        h.update(f"{btf.name}:{btf.shape}:{pre.stats.mode}:{pre.stats.transform}".encode())
+        for a in (np.asarray(idx, dtype=np.int64), pre.stats.mean, pre.stats.std):
+            h.update(np.ascontiguousarray(a).tobytes())
+    return h.hexdigest()[:16]
+
+
+def _partitions(ex: Executor, points: BTFPointSource, sources: list[Source],
+                btfs: list[BTF], channel: int | None, batch_size: int,
+                ) -> Callable[[int, int], Any]:  # fmt: skip
+    """``(lo, hi) → handle`` on a cluster: a load task per partition, described by sources,
+    indices and statistics (each source and statistics sent once, as shared values)."""
+    which = [next(b for b, o in enumerate(btfs) if o is btf) for btf, _, _ in points.items]
+    src_h = [s if isinstance(s.spec, str) else ex.constant(s) for s in sources]
+    pre_h = [ex.constant(pre) for _, pre, _ in points.items]
+
+    def partition(lo: int, hi: int) -> Any:
+        items = [(src_h[which[j]], pre_h[j], points.items[j][2][a:b])
+                 for j, a, b in points.item_ranges(lo, hi)]  # fmt: skip
+        return ex.submit(load_partition, items, points.patch, channel, batch_size)
+
+    return partition
+
+
 def train(
-    btfs: Sequence[BTF],
+    btfs: Sequence[BTF | str | os.PathLike[str]],
     *,
     n_dictionaries: int = 8,
     tau_train: TauSpec = (256, 32, 32),
@@ -89,6 +146,7 @@ def train(
     candidates: int = CANDIDATES,
     full_pass_every: int = FULL_PASS_EVERY,
     batch_size: int = 4,
+    partition_size: int = PARTITION_POINTS,
     dtype: str = "float32",
     seed: int = 0,
     checkpoint_dir: str | None = None,
@@ -96,6 +154,10 @@ def train(
     stage_dir: str | None = None,
     progress: bool | None = None,
     preprocessing: Transform = "log_yuv",
+    crop: tuple[slice, slice] | None = None,
+    client: Any = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
 ) -> Model:
     """Learn a model from BTFs (paper §3.2): one ensemble per YUV channel, or one 5D ensemble.
 
@@ -111,6 +173,13 @@ def train(
     ``preprocessing="identity"`` skips log, YUV and standardisation: the ensembles learn raw
     linear R, G, B (in the channel slots Y, U, V) — the [MHU19] baseline of the paper's Table 2.
     Encoding with the model then uses the same (no) processing.
+
+    ``btfs`` are BTF objects or sources (paths, ``synth:`` specs; ``crop`` = (rows, cols)
+    applies to every one). ``client`` (a ``dask.distributed.Client``), ``scheduler`` (an
+    address) or ``workers`` (a local cluster of that many processes) run the training passes
+    on a Dask cluster (:mod:`sparsebtf.execution`; default: this process). The points are cut
+    into tasks of ``partition_size`` points; the model does not depend on where they run.
+    On a cluster the workers open the sources themselves (give paths on shared storage).
     """
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
@@ -123,11 +192,21 @@ def train(
     channels = ("YUV",) if colour_mode else CHANNELS
     taus = parse_tau(tau_train, channels)
     t0 = time.perf_counter()
-    points = training_points(btfs, patch, sample, seed, std_mode, preprocessing, progress)
+    if checkpoint_dir is not None:
+        Path(checkpoint_dir).mkdir(parents=True, exist_ok=True)
+    sources = [Source.of(b, crop) for b in btfs]
+    opened = [s.open() for s in sources]
+    points = training_points(opened, patch, sample, seed, std_mode, preprocessing, progress)
     dictionaries: dict[str, list[np.ndarray]] = {}
     training: dict[str, dict[str, Any]] = {}
-    with channel_sources(points, channels, stage, stage_dir, batch_size, progress) as source:
+    with (
+        executor(client=client, scheduler=scheduler, workers=workers) as ex,
+        # On a cluster the workers load the points; here only a few are read (seeds).
+        channel_sources(points, channels, False if ex.distributed else stage, stage_dir,
+                        batch_size, progress) as source,
+    ):  # fmt: skip
         for c, ch in enumerate(channels):
+            channel = None if colour_mode else c
             dictionaries[ch], training[ch] = _train_channel(
                 ch,
                 c,
@@ -140,10 +219,15 @@ def train(
                 candidates=candidates,
                 full_pass_every=full_pass_every,
                 batch_size=batch_size,
+                partition_size=partition_size,
                 dtype=dtype,
                 seed=seed,
                 checkpoint_dir=checkpoint_dir,
                 progress=progress,
+                ex=ex,
+                partition=_partitions(ex, points, sources, opened, channel, batch_size)
+                if ex.distributed else None,
+                data_key=_data_key(points, ch),
             )
     params = {
         "n_dictionaries": n_dictionaries,
@@ -157,6 +241,7 @@ def train(
         "init": init,
         "candidates": min(candidates, n_dictionaries),
         "full_pass_every": full_pass_every,
+        "partition_size": partition_size,
         "seed": seed,
         "dtype": dtype,
     }
@@ -164,9 +249,10 @@ def train(
         params["preprocessing"] = preprocessing
     provenance = {
         "library": f"sparsebtf {library_version()}",
-        "materials": [b.name for b in btfs],
-        "material_attrs": [b.attrs for b in btfs],
+        "materials": [b.name for b in opened],
+        "material_attrs": [b.attrs for b in opened],
         "seconds": time.perf_counter() - t0,
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
-    return Model(dictionaries, patch, btfs[0].lights, btfs[0].views, params, provenance, training)
+    return Model(dictionaries, patch, opened[0].lights, opened[0].views, params, provenance,
+                 training)

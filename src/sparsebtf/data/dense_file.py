@@ -170,6 +170,10 @@ class DenseFileBTF(BTF):
         if ds.chunks is not None:  # scans read whole chunks: their rows and views at once
             self.block_hint = (int(ds.chunks[0]), int(ds.chunks[3]))
 
+    def __reduce__(self) -> tuple[Any, tuple[str]]:
+        # Pickled as its path (Dask workers reopen it; an open HDF5 file cannot travel).
+        return DenseFileBTF, (str(self.path.absolute()),)
+
     @property
     def dtype(self) -> np.dtype:
         return self._ds.dtype

@@ -43,6 +43,7 @@ from .._json import json_default
 from ..codec import encode_levels, encode_rate_levels, train
 from ..data.btf import BTF
 from ..errors import BTFInputError
+from ..execution import Executor, executor
 from ..figures import comparison_grid
 from ..model import CodedBTF, Model
 from ..runtime import coded_btf_view
@@ -131,6 +132,9 @@ def run_quality(
     log: Callable[[str], None] = print,
     progress: bool | None = None,
     previous: str | os.PathLike[str] | None = None,
+    client: Any = None,
+    scheduler: str | None = None,
+    workers: int | None = None,
 ) -> dict[str, Any]:
     """Run the benchmark into folder ``out``; returns (and writes) the results object.
 
@@ -138,8 +142,23 @@ def run_quality(
     accepts: ``.btf``, dense ``.h5``, ``synth:…``); they need the benchmark's directions and
     a size that is a multiple of the patch. ``seed`` shifts every material seed and the
     training seed. ``previous`` (an earlier run's ``results.json``) adds how each verdict
-    moved from it.
+    moved from it. ``client`` / ``scheduler`` / ``workers`` run its training and encoding on a
+    Dask cluster (:func:`sparsebtf.execution.executor`; the results do not change).
     """
+    with executor(client=client, scheduler=scheduler, workers=workers) as ex:
+        return _run_quality(out, config, materials, seed, log, progress, previous, ex)
+
+
+def _run_quality(
+    out: str | os.PathLike[str],
+    config: BenchConfig | None,
+    materials: Sequence[str],
+    seed: int,
+    log: Callable[[str], None],
+    progress: bool | None,
+    previous: str | os.PathLike[str] | None,
+    ex: Executor,
+) -> dict[str, Any]:
     from ..data.synth import cached
     from ..open import open_btf
     from .report import previous_record, write_report
@@ -203,7 +222,7 @@ def run_quality(
             f"{cfg.iters}), sample {cfg.sample}")
         models[key] = train(
             train_btfs, n_dictionaries=cfg.n_dictionaries, patch=cfg.patch, sample=cfg.sample,
-            max_iter=cfg.iters, tol=cfg.tol, seed=seed, progress=progress,
+            max_iter=cfg.iters, tol=cfg.tol, seed=seed, progress=progress, client=ex,
             **spec,  # type: ignore[arg-type]
         )
         stage(f"train_{key}", t0)
@@ -251,7 +270,7 @@ def run_quality(
         t0 = time.perf_counter()
         allt = lv_taus + [t for t in cfg.curve_taus if tuple(t) not in lv_taus]
         coded = encode_levels(btf, models["sparsebtf"], allt, eps=0.0,
-                              allow_below_training=True, progress=progress)
+                              allow_below_training=True, progress=progress, client=ex)
         stage("encode_sparsebtf", t0)
         fixed_bytes: dict[int, int] = {}
         for j, (tau, c) in enumerate(zip(allt, coded, strict=True)):
@@ -268,7 +287,8 @@ def run_quality(
             t0 = time.perf_counter()
             targets = [fixed_bytes[lv] for lv in cfg.levels]
             say(f"{label}: rate control at the fixed-tau bytes {targets}")
-            rc = encode_rate_levels(btf, models["sparsebtf"], targets, progress=progress)
+            rc = encode_rate_levels(btf, models["sparsebtf"], targets, progress=progress,
+                                    client=ex)
             stage("encode_rate", t0)
             for lv, c in zip(cfg.levels, rc, strict=True):
                 info = _coded_row(c, models["sparsebtf"])
@@ -290,7 +310,7 @@ def run_quality(
                 taus = lv_taus
             say(f"{label}: {METHODS[key]} at tau {taus}")
             cs = encode_levels(btf, models[key], taus, eps=0.0, allow_below_training=True,
-                               progress=progress)
+                               progress=progress, client=ex)
             stage(f"encode_{key}", t0)
             for lv, tau, c in zip(cfg.levels, taus, cs, strict=True):
                 view = coded_btf_view(c)
@@ -315,7 +335,7 @@ def run_quality(
         say(f"{label} ({btf.height}x{btf.width}): SparseBTF at tau {lv_taus}")
         t0 = time.perf_counter()
         coded = encode_levels(btf, models["sparsebtf"], lv_taus, eps=0.0,
-                              allow_below_training=True, progress=progress)
+                              allow_below_training=True, progress=progress, client=ex)
         stage("encode_sparsebtf", t0)
         recs = {}
         pending = []

@@ -22,32 +22,42 @@ pass is tried by every point in the next pass. ``candidates >= K`` is the exhaus
 
 Every step minimises Eq. 2a over its own block (the update with Ŝ and M fixed; the coding over
 a set of dictionaries that contains the current one), so the objective never increases.
-Each pass streams the training set in batches: memory is bounded by the batch, not the set.
-The map steps (:func:`~.steps.code_step`, :func:`~.steps.sparse_cross_products`) and reduce
-steps (:meth:`~.steps.BatchCoding.combine`, sums, :func:`~.steps.procrustes`) are pure, so an
-iteration can run unchanged on a distributed engine (map over partitions, sum the Z's and
-H's, SVDs on the driver).
+Each pass is one task per partition of :data:`~.partitions.PARTITION_POINTS` points on an
+executor (:mod:`.partitions`, :mod:`sparsebtf.execution`): in this process by default, streaming
+the training set in batches (memory bounded by the batch, not the set), or on a Dask cluster
+where each partition stays in a worker's memory across iterations. The Z's are summed in one
+fixed order, so both give the same dictionaries; the SVDs run here.
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import numpy as np
 
 from .._atomic import atomic_output
-from .._progress import bar
 from ..errors import BTFInputError
+from ..execution import Executor, InProcess
 from .coding import SparseCodes, reconstruct_points, sparse_code
-from .parallel import parallel_map, prefetch
+from .parallel import parallel_map
+from .partitions import (
+    PARTITION_POINTS,
+    ArraySource,
+    Coded,
+    coding_pass,
+    cross_pass,
+    load_points,
+    part_of,
+    partition_bounds,
+)
 from .steps import (
-    BatchCoding,
     code_step,
     cross_products,
     pair_cross_products,
@@ -99,32 +109,9 @@ class PointSource(Protocol):
         """The given points as one (n, m_1, …, m_N) array."""
         ...
 
-
-class ArraySource:
-    """A :class:`PointSource` over an in-memory (N, m_1, …, m_N) array."""
-
-    def __init__(self, data: np.ndarray) -> None:
-        if data.ndim < 2:
-            raise BTFInputError(
-                f"data points must be an (N, m_1, ..., m_N) array, got {data.shape}"
-            )
-        self.data = data
-
-    @property
-    def n_points(self) -> int:
-        return int(self.data.shape[0])
-
-    @property
-    def mode_sizes(self) -> tuple[int, ...]:
-        return tuple(int(s) for s in self.data.shape[1:])
-
-    def batches(self, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        for s in range(0, self.n_points, batch_size):
-            e = min(s + batch_size, self.n_points)
-            yield np.arange(s, e), self.data[s:e]  # a view: no copy of the points
-
-    def take(self, indices: np.ndarray) -> np.ndarray:
-        return self.data[np.asarray(indices)]
+    def part(self, lo: int, hi: int) -> PointSource:
+        """Points ``[lo, hi)`` as a source (optional: a view through ``take`` otherwise)."""
+        ...
 
 
 def random_orthonormal(m: int, rng: np.random.Generator) -> np.ndarray:
@@ -159,6 +146,7 @@ class _State:
     iteration: int
     ranking: np.ndarray | None = None  # (N, c) candidates from the last full pass
     reseeded_from: list[int] = field(default_factory=list)
+    converged: bool = False  # met the tolerance: a resumed fit runs no more iterations
 
 
 class DictionaryEnsemble:
@@ -180,10 +168,14 @@ class DictionaryEnsemble:
         iterations that must: after a re-seed, on meeting ``tol``, the last one).
     update : how Z⁽ⁿ'ᵏ⁾ is built: "codes" (from the τ_l coefficients, :mod:`.steps`) or
         "projections" (dense partial projections, the reference; same Z, ~10× the FLOPs).
-    batch_size : data points per map task.
+    batch_size : data points read at a time (memory bound in process; no effect on the
+        result).
+    partition_size : data points per task (:mod:`.partitions`): the unit of work on a cluster
+        and of the fixed summation order (part of the result, recorded in checkpoints).
     dtype : projection arithmetic ("float32" or "float64"); sums are always float64.
     random_state : seed of every random choice.
-    checkpoint : path of a file saved after each iteration; ``fit`` resumes from it.
+    checkpoint : path of a file saved after each iteration; ``fit`` resumes from it (an
+        error if it was made with other parameters or data).
     progress : show a progress bar (None: when stderr is a terminal).
 
     Attributes
@@ -212,6 +204,7 @@ class DictionaryEnsemble:
         full_pass_every: int = FULL_PASS_EVERY,
         update: str = "codes",
         batch_size: int = 4,
+        partition_size: int = PARTITION_POINTS,
         dtype: str = "float32",
         random_state: int = 0,
         checkpoint: str | os.PathLike[str] | None = None,
@@ -228,37 +221,64 @@ class DictionaryEnsemble:
         self.full_pass_every = full_pass_every
         self.update = update
         self.batch_size = batch_size
+        self.partition_size = partition_size
         self.dtype = dtype
         self.random_state = random_state
         self.checkpoint = checkpoint
         self.progress = progress
 
     # -- public API ----------------------------------------------------------------------
-    def fit(self, x: np.ndarray | PointSource, desc: str = "train") -> DictionaryEnsemble:
-        """Learn the ensemble from data points (array (N, m_1, …) or a :class:`PointSource`)."""
+    def fit(
+        self,
+        x: np.ndarray | PointSource,
+        desc: str = "train",
+        *,
+        executor: Executor | None = None,
+        partition: Callable[[int, int], Any] | None = None,
+        data_key: str = "",
+    ) -> DictionaryEnsemble:
+        """Learn the ensemble from data points (array (N, m_1, …) or a :class:`PointSource`).
+
+        ``executor`` runs the passes (default: this process; :mod:`sparsebtf.execution`).
+        ``partition(lo, hi)`` gives a handle on the executor on points ``[lo, hi)`` as a point
+        source (default: a view of ``x`` in process; on a cluster a task that loads
+        ``x.part(lo, hi)``, which should then describe its points rather than hold them).
+        ``data_key`` names the training data in checkpoints (a resume on other data fails).
+        """
         self._validate()
         src = _as_source(x)
+        ex = executor if executor is not None else InProcess()
         t0 = time.perf_counter()
         dt = np.dtype(self.dtype).type
         n_cand = min(self.candidates, self.n_dictionaries)
-        state = self._resume(src)
+        bounds = partition_bounds(src.n_points, self.partition_size)
+        if partition is None:
+            partition = functools.partial(_default_partition, ex, src, self.batch_size)
+        parts = [partition(lo, hi) for lo, hi in bounds]
+
+        def code(dicts: list[np.ndarray], ranking: np.ndarray | None, label: str) -> Coded:
+            return coding_pass(ex, parts, bounds, dicts, self.tau, self.eps, dt, ranking,
+                               self.batch_size, label, self.progress)  # fmt: skip
+
+        state = self._resume(src, data_key)
         if state is None:
             state = _State(self._initialise(src), [], [], 0)
-            coding = self._code_all(src, state.dicts, dt, None, f"{desc} code")
-            state.objective.append(float(coding.codes.errors.mean()))
+            coding = code(state.dicts, None, f"{desc} code")
+            state.objective.append(float(coding.errors.mean()))
             state.passes.append("full")
             state.ranking = coding.ranking[:, :n_cand]
         else:
             partial = state.passes[-1] == "partial"
-            coding = self._code_all(
-                src, state.dicts, dt, state.ranking if partial else None, f"{desc} code"
-            )
+            coding = code(state.dicts, state.ranking if partial else None, f"{desc} code")
         self.iteration_seconds_: list[float] = []
         self.iteration_cpu_seconds_: list[float] = []
         for it in range(state.iteration, self.max_iter):
+            if state.converged:
+                break
             t_it, cpu_it = time.perf_counter(), time.process_time()
-            reseeded = self._reseed(src, state, coding.codes)
-            self._update_dictionaries(src, state.dicts, coding, dt, f"{desc} it{it + 1}")
+            reseeded = self._reseed(src, state, coding)
+            self._update_dictionaries(ex, parts, bounds, state.dicts, coding, dt,
+                                      f"{desc} it{it + 1}")  # fmt: skip
             full = (
                 n_cand >= self.n_dictionaries
                 or it + 1 == self.max_iter
@@ -266,20 +286,21 @@ class DictionaryEnsemble:
             )
             label = f"{desc} it{it + 1} code"
             cand = None if full else _with_extra(state.ranking, reseeded)
-            coding = self._code_all(src, state.dicts, dt, cand, label)
+            coding = code(state.dicts, cand, label)
             if not full:
-                _keep_current(state.ranking, coding.codes.membership)
+                _keep_current(state.ranking, coding.membership)
             done = self._converged(state.objective[-1], coding)
             if done and not full:
                 # Memberships may still move: only a full pass can confirm convergence.
                 full = True
-                coding = self._code_all(src, state.dicts, dt, None, f"{label} (full)")
+                coding = code(state.dicts, None, f"{label} (full)")
                 done = self._converged(state.objective[-1], coding)
-            state.objective.append(float(coding.codes.errors.mean()))
+            state.objective.append(float(coding.errors.mean()))
             state.passes.append("full" if full else "partial")
             if full:
                 state.ranking = coding.ranking[:, :n_cand]
             state.iteration = it + 1
+            state.converged = done
             self._save_checkpoint(state)
             self.iteration_seconds_.append(time.perf_counter() - t_it)
             self.iteration_cpu_seconds_.append(time.process_time() - cpu_it)
@@ -287,16 +308,15 @@ class DictionaryEnsemble:
                 break
         if state.passes[-1] != "full":
             # Resumed past max_iter after a partial pass: the final memberships need a full one.
-            coding = self._code_all(src, state.dicts, dt, None, f"{desc} code (full)")
-            state.objective[-1] = float(coding.codes.errors.mean())
+            coding = code(state.dicts, None, f"{desc} code (full)")
+            state.objective[-1] = float(coding.errors.mean())
             state.passes[-1] = "full"
-        codes = coding.codes
-        counts = np.bincount(codes.membership, minlength=self.n_dictionaries)
+        counts = np.bincount(coding.membership, minlength=self.n_dictionaries)
         order = np.argsort(-counts, kind="stable")
         rank = np.empty_like(order)
         rank[order] = np.arange(order.size)
         self.dictionaries_ = [d[order].copy() for d in state.dicts]
-        self.membership_ = rank[codes.membership]
+        self.membership_ = rank[coding.membership]
         self.counts_ = counts[order]
         self.objective_ = state.objective
         self.passes_ = state.passes
@@ -329,6 +349,11 @@ class DictionaryEnsemble:
             raise BTFInputError(f"candidates must be >= 1, got {self.candidates}")
         if self.full_pass_every < 0:
             raise BTFInputError(f"full_pass_every must be >= 0, got {self.full_pass_every}")
+        if self.partition_size < 1 or self.batch_size < 1:
+            raise BTFInputError(
+                f"partition_size and batch_size must be >= 1, got {self.partition_size} and "
+                f"{self.batch_size}"
+            )
         if self.update not in UPDATES:
             raise BTFInputError(f"update must be one of {UPDATES}, got {self.update!r}")
 
@@ -336,8 +361,8 @@ class DictionaryEnsemble:
         if not hasattr(self, "dictionaries_"):
             raise BTFInputError("this ensemble is not fitted yet; call fit() first")
 
-    def _converged(self, prev: float, coding: BatchCoding) -> bool:
-        cur = float(coding.codes.errors.mean())
+    def _converged(self, prev: float, coding: Coded) -> bool:
+        cur = float(coding.errors.mean())
         return prev <= 0 or (prev - cur) / prev < self.tol
 
     def _initialise(self, src: PointSource) -> list[np.ndarray]:
@@ -359,44 +384,17 @@ class DictionaryEnsemble:
                 dicts[mode][j] = random_orthonormal(m, rng)
         return dicts
 
-    def _code_all(
-        self,
-        src: PointSource,
-        dicts: list[np.ndarray],
-        dt: type,
-        ranking: np.ndarray | None,
-        desc: str,
-    ) -> BatchCoding:
-        """Coding map over every batch (all K, or each point's ``ranking`` row), reduced.
-
-        The Z⁽ᵇ⁾ and H⁽ᵃ⁾ of each batch are summed as they come (H is 0.6 MB per batch at
-        K = 8: kept per batch they grew with the number of points)."""
-        parts: list[BatchCoding] = []
-        sums: list[np.ndarray | None] = [None, None]
-        with bar(src.n_points, desc, "pt", self.progress) as pb:
-            for idx, xb in prefetch(src.batches(self.batch_size)):
-                cand = None if ranking is None else ranking[idx]
-                part = code_step(xb, dicts, self.tau, self.eps, dt, cand)
-                for j, v in enumerate((part.z_last, part.pair)):
-                    if v is not None:
-                        sums[j] = v if sums[j] is None else sums[j] + v
-                parts.append(BatchCoding(part.codes, part.ranking, None, None))
-                pb.update(xb.shape[0])
-        out = BatchCoding.combine(parts)
-        out.z_last, out.pair = sums
-        return out
-
     def _update_dictionaries(
-        self, src: PointSource, dicts: list[np.ndarray], coding: BatchCoding, dt: type, desc: str
-    ) -> None:
+        self, ex: Executor, parts: list[Any], bounds: list[tuple[int, int]],
+        dicts: list[np.ndarray], coding: Coded, dt: type, desc: str,
+    ) -> None:  # fmt: skip
         """One Gauss–Seidel sweep of Procrustes updates over the modes (codes held fixed).
 
         Order: the projection's last mode b, then a, then the others. With ``update="codes"``
         Z⁽ᵇ⁾ and H⁽ᵃ⁾ come from the coding pass; every other mode is one map-reduce pass.
         """
-        codes = coding.codes
-        active = np.flatnonzero(np.bincount(codes.membership, minlength=self.n_dictionaries))
-        mode_b, mode_a = pair_modes(src.mode_sizes)
+        active = np.flatnonzero(np.bincount(coding.membership, minlength=self.n_dictionaries))
+        mode_b, mode_a = pair_modes([d.shape[1] for d in dicts])
         pair = [mode_b] if mode_a is None else [mode_b, mode_a]
         order = pair + [n for n in range(len(dicts)) if n not in pair]
         fast = self.update == "codes"
@@ -409,19 +407,14 @@ class DictionaryEnsemble:
                     for k in range(self.n_dictionaries)
                 ])  # fmt: skip
             else:
-                step = sparse_cross_products if fast else cross_products
-                m = dicts[mode].shape[1]
-                z = np.zeros((self.n_dictionaries, m, m))
-                with bar(src.n_points, f"{desc} mode{mode + 1}", "pt", self.progress) as pb:
-                    for idx, xb in prefetch(src.batches(self.batch_size)):
-                        z += step(xb, _slice_codes(codes, idx), dicts, mode, dt)
-                        pb.update(len(idx))
+                z = cross_pass(ex, parts, bounds, coding.codes, dicts, mode, dt, self.update,
+                               self.batch_size, f"{desc} mode{mode + 1}", self.progress)
             # Single-threaded SVDs side by side: two LAPACK threads per 151×151 SVD ran 20×
             # slower whenever another process held a core.
             for k, u in zip(active, parallel_map(procrustes, list(z[active])), strict=True):
                 dicts[mode][k] = u
 
-    def _reseed(self, src: PointSource, state: _State, codes: SparseCodes) -> list[int]:
+    def _reseed(self, src: PointSource, state: _State, codes: Coded) -> list[int]:
         """Give each dictionary left without members the HOSVD bases of the worst-fitted point
         not used before; the re-seeded dictionaries (every point tries them next pass)."""
         if not self.reseed_empty or state.passes[-1] != "full":
@@ -441,23 +434,22 @@ class DictionaryEnsemble:
         return done
 
     # -- checkpoints ----------------------------------------------------------------------
-    def _params_key(self, src: PointSource) -> str:
-        return json.dumps(
-            {
-                "K": self.n_dictionaries,
-                "tau": self.tau,
-                "eps": self.eps,
-                "init": self.init,
-                "seed": self.random_state,
-                "dtype": self.dtype,
-                "candidates": min(self.candidates, self.n_dictionaries),
-                "full_pass_every": self.full_pass_every,
-                "update": self.update,
-                "n": src.n_points,
-                "shape": list(src.mode_sizes),
-            },
-            sort_keys=True,
-        )
+    def _params_key(self, src: PointSource, data_key: str) -> dict[str, Any]:
+        return {
+            "K": self.n_dictionaries,
+            "tau": self.tau,
+            "eps": self.eps,
+            "init": self.init,
+            "seed": self.random_state,
+            "dtype": self.dtype,
+            "candidates": min(self.candidates, self.n_dictionaries),
+            "full_pass_every": self.full_pass_every,
+            "update": self.update,
+            "partition_size": self.partition_size,
+            "n": src.n_points,
+            "shape": list(src.mode_sizes),
+            "data": data_key,
+        }
 
     def _save_checkpoint(self, state: _State) -> None:
         if self.checkpoint is None:
@@ -472,28 +464,61 @@ class DictionaryEnsemble:
                     passes=np.array(state.passes),
                     ranking=state.ranking,
                     reseeded_from=np.array(state.reseeded_from, dtype=np.int64),
-                    key=self._key,
+                    converged=state.converged,
+                    key=json.dumps(self._key, sort_keys=True),
                     **{f"mode{n}": d for n, d in enumerate(state.dicts)},
                 )
 
-    def _resume(self, src: PointSource) -> _State | None:
-        self._key = self._params_key(src)
+    def _resume(self, src: PointSource, data_key: str = "") -> _State | None:
+        self._key = self._params_key(src, data_key)
         if self.checkpoint is None or not Path(self.checkpoint).exists():
             return None
-        with np.load(self.checkpoint) as ck:
-            if "passes" not in ck.files or str(ck["key"]) != self._key:
-                raise BTFInputError(
-                    f"checkpoint {self.checkpoint} was made with other training parameters or "
-                    "data; delete it or choose another checkpoint path"
+        try:
+            with np.load(self.checkpoint) as ck:
+                if "passes" not in ck.files:
+                    raise ValueError("not a checkpoint of this version")
+                _check_key(self.checkpoint, json.loads(str(ck["key"])), self._key)
+                return _State(
+                    [ck[f"mode{n}"].copy() for n in range(len(src.mode_sizes))],
+                    [float(v) for v in ck["objective"]],
+                    [str(v) for v in ck["passes"]],
+                    int(ck["iteration"]),
+                    ck["ranking"].copy(),
+                    [int(v) for v in ck["reseeded_from"]],
+                    bool(ck["converged"]) if "converged" in ck.files else False,
                 )
-            return _State(
-                [ck[f"mode{n}"].copy() for n in range(len(src.mode_sizes))],
-                [float(v) for v in ck["objective"]],
-                [str(v) for v in ck["passes"]],
-                int(ck["iteration"]),
-                ck["ranking"].copy(),
-                [int(v) for v in ck["reseeded_from"]],
-            )
+        except (OSError, ValueError, KeyError, EOFError) as e:
+            raise BTFInputError(
+                f"checkpoint {self.checkpoint} cannot be read ({type(e).__name__}: {e}); "
+                "delete it to start over"
+            ) from None
+
+
+def _check_key(path: Any, found: dict[str, Any], want: dict[str, Any]) -> None:
+    """One line naming what differs between a checkpoint and this fit."""
+    diff = [k for k in sorted(set(found) | set(want)) if found.get(k) != want.get(k)]
+    if not diff:
+        return
+    shown = ", ".join(
+        f"{k}: {_short(found.get(k))} in the checkpoint, {_short(want.get(k))} now" for k in diff
+    )
+    raise BTFInputError(
+        f"checkpoint {path} was made with other training parameters or data ({shown}); "
+        "delete it or choose another checkpoint path"
+    )
+
+
+def _short(v: Any) -> str:
+    text = json.dumps(v)
+    return text if len(text) <= 40 else text[:37] + "..."
+
+
+def _default_partition(ex: Executor, src: PointSource, batch_size: int, lo: int, hi: int
+                       ) -> Any:  # fmt: skip
+    """In process, a view of ``src`` (read batch by batch at each pass); on a cluster, a task
+    that loads the points into a worker's memory once."""
+    part = part_of(src, lo, hi)
+    return ex.submit(load_points, part, batch_size) if ex.distributed else ex.constant(part)
 
 
 def _with_extra(ranking: np.ndarray, extra: list[int]) -> np.ndarray:
@@ -509,17 +534,3 @@ def _keep_current(ranking: np.ndarray, membership: np.ndarray) -> None:
     tried, so the objective cannot increase."""
     missing = ~(ranking == membership[:, None]).any(axis=1)
     ranking[missing, -1] = membership[missing]
-
-
-def _slice_codes(codes: SparseCodes, idx: np.ndarray) -> SparseCodes:
-    """Codes of a contiguous run of points (a batch)."""
-    lo, hi = int(idx[0]), int(idx[-1]) + 1
-    o = codes.offsets
-    return SparseCodes(
-        codes.mode_sizes,
-        codes.membership[lo:hi],
-        codes.counts[lo:hi],
-        codes.values[o[lo] : o[hi]],
-        codes.locations[o[lo] : o[hi]],
-        codes.errors[lo:hi],
-    )

@@ -81,10 +81,11 @@ def pair_modes(mode_sizes: Sequence[int]) -> tuple[int, int | None]:
 
 
 def _coefficient_matrix(cols: np.ndarray, values: np.ndarray, width: int) -> np.ndarray:
-    """E (τ, width) with E[s, cols[s]] = v_s: Σ_s v_s f_s e_{cols[s]}ᵀ = Fᵀ E as one GEMM."""
-    e = np.zeros((cols.size, width))
-    e[np.arange(cols.size), cols] = values
-    return e
+    """E (τ, width) with E[s, cols[s]] = v_s: Σ_s v_s f_s e_{cols[s]}ᵀ = Fᵀ E as one GEMM.
+
+    Built by comparison and ``where`` (no in-place scatter: array-API backends have none)."""
+    hit = cols[:, None] == np.arange(width)[None, :]
+    return np.where(hit, np.asarray(values, dtype=np.float64)[:, None], 0.0)
 
 
 @dataclass(eq=False)
@@ -137,6 +138,7 @@ def code_step(
     eps: float = 0.0,
     dtype: type = np.float32,
     candidates: np.ndarray | None = None,
+    sums: BatchCoding | None = None,
 ) -> BatchCoding:
     """Map step 1: sparse coding and membership of one batch (Eq. 3, hard thresholding).
 
@@ -144,7 +146,9 @@ def code_step(
     exhaustive step); the point goes to the best of them by the §3.3 rule (with ε = 0: least
     error at τ). The codes equal :func:`~sparsebtf.learning.coding.sparse_code`'s when every
     dictionary is tried (same projections, same rule). Also returns the by-products Z⁽ᵇ⁾ and
-    H⁽ᵃ⁾ of the winners (module docstring, (3) and (4)).
+    H⁽ᵃ⁾ of the winners (module docstring, (3) and (4)), added point by point to those of
+    ``sums`` when given (in place: a stream of batches then sums in one fixed order, however
+    it is cut into batches), else to zeros.
     """
     x = np.asarray(batch)
     shape = tuple(int(s) for s in x.shape[1:])
@@ -203,8 +207,11 @@ def code_step(
     ranking = np.full((b_count, max((r.size for r in rows), default=0)), -1, dtype=np.int64)
     counts = np.empty(b_count, dtype=np.int64)
     errors = np.empty(b_count)
-    z_last = np.zeros((n_dict, m_b, m_b))
-    pair = np.zeros((n_dict, m_a, m_b, m_a, m_b)) if mode_a is not None else None
+    if sums is not None and sums.z_last is not None:
+        z_last, pair = sums.z_last, sums.pair
+    else:
+        z_last = np.zeros((n_dict, m_b, m_b))
+        pair = np.zeros((n_dict, m_a, m_b, m_a, m_b)) if mode_a is not None else None
     idx_parts, val_parts = [], []
     for i in range(b_count):
         tried = [results[(i, int(k))] for k in rows[i]]
@@ -275,11 +282,13 @@ def _cross_products(
     mode: int,
     dtype: type,
     fibres: Callable[[np.ndarray, Sequence[np.ndarray], np.ndarray, int], np.ndarray],
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
-    """Σ over the batch of Z⁽ⁿ'ᵏ⁾[:, l_n(s)] += v_s f_s (one GEMM per point), per k."""
+    """Σ over the batch of Z⁽ⁿ'ᵏ⁾[:, l_n(s)] += v_s f_s (one GEMM per point), per k, added
+    point by point to ``out`` when given (in place), else to zeros."""
     n_dict = dictionaries[0].shape[0]
     m = dictionaries[mode].shape[1]
-    z = np.zeros((n_dict, m, m))
+    z = np.zeros((n_dict, m, m)) if out is None else out
     offsets = codes.offsets
 
     def task(b: int) -> tuple[int, np.ndarray] | None:
@@ -305,11 +314,13 @@ def sparse_cross_products(
     dictionaries: Sequence[np.ndarray],
     mode: int,
     dtype: type = np.float32,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Map step 2: this batch's share of Z⁽ⁿ'ᵏ⁾ for every k, shape (K, m_n, m_n), float64,
     by (3) from each point's τ coefficients (:func:`mode_fibres`; equals :func:`cross_products`).
+    ``out``: add to it, point by point, in place.
     """
-    return _cross_products(batch, codes, dictionaries, mode, dtype, mode_fibres)
+    return _cross_products(batch, codes, dictionaries, mode, dtype, mode_fibres, out)
 
 
 def cross_products(
@@ -318,8 +329,9 @@ def cross_products(
     dictionaries: Sequence[np.ndarray],
     mode: int,
     dtype: type = np.float32,
+    out: np.ndarray | None = None,
 ) -> np.ndarray:
     """Map step 2, reference: Z⁽ⁿ'ᵏ⁾ by (1) from the dense partial projection of every point
     (0.8–1.4 GFLOP per 10×10×151×151 point; :func:`sparse_cross_products` gives the same Z
     for about a tenth of that)."""
-    return _cross_products(batch, codes, dictionaries, mode, dtype, _dense_fibres)
+    return _cross_products(batch, codes, dictionaries, mode, dtype, _dense_fibres, out)

@@ -90,6 +90,21 @@ class BTFPointSource:
                 done += x.shape[0]
                 yield g, self._pick(x)
 
+    def item_ranges(self, lo: int, hi: int) -> list[tuple[int, int, int]]:
+        """Points ``[lo, hi)`` as (item, first, end) runs of the items' own point lists."""
+        runs = []
+        for j in range(len(self.items)):
+            a, b = max(lo, int(self._starts[j])), min(hi, int(self._starts[j + 1]))
+            if a < b:
+                runs.append((j, a - int(self._starts[j]), b - int(self._starts[j])))
+        return runs
+
+    def part(self, lo: int, hi: int) -> BTFPointSource:
+        """Points ``[lo, hi)``: the same BTFs, statistics and channel, fewer point indices."""
+        items = [(self.items[j][0], self.items[j][1], self.items[j][2][a:b])
+                 for j, a, b in self.item_ranges(lo, hi)]  # fmt: skip
+        return BTFPointSource(items, self.patch, self.channel)
+
     def take(self, indices: np.ndarray) -> np.ndarray:
         out = np.empty((len(indices), *self._shape), dtype=np.float32)
         for n, g in enumerate(np.asarray(indices)):
@@ -155,14 +170,17 @@ class StagedPoints:
 
 
 class _StagedChannel:
-    """:class:`~sparsebtf.learning.ensemble.PointSource` over one staged dataset."""
+    """:class:`~sparsebtf.learning.ensemble.PointSource` over points ``[lo, hi)`` (default:
+    all) of one staged dataset."""
 
-    def __init__(self, ds: Any) -> None:
+    def __init__(self, ds: Any, lo: int = 0, hi: int | None = None) -> None:
         self._ds = ds
+        self._lo = lo
+        self._hi = int(ds.shape[0]) if hi is None else hi
 
     @property
     def n_points(self) -> int:
-        return int(self._ds.shape[0])
+        return self._hi - self._lo
 
     @property
     def mode_sizes(self) -> tuple[int, ...]:
@@ -171,10 +189,13 @@ class _StagedChannel:
     def batches(self, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
         for s in range(0, self.n_points, batch_size):
             e = min(s + batch_size, self.n_points)
-            yield np.arange(s, e), self._ds[s:e]
+            yield np.arange(s, e), self._ds[self._lo + s : self._lo + e]
 
     def take(self, indices: np.ndarray) -> np.ndarray:
-        return np.stack([self._ds[int(i)] for i in np.asarray(indices)])
+        return np.stack([self._ds[self._lo + int(i)] for i in np.asarray(indices)])
+
+    def part(self, lo: int, hi: int) -> _StagedChannel:
+        return _StagedChannel(self._ds, self._lo + lo, self._lo + hi)
 
 
 def check_same_directions(btfs: Sequence[BTF]) -> None:
