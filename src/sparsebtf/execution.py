@@ -130,12 +130,16 @@ class Executor(abc.ABC):
         """Tasks that can run at once (worker threads; 1 in process)."""
 
     @abc.abstractmethod
-    def submit(self, fn: Callable[..., Any], *args: Any, ticks: bool = False) -> Any:
+    def submit(
+        self, fn: Callable[..., Any], *args: Any, ticks: bool = False, place: int | None = None
+    ) -> Any:
         """A handle on ``fn(*args)``; handles among ``args`` stand for their values.
 
         With ``ticks`` the function takes a keyword ``tick``: in process it is the progress
         bar's ``update`` (call ``tick(n)`` as work gets done); on a cluster it is None and the
-        bar advances by the task's weight when the task ends.
+        bar advances by the task's weight when the task ends. ``place`` (on a cluster): run on
+        worker ``place`` mod the number of workers if it can, for a value later tasks use
+        where it lies.
         """
 
     @abc.abstractmethod
@@ -250,7 +254,9 @@ class InProcess(Executor):
     def n_workers(self) -> int:
         return 1
 
-    def submit(self, fn: Callable[..., Any], *args: Any, ticks: bool = False) -> _Deferred:
+    def submit(
+        self, fn: Callable[..., Any], *args: Any, ticks: bool = False, place: int | None = None
+    ) -> _Deferred:
         return _Deferred(fn, args, ticks)
 
     def constant(self, value: Any) -> _Deferred:
@@ -315,8 +321,19 @@ class DaskExecutor(Executor):
     def _key(self, fn: Callable[..., Any]) -> str:
         return f"sparsebtf-{getattr(fn, '__name__', 'task')}-{uuid.uuid4().hex}"
 
-    def submit(self, fn: Callable[..., Any], *args: Any, ticks: bool = False) -> Any:
-        return self.client.submit(fn, *args, key=self._key(fn), pure=False)
+    def submit(self, fn: Callable[..., Any], *args: Any, ticks: bool = False,
+               place: int | None = None) -> Any:
+        where: dict[str, Any] = {}
+        if place is not None:
+            # Tasks follow their data, so where a held value is computed decides where the
+            # later tasks on it run: left to the scheduler, the training partitions landed
+            # 32 : 16 on two workers. A loose restriction spreads them and still lets another
+            # worker take over. (nthreads() asks the scheduler; scheduler_info() is a cache
+            # that may predate the workers.)
+            workers = sorted(self.client.nthreads())
+            if workers:
+                where = {"workers": [workers[place % len(workers)]], "allow_other_workers": True}
+        return self.client.submit(fn, *args, key=self._key(fn), pure=False, **where)
 
     def constant(self, value: Any) -> Any:
         import dask

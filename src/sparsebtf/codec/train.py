@@ -58,7 +58,7 @@ def _train_channel(
     checkpoint_dir: str | None,
     progress: bool | None,
     ex: Executor,
-    partition: Callable[[int, int], Any] | None,
+    partition: Callable[[int, int, int], Any] | None,
     data_key: str,
 ) -> tuple[list[np.ndarray], dict[str, Any]]:
     """Fit one channel's ensemble; its dictionaries and training diagnostics."""
@@ -116,17 +116,17 @@ def _data_key(points: BTFPointSource, channel: str) -> str:
 
 def _partitions(ex: Executor, points: BTFPointSource, sources: list[Source],
                 btfs: list[BTF], channel: int | None, batch_size: int,
-                ) -> Callable[[int, int], Any]:  # fmt: skip
-    """``(lo, hi) → handle`` on a cluster: a load task per partition, described by sources,
+                ) -> Callable[[int, int, int], Any]:  # fmt: skip
+    """``(lo, hi, slot) → handle`` on a cluster: a load task per partition, described by sources,
     indices and statistics (each source and statistics sent once, as shared values)."""
     which = [next(b for b, o in enumerate(btfs) if o is btf) for btf, _, _ in points.items]
     src_h = [s if isinstance(s.spec, str) else ex.constant(s) for s in sources]
     pre_h = [ex.constant(pre) for _, pre, _ in points.items]
 
-    def partition(lo: int, hi: int) -> Any:
+    def partition(lo: int, hi: int, slot: int) -> Any:
         items = [(src_h[which[j]], pre_h[j], points.items[j][2][a:b])
                  for j, a, b in points.item_ranges(lo, hi)]  # fmt: skip
-        return ex.submit(load_partition, items, points.patch, channel, batch_size)
+        return ex.submit(load_partition, items, points.patch, channel, batch_size, place=slot)
 
     return partition
 

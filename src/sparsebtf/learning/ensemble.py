@@ -234,15 +234,16 @@ class DictionaryEnsemble:
         desc: str = "train",
         *,
         executor: Executor | None = None,
-        partition: Callable[[int, int], Any] | None = None,
+        partition: Callable[[int, int, int], Any] | None = None,
         data_key: str = "",
     ) -> DictionaryEnsemble:
         """Learn the ensemble from data points (array (N, m_1, …) or a :class:`PointSource`).
 
         ``executor`` runs the passes (default: this process; :mod:`sparsebtf.execution`).
-        ``partition(lo, hi)`` gives a handle on the executor on points ``[lo, hi)`` as a point
-        source (default: a view of ``x`` in process; on a cluster a task that loads
-        ``x.part(lo, hi)``, which should then describe its points rather than hold them).
+        ``partition(lo, hi, slot)`` gives a handle on the executor on points ``[lo, hi)`` as a
+        point source (default: a view of ``x`` in process; on a cluster a task that loads
+        ``x.part(lo, hi)``, which should then describe its points rather than hold them);
+        ``slot`` numbers the partitions, to spread them over the workers (``submit(place=)``).
         ``data_key`` names the training data in checkpoints (a resume on other data fails).
         """
         self._validate()
@@ -254,7 +255,7 @@ class DictionaryEnsemble:
         bounds = partition_bounds(src.n_points, self.partition_size)
         if partition is None:
             partition = functools.partial(_default_partition, ex, src, self.batch_size)
-        parts = [partition(lo, hi) for lo, hi in bounds]
+        parts = [partition(lo, hi, i) for i, (lo, hi) in enumerate(bounds)]
 
         def code(dicts: list[np.ndarray], ranking: np.ndarray | None, label: str) -> Coded:
             return coding_pass(ex, parts, bounds, dicts, self.tau, self.eps, dt, ranking,
@@ -513,12 +514,14 @@ def _short(v: Any) -> str:
     return text if len(text) <= 40 else text[:37] + "..."
 
 
-def _default_partition(ex: Executor, src: PointSource, batch_size: int, lo: int, hi: int
-                       ) -> Any:  # fmt: skip
+def _default_partition(ex: Executor, src: PointSource, batch_size: int, lo: int, hi: int,
+                       slot: int) -> Any:  # fmt: skip
     """In process, a view of ``src`` (read batch by batch at each pass); on a cluster, a task
     that loads the points into a worker's memory once."""
     part = part_of(src, lo, hi)
-    return ex.submit(load_points, part, batch_size) if ex.distributed else ex.constant(part)
+    if ex.distributed:
+        return ex.submit(load_points, part, batch_size, place=slot)
+    return ex.constant(part)
 
 
 def _with_extra(ranking: np.ndarray, extra: list[int]) -> np.ndarray:

@@ -91,6 +91,11 @@ class ArraySource:
     def part(self, lo: int, hi: int) -> ArraySource:
         return ArraySource(self.data[lo:hi])
 
+    def __sizeof__(self) -> int:
+        # Dask's scheduler sizes a value by sys.getsizeof: without the points it took a
+        # 36 MB partition for a few bytes and moved it to whichever worker was less busy.
+        return object.__sizeof__(self) + int(self.data.nbytes)
+
 
 class RangeSource:
     """Points ``[lo, hi)`` of a point source, read through its ``take`` (a generic view)."""
