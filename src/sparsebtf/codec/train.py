@@ -183,10 +183,12 @@ def train(
     """
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
-    if candidates < 1:
-        raise BTFInputError(f"candidates must be >= 1, got {candidates}")
-    if full_pass_every < 0:
-        raise BTFInputError(f"full_pass_every must be >= 0, got {full_pass_every}")
+    # The ensemble's own parameter checks, before the statistics pass over every BTF.
+    DictionaryEnsemble(
+        n_dictionaries=n_dictionaries, init=init, candidates=candidates,
+        full_pass_every=full_pass_every, batch_size=batch_size, partition_size=partition_size,
+        dtype=dtype,
+    )._validate()  # fmt: skip
     if preprocessing not in TRANSFORMS:
         raise BTFInputError(f"preprocessing must be one of {TRANSFORMS}, got {preprocessing!r}")
     channels = ("YUV",) if colour_mode else CHANNELS

@@ -81,8 +81,7 @@ class ArraySource:
         return tuple(int(s) for s in self.data.shape[1:])
 
     def batches(self, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        for s in range(0, self.n_points, batch_size):
-            e = min(s + batch_size, self.n_points)
+        for s, e in partition_bounds(self.n_points, batch_size):
             yield np.arange(s, e), self.data[s:e]  # a view: no copy of the points
 
     def take(self, indices: np.ndarray) -> np.ndarray:
@@ -112,8 +111,7 @@ class RangeSource:
         return tuple(self.source.mode_sizes)
 
     def batches(self, batch_size: int) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        for s in range(0, self.n_points, batch_size):
-            e = min(s + batch_size, self.n_points)
+        for s, e in partition_bounds(self.n_points, batch_size):
             yield np.arange(s, e), self.source.take(np.arange(self.lo + s, self.lo + e))
 
     def take(self, indices: np.ndarray) -> np.ndarray:
