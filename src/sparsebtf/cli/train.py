@@ -38,7 +38,10 @@ def checkpoint_dir(args: argparse.Namespace) -> Path:
 
 def _check_resume(folder: Path, resume: bool) -> None:
     """A run starts clean or resumes on purpose: never both by accident."""
-    found = sorted(p.name for p in folder.glob("train_*.npz")) if folder.is_dir() else []
+    from ..codec.train import checkpoint_path
+
+    pattern = Path(checkpoint_path(folder, "*")).name
+    found = sorted(p.name for p in folder.glob(pattern)) if folder.is_dir() else []
     if resume and not found:
         raise SparseBTFError(
             f"--resume: no checkpoint in {folder} (an interrupted 'sparsebtf train' with the "
@@ -62,14 +65,11 @@ def run(args: argparse.Namespace) -> int:
         open_source(s, crop=args.crop)
     try:
         model = _train(args, ck)
-    except ClusterError as e:
-        if ck.is_dir() and not any(ck.iterdir()):
-            ck.rmdir()
-            raise
-        raise ClusterError(f"{e}; rerun with --resume to continue from {ck}") from None
-    except BaseException:
+    except BaseException as e:
         if ck.is_dir() and not any(ck.iterdir()):  # nothing to resume from: leave no folder
             ck.rmdir()
+        elif isinstance(e, ClusterError):
+            raise ClusterError(f"{e}; rerun with --resume to continue from {ck}") from None
         raise
     save_model(model, args.output)
     if not args.checkpoint_dir:  # the default folder has served its purpose
