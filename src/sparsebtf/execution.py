@@ -293,6 +293,7 @@ class DaskExecutor(Executor):
         self.client = client
         self.cluster = cluster
         self._own_client = own_client
+        self._places: list[str] = []  # the workers ``submit(place=)`` spreads over
         self.address = str(client.scheduler.address)
         _register_worker_plugin(client)
 
@@ -328,11 +329,13 @@ class DaskExecutor(Executor):
             # Tasks follow their data, so where a held value is computed decides where the
             # later tasks on it run: left to the scheduler, the training partitions landed
             # 32 : 16 on two workers. A loose restriction spreads them and still lets another
-            # worker take over. (nthreads() asks the scheduler; scheduler_info() is a cache
-            # that may predate the workers.)
-            workers = sorted(self.client.nthreads())
-            if workers:
-                where = {"workers": [workers[place % len(workers)]], "allow_other_workers": True}
+            # worker take over. (nthreads() asks the scheduler, once per spread, at its slot
+            # 0; scheduler_info() is a cache that may predate the workers.)
+            if place == 0 or not self._places:
+                self._places = sorted(self.client.nthreads())
+            if self._places:
+                where = {"workers": [self._places[place % len(self._places)]],
+                         "allow_other_workers": True}  # fmt: skip
         return self.client.submit(fn, *args, key=self._key(fn), pure=False, **where)
 
     def constant(self, value: Any) -> Any:
