@@ -63,3 +63,14 @@ def tiny_model(max_iter: int = 2):
         progress=False,
     )  # fmt: skip
 
+
+
+def tight_bound(coded):
+    """``coded`` with a bound on ln(RGB + eps) that clamps about half its values (each angular
+    image's shared μ), so that tests see every decoder's clamp at work."""
+    from dataclasses import replace
+
+    from sparsebtf.points.preprocessing import round_up_half
+
+    bound = round_up_half(coded.stats.mean.mean(axis=2))
+    return replace(coded, stats=replace(coded.stats, bound=bound))

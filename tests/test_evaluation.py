@@ -114,6 +114,7 @@ def tiny_config() -> BenchConfig:
         curve_taus=((8, 4, 4), (40, 8, 8)),
         ssim_images=1,
         grid_levels=(32,),
+        black_materials=(("metal", 12),),
     )
 
 
@@ -136,13 +137,30 @@ def test_bench_writes_json_tables_and_figures(tiny_run):
     assert result["grids"] and all((out / g).exists() for g in result["grids"])
     data = json.loads((out / "results.json").read_text())
     methods = {r["method"] for r in data["rows"]}
-    assert methods == {"sparsebtf", "rate", "per_channel", "raw", "pca_log", "pca_linear"}
+    assert methods == {"sparsebtf", "rate", "per_channel", "raw", "pca_log", "pca_linear",
+                       "release", "floored"}
     summary = data["summary"]
     for key in ("table2_processing", "table3_monotone", "table5_pca", "rate_control",
-                "standardisation", "table4_check"):
+                "standardisation", "table4_check", "true_black"):
         assert "verdict" in summary[key], key
     md = (out / "results.md").read_text()
-    assert "## Verdicts" in md and "figure3.png" in md
+    assert "## Verdicts" in md and "figure3.png" in md and "## True black" in md
+
+
+def test_bench_meets_true_black(tiny_run):
+    """The benchmark codes a material with exact zeros three ways, each scored against the
+    unfloored material, with the largest decoded value and the error concentration."""
+    _, result = tiny_run
+    black = [r for r in result["rows"] if r["set"] == "black"]
+    assert {r["method"] for r in black} == {"sparsebtf", "release", "floored"}
+    assert {r["material"] for r in black} == {"metal12+black"}
+    for r in black:
+        assert r["max_decoded"] <= r["peak"] * 1.01  # the bound, whatever the log offset
+        assert 0 < r["top_error_share"] <= 1
+    offsets = {r["method"]: r["log_offset"] for r in black}
+    assert offsets["release"] == offsets["floored"] == 1e-5 < offsets["sparsebtf"]
+    entry = result["summary"]["true_black"]["per_material"]["metal12+black"]
+    assert len(entry["sparsebtf"]["mse"]) == 2 and "monotone" in entry
 
 
 def test_bench_equal_storage(tiny_run):
@@ -213,8 +231,13 @@ def test_fast_scores_equal_compare():
         if st is None:
             assert "mse_std" not in f
         else:
-            # Parseval from the codes = the decoded standardised-domain error (nothing clamped)
-            assert f["mse_std"] == pytest.approx(slow["mse_std"], rel=1e-4)
+            # Parseval from the codes = the decoded standardised-domain error before the
+            # bound; the bound only ever lowers it
+            free = replace(rec.coded, stats=replace(st, bound=None))
+            unclamped = compare(btf, coded_btf_view(free), stats=free.stats, ssim_images=0,
+                                tile=4, progress=False)
+            assert f["mse_std"] == pytest.approx(unclamped["mse_std"], rel=1e-4)
+            assert slow["mse_std"] <= f["mse_std"] * (1 + 1e-4)
     # and the coded-domain error is the one the encoder stored
     c = coded[0]
     assert coded_mse_std(c) == pytest.approx(

@@ -17,7 +17,7 @@ from sparsebtf.errors import BTFInputError
 from sparsebtf.rendering import llvm
 from sparsebtf.runtime import coded_btf_view
 
-from .conftest import smooth_btf, tiny_model
+from .conftest import smooth_btf, tight_bound, tiny_model
 
 if importlib.util.find_spec("mitsuba") is None or importlib.util.find_spec("drjit") is None:
     pytest.skip("mitsuba/drjit not installed (pip install mitsuba drjit)", allow_module_level=True)
@@ -49,9 +49,12 @@ def material():
     lossy = encode(btf, model, tau=(100, 20, 20), eps=0.0, progress=False)
     lossless = encode(btf, model, tau=4 * 4 * 13 * 13, eps=0.0, progress=False)
     rt = RuntimeBTF(lossy)
+    tight = RuntimeBTF(tight_bound(lossy))
     return {
         "btf": btf,
         "rt": rt,
+        "rt_tight": tight,
+        "key_tight": sbm.add_material(tight, "test-tight"),
         "key": sbm.add_material(rt, "test-lossy"),
         "key_lossless": sbm.add_material(lossless, "test-lossless"),
         "key_dense": sbm.add_material(btf, "test-dense"),
@@ -114,6 +117,17 @@ def test_eval_equals_runtime_decoder(material, scheme, domain):
     ref = material["rt"].evaluate(wo, wi, uv=uv, interpolation=scheme, domain=domain)
     np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=2e-5, atol=2e-6)
     assert np.ptp(ref) > 0.1  # the queries see a varied material
+
+
+@pytest.mark.parametrize("domain", ["standardized", "log"])
+def test_eval_clamps_to_the_bound_like_the_runtime_decoder(material, domain):
+    wi, wo, uv = _queries(2)
+    bsdf = mi.load_dict({"type": "sparsebtf", "key": material["key_tight"], "domain": domain})
+    got = _eval(bsdf, _si(wi, uv), wo)
+    ref = material["rt_tight"].evaluate(wo, wi, uv=uv, domain=domain)
+    np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=2e-5, atol=2e-6)
+    free = material["rt"].evaluate(wo, wi, uv=uv, domain=domain)
+    assert (free > ref * (1 + 1e-3) + 1e-6).mean() > 0.1  # the clamp is at work
 
 
 def test_eval_conventions(material):

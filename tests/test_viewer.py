@@ -40,7 +40,7 @@ from sparsebtf.rendering.viewer import (
 from sparsebtf.runtime import RuntimeBTF
 from sparsebtf.storage import save_coded, save_model
 
-from .conftest import smooth_btf, tiny_model
+from .conftest import smooth_btf, tight_bound, tiny_model
 
 CHROMIUM = "/usr/bin/chromium"
 FLAGS = list(HEADLESS_CHROMIUM_FLAGS)
@@ -247,6 +247,19 @@ def test_page_matches_runtime_decoder(test_page, rt, interp, domain, neigh):
     py = reference(rt, interpolation=interp, domain=domain)
     assert py.std() > 0.05 * py.mean()  # a textured image, not a constant
     assert_close(gl, py)
+
+
+@pytest.mark.parametrize("domain", ["standardized", "log"])
+def test_page_clamps_to_the_bound_like_the_runtime_decoder(browser, rt, domain):
+    tight = RuntimeBTF(tight_bound(rt.coded))
+    with serve(build_bundle(tight)) as srv:
+        page = open_page(browser, f"{srv.url}?scene=test&size={SIZE}&wi={_vec(WI)}&wo={_vec(WO)}")
+        gl = read_image(page, interp="linear", domain=domain, neigh=True, lod=1.0)
+        page.close()
+    py = reference(tight, interpolation="linear", domain=domain)
+    assert_close(gl, py)
+    free = reference(rt, interpolation="linear", domain=domain)
+    assert (free > py * (1 + 1e-3) + 1e-6).mean() > 0.1  # the clamp is at work
 
 
 def test_tau_slider_changes_the_image(test_page, rt):

@@ -3,10 +3,14 @@
 * ``mse_rgb`` — mean squared error on linear RGB over every value (the paper's tables).
 * ``mse_log`` — the same on ln(RGB + 1e-5).
 * ``mse_std`` — the same in the standardised log-YUV domain the codes live in (the release's
-  ``btf4Drecon`` reports this one), using the reconstruction's statistics for both.
+  ``btf4Drecon`` reports this one), using the reconstruction's statistics (and log offset) for
+  both.
 * ``psnr_rgb`` — 10·log10(peak² / mse_rgb) with peak = the reference's largest value.
 * ``ssim`` — mean SSIM (scikit-image, RGB, data range = peak) over a regular sample of angular
   images.
+* ``max_decoded`` against ``peak`` (the reference's largest value), and ``top_error_share`` —
+  the share of the squared error held by the worst :data:`TOP_SHARE` of values: near 1 when a
+  few fireworks (decoded values far above anything in the material) carry the error.
 
 Both BTFs are streamed by patch-aligned spatial tiles; memory is one tile of each.
 """
@@ -23,7 +27,20 @@ from .data.btf import BTF
 from .errors import BTFInputError
 from .points.preprocessing import EPS, RGB_TO_YUV, Standardization
 
-__all__ = ["compare", "psnr", "ssim_angular"]
+__all__ = ["TOP_SHARE", "compare", "psnr", "ssim_angular", "top_k_largest"]
+
+#: The share of values whose squared errors ``top_error_share`` adds up: the worst 0.01 %.
+TOP_SHARE = 1e-4
+
+
+def top_k_largest(kept: np.ndarray, new: np.ndarray, k: int) -> np.ndarray:
+    """The ``k`` largest of ``kept`` and ``new`` together (unordered), for a running top-k
+    over streamed tiles: memory is k values, not the BTF."""
+    new = new.ravel()
+    if new.size > k:
+        new = np.partition(new, new.size - k)[-k:]
+    both = np.concatenate([kept, new])
+    return both if both.size <= k else np.partition(both, both.size - k)[-k:]
 
 
 def _sumsq(x: np.ndarray) -> float:
@@ -91,7 +108,10 @@ def compare(
     h, w = reference.height, reference.width
     sums = {"rgb": 0.0, "log": 0.0, "std": 0.0}
     peak = 0.0
+    decoded_max = -np.inf
     n = 0
+    k_top = max(1, int(np.ceil(TOP_SHARE * reference.n_values)))
+    worst = np.empty(0, dtype=np.float32)
     yuv = RGB_TO_YUV.T.astype(np.float32)
     # 1/σ of every angular image, once (not per tile).
     inv_sd = None if stats is None else (1.0 / stats.std).astype(np.float32)
@@ -103,12 +123,19 @@ def compare(
             a = np.maximum(reference.region(rows, cols).astype(np.float32), 0)
             b = reconstruction.region(rows, cols).astype(np.float32)
             peak = max(peak, float(a.max()))
+            decoded_max = max(decoded_max, float(b.max()))
             d = a - b
-            sums["rgb"] += _sumsq(d)
+            d2 = np.square(d)
+            sums["rgb"] += float(np.sum(d2, dtype=np.float64))
+            worst = top_k_largest(worst, d2, k_top)
             dl = np.log(a + np.float32(EPS)) - np.log(np.maximum(b, 0) + np.float32(EPS))
             sums["log"] += _sumsq(dl)
             if inv_sd is not None:
-                # z_a − z_b = YUV(ln a − ln b) / σ: the mean cancels.
+                # z_a − z_b = YUV(ln(a + ε) − ln(b + ε)) / σ with the material's own ε: the
+                # mean cancels.
+                if stats.eps != EPS:
+                    e = np.float32(stats.eps)
+                    dl = np.log(a + e) - np.log(np.maximum(b, 0) + e)
                 dz = (dl @ yuv) * inv_sd
                 sums["std"] += _sumsq(dz)
             n += a.size
@@ -122,6 +149,10 @@ def compare(
         "ssim": ssim_angular(reference, reconstruction, pairs, peak) if ssim_images else None,
         "ssim_images": len(pairs) if ssim_images else 0,
         "peak": peak,
+        "max_decoded": decoded_max,
+        "top_error_share": (
+            float(np.sum(worst, dtype=np.float64)) / sums["rgb"] if sums["rgb"] > 0 else 0.0
+        ),
     }
     if stats is not None:
         out["mse_std"] = sums["std"] / n

@@ -7,8 +7,8 @@ Accepted sources:
 * ``PATH.h5`` with ``format = "sparsebtf-coded"`` — decoded on demand (needs its model);
 * ``PATH.btf`` — a Bonn UBO2014 file (DFMF or FMF), reconstructed lazily from its factors;
 * ``PATH.zip`` — a UBO2003 / ATRIUM archive of JPEG or Radiance HDR angular images;
-* ``synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]`` — a cached synthetic material, e.g.
-  ``synth:stone:64:1:ubo2014``.
+* ``synth:CLASS[+black][:SIZE[:SEED[:DIRECTIONS]]]`` — a cached synthetic material, e.g.
+  ``synth:stone:64:1:ubo2014`` (``+black``: true black and high dynamic range).
 """
 
 from __future__ import annotations
@@ -44,11 +44,17 @@ def file_format(path: str | os.PathLike[str]) -> str:
 
 
 def parse_synth_spec(spec: str) -> dict[str, object]:
-    """``synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]`` → keyword arguments of ``synth.cached``."""
+    """``synth:CLASS[+black][:SIZE[:SEED[:DIRECTIONS]]]`` → keyword arguments of
+    ``synth.cached`` (``+black``: the true-black, high-dynamic-range variant)."""
     parts = spec.split(":")[1:]
     if not parts or not parts[0]:
         raise FileFormatError(f"{spec!r}: expected synth:CLASS[:SIZE[:SEED[:DIRECTIONS]]]")
-    out: dict[str, object] = {"material": parts[0]}
+    material, plus, variant = parts[0].partition("+")
+    if plus and variant != "black":
+        raise FileFormatError(f"{spec!r}: unknown variant +{variant} (known: +black)")
+    out: dict[str, object] = {"material": material}
+    if plus:
+        out["black"] = True
     try:
         if len(parts) > 1:
             out["size"] = int(parts[1])

@@ -28,6 +28,7 @@ def run(args: argparse.Namespace) -> int:
     from ..storage import save_coded, storage_report
 
     tau = check_tau(args.tau)
+    offset = log_offset(args.log_offset)
     outputs = output_files(args.btf, args.output, inputs=[args.model])
     model = open_model_arg(args.model)
     label = model_label(args.model, model)
@@ -39,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     coded_all = encode_many(
         args.btf, model, tau=tau, eps=args.eps, target_bytes=args.target_bytes,
         target_ratio=args.target_ratio, per_material=per_material, std_mode=args.std_mode,
-        batch_size=args.batch, allow_below_training=args.allow_below_training,
+        log_offset=offset, batch_size=args.batch, allow_below_training=args.allow_below_training,
         crop=parse_crop(args.crop), **cluster_options(args),
     )  # fmt: skip
     reports = []
@@ -57,6 +58,17 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(reports[0] if len(args.btf) == 1 else {"files": reports})
     return 0
+
+
+def log_offset(text: str) -> Any:
+    """The --log-offset value: a rule name or a number (checked by the encoder)."""
+    from ..errors import SparseBTFError
+    from ..points.preprocessing import resolve_log_offset
+
+    try:
+        return resolve_log_offset(text)
+    except SparseBTFError as e:
+        raise SparseBTFError(f"--log-offset: {e}") from None
 
 
 def ratio_line(report: dict[str, Any], asked: float | None, per_material: bool) -> str:
@@ -109,6 +121,11 @@ def register(sub: Any) -> None:
     s.add_argument("--std-mode", choices=STD_MODES, default=None,
                    help="standardisation of the material: shared (one mean/std for Y, U, V, "
                    "the release's) or per_channel (default: the model's)")
+    s.add_argument("--log-offset", default="auto", metavar="auto|release|EPS",
+                   help="the offset eps of ln(x + eps): auto (default) = 1%% of the "
+                   "material's median positive value, at least 1e-5, so exact zeros (hard "
+                   "shadows, masked texels) do not dominate the code; release = 1e-5, the "
+                   "authors' preprocessing; or a number in [1e-5, 1e3]")
     s.add_argument("--batch", type=int, default=4,
                    help="data points read and coded at a time (memory bound; default 4)")
     s.add_argument("--crop", metavar="R0:R1,C0:C1",

@@ -56,6 +56,10 @@ def quality_table(out: dict[str, Any]) -> str:
         ("MSE, linear RGB", f"{out['mse_rgb']:.4g}"),
         ("PSNR, linear RGB", f"{out['psnr_rgb']:.2f} dB (peak {out['peak']:.4g})"),
         ("SSIM", f"{out['ssim']:.4f} (mean over {out['ssim_images']} angular images)"),
+        ("largest value", f"{out['max_decoded']:.4g} decoded, {out['peak']:.4g} in the "
+                          f"reference ({out['max_decoded'] / out['peak']:.3g}x)"
+                          if out["peak"] > 0 else f"{out['max_decoded']:.4g} decoded"),
+        ("worst 0.01 % of values", f"{100 * out['top_error_share']:.1f} % of the squared error"),
         ("MSE, log RGB", f"{out['mse_log']:.4g}"),
         ("MSE, standardised", f"{out['mse_std']:.4g} (the codes' residual: "
                               f"{out['mse_std_codes']:.4g})"),

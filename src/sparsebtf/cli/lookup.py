@@ -19,7 +19,12 @@ from .._json import json_default
 from ..errors import BTFInputError, SparseBTFError
 from ..open import file_format, open_btf
 from ..points.grid import PatchGrid
-from ..points.preprocessing import from_log_yuv, gather_statistics, to_log_yuv
+from ..points.preprocessing import (
+    gather_statistics,
+    inverse_log_transform,
+    to_log_yuv,
+    yuv_to_rgb,
+)
 from ._args import integer
 from ._model import MODEL_HELP
 from ._output import print_json, table
@@ -67,7 +72,9 @@ def lookup(
             log[ch] = float(z * sd[0, 0, c] + mu[0, 0, c])
         out.update(point=p, in_patch=[i1, i2], standardized=std, log=log)
         if all(ch in log for ch in ("Y", "U", "V")):
-            rgb = from_log_yuv(np.array([log["Y"], log["U"], log["V"]]))
+            log_rgb = yuv_to_rgb(np.array([[[log["Y"], log["U"], log["V"]]]]))
+            coded.stats.clamp_log_rgb(log_rgb, [light], [view])  # as every decoder does
+            rgb = inverse_log_transform(log_rgb, coded.stats.eps)[0, 0]
             out["rgb"] = [float(v) for v in rgb]
         else:
             missing = [ch for ch in ("Y", "U", "V") if ch not in log]

@@ -19,7 +19,7 @@ def run(args: argparse.Namespace) -> int:
         # Preview (or convert) any BTF the user has: .btf, our .h5, synth:...
         btf = open_source(args.source)
     elif args.material:
-        btf = synthesize(args.material, args.size, args.directions, args.seed)
+        btf = synthesize(args.material, args.size, args.directions, args.seed, black=args.black)
     else:
         raise SparseBTFError("give --class CLASS to synthesise, or --from BTF to preview a BTF")
     if not args.output and not args.preview:
@@ -45,7 +45,8 @@ def register(sub: Any) -> None:
     s.add_argument(
         "--class",
         dest="material",
-        help="carpet, fabric, felt, leather, stone, wallpaper or wood",
+        help="carpet, fabric, felt, leather, stone, wallpaper, wood, or metal (perforated, "
+        "high dynamic range)",
     )
     s.add_argument(
         "--from",
@@ -63,6 +64,9 @@ def register(sub: Any) -> None:
     )
     s.add_argument("--seed", type=int, default=0,
                    help="random seed of the material's texture and geometry (default 0)")
+    s.add_argument("--black", action="store_true",
+                   help="true-black variant: no inter-reflection (shadows are exact zeros), "
+                   "hard shadows, high dynamic range (no highlight compression)")
     s.add_argument("--dtype", choices=["float32", "float16"], default="float32",
                    help="value type of the dense file (default float32; float16 halves it)")
     s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")

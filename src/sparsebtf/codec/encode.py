@@ -20,7 +20,7 @@ from ..learning.coding import SparseCodes, sparse_code_levels
 from ..learning.parallel import prefetch
 from ..model import CodedBTF, Model, TauSpec, parse_tau
 from ..points.grid import iter_points
-from ..points.preprocessing import Preprocessor, Standardization, StdMode
+from ..points.preprocessing import LogOffset, Preprocessor, Standardization, StdMode
 from .jobs import Header, Source, run_plan
 
 __all__ = ["FixedTau", "coded_btf", "encode", "encode_levels"]
@@ -54,6 +54,7 @@ def encode(
     tau: TauSpec = (885, 64, 64),
     eps: float = 1e-5,
     std_mode: StdMode | None = None,
+    log_offset: LogOffset = "auto",
     batch_size: int = 4,
     dtype: str = "float32",
     allow_below_training: bool = False,
@@ -75,7 +76,7 @@ def encode(
         model,
         [tau],
         eps=eps,
-        std_mode=std_mode,
+        std_mode=std_mode, log_offset=log_offset,
         batch_size=batch_size,
         dtype=dtype,
         allow_below_training=allow_below_training,
@@ -169,6 +170,7 @@ def encode_levels(
     *,
     eps: float = 1e-5,
     std_mode: StdMode | None = None,
+    log_offset: LogOffset = "auto",
     batch_size: int = 4,
     dtype: str = "float32",
     allow_below_training: bool = False,
@@ -180,7 +182,9 @@ def encode_levels(
     """:func:`encode` at several sparsity levels from one pass (projections are shared)."""
     plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training)
     (coded,) = run_plan(
-        [Source.of(btf)], model, plan, std_mode=std_mode, batch_size=batch_size,
+        [Source.of(btf)], model, plan, std_mode=std_mode,
+        log_offset=log_offset,
+        batch_size=batch_size,
         progress=progress, client=client, scheduler=scheduler, workers=workers,
     )  # fmt: skip
     return coded

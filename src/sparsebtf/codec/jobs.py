@@ -28,11 +28,13 @@ from ..execution import Executor, executor, worker_label
 from ..model import Model
 from ..points.grid import PatchGrid
 from ..points.preprocessing import (
-    EPS,
+    LogOffset,
     StdMode,
     check_std_mode,
+    choose_log_offset,
     combine_statistics,
     gather_statistics,
+    resolve_log_offset,
     statistic_sums,
     warn_negatives,
 )
@@ -164,6 +166,10 @@ def _sums(x: Source | BTF, views: tuple[int, int], eps: float, tick: Any = None)
     return statistic_sums(_as_btf(x), views, eps, tick)
 
 
+def _log_offset(x: Source | BTF, rule: LogOffset) -> float:
+    return choose_log_offset(_as_btf(x), rule)
+
+
 def _range(
     plan: EncodingPlan, x: Source | BTF, model: Model, stats: Any, lo: int, hi: int, extra: Any,
     batch_size: int, tick: Any = None,
@@ -177,6 +183,7 @@ def run_plan(
     plan: EncodingPlan,
     *,
     std_mode: StdMode | None = None,
+    log_offset: LogOffset = "auto",
     batch_size: int = 4,
     progress: bool | None = None,
     client: Any = None,
@@ -187,16 +194,19 @@ def run_plan(
 
     Runs in process, or on the cluster of ``client`` / ``scheduler`` / ``workers``
     (:func:`sparsebtf.execution.executor`). Every BTF is checked before work starts.
+    ``log_offset`` is the rule for each BTF's log offset ε
+    (:func:`~sparsebtf.points.preprocessing.choose_log_offset`).
     """
     if batch_size < 1:
         raise SparseBTFError(f"batch size must be >= 1, got {batch_size}")
+    rule = resolve_log_offset(log_offset)
     with executor(client=client, scheduler=scheduler, workers=workers) as ex:
-        yield from _run(ex, list(sources), model, plan, std_mode, batch_size, progress)
+        yield from _run(ex, list(sources), model, plan, std_mode, rule, batch_size, progress)
 
 
 def _run(
     ex: Executor, sources: list[Source], model: Model, plan: EncodingPlan,
-    std_mode: StdMode | None, batch_size: int, progress: bool | None,
+    std_mode: StdMode | None, log_offset: LogOffset, batch_size: int, progress: bool | None,
 ) -> Iterator[list[Any]]:  # fmt: skip
     mode = std_mode or model.std_mode
     check_std_mode(mode)
@@ -213,7 +223,7 @@ def _run(
         model.check_directions(h)  # type: ignore[arg-type]
         n_points.append(PatchGrid.for_btf(h, model.patch).n_points)  # type: ignore[arg-type]
     extras = [plan.prepare(h, model) for h in headers]
-    stats = _statistics(ex, opened, headers, model, mode, progress)
+    stats = _statistics(ex, opened, headers, model, mode, log_offset, progress)
     model_h = ex.constant(model)
     stats_h = [ex.constant(s) for s in stats]
     owner, weights, tasks = [], [], []
@@ -246,19 +256,21 @@ def _by_owner(results: Iterator[Any], owner: list[int]) -> Iterator[tuple[int, l
 
 def _statistics(
     ex: Executor, opened: list[Any], headers: list[Header], model: Model, mode: StdMode,
-    progress: bool | None,
+    log_offset: LogOffset, progress: bool | None,
 ) -> list[Any]:  # fmt: skip
-    """Each BTF's standardisation in the model's preprocessing, from view-range tasks."""
+    """Each BTF's standardisation in the model's preprocessing, from view-range tasks (after
+    one task per BTF that chooses its log offset)."""
     if model.transform != "log_yuv":
         return [
             gather_statistics(h, mode, transform=model.transform)  # type: ignore[arg-type]
             for h in headers
         ]
+    offsets = ex.gather([ex.submit(_log_offset, o, log_offset) for o in opened])
     owner, weights, tasks = [], [], []
     views = sum(len(h.views) for h in headers)
     for b, (o, h) in enumerate(zip(opened, headers, strict=True)):
         for lo, hi in ex.chunks(len(h.views), 1, per_worker=2, total=views):
-            tasks.append(ex.submit(_sums, o, (lo, hi), EPS, ticks=True))
+            tasks.append(ex.submit(_sums, o, (lo, hi), offsets[b], ticks=True))
             owner.append(b)
             weights.append(hi - lo)
     out: list[Any] = []
@@ -266,5 +278,5 @@ def _statistics(
     del tasks
     for b, parts in _by_owner(results, owner):
         warn_negatives(headers[b].name, parts)
-        out.append(combine_statistics(parts, mode))
+        out.append(combine_statistics(parts, mode, offsets[b]))
     return out

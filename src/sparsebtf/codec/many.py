@@ -18,7 +18,7 @@ from typing import Any
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..model import CodedBTF, Model, TauSpec
-from ..points.preprocessing import StdMode
+from ..points.preprocessing import LogOffset, StdMode
 from .encode import FixedTau
 from .jobs import Source, run_plan
 from .rate import RateTargets
@@ -40,6 +40,7 @@ def encode_many(
     per_material: bool = False,
     weighting: str = "rgb",
     std_mode: StdMode | None = None,
+    log_offset: LogOffset = "auto",
     batch_size: int = 4,
     dtype: str = "float32",
     allow_below_training: bool = False,
@@ -73,6 +74,7 @@ def encode_many(
         plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training)
     for levels in run_plan(
         [Source.of(s, crop) for s in sources], model, plan, std_mode=std_mode,
+        log_offset=log_offset,
         batch_size=batch_size, progress=progress, client=client, scheduler=scheduler,
         workers=workers,
     ):  # fmt: skip

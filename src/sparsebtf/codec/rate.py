@@ -24,7 +24,13 @@ from ..learning.rate_control import PAPER_SPLIT, ChannelCandidates, allocate, re
 from ..learning.tensor import project
 from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid, iter_points
-from ..points.preprocessing import YUV_TO_RGB, Preprocessor, Standardization, StdMode
+from ..points.preprocessing import (
+    YUV_TO_RGB,
+    LogOffset,
+    Preprocessor,
+    Standardization,
+    StdMode,
+)
 from .encode import coded_btf
 from .jobs import Header, Source, run_plan
 
@@ -272,6 +278,7 @@ def encode_rate_levels(
     split: Sequence[float] | None = None,
     candidate_factor: float = 4.0,
     std_mode: StdMode | None = None,
+    log_offset: LogOffset = "auto",
     batch_size: int = 4,
     dtype: str = "float32",
     progress: bool | None = None,
@@ -300,7 +307,9 @@ def encode_rate_levels(
         dtype=dtype,
     ).check(model)  # fmt: skip
     (coded,) = run_plan(
-        [Source.of(btf)], model, plan, std_mode=std_mode, batch_size=batch_size,
+        [Source.of(btf)], model, plan, std_mode=std_mode,
+        log_offset=log_offset,
+        batch_size=batch_size,
         progress=progress, client=client, scheduler=scheduler, workers=workers,
     )  # fmt: skip
     return coded
@@ -315,6 +324,7 @@ def encode_to_size(
     per_material: bool = False,
     weighting: str = "rgb",
     std_mode: StdMode | None = None,
+    log_offset: LogOffset = "auto",
     batch_size: int = 4,
     dtype: str = "float32",
     progress: bool | None = None,
@@ -335,6 +345,7 @@ def encode_to_size(
         per_material=per_material,
     )
     return encode_rate_levels(
-        btf, model, [target], weighting=weighting, std_mode=std_mode, batch_size=batch_size,
+        btf, model, [target], weighting=weighting, std_mode=std_mode, log_offset=log_offset,
+        batch_size=batch_size,
         dtype=dtype, progress=progress, client=client, scheduler=scheduler, workers=workers,
     )[0]

@@ -25,6 +25,7 @@ from ..storage.accounting import paper_storage
 
 __all__ = [
     "CLASSES",
+    "FLOOR",
     "PAPER_TABLE4_RATIOS",
     "BenchConfig",
     "level_tau",
@@ -32,6 +33,9 @@ __all__ = [
 ]
 
 CLASSES = ("carpet", "fabric", "felt", "leather", "stone", "wallpaper", "wood")
+
+#: The floor of the true-black materials' comparison copy (every value at least this).
+FLOOR = 1e-3
 
 #: Table 4 of the paper: compression ratio (dictionaries included) of SparseBTF(L).
 PAPER_TABLE4_RATIOS = {16: 4218.0, 32: 2122.0, 64: 1065.0, 128: 506.0, 256: 260.0}
@@ -116,6 +120,13 @@ class BenchConfig:
     with_raw: bool = True
     with_per_channel: bool = True
     with_rate_control: bool = True
+    #: the log-offset rule of every SparseBTF encode ("auto", "release" or a number; see
+    #: :func:`~sparsebtf.points.preprocessing.choose_log_offset`)
+    log_offset: str = "auto"
+    #: true-black, high-dynamic-range materials (class, seed) of ``test_size`` texels, coded at
+    #: every level with ``log_offset``, with the release's 1e-5, and as a copy floored at
+    #: :data:`FLOOR` (the "Never a firework" check)
+    black_materials: tuple[tuple[str, int], ...] = (("metal", 12), ("carpet", 12))
     notes: tuple[str, ...] = field(default=())
 
     @classmethod
@@ -137,6 +148,7 @@ class BenchConfig:
             tol=1e-2,
             levels=(16, 32, 64),
             curve_taus=((256, 32, 32), (1280, 96, 96)),
+            black_materials=(("metal", 12),),
             ssim_images=4,
             notes=(
                 "quick configuration: K = 4 dictionaries trained on all 28 points of 7 "

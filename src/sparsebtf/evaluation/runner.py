@@ -13,10 +13,14 @@ and ``results.md``):
    plus the extra τ_t of the Figure 3 curves;
 4. the Table 5 materials (100 × 100 texels) coded by SparseBTF and by per-material PCA at
    equal and at twice SparseBTF's bytes, in the log and in the linear domain;
-5. MSE (linear RGB, the paper's tables), log MSE, PSNR and SSIM for every reconstruction
+5. true-black materials (exact zeros, high dynamic range; ``BenchConfig.black_materials``)
+   coded at every level with the configured log offset, with the release's 1e-5, and as a
+   copy floored at 1e-3, all scored against the unfloored material;
+6. MSE (linear RGB, the paper's tables), log MSE, PSNR and SSIM for every reconstruction
    (:func:`~.scoring.score_many`: one pass over each material for all its reconstructions,
    each decoded once; the standardised-domain MSE of the coded ones by Parseval from their
-   coefficients), image grids like Figures 4 and 5.
+   coefficients), the largest decoded value and the worst 0.01 %'s share of the error,
+   image grids like Figures 4 and 5.
 
 Bytes are the paper's Table 4 accounting per material: coefficients (2 B value + 3 B
 location) + membership and count (1 B each per point and channel) for the sparse methods;
@@ -55,7 +59,7 @@ from .baselines import (
     pca_rank_for_budget,
     pca_reconstruction,
 )
-from .benchmark_set import BenchConfig, level_tau
+from .benchmark_set import FLOOR, BenchConfig, level_tau
 from .scoring import score_many
 
 __all__ = ["METHODS", "run_quality"]
@@ -68,6 +72,8 @@ METHODS = {
     "raw": "[MHU19] (raw RGB)",
     "pca_log": "PCA (log)",
     "pca_linear": "PCA (linear)",
+    "release": "SparseBTF, release log offset 1e-5",
+    "floored": "SparseBTF on the copy floored at 1e-3",
 }
 
 
@@ -87,7 +93,8 @@ def _figure_pairs(btf: BTF) -> list[tuple[int, int]]:
 
 def _metrics(ref: BTF, recs: Sequence[BTF], cfg: BenchConfig) -> list[dict[str, Any]]:
     """Every metric of every reconstruction of ``ref``, in one pass over it."""
-    keys = ("mse_rgb", "mse_log", "mse_std", "psnr_rgb", "ssim")
+    keys = ("mse_rgb", "mse_log", "mse_std", "psnr_rgb", "ssim", "peak", "max_decoded",
+            "top_error_share")
     scores = score_many(
         ref, recs, ssim_images=cfg.ssim_images, tile=2 * cfg.patch, progress=False
     )
@@ -117,6 +124,17 @@ class _Log:
 
     def __call__(self, msg: str) -> None:
         self.fn(f"[{time.perf_counter() - self.t0:7.1f} s] {msg}")
+
+
+def floored(btf: BTF, floor: float) -> BTF:
+    """``btf`` with every value raised to at least ``floor`` (lazy, view block by view block)."""
+    from ..data.btf import FunctionBTF
+
+    def block(v: int) -> np.ndarray:
+        return np.maximum(btf.view_block(v), np.float32(floor))
+
+    return FunctionBTF((btf.height, btf.width), btf.lights, btf.views, block,
+                       name=f"{btf.name}-floor{floor:g}")  # fmt: skip
 
 
 def _label(cls: str, seed: int) -> str:
@@ -270,7 +288,8 @@ def _run_quality(
         t0 = time.perf_counter()
         allt = lv_taus + [t for t in cfg.curve_taus if tuple(t) not in lv_taus]
         coded = encode_levels(btf, models["sparsebtf"], allt, eps=0.0,
-                              allow_below_training=True, progress=progress, client=ex)
+                              allow_below_training=True, log_offset=cfg.log_offset,
+                              progress=progress, client=ex)
         stage("encode_sparsebtf", t0)
         fixed_bytes: dict[int, int] = {}
         for j, (tau, c) in enumerate(zip(allt, coded, strict=True)):
@@ -288,7 +307,7 @@ def _run_quality(
             targets = [fixed_bytes[lv] for lv in cfg.levels]
             say(f"{label}: rate control at the fixed-tau bytes {targets}")
             rc = encode_rate_levels(btf, models["sparsebtf"], targets, progress=progress,
-                                    client=ex)
+                                    log_offset=cfg.log_offset, client=ex)
             stage("encode_rate", t0)
             for lv, c in zip(cfg.levels, rc, strict=True):
                 info = _coded_row(c, models["sparsebtf"])
@@ -310,7 +329,7 @@ def _run_quality(
                 taus = lv_taus
             say(f"{label}: {METHODS[key]} at tau {taus}")
             cs = encode_levels(btf, models[key], taus, eps=0.0, allow_below_training=True,
-                               progress=progress, client=ex)
+                               log_offset=cfg.log_offset, progress=progress, client=ex)
             stage(f"encode_{key}", t0)
             for lv, tau, c in zip(cfg.levels, taus, cs, strict=True):
                 view = coded_btf_view(c)
@@ -335,7 +354,8 @@ def _run_quality(
         say(f"{label} ({btf.height}x{btf.width}): SparseBTF at tau {lv_taus}")
         t0 = time.perf_counter()
         coded = encode_levels(btf, models["sparsebtf"], lv_taus, eps=0.0,
-                              allow_below_training=True, progress=progress, client=ex)
+                              allow_below_training=True, log_offset=cfg.log_offset,
+                              progress=progress, client=ex)
         stage("encode_sparsebtf", t0)
         recs = {}
         pending = []
@@ -388,6 +408,31 @@ def _run_quality(
             path = comparison_grid(btf, recs, _figure_pairs(btf), out / f"grid_{label}_pca.png")
             grids.append(path.name)
             stage("figures", t0)
+
+    # 5. true black: exact zeros and high dynamic range ------------------------------------------
+    for cls, mseed in cfg.black_materials:
+        btf = cached(cls, cfg.test_size, cfg.directions, mseed, black=True)
+        label = f"{_label(cls, mseed)}+black"
+        base = {"material": label, "class": cls, "seed": mseed, "set": "black",
+                "size": [btf.height, btf.width]}
+        lv_taus = [level_tau(level_budget(btf, lv), minimum=tau_l) for lv in cfg.levels]
+        variants = [("sparsebtf", btf, cfg.log_offset), ("floored", floored(btf, FLOOR), "release")]
+        if cfg.log_offset != "release":
+            variants.insert(1, ("release", btf, "release"))
+        pending = []
+        for method, src, rule in variants:
+            say(f"{label}: {METHODS[method]} at tau {lv_taus} (log offset {rule})")
+            t0 = time.perf_counter()
+            cs = encode_levels(src, models["sparsebtf"], lv_taus, eps=0.0,
+                               allow_below_training=True, log_offset=rule, progress=progress,
+                               client=ex)  # fmt: skip
+            stage("encode_black", t0)
+            for lv, tau, c in zip(cfg.levels, lv_taus, cs, strict=True):
+                pending.append(({**base, "method": method, "level": lv, "tau": list(tau),
+                                 "log_offset": c.stats.eps, **_coded_row(c, models["sparsebtf"])},
+                                coded_btf_view(c)))  # fmt: skip
+        say(f"{label}: metrics of {len(pending)} reconstructions (against the unfloored BTF)")
+        score(btf, pending)
 
     result: dict[str, Any] = {
         "benchmark": "sparsebtf bench quality",

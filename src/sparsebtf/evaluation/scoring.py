@@ -35,7 +35,7 @@ from .._progress import bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.parallel import single_threaded_blas
-from ..metrics import _angular_sample, _sumsq, psnr
+from ..metrics import TOP_SHARE, _angular_sample, _sumsq, psnr, top_k_largest
 from ..model import CodedBTF
 from ..points.preprocessing import EPS, yuv_to_rgb
 from ..runtime.dense import DecodedBTF
@@ -62,10 +62,14 @@ def _log_rgb(rec: BTF, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray
         # BLAS threads on this thin product ran 30× slower whenever a core was busy.
         with single_threaded_blas():
             log_rgb = yuv_to_rgb(yuv.reshape(-1, 3)).reshape(yuv.shape)
+        st = rec.coded.stats
+        st.clamp_log_rgb(log_rgb)  # the decoder's bound, as every decoder applies it
         lin = np.exp(log_rgb)
-        lin -= np.float32(EPS)
-        # ln(max(exp ℓ − ε, 0) + ε) = max(ℓ, ln ε): no log of the exp.
-        return lin, np.maximum(log_rgb, np.float32(np.log(EPS)))
+        lin -= np.float32(st.eps)
+        if st.eps == EPS:
+            # ln(max(exp ℓ − ε, 0) + ε) = max(ℓ, ln ε): no log of the exp.
+            return lin, np.maximum(log_rgb, np.float32(np.log(EPS)))
+        return lin, np.log(np.maximum(lin, 0) + np.float32(EPS))
     lin = rec.region(rows, cols).astype(np.float32, copy=False)
     return lin, np.log(np.maximum(lin, 0) + np.float32(EPS))
 
@@ -101,6 +105,9 @@ def score_many(
     rec_img = np.zeros((n_rec, len(pairs), h, w, 3), dtype=np.float32)
     peak = 0.0
     n = 0
+    k_top = max(1, int(np.ceil(TOP_SHARE * reference.n_values)))
+    worst = [np.empty(0, dtype=np.float32) for _ in range(n_rec)]
+    top = [-np.inf] * n_rec
     tiles = [(r, c) for c in range(0, w, tile) for r in range(0, h, tile)]
     with bar(len(tiles) * (n_rec + 1), f"score {reference.name}", "tile", progress) as pb:
         for r, c in tiles:
@@ -114,7 +121,10 @@ def score_many(
             pb.update(1)
             for j, rec in enumerate(reconstructions):
                 b, lb = _log_rgb(rec, rows, cols)
-                sums[j, 0] += _sumsq(a - b)
+                d2 = np.square(a - b)
+                sums[j, 0] += float(np.sum(d2, dtype=np.float64))
+                worst[j] = top_k_largest(worst[j], d2, k_top)
+                top[j] = max(top[j], float(b.max()))
                 sums[j, 1] += _sumsq(la - lb)
                 if ssim_images:
                     rec_img[j, :, rows, cols] = np.moveaxis(b[:, :, li, vi], 2, 0)
@@ -137,6 +147,9 @@ def score_many(
             ])) if ssim_images else None,
             "ssim_images": len(pairs) if ssim_images else 0,
             "peak": peak,
+            "max_decoded": top[j],
+            "top_error_share": (float(np.sum(worst[j], dtype=np.float64)) / sums[j, 0]
+                                if sums[j, 0] > 0 else 0.0),
         }  # fmt: skip
         if isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv":
             res["mse_std"] = coded_mse_std(rec.coded)

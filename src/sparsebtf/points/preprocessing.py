@@ -19,6 +19,20 @@ for renderers that must match it bit for bit.
 
 Statistics are gathered in one streaming pass over view blocks (:func:`gather_statistics`), or
 by view ranges in separate tasks (:func:`statistic_sums`, :func:`combine_statistics`).
+
+True black and high dynamic range. ln(x + 1e-5) turns an exact zero (a hard shadow, a masked
+texel) into −11.5 among values near −2: standardisation and the sparse code then chase those
+outliers, and the overshoot they cause comes back through exp() as values thousands of times
+the material's maximum. Two defences, both recorded with the statistics:
+
+* the **log offset** ε is chosen per material (:func:`choose_log_offset`, ``"auto"``):
+  :data:`LOG_OFFSET_FRACTION` of the median positive value, never below the release's 1e-5;
+  values far below ε lose their relative precision, which costs nothing in linear error;
+  ``"release"`` keeps 1e-5;
+* the **bound**: for every angular image the largest ln(x + ε) over its texels and R, G, B,
+  rounded up to binary16. Every decoder clamps its log-RGB values to it (interpolated with the
+  angular weights between sampled directions), so no decoded value exceeds the brightest value
+  of its angular image: :meth:`Standardization.clamp_log_rgb`.
 """
 
 from __future__ import annotations
@@ -38,6 +52,8 @@ from ..errors import BTFInputError
 
 __all__ = [
     "EPS",
+    "LOG_OFFSETS",
+    "LOG_OFFSET_FRACTION",
     "RGB_TO_YUV",
     "STD_MODES",
     "TRANSFORMS",
@@ -48,11 +64,13 @@ __all__ = [
     "StatisticSums",
     "Transform",
     "check_std_mode",
+    "choose_log_offset",
     "combine_statistics",
     "from_log_yuv",
     "gather_statistics",
     "inverse_log_transform",
     "log_transform",
+    "resolve_log_offset",
     "rgb_to_yuv",
     "statistic_sums",
     "to_log_yuv",
@@ -87,6 +105,20 @@ YUV_TO_RGB_RELEASE = np.array(
         [1.0, 2.03211, 0.0],
     ]
 )
+
+
+#: The per-material log offset: ε = max(:data:`EPS`, this share of the median positive value).
+LOG_OFFSET_FRACTION = 0.01
+#: Named log-offset rules: "auto" (:func:`choose_log_offset`) and "release" (ε = 1e-5).
+LOG_OFFSETS = ("auto", "release")
+#: A log offset must lie in [EPS, _MAX_LOG_OFFSET]: beyond it the log is all but linear.
+_MAX_LOG_OFFSET = 1e3
+#: Views read to choose the log offset (evenly spaced; all of them up to this many).
+_OFFSET_VIEWS = 12
+#: Log-spaced histogram of positive values for the median: 64 bins per decade, 1e-12 … 1e12.
+_HIST_EDGES = np.logspace(-12, 12, 24 * 64 + 1)
+
+LogOffset = float | Literal["auto", "release"]
 
 
 def check_std_mode(mode: str) -> None:
@@ -135,9 +167,12 @@ class Standardization:
     mode : "shared" (the release's: one μ, σ for Y, U and V) or "per_channel".
     mean, std : (L, V, C) float64 with C = 1 (shared) or 3 (per channel). σ = 0 (a constant
         angular image) is stored as 1 so the forward map stays finite.
-    eps : the log offset used.
+    eps : the log offset ε used (the release's 1e-5, or chosen per material).
     transform : "log_yuv" (default) or "identity" (no log, no YUV, μ = 0, σ = 1: raw RGB is
         coded as is, for the [MHU19] baseline; such statistics cannot be saved in a coded file).
+    bound : (L, V) float32 or None: per angular image, the largest ln(x + ε) over its texels
+        and R, G, B, rounded up to binary16 (:func:`round_up_half`); decoders clamp to it.
+        None for statistics made before bounds existed (no clamp).
     """
 
     mode: StdMode
@@ -145,6 +180,7 @@ class Standardization:
     std: np.ndarray
     eps: float = EPS
     transform: Transform = "log_yuv"
+    bound: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.transform not in TRANSFORMS:
@@ -159,6 +195,10 @@ class Standardization:
         c = 1 if self.mode == "shared" else 3
         if self.mean.shape[2] != c:
             raise BTFInputError(f"{self.mode} statistics need C = {c}, got {self.mean.shape[2]}")
+        if self.bound is not None and self.bound.shape != self.mean.shape[:2]:
+            raise BTFInputError(
+                f"bound must be (L, V) = {self.mean.shape[:2]}, got {self.bound.shape}"
+            )
 
     @property
     def n_lights(self) -> int:
@@ -207,6 +247,23 @@ class Standardization:
         out += mu
         return out
 
+    def clamp_log_rgb(
+        self, log_rgb: np.ndarray, lights: Index = slice(None), views: Index = slice(None)
+    ) -> np.ndarray:
+        """min(log_rgb, bound) in place on a (..., l, v, 3) block of ln(RGB + ε) values.
+
+        No value then decodes above its angular image's brightest (over texels and R, G, B);
+        the clamp never moves a value away from the truth, which is below the bound.
+        Statistics without a bound (older files) leave the values as they are.
+        """
+        if self.bound is None:
+            return log_rgb
+        li = as_index(lights, self.n_lights, "light")
+        vi = as_index(views, self.n_views, "view")
+        b = self.bound[np.ix_(li, vi)].astype(log_rgb.dtype, copy=False)
+        np.minimum(log_rgb, b[..., None], out=log_rgb)
+        return log_rgb
+
 
 class Preprocessor:
     """Linear RGB ⇄ standardised log-YUV for one BTF, given its :class:`Standardization`."""
@@ -237,7 +294,9 @@ class Preprocessor:
         """Standardised log-YUV (..., l, v, 3) → linear RGB."""
         if self.stats.transform == "identity":
             return np.asarray(z)
-        return from_log_yuv(self.stats.invert(z, lights, views), self.stats.eps, release_matrix)
+        log_rgb = yuv_to_rgb(self.stats.invert(z, lights, views), release_matrix)
+        self.stats.clamp_log_rgb(log_rgb, lights, views)
+        return inverse_log_transform(log_rgb, self.stats.eps)
 
 
 @dataclass(frozen=True, eq=False)
@@ -253,6 +312,7 @@ class StatisticSums:
     ----------
     views : (v0, v1).
     shift, s1, s2 : (L, v1 − v0, 3) float64: the first texel, Σ(x − shift), Σ(x − shift)².
+    top : (L, v1 − v0) float64: the largest ln(x + ε) over texels and R, G, B.
     n_texels : H·W.
     negatives : values clamped to 0.
     """
@@ -261,6 +321,7 @@ class StatisticSums:
     shift: np.ndarray
     s1: np.ndarray
     s2: np.ndarray
+    top: np.ndarray
     n_texels: int
     negatives: int
 
@@ -284,6 +345,7 @@ def statistic_sums(
     s1 = np.zeros((nl, v1 - v0, 3))
     s2 = np.zeros((nl, v1 - v0, 3))
     shift = np.zeros((nl, v1 - v0, 3))
+    top = np.zeros((nl, v1 - v0))
     negatives = 0
     for j, v in enumerate(range(v0, v1)):
         block = btf.view_block(v)
@@ -291,14 +353,16 @@ def statistic_sums(
         negatives += int((block < 0).sum())
         # float32 transforms (the release computed its statistics in single precision),
         # float64 accumulators.
-        x = to_log_yuv(np.maximum(block, 0, dtype=np.float32), np.float32(eps)).reshape(n, nl, 3)
+        logs = log_transform(np.maximum(block, 0, dtype=np.float32), np.float32(eps))
+        top[:, j] = logs.reshape(n, nl, 3).max(axis=(0, 2))
+        x = rgb_to_yuv(logs).reshape(n, nl, 3)
         shift[:, j] = x[0]
         x -= x[0]
         s1[:, j] = x.sum(axis=0, dtype=np.float64)
         s2[:, j] = np.square(x).sum(axis=0, dtype=np.float64)
         if tick is not None:
             tick(1)
-    return StatisticSums((v0, v1), shift, s1, s2, n, negatives)
+    return StatisticSums((v0, v1), shift, s1, s2, top, n, negatives)
 
 
 def combine_statistics(
@@ -312,8 +376,8 @@ def combine_statistics(
     ):
         raise BTFInputError("statistic sums must cover consecutive view ranges from view 0")
     n = parts[0].n_texels
-    shift, s1, s2 = (np.concatenate([getattr(p, a) for p in parts], axis=1)
-                     for a in ("shift", "s1", "s2"))  # fmt: skip
+    shift, s1, s2, top = (np.concatenate([getattr(p, a) for p in parts], axis=1)
+                          for a in ("shift", "s1", "s2", "top"))  # fmt: skip
     # With y = x − K: Σ(x − μ)² = Σy² + 2(K − μ)Σy + n(K − μ)².
     if mode == "shared":
         mean = (shift + s1 / n).mean(axis=2, keepdims=True)
@@ -325,7 +389,65 @@ def combine_statistics(
         mean = shift + s1 / n
         std = np.sqrt(np.maximum(s2 - s1**2 / n, 0) / (n - 1))
     std = np.where(std > 0, std, 1.0)
-    return Standardization(mode=mode, mean=mean, std=std, eps=eps)
+    return Standardization(mode=mode, mean=mean, std=std, eps=eps, bound=round_up_half(top))
+
+
+def round_up_half(x: np.ndarray) -> np.ndarray:
+    """float32 copy of ``x`` rounded up to the next binary16 value (never below ``x``), so a
+    bound stored in half precision still bounds."""
+    h = np.asarray(x, dtype=np.float64).astype(np.float16)
+    low = h.astype(np.float64) < x
+    h[low] = np.nextafter(h[low], np.float16(np.inf))
+    return h.astype(np.float32)
+
+
+def resolve_log_offset(rule: LogOffset) -> LogOffset:
+    """Check a log-offset rule: "auto", "release" or a number in [1e-5, 1e3]."""
+    if isinstance(rule, str):
+        if rule in LOG_OFFSETS:
+            return rule  # type: ignore[return-value]
+        try:
+            rule = float(rule)
+        except ValueError:
+            raise BTFInputError(
+                f"log offset must be 'auto', 'release' or a number, got {rule!r}"
+            ) from None
+    value = float(rule)
+    if not EPS <= value <= _MAX_LOG_OFFSET:  # also refuses NaN
+        raise BTFInputError(
+            f"log offset must be between {EPS:g} and {_MAX_LOG_OFFSET:g}, got {value!r}"
+        )
+    return value
+
+
+def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
+    """The log offset ε of ``btf``: a number as given, 1e-5 for "release", and for "auto"
+    max(1e-5, :data:`LOG_OFFSET_FRACTION` × the median positive value).
+
+    The median comes from a log-spaced histogram (64 bins per decade) of up to
+    :data:`_OFFSET_VIEWS` evenly spaced view blocks, so it costs a few view reads, memory
+    one block. A material with a stray-light floor far above 1 % of its median keeps values
+    in the same order; one with exact zeros gets a floor that the zeros no longer dominate.
+    """
+    rule = resolve_log_offset(rule)
+    if rule == "release":
+        return EPS
+    if not isinstance(rule, str):
+        return float(rule)
+    nv = btf.shape[3]
+    views = np.unique(np.linspace(0, nv - 1, min(nv, _OFFSET_VIEWS)).round().astype(int))
+    counts = np.zeros(_HIST_EDGES.size - 1, dtype=np.int64)
+    for v in views:
+        block = btf.view_block(int(v))
+        check_finite(block[:, :, :, None, :], btf.name, offset=(0, 0, 0, int(v)))
+        counts += np.histogram(block[block > 0], bins=_HIST_EDGES)[0]
+    total = int(counts.sum())
+    if total == 0:
+        return EPS
+    k = int(np.searchsorted(np.cumsum(counts), (total + 1) // 2))
+    median = float(np.sqrt(_HIST_EDGES[k] * _HIST_EDGES[k + 1]))  # the bin's geometric centre
+    # Round to 3 significant digits: the offset is a recorded parameter, not a measurement.
+    return float(f"{max(EPS, min(LOG_OFFSET_FRACTION * median, _MAX_LOG_OFFSET)):.3g}")
 
 
 def warn_negatives(name: str, parts: Sequence[StatisticSums]) -> None:

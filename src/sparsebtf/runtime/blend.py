@@ -10,8 +10,9 @@ change of orthonormal basis from the input's dictionary p to k. Before re-sparsi
 blend therefore equals the data-space blend Σ_j w_j X_j of the standardised reconstructions;
 it is then cut back to the τ largest coefficients per point (the output's sparsity).
 
-The blend lives in each material's standardised domain; the output's statistics μ, σ are the
-same weighted sums of the inputs' (so α = 0 and 1 return the inputs exactly).
+The blend lives in each material's standardised domain; the output's statistics μ, σ, its log
+offset ε and its bound on ln(RGB + ε) are the same weighted sums of the inputs' (so α = 0 and
+1 return the inputs exactly; the bound is rounded up to binary16 like every stored bound).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from ..learning.coding import SparseCodes, topk_abs
 from ..learning.parallel import parallel_map
 from ..learning.tensor import reconstruct
 from ..model import CodedBTF, TauSpec, parse_tau
-from ..points.preprocessing import Standardization
+from ..points.preprocessing import Standardization, round_up_half
 
 __all__ = ["blend", "check_blendable"]
 
@@ -54,12 +55,10 @@ def check_blendable(coded: Sequence[CodedBTF]) -> None:
             )
         if b.channels != a.channels:
             raise BTFInputError(f"{a.name} has channels {a.channels}, {b.name} {b.channels}")
-        if (b.stats.mode, b.stats.eps, b.stats.transform) != (
-            a.stats.mode, a.stats.eps, a.stats.transform
-        ):
+        if (b.stats.mode, b.stats.transform) != (a.stats.mode, a.stats.transform):
             raise BTFInputError(
-                f"{a.name} uses {a.stats.mode} standardisation (eps {a.stats.eps}), {b.name} "
-                f"{b.stats.mode} (eps {b.stats.eps}); they cannot be blended"
+                f"{a.name} uses {a.stats.mode} standardisation ({a.stats.transform}), {b.name} "
+                f"{b.stats.mode} ({b.stats.transform}); they cannot be blended"
             )
     a.require_model()
 
@@ -202,12 +201,17 @@ def blend(
         for ch in channels
     }  # fmt: skip
     st = first.stats
+    pairs = list(zip(w, coded, strict=True))
+    bounded = all(c.stats.bound is not None for c in coded)
+    eps = float(sum(wj * c.stats.eps for wj, c in pairs))
     stats = Standardization(
         st.mode,
-        sum(wj * c.stats.mean for wj, c in zip(w, coded, strict=True)),
-        sum(wj * c.stats.std for wj, c in zip(w, coded, strict=True)),
-        st.eps,
+        sum(wj * c.stats.mean for wj, c in pairs),
+        sum(wj * c.stats.std for wj, c in pairs),
+        eps if len({c.stats.eps for c in coded}) > 1 else st.eps,
         st.transform,
+        round_up_half(sum(wj * c.stats.bound.astype(np.float64) for wj, c in pairs))
+        if bounded else None,
     )
     names = [c.name for c in coded]
     params = dict(first.params)

@@ -23,11 +23,14 @@ import numpy as np
 from ..errors import BTFInputError
 from ..model import CHANNELS, CodedBTF, TauSpec
 from ..points.grid import PatchGrid
-from ..points.preprocessing import YUV_TO_RGB, from_log_yuv
+from ..points.preprocessing import YUV_TO_RGB, inverse_log_transform, yuv_to_rgb
 from . import kernels
 from .angular import SCHEMES, Scheme, angular_weights, neighbour_table
 
-__all__ = ["Domain", "RuntimeBTF", "texels_from_uv"]
+__all__ = ["NO_BOUND", "Domain", "RuntimeBTF", "texels_from_uv"]
+
+#: The bound of a material without one (older files): far above any ln(RGB + eps).
+NO_BOUND = 1e30
 
 Domain = Literal["standardized", "log"]
 
@@ -99,6 +102,7 @@ class RuntimeBTF:
         self._mean = np.ascontiguousarray(np.moveaxis(st.mean, 2, 0), dtype=np.float64)
         self._std = np.ascontiguousarray(np.moveaxis(st.std, 2, 0), dtype=np.float64)
         self.eps = float(st.eps)
+        self._bound = None if st.bound is None else np.asarray(st.bound, dtype=np.float64)
         self.meta: dict[str, Any] = {
             "name": coded.name,
             "height": coded.height,
@@ -109,6 +113,7 @@ class RuntimeBTF:
             "channels": list(CHANNELS),
             "std_mode": st.mode,
             "eps": self.eps,
+            "bounded": self._bound is not None,
             "tau": dict(self.tau),
             "n_lights": len(coded.lights),
             "n_views": len(coded.views),
@@ -175,6 +180,7 @@ class RuntimeBTF:
             "views_xyz": self.coded.views.xyz.astype(np.float32),
             "mean": self._mean.astype(np.float32),
             "std": self._std.astype(np.float32),
+            "bound": self.bound_table().astype(np.float32),
             "yuv_to_rgb": YUV_TO_RGB.astype(np.float32),
         }
         for ch, arrs in self._channels.items():
@@ -184,6 +190,13 @@ class RuntimeBTF:
             out["neighbours_lights"] = neighbour_table(self.coded.lights)
             out["neighbours_views"] = neighbour_table(self.coded.views)
         return out
+
+    def bound_table(self) -> np.ndarray:
+        """(L, V) float64: the clamp on ln(RGB + eps) per angular image; without a bound
+        :data:`NO_BOUND` (finite in every shader, and no sum of weights overflows it)."""
+        if self._bound is None:
+            return np.full(self._mean.shape[1:], NO_BOUND)
+        return self._bound
 
     # -- evaluation -----------------------------------------------------------------------------
     def _texels(self, uv: np.ndarray | None, texel: np.ndarray | None, n: int):
@@ -249,8 +262,13 @@ class RuntimeBTF:
             Both equal the blend of separately decoded bins in their domain.
         tau : run-time cap τ' (≤ the loaded τ) per channel; None = all loaded coefficients.
         backend : "numba" (compiled, parallel), "numpy", or "auto" (numba when installed).
-        output : "rgb" or "log_yuv" (the de-standardised log-YUV values, before YUV → RGB).
+        output : "rgb" or "log_yuv" (the de-standardised log-YUV values, before YUV → RGB and
+            before the bound).
         release_matrix : use the release shader's rounded YUV → RGB matrix.
+
+        The log-RGB values are clamped to the material's bound, interpolated with the same
+        angular weights (Σ_ab wl_a wv_b bound_ab): no value exceeds the brightest of the
+        angular images it is interpolated from.
         """
         if domain not in ("standardized", "log"):
             raise BTFInputError(f"domain must be 'standardized' or 'log', got {domain!r}")
@@ -290,7 +308,11 @@ class RuntimeBTF:
                 log[:, c] = np.einsum("nab,nab->n", w2, sd[si] * xp + mu[si])
         if output == "log_yuv":
             return log.astype(np.float32)
-        return from_log_yuv(log, self.eps, release_matrix).astype(np.float32)
+        log_rgb = yuv_to_rgb(log, release_matrix)
+        if self._bound is not None:
+            bound = np.einsum("nab,nab->n", w2, self._bound[li[:, :, None], vi[:, None, :]])
+            np.minimum(log_rgb, bound[:, None], out=log_rgb)
+        return inverse_log_transform(log_rgb, self.eps).astype(np.float32)
 
     def image(
         self,

@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ..model import CHANNELS
-from ..points.preprocessing import from_log_yuv
+from ..points.preprocessing import inverse_log_transform, yuv_to_rgb
 
 __all__ = ["LUMINANCE", "angular_response", "mean_log_yuv"]
 
@@ -102,7 +102,8 @@ def angular_response(rt: Any, per_point: bool = False, chunk: int = 32) -> np.nd
     rows = []
     for s in range(0, n, chunk):
         pts = np.arange(s, min(n, s + chunk))
-        rgb = from_log_yuv(_mean_log_yuv(arr, pts), rt.eps)
+        log_rgb = np.minimum(yuv_to_rgb(_mean_log_yuv(arr, pts)), arr["bound"][..., None])
+        rgb = inverse_log_transform(log_rgb, rt.eps)
         lum = np.maximum(rgb @ LUMINANCE, 0.0)
         if per_point:
             rows.append(lum.astype(np.float32))

@@ -13,6 +13,9 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=2``; schema 1 lacks the c
                             of the column-major linear index l1 + m1·l2 + m1·m2·l3 + …
     /codes/<CH>/errors      (P,) float32    residual MSE per tensor entry (diagnostic)
     /stats/mean, /stats/std (L, V, C) float32; attrs mode ("shared" | "per_channel"), eps
+    /stats/bound            (L, V) float16: largest ln(x + eps) over texels and R, G, B of each
+                            angular image, rounded up; decoders clamp to it (absent in files
+                            written before it existed: no clamp)
     /lights, /views         direction tables, as in the dense file
 
 Points are in release order (``point = row_block + n_row_blocks·col_block``); within a point
@@ -206,6 +209,9 @@ def save_coded(coded: CodedBTF, path: str | os.PathLike[str]) -> Path:
         st.attrs["eps"] = float(coded.stats.eps)
         create_dataset(st, "mean", data=np.asarray(coded.stats.mean, dtype="<f4"))
         create_dataset(st, "std", data=np.asarray(coded.stats.std, dtype="<f4"))
+        if coded.stats.bound is not None:
+            # Exact: the bound is rounded up to binary16 when it is made.
+            create_dataset(st, "bound", data=np.asarray(coded.stats.bound, dtype="<f2"))
         write_directions(f.create_group("lights"), coded.lights)
         write_directions(f.create_group("views"), coded.views)
     return target
@@ -431,12 +437,24 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
         raise FileFormatError(f"{where}/std: standard deviations must be > 0, found "
                               f"{float(std[first])} at index {first}")  # fmt: skip
     eps = read_float_attr(g, "eps", where, default=EPS, positive=True)
+    bound = None
+    if "bound" in g:
+        bound = read_array(g, "bound", where, kinds="f", shape=mean.shape[:2], finite=True)
+        bound = bound.astype(np.float32)
+        floor = np.log(eps)  # ln(0 + eps): no angular image can lie below it
+        if bound.size and float(bound.min()) < floor - 1e-3:
+            first = tuple(int(i[0]) for i in np.nonzero(bound < floor - 1e-3))
+            raise FileFormatError(
+                f"{where}/bound: {float(bound[first])} at index {first} is below ln(eps) = "
+                f"{floor:.4g}, the log of a black value; the bound cannot hold"
+            )
     try:
         return Standardization(
             mode=mode,  # type: ignore[arg-type]
             mean=mean.astype(np.float64),
             std=std.astype(np.float64),
             eps=eps,
+            bound=bound,
         )
     except BTFInputError as e:
         raise FileFormatError(f"{where}: {e}") from None

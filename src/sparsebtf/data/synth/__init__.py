@@ -15,11 +15,13 @@ from __future__ import annotations
 
 from .cache import cache_key, cache_path, cached, resolve_cache_dir
 from .materials import GENERATOR_VERSION, MIN_SIZE, SyntheticMaterial, synthesize
-from .microgeometry import MATERIAL_CLASSES
+from .microgeometry import ALL_CLASSES, EXTRA_CLASSES, MATERIAL_CLASSES
 from .preview import contact_sheet, tone_map
 from .surface import SurfaceMaps
 
 __all__ = [
+    "ALL_CLASSES",
+    "EXTRA_CLASSES",
     "GENERATOR_VERSION",
     "MATERIAL_CLASSES",
     "MIN_SIZE",

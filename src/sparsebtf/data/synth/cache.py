@@ -39,17 +39,19 @@ def resolve_cache_dir(path: str | os.PathLike[str] | None = None) -> Path:
     return Path.home() / ".cache" / "sparsebtf"
 
 
-def cache_key(material: str, size: tuple[int, int], seed: int, directions: DirectionSet) -> str:
+def cache_key(
+    material: str, size: tuple[int, int], seed: int, directions: DirectionSet, black: bool = False
+) -> str:
     """Hex SHA-256 of everything that determines a synthetic BTF's values."""
-    head = json.dumps(
-        {
-            "material": material,
-            "size": list(size),
-            "seed": seed,
-            "generator_version": GENERATOR_VERSION,
-        },
-        sort_keys=True,
-    ).encode()
+    fields: dict[str, object] = {
+        "material": material,
+        "size": list(size),
+        "seed": seed,
+        "generator_version": GENERATOR_VERSION,
+    }
+    if black:  # absent for the default variant: existing cache keys stay valid
+        fields["black"] = True
+    head = json.dumps(fields, sort_keys=True).encode()
     xyz = np.ascontiguousarray(directions.xyz, dtype="<f8").tobytes()
     return hashlib.sha256(head + b"\0" + xyz).hexdigest()
 
@@ -60,14 +62,16 @@ def cache_path(
     directions: str | DirectionSet = "ubo2014",
     seed: int = 0,
     cache_dir: str | os.PathLike[str] | None = None,
+    black: bool = False,
 ) -> Path:
     """Where :func:`cached` keeps (or would keep) this material's file."""
     mat = check_material(material)
     hw = check_size(size)
     sd = check_seed(seed)
     dirs = resolve_directions(directions)
-    key = cache_key(mat, hw, sd, dirs)
-    name = f"synth-{mat}-{hw[0]}x{hw[1]}-s{sd}-{dirs.name}-{key[:16]}.h5"
+    key = cache_key(mat, hw, sd, dirs, bool(black))
+    variant = "-black" if black else ""
+    name = f"synth-{mat}{variant}-{hw[0]}x{hw[1]}-s{sd}-{dirs.name}-{key[:16]}.h5"
     return resolve_cache_dir(cache_dir) / name
 
 
@@ -78,14 +82,16 @@ def cached(
     seed: int = 0,
     cache_dir: str | os.PathLike[str] | None = None,
     progress: bool = False,
+    black: bool = False,
 ) -> BTF:
     """The synthetic BTF as a file-backed :class:`DenseFileBTF`, rendering it on first use.
 
     The file (float32) is written atomically, so an interrupted render leaves no partial
-    file behind and concurrent callers at worst render twice.
+    file behind and concurrent callers at worst render twice. ``black``: the true-black,
+    high-dynamic-range variant.
     """
-    path = cache_path(material, size, directions, seed, cache_dir)
+    path = cache_path(material, size, directions, seed, cache_dir, black)
     if not path.exists():
-        btf = synthesize(material, size, directions, seed)
+        btf = synthesize(material, size, directions, seed, black)
         write_dense(path, btf, dtype="float32", attrs={"cache_key": path.stem}, progress=progress)
     return DenseFileBTF(path)

@@ -16,8 +16,8 @@ import numpy as np
 from ...errors import BTFInputError
 from ..btf import FunctionBTF
 from ..directions import DirectionSet, by_name
-from .microgeometry import MATERIAL_CLASSES, build_surface
-from .shading import LightTable, pack, prepare_lights, shade_view
+from .microgeometry import ALL_CLASSES, build_surface
+from .shading import BLACK_PENUMBRA, LightTable, pack, prepare_lights, shade_view
 from .surface import SurfaceMaps
 
 __all__ = [
@@ -39,9 +39,9 @@ MIN_SIZE = 4
 def check_material(material: object) -> str:
     """The canonical class name, or :class:`BTFInputError` listing the known classes."""
     name = material.strip().lower() if isinstance(material, str) else None
-    if name not in MATERIAL_CLASSES:
+    if name not in ALL_CLASSES:
         raise BTFInputError(
-            f"unknown material class {material!r}; known classes: {', '.join(MATERIAL_CLASSES)}"
+            f"unknown material class {material!r}; known classes: {', '.join(ALL_CLASSES)}"
         )
     return name
 
@@ -85,11 +85,15 @@ class SyntheticMaterial:
 
     Parameters
     ----------
-    material : one of :data:`~sparsebtf.data.synth.MATERIAL_CLASSES`.
+    material : one of :data:`~sparsebtf.data.synth.ALL_CLASSES` (the seven UBO2014-like
+        classes and ``metal``).
     size : tile size in texels, an int (square) or (H, W); at least 4.
     seed : non-negative int; every random choice derives from it.
     relief : scale of the height field (1 = natural; 0 = flat, i.e. a plain SVBRDF without
         shadows, parallax or masking).
+    black : the true-black variant: no inter-reflection (shadows are exact zeros), hard
+        shadows and no highlight compression (high dynamic range), like a path-traced or a
+        measured BTF with deep shadows (see :mod:`~sparsebtf.data.synth.shading`).
 
     The maps (``height``, ``albedo``...) are built on first access and kept.
     """
@@ -98,6 +102,7 @@ class SyntheticMaterial:
     size: tuple[int, int] | int = 64
     seed: int = 0
     relief: float = 1.0
+    black: bool = False
     _maps: SurfaceMaps | None = field(default=None, init=False, repr=False)
     _lights: tuple[bytes, LightTable, np.ndarray] | None = field(
         default=None, init=False, repr=False
@@ -110,6 +115,7 @@ class SyntheticMaterial:
         if not np.isfinite(self.relief) or self.relief < 0:
             raise BTFInputError(f"relief must be finite and >= 0, got {self.relief!r}")
         self.relief = float(self.relief)
+        self.black = bool(self.black)
 
     # -- maps ------------------------------------------------------------------------------
     @property
@@ -138,7 +144,8 @@ class SyntheticMaterial:
     def _light_table(self, lights: DirectionSet) -> tuple[LightTable, np.ndarray]:
         key = np.ascontiguousarray(lights.xyz, dtype=np.float64).tobytes()
         if self._lights is None or self._lights[0] != key:
-            table = prepare_lights(self.maps, lights.xyz)
+            penumbra = BLACK_PENUMBRA if self.black else None
+            table = prepare_lights(self.maps, lights.xyz, penumbra)
             self._lights = (key, table, pack(self.maps, table))
         return self._lights[1], self._lights[2]
 
@@ -156,7 +163,7 @@ class SyntheticMaterial:
         if v[2] < -1e-9:
             raise BTFInputError(f"view_dir points below the surface: {v.tolist()}")
         table, packed = self._light_table(lights)
-        return shade_view(self.maps, table, packed, v)
+        return shade_view(self.maps, table, packed, v, black=self.black)
 
     def render(self, lights: DirectionSet, views: DirectionSet) -> np.ndarray:
         """The whole BTF in memory, (H, W, L, V, 3) float32 — for small sets only."""
@@ -172,6 +179,7 @@ class SyntheticMaterial:
             "seed": self.seed,
             "size": list(self.size),
             "relief": self.relief,
+            "black": self.black,
             "directions": directions.name,
         }
 
@@ -181,18 +189,21 @@ def synthesize(
     size: int | tuple[int, int] = 64,
     directions: str | DirectionSet = "ubo2014",
     seed: int = 0,
+    black: bool = False,
 ) -> FunctionBTF:
     """A lazy synthetic BTF of class ``material``; nothing is rendered until a view is read.
 
     The same direction set serves as lights and views (as in UBO2014). Each view block is
-    rendered on demand by :meth:`SyntheticMaterial.view_block`.
+    rendered on demand by :meth:`SyntheticMaterial.view_block`. ``black`` selects the
+    true-black, high-dynamic-range variant (:class:`SyntheticMaterial`).
     """
-    mat = SyntheticMaterial(material, size, seed)
+    mat = SyntheticMaterial(material, size, seed, black=black)
     dirs = resolve_directions(directions)
     h, w = mat.size
 
     def block(v: int) -> np.ndarray:
         return mat.view_block(dirs, dirs.xyz[v])
 
-    name = f"synth-{mat.material}-{h}x{w}-s{mat.seed}"
+    variant = "-black" if mat.black else ""
+    name = f"synth-{mat.material}{variant}-{h}x{w}-s{mat.seed}"
     return FunctionBTF((h, w), dirs, dirs, block, name=name, attrs=mat.attrs(dirs))

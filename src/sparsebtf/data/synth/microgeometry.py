@@ -22,9 +22,13 @@ from scipy.ndimage import gaussian_filter
 from .surface import SurfaceMaps
 from .textures import fbm, filtered_noise, photo, smoothstep, standardize, worley
 
-__all__ = ["MATERIAL_CLASSES", "RECIPES", "build_surface"]
+__all__ = ["ALL_CLASSES", "EXTRA_CLASSES", "MATERIAL_CLASSES", "RECIPES", "build_surface"]
 
 MATERIAL_CLASSES = ("carpet", "fabric", "felt", "leather", "stone", "wallpaper", "wood")
+#: Classes outside the UBO2014 mirror (not in the benchmark's class list): ``metal`` is a
+#: perforated, grooved conductor — masked (exactly black) holes and a high dynamic range.
+EXTRA_CLASSES = ("metal",)
+ALL_CLASSES = MATERIAL_CLASSES + EXTRA_CLASSES
 
 Shape = tuple[int, int]
 
@@ -386,6 +390,45 @@ def _wood(shape: Shape, rng: np.random.Generator, relief: float) -> SurfaceMaps:
     )
 
 
+def _metal(shape: Shape, rng: np.random.Generator, relief: float) -> SurfaceMaps:
+    """Perforated brushed metal: V-grooves along the rows, brushing streaks, and a staggered
+    grid of punched holes that reflect nothing (masked texels, exactly black)."""
+    p = _period(shape, 4.0, minimum=6.0)
+    rr, cc = _grid(shape)
+    ny, nx = _counts(shape, p)
+    py, px = shape[0] / ny, shape[1] / nx
+    # V-grooves: |saw| profile across rows, one per cell row, half a cell deep.
+    groove = np.abs(np.mod(rr / py, 1.0) - 0.5)
+    streaks = filtered_noise(shape, rng, 0.6, angle=0.0, stretch=12.0)
+    # Holes centred in every other groove ridge, staggered by half a cell.
+    cy = (np.floor(rr / py) + 0.5) * py
+    shift = np.where(np.mod(np.floor(rr / py), 2) == 0, 0.0, 0.5)
+    cx = (np.floor(cc / px - shift) + 0.5 + shift) * px
+    dist = np.hypot(rr - cy, np.mod(cc - cx + shape[1] / 2, shape[1]) - shape[1] / 2)
+    hole = dist < 0.2 * min(py, px)
+    height = relief * p * (0.25 * groove + 0.01 * streaks - 0.3 * hole)
+    (f0,) = _pick(
+        rng,
+        [
+            ((1.0, 0.78, 0.34),),  # gold
+            ((0.95, 0.64, 0.54),),  # copper
+            ((0.56, 0.57, 0.58),),  # steel
+        ],
+    )
+    return SurfaceMaps(
+        height=height,
+        albedo=np.zeros(3),
+        specular=f0,
+        roughness=np.clip(0.18 + 0.04 * streaks, 0.1, 0.3),
+        sheen=np.zeros(shape),
+        fibre_angle=np.zeros(shape),
+        sheen_model="none",
+        penumbra=0.05,
+        period=p,
+        mask=~hole,
+    )
+
+
 RECIPES: dict[str, Callable[[Shape, np.random.Generator, float], SurfaceMaps]] = {
     "carpet": _carpet,
     "fabric": _fabric,
@@ -394,6 +437,7 @@ RECIPES: dict[str, Callable[[Shape, np.random.Generator, float], SurfaceMaps]] =
     "stone": _stone,
     "wallpaper": _wallpaper,
     "wood": _wood,
+    "metal": _metal,
 }
 
 
@@ -403,6 +447,6 @@ def build_surface(material: str, shape: Shape, seed: int, relief: float = 1.0) -
     The class name is mixed into the seed so that e.g. stone and leather with the same seed
     do not share their random draws.
     """
-    class_id = MATERIAL_CLASSES.index(material)
+    class_id = ALL_CLASSES.index(material)
     rng = np.random.default_rng([int(seed), class_id])
     return RECIPES[material](shape, rng, float(relief))

@@ -26,6 +26,11 @@ The physical model, per texel of the rectified image, light ω_i and view ω_o:
 
 Highlights beyond 1 are compressed smoothly towards 1.5 (a soft knee), which keeps every value
 in roughly [0, 1.5] like the tone range of a measured, exposure-fused BTF.
+
+The *true-black* variant (``black=True``) is what a path tracer without inter-reflection or a
+measured BTF with deep shadows gives: no inter-reflection term, hard shadows
+(:data:`BLACK_PENUMBRA`) and no highlight compression, so shadowed values are exact zeros and
+glossy highlights reach tens of times a white diffuse surface.
 """
 
 from __future__ import annotations
@@ -38,6 +43,7 @@ from .sampling import bilinear_wrap
 from .surface import SurfaceMaps
 
 __all__ = [
+    "BLACK_PENUMBRA",
     "KNEE",
     "MAX_VALUE",
     "LightTable",
@@ -50,6 +56,8 @@ __all__ = [
 ]
 
 KNEE = 1.0
+#: Shadow-edge half width (radians) of the true-black variant: a point light, hard shadows.
+BLACK_PENUMBRA = 0.005
 MAX_VALUE = 1.5
 _RETRO_WIDTH = 1.0 - np.cos(np.radians(12.0))
 _FIBRE_EXPONENT = 24.0
@@ -120,8 +128,14 @@ class LightTable:
     visibility: np.ndarray  # (H, W, L) float32 in [0, 1], 1 = fully lit
 
 
-def prepare_lights(maps: SurfaceMaps, lights_xyz: np.ndarray) -> LightTable:
-    """Soft self-shadowing maps for every light; lights sharing an azimuth share a horizon."""
+def prepare_lights(
+    maps: SurfaceMaps, lights_xyz: np.ndarray, penumbra: float | None = None
+) -> LightTable:
+    """Soft self-shadowing maps for every light; lights sharing an azimuth share a horizon.
+
+    ``penumbra`` overrides the maps' shadow-edge half width (radians; small = hard shadows).
+    """
+    penumbra = maps.penumbra if penumbra is None else float(penumbra)
     xyz = np.asarray(lights_xyz, dtype=np.float64)
     height = maps.height
     n = xyz.shape[0]
@@ -135,7 +149,7 @@ def prepare_lights(maps: SurfaceMaps, lights_xyz: np.ndarray) -> LightTable:
             group = np.flatnonzero(tilted & (az == a))
             horizon = np.arctan(horizon_slope(height, float(a), float(np.tan(elev[group].min()))))
             for li in group:
-                ramp = np.clip(0.5 + (elev[li] - horizon) / (2 * maps.penumbra), 0, 1)
+                ramp = np.clip(0.5 + (elev[li] - horizon) / (2 * penumbra), 0, 1)
                 vis[:, :, li] = ramp * ramp * (3 - 2 * ramp)
     return LightTable(xyz=xyz.astype(_F32), visibility=vis)
 
@@ -172,7 +186,10 @@ def parallax_lookup(height: np.ndarray, view: np.ndarray) -> tuple[np.ndarray, n
         if np.any(new):
             # Linear refinement between the last step above and the first one below.
             denom = prev_f - f
-            frac = np.where(np.isfinite(denom) & (denom < 0), prev_f / np.minimum(denom, -1e-12), 0)
+            with np.errstate(invalid="ignore"):  # −inf / −inf on the first step: masked below
+                frac = np.where(
+                    np.isfinite(denom) & (denom < 0), prev_f / np.minimum(denom, -1e-12), 0
+                )
             frac = np.clip(np.nan_to_num(frac, nan=0.0, posinf=0.0, neginf=0.0), 0, 1)
             hit_t = np.where(new, prev_t + (t - prev_t) * frac, hit_t)
             found |= new
@@ -213,11 +230,14 @@ def shade_view(
     table: LightTable,
     packed: np.ndarray,
     view: np.ndarray,
+    black: bool = False,
 ) -> np.ndarray:
     """BTF values of all texels and all lights of ``table`` for one view: (H, W, L, 3) float32.
 
     ``packed`` is :func:`pack`'s array for (``maps``, ``table``). Texels are shaded in chunks
-    (vectorised within each) so memory stays small even for 400×400 tiles.
+    (vectorised within each) so memory stays small even for 400×400 tiles. ``black`` drops
+    the inter-reflection term (shadows are exact zeros) and the highlight compression (values
+    are high dynamic range), as a path tracer's or a measured BTF's are.
     """
     hgt, wid = maps.shape
     n_l = table.xyz.shape[0]
@@ -229,11 +249,18 @@ def shade_view(
     for start in range(0, hgt * wid, _CHUNK):
         part = slice(start, start + _CHUNK)
         sampled = bilinear_wrap(packed, rows[part], cols[part])  # (n, C)
-        out[part] = _shade_points(sampled, v, table.xyz, maps.sheen_model)
+        out[part] = _shade_points(sampled, v, table.xyz, maps.sheen_model, black)
+    if maps.mask is not None:
+        # Nearest texel of the seen surface point: a hole stays exactly black.
+        r = np.round(rows).astype(np.int64) % hgt
+        seen = maps.mask[r, np.round(cols).astype(np.int64) % wid]
+        out *= seen[:, None, None]
     return out.reshape(hgt, wid, n_l, 3)
 
 
-def _shade_points(s: np.ndarray, v: np.ndarray, lights: np.ndarray, sheen_model: str) -> np.ndarray:
+def _shade_points(
+    s: np.ndarray, v: np.ndarray, lights: np.ndarray, sheen_model: str, black: bool = False
+) -> np.ndarray:
     """Shade sampled surface points ``s`` (n, C packed channels) for all lights: (n, L, 3)."""
     n_l = lights.shape[0]
     n = s[:, 0:3]
@@ -297,7 +324,8 @@ def _shade_points(s: np.ndarray, v: np.ndarray, lights: np.ndarray, sheen_model:
     luma = _dot3(albedo, np.array([[0.2126, 0.7152, 0.0722]], dtype=_F32))
     bounce = (_F32(0.07) + _F32(0.6) * luma * (1 - ao)) * np.maximum(lights[:, 2], 0)
     diffuse = lit
-    diffuse += bounce
+    if not black:
+        diffuse += bounce
 
     # Assemble channel by channel from (N, L) terms: far fewer full-size temporaries.
     out = np.empty((s.shape[0], n_l, 3), dtype=_F32)
@@ -310,7 +338,7 @@ def _shade_points(s: np.ndarray, v: np.ndarray, lights: np.ndarray, sheen_model:
             chan += sheen_val * tint[:, c : c + 1]
         np.maximum(chan, 0, out=chan)
         out[:, :, c] = chan
-    return soft_limit(out, out=out)
+    return out if black else soft_limit(out, out=out)
 
 
 def pack(maps: SurfaceMaps, table: LightTable) -> np.ndarray:

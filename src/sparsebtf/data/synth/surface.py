@@ -47,6 +47,8 @@ class SurfaceMaps:
     penumbra : half width (radians) of the soft shadow edge: light-source size plus the
         sub-texel blur of real fibres and grains.
     period : characteristic feature size in texels (thread, tuft, grain, ring spacing).
+    mask : (H, W) float32 in [0, 1], the share of each texel that reflects at all (0: a hole
+        or a masked texel, exactly black); None: everywhere 1.
     """
 
     height: np.ndarray
@@ -58,6 +60,7 @@ class SurfaceMaps:
     sheen_model: str = "none"
     penumbra: float = 0.12
     period: float = 8.0
+    mask: np.ndarray | None = None
     normal: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -83,6 +86,8 @@ class SurfaceMaps:
         if self.sheen_model not in SHEEN_MODELS:
             raise ValueError(f"sheen_model must be one of {SHEEN_MODELS}, not {self.sheen_model!r}")
         object.__setattr__(self, "normal", f32("normal", height_normals(h), (3,)))
+        if self.mask is not None:
+            object.__setattr__(self, "mask", f32("mask", np.clip(self.mask, 0.0, 1.0)))
 
     @property
     def shape(self) -> tuple[int, int]:

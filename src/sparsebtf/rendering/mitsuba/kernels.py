@@ -206,6 +206,7 @@ class CodedArrays:
         self.n_stats = int(a["mean"].shape[0])
         self.mean = mi.Float(a["mean"].ravel())
         self.std = mi.Float(a["std"].ravel())
+        self.bound = mi.Float(a["bound"].ravel())
         self.yuv_to_rgb = [[float(v) for v in row] for row in a["yuv_to_rgb"]]
         self.channels = []
         for ch in ("Y", "U", "V"):
@@ -249,7 +250,8 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
 
     ``uv`` (tiled, wraps); ``light_nb``/``view_nb``: the (indices, weights) of
     :func:`find_neighbours`; ``prm`` needs ``domain``. The decoder's floor (−eps) is kept: the
-    plugin clamps to 0.
+    plugin clamps to 0. The log-RGB values are clamped to the material's bound interpolated
+    with the angular weights, as :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate` does.
 
     Per coefficient the loop reads one packed (value, location) pair, U1·U2 from ``d12`` and
     the kl + kv angular factors: 2 + kl + kv gathers (4 + kl + kv before the packing and d12).
@@ -327,9 +329,16 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
         if not log_domain:
             log = acc[0] * sd_t + mu_t
         logs.append(log)
+    bound = mi.Float(0.0)
+    for x in range(kl):
+        for y in range(kv):
+            bound += lw[x] * vw[y] * dr.gather(mi.Float, data.bound, li[x] * nv + vi[y], active)
     m = data.yuv_to_rgb
-    rgb = [dr.exp(m[r][0] * logs[0] + m[r][1] * logs[1] + m[r][2] * logs[2]) - data.eps
-           for r in range(3)]
+    rgb = [
+        dr.exp(dr.minimum(m[r][0] * logs[0] + m[r][1] * logs[1] + m[r][2] * logs[2], bound))
+        - data.eps
+        for r in range(3)
+    ]
     return mi.Color3f(*rgb)
 
 

@@ -14,7 +14,7 @@
 //            over the first min(count, tau'_c) coefficients (stored by decreasing |v|), then
 //            log_c = X_c sd + mu with mu, sd blended by wl_a wv_b ("standardized" domain), or
 //            log_c = sum_ab wl_a wv_b (sd_ab X_c(L_a,V_b) + mu_ab) ("log" domain, release shader)
-//   colour   rgb = exp(YUV_TO_RGB [log_Y, log_U, log_V]) - eps
+//   colour   rgb = exp(min(YUV_TO_RGB [log_Y, log_U, log_V], bound)) - eps
 //
 // Texture layout (built by sparsebtf.rendering.viewer.pack_textures): every 1D array of n
 // entries lies in a SB_TEX_WIDTH-wide 2D texture, entry i at texel (i % W, i / W).
@@ -23,7 +23,8 @@
 //   sb_points     RGBA32I  at c*P + p: (first coefficient in sb_values, count, dictionary k, 0)
 //   sb_dicts      R32F     per channel dict1, dict2, dict3, dict4 (K, m, m) C order;
 //                          sb_dictBase[c] = their four start offsets
-//   sb_stats      R32F     mean (S, L, V) then std (S, L, V); std starts at sb_stdBase
+//   sb_stats      R32F     mean (S, L, V), std (S, L, V), bound (L, V); std starts at
+//                          sb_stdBase, bound (the clamp on ln(RGB + eps)) at sb_boundBase
 //   sb_dirs       RGBA32F  lights (xyz) then views
 //   sb_neigh      R32I     optional candidate tables (64 elevation x 256 azimuth x 8), lights
 //                          then views (runtime.angular.neighbour_table)
@@ -53,6 +54,7 @@ uniform ivec4 sb_counts;      // n_points, n_lights, n_views, S (1 shared or 3 p
 uniform ivec4 sb_dictBase[3]; // start of dict1..dict4 of channel Y, U, V in sb_dicts
 uniform ivec4 sb_dictSize;    // K is per channel, so only m: (P, P, L, V) as stored
 uniform int sb_stdBase;       // start of std in sb_stats
+uniform int sb_boundBase;     // start of the bound in sb_stats
 uniform ivec3 sb_tau;         // run-time level of detail tau' per channel (Y, U, V)
 uniform vec3 sb_yuvToRgb[3];  // rows of the YUV -> RGB matrix
 uniform float sb_eps;         // log offset
@@ -288,5 +290,14 @@ vec3 sb_evaluate(vec2 uv, vec3 wi, vec3 wo) {
                    sb_channel(1, t, nl, il, wl, nv, iv, wv),
                    sb_channel(2, t, nl, il, wl, nv, iv, wv));
     vec3 ln = vec3(dot(sb_yuvToRgb[0], lg), dot(sb_yuvToRgb[1], lg), dot(sb_yuvToRgb[2], lg));
-    return exp(ln) - sb_eps;
+    // The material's bound on ln(RGB + eps), interpolated like the statistics.
+    float bound = 0.0;
+    for (int a = 0; a < SB_MAX_NN; ++a) {
+        if (a >= nl) break;
+        for (int b = 0; b < SB_MAX_NN; ++b) {
+            if (b >= nv) break;
+            bound += wl[a] * wv[b] * sb_f(sb_stats, sb_boundBase + il[a] * sb_counts.z + iv[b]);
+        }
+    }
+    return exp(min(ln, vec3(bound))) - sb_eps;
 }

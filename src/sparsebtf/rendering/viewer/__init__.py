@@ -37,6 +37,7 @@ import numpy as np
 
 from ..._json import json_default
 from ...errors import BTFInputError, FileFormatError, SparseBTFError
+from ...runtime.decoder import NO_BOUND
 
 if TYPE_CHECKING:
     from ...runtime import RuntimeBTF
@@ -188,6 +189,12 @@ def pack_textures(
         raise BTFInputError(
             f"{where}: statistics of shape {mean.shape}, expected (S, {n_l}, {n_v})"
         )
+    if "bound" in arrays:
+        bound = arrays["bound"].astype(np.float32)
+        if bound.shape != (n_l, n_v):
+            raise BTFInputError(f"{where}: bound of shape {bound.shape}, expected ({n_l}, {n_v})")
+    else:  # no clamp
+        bound = np.full((n_l, n_v), NO_BOUND, dtype=np.float32)
     dirs = np.zeros((n_l + n_v, 4), dtype=np.float32)
     dirs[:n_l, :3] = arrays["lights_xyz"]
     dirs[n_l:, :3] = arrays["views_xyz"]
@@ -197,7 +204,7 @@ def pack_textures(
         ("sb_locations", "R32UI", np.concatenate(locations)),
         ("sb_points", "RGBA32I", np.concatenate(points)),
         ("sb_dicts", "R32F", np.concatenate(dict_parts)),
-        ("sb_stats", "R32F", np.concatenate([mean.ravel(), std.ravel()])),
+        ("sb_stats", "R32F", np.concatenate([mean.ravel(), std.ravel(), bound.ravel()])),
         ("sb_dirs", "RGBA32F", dirs),
     ]
     has_neigh = "neighbours_lights" in arrays and "neighbours_views" in arrays
@@ -230,6 +237,7 @@ def pack_textures(
         "sb_dictBase": dict_base,
         "sb_dictSize": sizes,
         "sb_stdBase": int(mean.size),
+        "sb_boundBase": int(2 * mean.size),
         "sb_yuvToRgb": arrays["yuv_to_rgb"].astype(np.float64).tolist(),
         "sb_eps": float(meta["eps"]),
     }

@@ -1,0 +1,205 @@
+"""True black and high dynamic range (issue "Never a firework"): the true-black synthetic
+variant, the per-material log offset, the bound kept with the statistics, and the codec on a
+material with exact zeros at every level."""
+
+import itertools
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from sparsebtf.codec import encode, encode_levels
+from sparsebtf.data.btf import ArrayBTF
+from sparsebtf.data.synth import MATERIAL_CLASSES, cached, synthesize
+from sparsebtf.errors import BTFInputError
+from sparsebtf.metrics import compare, top_k_largest
+from sparsebtf.open import parse_synth_spec
+from sparsebtf.points.preprocessing import (
+    EPS,
+    LOG_OFFSET_FRACTION,
+    choose_log_offset,
+    gather_statistics,
+    resolve_log_offset,
+    round_up_half,
+)
+from sparsebtf.runtime import RuntimeBTF, coded_btf_view, kernels
+from sparsebtf.storage import load_coded, save_coded
+
+from .conftest import smooth_btf, tight_bound, tiny_model
+
+ALL = (slice(None),) * 4
+#: The benchmark's four levels (SparseBTF(16), (32), (64), (128)).
+LEVELS = [(326, 24, 24), (885, 64, 64), (2001, 145, 145), (4478, 324, 324)]
+
+
+def _full(btf):
+    return btf.read(*ALL).astype(np.float64)
+
+
+# -- the synthetic variant ----------------------------------------------------------------------
+def test_black_variant_has_exact_zeros_and_high_dynamic_range():
+    metal = _full(synthesize("metal", 12, "tiny13", seed=1, black=True))
+    assert (metal == 0).mean() >= 0.05 and metal.max() >= 10
+    for cls in ("carpet", "stone"):
+        soft = _full(synthesize(cls, 12, "tiny13", seed=1))
+        black = _full(synthesize(cls, 12, "tiny13", seed=1, black=True))
+        # the default variant keeps its stray-light floor and its 1.5 ceiling
+        assert soft.min() > 0 and soft.max() <= 1.5
+        assert (black == 0).any() and np.all(black >= 0)
+        # shadows are black, lit values are not dimmed: only the bounce term went away
+        assert np.all(black <= np.maximum(soft, 1.5) + 1e-6) or black.max() > 1.5
+
+
+def test_black_variant_is_cached_apart_and_named():
+    a = cached("stone", 8, "tiny13", seed=2)
+    b = cached("stone", 8, "tiny13", seed=2, black=True)
+    assert a.path != b.path and "black" in b.name
+    assert not np.array_equal(_full(a), _full(b))
+    assert parse_synth_spec("synth:stone+black:8:2:tiny13") == {
+        "material": "stone", "black": True, "size": 8, "seed": 2, "directions": "tiny13"
+    }
+    with pytest.raises(Exception, match="unknown variant"):
+        parse_synth_spec("synth:stone+shiny:8")
+    assert "metal" not in MATERIAL_CLASSES  # the benchmark's seven classes are unchanged
+
+
+# -- the log offset -----------------------------------------------------------------------------
+def test_log_offset_rules():
+    btf = ArrayBTF(np.full((4, 4, 13, 13, 3), 0.2, np.float32), *[smooth_btf(0).lights] * 2)
+    assert choose_log_offset(btf, "release") == EPS
+    assert choose_log_offset(btf, 0.003) == 0.003
+    # 1 % of the median positive value (to the histogram's 64 bins per decade)
+    assert choose_log_offset(btf, "auto") == pytest.approx(LOG_OFFSET_FRACTION * 0.2, rel=0.04)
+    data = np.zeros((4, 4, 13, 13, 3), np.float32)
+    assert choose_log_offset(ArrayBTF(data, btf.lights, btf.views), "auto") == EPS  # all black
+    data[:2] = 1e-6  # a dark material never goes below the release's offset
+    assert choose_log_offset(ArrayBTF(data, btf.lights, btf.views), "auto") == EPS
+    for bad in ("big", 0.0, 1e-9, float("nan"), 1e9, "-1"):
+        with pytest.raises(BTFInputError, match="log offset"):
+            resolve_log_offset(bad)
+
+
+def test_exact_zeros_do_not_move_the_offset_of_the_lit_values():
+    """The offset follows the material's lit values; zeros only add black."""
+    lit = _full(synthesize("stone", 12, "tiny13", seed=3))
+    with_zeros = lit.copy()
+    with_zeros[:, :4] = 0
+    d = smooth_btf(0).lights
+    a = choose_log_offset(ArrayBTF(lit.astype(np.float32), d, d), "auto")
+    b = choose_log_offset(ArrayBTF(with_zeros.astype(np.float32), d, d), "auto")
+    assert a > EPS and b == pytest.approx(a, rel=0.15)
+
+
+# -- the bound ----------------------------------------------------------------------------------
+def test_bound_is_the_brightest_log_value_of_each_angular_image_rounded_up():
+    btf = smooth_btf(4)
+    data = _full(btf)
+    st = gather_statistics(btf, eps=1e-3, progress=False)
+    true = np.log(data.astype(np.float32) + np.float32(1e-3)).max(axis=(0, 1, 4))
+    assert st.bound.shape == true.shape
+    assert np.all(st.bound >= true)
+    # at most one binary16 step above
+    step = np.abs(np.spacing(true.astype(np.float16)).astype(np.float64))
+    assert np.all(st.bound - true <= step + 1e-7)
+    x = np.array([1.0001, -11.51, 3.3, 2.0])
+    r = round_up_half(x)
+    assert np.all(r >= x) and r.dtype == np.float32 and r[3] == 2.0
+    assert np.array_equal(r.astype(np.float16).astype(np.float32), r)  # exact in binary16
+
+
+@pytest.fixture(scope="module")
+def coded():
+    return encode(smooth_btf(9), tiny_model(), tau=(40, 8, 8), eps=0.0, progress=False)
+
+
+def test_dense_decoder_clamps_to_the_bound(coded):
+    tight = tight_bound(coded)
+    free = coded_btf_view(replace(coded, stats=replace(coded.stats, bound=None))).read(*ALL)
+    got = coded_btf_view(tight).read(*ALL)
+    cap = np.exp(tight.stats.bound.astype(np.float64)) - tight.stats.eps
+    assert np.all(got <= cap[None, None, :, :, None] * (1 + 1e-6) + 1e-7)
+    clamped = free > cap[None, None, :, :, None] * (1 + 1e-5)
+    assert 0.1 < clamped.mean() < 0.9  # the test clamps for real
+    below = free < cap[None, None, :, :, None] * (1 - 1e-5)
+    np.testing.assert_array_equal(got[below], free[below])
+
+
+@pytest.mark.parametrize("backend", ["numpy"] + (["numba"] if kernels.HAVE_NUMBA else []))
+@pytest.mark.parametrize("domain", ["standardized", "log"])
+def test_runtime_clamps_like_the_dense_decoder(coded, backend, domain):
+    tight = tight_bound(coded)
+    rt = RuntimeBTF(tight, dtype=np.float64)
+    rng = np.random.default_rng(0)
+    n = 300
+    tex = np.stack([rng.integers(0, 8, n), rng.integers(0, 8, n)], 1)
+    li, vi = rng.integers(0, 13, n), rng.integers(0, 13, n)
+    got = rt.evaluate(coded.lights.xyz[li], coded.views.xyz[vi], texel=tex,
+                      interpolation="nearest", backend=backend, domain=domain)  # fmt: skip
+    ref = coded_btf_view(tight).read(*ALL)[tex[:, 0], tex[:, 1], li, vi]
+    np.testing.assert_allclose(got, ref, rtol=2e-5, atol=1e-7)
+    # between sampled directions: below the bound interpolated with the angular weights
+    wi = rng.normal(size=(n, 3))
+    wi[:, 2] = np.abs(wi[:, 2]) + 0.1
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    got = rt.evaluate(wi, wi[::-1], texel=tex, backend=backend, domain=domain)
+    from sparsebtf.runtime import angular_weights
+
+    li2, lw = angular_weights(coded.lights, wi, "linear")
+    vi2, vw = angular_weights(coded.views, wi[::-1], "linear")
+    w2 = lw[:, :, None] * vw[:, None, :]
+    cap = np.exp(np.einsum("nab,nab->n", w2, tight.stats.bound[li2[:, :, None], vi2[:, None, :]]))
+    assert np.all(got <= (cap - tight.stats.eps)[:, None] * (1 + 1e-5) + 1e-7)
+    free = RuntimeBTF(coded, dtype=np.float64).evaluate(
+        wi, wi[::-1], texel=tex, backend=backend, domain=domain
+    )
+    assert (free > got * (1 + 1e-4)).any()  # the clamp is active here too
+
+
+def test_bound_round_trips_through_the_file_and_old_files_have_none(coded, tmp_path):
+    save_coded(coded, tmp_path / "c.h5")
+    back = load_coded(tmp_path / "c.h5")
+    assert np.array_equal(back.stats.bound, coded.stats.bound)
+    assert back.stats.eps == coded.stats.eps
+    old = replace(coded, stats=replace(coded.stats, bound=None))
+    save_coded(old, tmp_path / "old.h5")
+    assert load_coded(tmp_path / "old.h5").stats.bound is None
+    meta = RuntimeBTF(load_coded(tmp_path / "old.h5").attach(coded.model)).meta
+    assert meta["bounded"] is False
+
+
+def test_top_error_share_and_largest_value(coded):
+    view = coded_btf_view(coded)
+    m = compare(smooth_btf(9), view, ssim_images=0, progress=False)
+    assert m["max_decoded"] == pytest.approx(float(view.read(*ALL).max()))
+    assert 0 < m["top_error_share"] < 1
+    kept = top_k_largest(np.empty(0), np.arange(10.0), 3)
+    kept = top_k_largest(kept, np.array([4.0, 20.0]), 3)
+    assert sorted(kept) == [8.0, 9.0, 20.0]
+
+
+# -- the codec on true black at every level (the bundled model, UBO2014 directions) ----------------
+@pytest.fixture(scope="module")
+def firework_case():
+    from sparsebtf.storage.bundled import load_bundled
+
+    btf = cached("metal", 20, "ubo2014", seed=1, black=True)
+    ref = _full(btf)
+    model = load_bundled()
+    out = {}
+    for rule in ("auto", "release"):
+        levels = encode_levels(btf, model, LEVELS, eps=0.0, allow_below_training=True,
+                               log_offset=rule, progress=False)  # fmt: skip
+        out[rule] = [coded_btf_view(c).read(*ALL).astype(np.float64) for c in levels]
+    return ref, out
+
+
+@pytest.mark.slow
+def test_exact_zeros_at_every_level(firework_case):
+    ref, out = firework_case
+    assert (ref == 0).mean() >= 0.05 and ref.max() >= 10
+    mse = [float(np.mean((d - ref) ** 2)) for d in out["auto"]]
+    assert all(a > b for a, b in itertools.pairwise(mse)), mse  # strictly decreasing in τ
+    for d in out["auto"] + out["release"]:
+        # the bound: no decoded value above the brightest of its angular image
+        assert d.max() <= ref.max(axis=(0, 1, 4)).max() * (1 + 2e-3)
+        assert np.all(d <= ref.max(axis=(0, 1, 4))[None, None, :, :, None] * 1.003 + 1e-4)
