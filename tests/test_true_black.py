@@ -12,6 +12,8 @@ from sparsebtf.codec import encode, encode_levels
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.data.synth import MATERIAL_CLASSES, cached, synthesize
 from sparsebtf.errors import BTFInputError
+from sparsebtf.evaluation.benchmark_set import FLOOR
+from sparsebtf.evaluation.runner import floored
 from sparsebtf.metrics import compare, top_k_largest
 from sparsebtf.open import parse_synth_spec
 from sparsebtf.points.preprocessing import (
@@ -186,10 +188,11 @@ def firework_case():
     ref = _full(btf)
     model = load_bundled()
     out = {}
-    for rule in ("auto", "release"):
-        levels = encode_levels(btf, model, LEVELS, eps=0.0, allow_below_training=True,
+    for way, src, rule in (("auto", btf, "auto"), ("release", btf, "release"),
+                           ("floored", floored(btf, FLOOR), "release")):
+        levels = encode_levels(src, model, LEVELS, eps=0.0, allow_below_training=True,
                                log_offset=rule, progress=False)  # fmt: skip
-        out[rule] = [coded_btf_view(c).read(*ALL).astype(np.float64) for c in levels]
+        out[way] = [coded_btf_view(c).read(*ALL).astype(np.float64) for c in levels]
     return ref, out
 
 
@@ -199,6 +202,8 @@ def test_exact_zeros_at_every_level(firework_case):
     assert (ref == 0).mean() >= 0.05 and ref.max() >= 10
     mse = [float(np.mean((d - ref) ** 2)) for d in out["auto"]]
     assert all(a > b for a, b in itertools.pairwise(mse)), mse  # strictly decreasing in τ
+    # level 32 within 1.25x of the copy floored at 1e-3 (both against the unfloored material)
+    assert mse[1] <= 1.25 * float(np.mean((out["floored"][1] - ref) ** 2))
     for d in out["auto"] + out["release"]:
         # the bound: no decoded value above the brightest of its angular image
         assert d.max() <= ref.max(axis=(0, 1, 4)).max() * (1 + 2e-3)

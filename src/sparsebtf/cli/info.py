@@ -121,6 +121,12 @@ def describe(
                       (model.file or "given") if model is not None else
                       "not found (give -m MODEL.h5 for exact dictionary bytes)"),
             "params": coded.params,
+            "preprocessing": {
+                "standardisation": coded.stats.mode,
+                "log_offset": coded.stats.eps,
+                "bound": ("largest ln(RGB + eps) per angular image, every decoder clamps to it"
+                          if coded.stats.bound is not None else "none (older file: no clamp)"),
+            },
             "directions": {
                 "lights": {"name": coded.lights.name, "count": len(coded.lights)},
                 "views": {"name": coded.views.name, "count": len(coded.views)},

@@ -437,6 +437,12 @@ def _training_line(result: dict[str, Any]) -> str:
             f"{cfg['tol']:g} (at most {cfg['iters']}); iterations Y/U/V: {its}")
 
 
+def _offset_flag(cfg: dict[str, Any]) -> str:
+    """The ``--log-offset`` a run was made with, when not the default."""
+    rule = cfg.get("log_offset", "auto")
+    return "" if rule == "auto" else f" --log-offset {rule}"
+
+
 def render_markdown(
     result: dict[str, Any],
     summary: dict[str, Any],
@@ -455,7 +461,8 @@ def render_markdown(
         "",
         f"- Command: `sparsebtf bench quality{' --quick' if cfg['name'] == 'quick' else ''}"
         f"{' --seed ' + str(result['seed']) if result['seed'] else ''}"
-        f"{''.join(' --materials ' + m for m in result.get('extra_materials', []))} "
+        f"{''.join(' --materials ' + m for m in result.get('extra_materials', []))}"
+        f"{_offset_flag(cfg)} "
         "--out DIR`.",
         f"- Run: configuration **{cfg['name']}**, seed {result['seed']}, created "
         f"{result['created']}, {result['seconds'] / 60:.1f} min on {mach['cpus']} CPUs "
@@ -480,6 +487,10 @@ def render_markdown(
         "- Fixed-tau SparseBTF codes every point with exactly tau coefficients (eps = 0), as "
         "in the paper's tables; rate control gets exactly the fixed-tau bytes.",
         "- MSE is on linear RGB over every value (the paper's tables), shown x 1e-4.",
+        "- Preprocessing: log offset "
+        + (f"'{cfg['log_offset']}' (ln(x + eps), eps per material; release: 1e-5) and the "
+           "bound on decoded values kept with the statistics." if "log_offset" in cfg else
+           "1e-5 (the release's), no bound (runs before the log offset existed)."),
     ]
     for n in cfg.get("notes", []):
         lines.append(f"- Note: {n}")
