@@ -208,3 +208,42 @@ def test_exact_zeros_at_every_level(firework_case):
         # the bound: no decoded value above the brightest of its angular image
         assert d.max() <= ref.max(axis=(0, 1, 4)).max() * (1 + 2e-3)
         assert np.all(d <= ref.max(axis=(0, 1, 4))[None, None, :, :, None] * 1.003 + 1e-4)
+
+
+def test_training_records_its_log_offset():
+    from sparsebtf.codec import train
+
+    kw = dict(n_dictionaries=2, tau_train=(8, 4, 4), patch=4, sample=1.0, max_iter=1,
+              progress=False)  # fmt: skip
+    black = ArrayBTF(np.where(_full(smooth_btf(1)) > 0.2, _full(smooth_btf(1)), 0)
+                     .astype(np.float32), smooth_btf(1).lights, smooth_btf(1).views)
+    a = train([black], log_offset="auto", **kw)
+    b = train([black], log_offset="release", **kw)
+    assert a.params["log_offset"] == "auto" and b.params["log_offset"] == "release"
+    assert not np.allclose(a.dictionaries["Y"][0], b.dictionaries["Y"][0])
+    with pytest.raises(BTFInputError, match="log offset"):
+        train([black], log_offset="never", **kw)
+
+
+def test_cli_log_offset(tmp_path, capsys):
+    from sparsebtf.cli.main import main
+    from sparsebtf.storage import save_model
+
+    model = tiny_model()
+    save_model(model, tmp_path / "m.h5")
+    src = "synth:stone+black:8:3:tiny13"
+    for rule, eps in (("release", EPS), ("0.002", 0.002)):
+        out = tmp_path / f"{rule}.h5"
+        assert main(["encode", src, "-m", str(tmp_path / "m.h5"), "-o", str(out),
+                     "--tau", "16,4,4", "--log-offset", rule]) == 0  # fmt: skip
+        assert load_coded(out).stats.eps == eps
+    capsys.readouterr()
+    assert main(["encode", src, "-m", str(tmp_path / "m.h5"), "-o", str(tmp_path / "x.h5"),
+                 "--log-offset", "1e9"]) == 2  # fmt: skip
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--log-offset" in err[0] and "1e+09" in err[0]
+    assert not (tmp_path / "x.h5").exists()
+    assert main(["eval", str(tmp_path / "release.h5"), "-m", str(tmp_path / "m.h5"),
+                 "--reference", src, "--ssim-images", "1"]) == 0  # fmt: skip
+    out = capsys.readouterr().out
+    assert "largest value" in out and "worst 0.01 %" in out

@@ -278,3 +278,13 @@ def output_files(
         check_output_file(p, [*sources, *inputs])
         seen[key] = s
     return paths
+
+
+def log_offset(text: str) -> Any:
+    """The ``--log-offset`` value: "auto", "release" or a number in [1e-5, 1e3]."""
+    from ..points.preprocessing import resolve_log_offset
+
+    try:
+        return resolve_log_offset(text)
+    except SparseBTFError as e:
+        raise SparseBTFError(f"--log-offset: {e}") from None

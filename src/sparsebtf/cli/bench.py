@@ -30,7 +30,7 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
     if args.log_offset is not None:
         from dataclasses import replace
 
-        from .encode import log_offset
+        from ._args import log_offset
 
         cfg = replace(cfg, log_offset=log_offset(args.log_offset))
     result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed,

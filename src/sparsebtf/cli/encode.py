@@ -12,6 +12,7 @@ from ._args import (
     check_tau,
     cluster_options,
     integer,
+    log_offset,
     number,
     open_source,
     output_files,
@@ -58,17 +59,6 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(reports[0] if len(args.btf) == 1 else {"files": reports})
     return 0
-
-
-def log_offset(text: str) -> Any:
-    """The --log-offset value: a rule name or a number (checked by the encoder)."""
-    from ..errors import SparseBTFError
-    from ..points.preprocessing import resolve_log_offset
-
-    try:
-        return resolve_log_offset(text)
-    except SparseBTFError as e:
-        raise SparseBTFError(f"--log-offset: {e}") from None
 
 
 def ratio_line(report: dict[str, Any], asked: float | None, per_material: bool) -> str:

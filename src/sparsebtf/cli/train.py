@@ -19,6 +19,7 @@ from ._args import (
     check_output_file,
     cluster_options,
     integer,
+    log_offset,
     number,
     open_source,
     parse_crop,
@@ -90,6 +91,7 @@ def _train(args: argparse.Namespace, ck: Path) -> Any:
         max_iter=args.iters,
         tol=args.tol,
         std_mode=args.std_mode,
+        log_offset=log_offset(args.log_offset),
         colour_mode=args.colour_mode,
         candidates=args.candidates,
         full_pass_every=args.full_pass_every,
@@ -153,6 +155,10 @@ def register(sub: Any) -> None:
         default="shared",
         help="standardisation: the release's shared mean/std, or per channel",
     )
+    s.add_argument("--log-offset", default="auto", metavar="auto|release|EPS",
+                   help="the offset eps of ln(x + eps) of each training BTF: auto (default) = "
+                   "1%% of its median positive value, at least 1e-5; release = 1e-5, the "
+                   "authors'; or a number in [1e-5, 1e3]")
     s.add_argument(
         "--colour-mode",
         action="store_true",

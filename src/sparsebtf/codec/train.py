@@ -32,7 +32,13 @@ from ..learning.ensemble import (
 )
 from ..learning.partitions import PARTITION_POINTS, load_points
 from ..model import CHANNELS, Model, TauSpec, parse_tau
-from ..points.preprocessing import TRANSFORMS, StdMode, Transform
+from ..points.preprocessing import (
+    TRANSFORMS,
+    LogOffset,
+    StdMode,
+    Transform,
+    resolve_log_offset,
+)
 from ..points.sources import BTFPointSource, channel_sources, training_points
 from .jobs import Source
 
@@ -154,6 +160,7 @@ def train(
     stage_dir: str | None = None,
     progress: bool | None = None,
     preprocessing: Transform = "log_yuv",
+    log_offset: LogOffset = "auto",
     crop: tuple[slice, slice] | None = None,
     client: Any = None,
     scheduler: str | None = None,
@@ -172,7 +179,9 @@ def train(
     half the free disk); otherwise every pass streams them from the BTFs.
     ``preprocessing="identity"`` skips log, YUV and standardisation: the ensembles learn raw
     linear R, G, B (in the channel slots Y, U, V) — the [MHU19] baseline of the paper's Table 2.
-    Encoding with the model then uses the same (no) processing.
+    Encoding with the model then uses the same (no) processing. ``log_offset`` is the rule for
+    each BTF's ε in ln(x + ε) ("auto", "release" = 1e-5, or a number; see
+    :func:`~sparsebtf.points.preprocessing.choose_log_offset`).
 
     ``btfs`` are BTF objects or sources (paths, ``synth:`` specs; ``crop`` = (rows, cols)
     applies to every one). ``client`` (a ``dask.distributed.Client``), ``scheduler`` (an
@@ -191,6 +200,7 @@ def train(
     )._validate()  # fmt: skip
     if preprocessing not in TRANSFORMS:
         raise BTFInputError(f"preprocessing must be one of {TRANSFORMS}, got {preprocessing!r}")
+    rule = resolve_log_offset(log_offset)
     channels = ("YUV",) if colour_mode else CHANNELS
     taus = parse_tau(tau_train, channels)
     t0 = time.perf_counter()
@@ -198,7 +208,8 @@ def train(
         Path(checkpoint_dir).mkdir(parents=True, exist_ok=True)
     sources = [Source.of(b, crop) for b in btfs]
     opened = [s.open() for s in sources]
-    points = training_points(opened, patch, sample, seed, std_mode, preprocessing, progress)
+    points = training_points(opened, patch, sample, seed, std_mode, preprocessing, progress,
+                             rule)
     dictionaries: dict[str, list[np.ndarray]] = {}
     training: dict[str, dict[str, Any]] = {}
     with (
@@ -249,6 +260,8 @@ def train(
     }
     if preprocessing != "log_yuv":
         params["preprocessing"] = preprocessing
+    else:
+        params["log_offset"] = rule
     provenance = {
         "library": f"sparsebtf {library_version()}",
         "materials": [b.name for b in opened],

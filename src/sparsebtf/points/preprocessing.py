@@ -415,7 +415,7 @@ def resolve_log_offset(rule: LogOffset) -> LogOffset:
     value = float(rule)
     if not EPS <= value <= _MAX_LOG_OFFSET:  # also refuses NaN
         raise BTFInputError(
-            f"log offset must be between {EPS:g} and {_MAX_LOG_OFFSET:g}, got {value!r}"
+            f"log offset must be between {EPS:g} and {_MAX_LOG_OFFSET:g}, got {value:g}"
         )
     return value
 

@@ -25,7 +25,15 @@ from .._progress import bar
 from ..data.btf import BTF
 from ..errors import BTFInputError, OutputError
 from .grid import PatchGrid, iter_points, sample_points
-from .preprocessing import Preprocessor, StdMode, Transform, gather_statistics
+from .preprocessing import (
+    EPS,
+    LogOffset,
+    Preprocessor,
+    StdMode,
+    Transform,
+    choose_log_offset,
+    gather_statistics,
+)
 
 __all__ = [
     "STAGE_LIMIT_BYTES",
@@ -217,17 +225,22 @@ def training_points(
     std_mode: StdMode = "shared",
     transform: Transform = "log_yuv",
     progress: bool | None = None,
+    log_offset: LogOffset = "auto",
 ) -> BTFPointSource:
     """The training set of §3.1: a seeded ``sample`` fraction of every BTF's data points,
-    standardised with each BTF's own statistics (all three channels)."""
+    standardised with each BTF's own statistics (all three channels) after ln(x + ε), ε by
+    ``log_offset`` (:func:`~sparsebtf.points.preprocessing.choose_log_offset`)."""
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
     check_same_directions(btfs)
     grids = [PatchGrid.for_btf(b, patch) for b in btfs]
     pres = [
-        Preprocessor(gather_statistics(b, std_mode, progress=progress, transform=transform))
+        Preprocessor(gather_statistics(
+            b, std_mode, eps=choose_log_offset(b, log_offset) if transform == "log_yuv" else EPS,
+            progress=progress, transform=transform,
+        ))
         for b in btfs
-    ]
+    ]  # fmt: skip
     samples = sample_points([g.n_points for g in grids], sample, seed)
     return BTFPointSource([(btfs[b], pres[b], idx) for b, idx in samples], patch, None)
 
