@@ -47,6 +47,7 @@ from .._h5check import (
     require,
 )
 from .._hdf5 import create, create_dataset, write_str_attr
+from .._semantic import validate_coded
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes
@@ -251,8 +252,10 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
     ------
     FileFormatError
         Not HDF5 or truncated; wrong ``format``; unsupported ``schema_version``; a missing
-        dataset (named); counts not summing to the number of values; inconsistent shapes;
-        memberships beyond the model's K or mode sizes differing from the given model's.
+        dataset (named); inconsistent shapes; values that cannot be right
+        (:func:`sparsebtf._semantic.validate_coded`: statistics, counts, memberships beyond
+        K, locations outside the data point or repeated within a point, directions); mode
+        sizes differing from the given model's.
     ModelMismatchError
         ``model`` is not the model the file was coded with (both hashes are named).
     """
@@ -296,7 +299,6 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         )
     for ch, c in codes.items():
         check_geometry(c.mode_sizes, patch, nl, nv, f"{where}/codes/{ch}", FileFormatError)
-        _check_membership(c, ks.get(ch), f"{where}/codes/{ch}", "the file's n_dictionaries")
     coded = CodedBTF(
         codes=codes,
         stats=stats,
@@ -310,6 +312,7 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         name=name,
         attrs=attrs,
     )
+    validate_coded(coded, where, ks)
     if model is not None:
         _attach(coded, model, where)
     return coded
@@ -426,10 +429,6 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
         raise FileFormatError(
             f"{where}: 'mean' is {mean.shape} but 'std' is {std.shape}; they must agree"
         )
-    if std.size and float(std.min()) <= 0:
-        first = tuple(int(i[0]) for i in np.nonzero(std <= 0))
-        raise FileFormatError(f"{where}/std: standard deviations must be > 0, found "
-                              f"{float(std[first])} at index {first}")  # fmt: skip
     eps = read_float_attr(g, "eps", where, default=EPS, positive=True)
     try:
         return Standardization(

@@ -44,6 +44,7 @@ from .._h5check import (
     require,
 )
 from .._hdf5 import create, create_dataset, write_str_attr
+from .._semantic import ORTHONORMAL_TOLERANCE, ORTHONORMAL_TOLERANCE_FP16, check_orthonormal
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError
 from ..model import Model, dictionaries_hash
@@ -113,8 +114,10 @@ def load_model(path: str | os.PathLike[str]) -> Model:
 
     Raises :class:`~sparsebtf.errors.FileFormatError` (naming the file and field) for a file
     that is not HDF5 or is truncated, has the wrong ``format``, an unsupported
-    ``schema_version``, a missing or misshapen dataset, or dictionaries whose recomputed
-    content hash differs from the stored one (corruption).
+    ``schema_version``, a missing or misshapen dataset, dictionaries whose recomputed
+    content hash differs from the stored one (corruption), dictionaries that are not
+    orthonormal (:func:`sparsebtf._semantic.check_orthonormal`) or direction tables that are
+    not distinct unit vectors.
     """
     p = Path(path)
     with open_checked(p, MODEL_FORMAT, _SUPPORTED) as f:
@@ -124,6 +127,7 @@ def load_model(path: str | os.PathLike[str]) -> Model:
         root = require(f, "dictionaries", where)
         channels = _channel_list(f, root, where)
         dictionaries: dict[str, list[np.ndarray]] = {}
+        tolerance: dict[str, float] = {}
         for ch in channels:
             g = require(root, ch, f"{where}/dictionaries")
             gw = f"{where}/dictionaries/{ch}"
@@ -137,12 +141,15 @@ def load_model(path: str | os.PathLike[str]) -> Model:
                     f"{gw}: expected datasets mode1..modeN, found {sorted(g.keys())}"
                 )
             mats = []
+            tolerance[ch] = ORTHONORMAL_TOLERANCE
             for k in names:
                 ds = checked_dataset(g, k, gw, kinds="f", shape=(None, None, None))
                 if ds.shape[1] != ds.shape[2] or min(ds.shape) < 1:
                     raise FileFormatError(
                         f"{gw}/{k}: expected shape (K, m, m) with K, m >= 1, found {ds.shape}"
                     )
+                if ds.dtype.itemsize == 2:
+                    tolerance[ch] = ORTHONORMAL_TOLERANCE_FP16
                 mats.append(read_array(g, k, gw, kinds="f", finite=True).astype(np.float64))
             if len({m.shape[0] for m in mats}) != 1:
                 raise FileFormatError(
@@ -170,6 +177,8 @@ def load_model(path: str | os.PathLike[str]) -> Model:
             f"{where}: dictionaries are corrupted: their content hash is {found[:12]}…, but the "
             f"file records {stored_hash[:12]}…"
         )
+    for ch, mats in dictionaries.items():
+        check_orthonormal(mats, f"{where}/dictionaries/{ch}", tolerance[ch])
     try:
         model = Model(
             dictionaries=dictionaries, patch=patch, lights=lights, views=views,
