@@ -48,6 +48,7 @@ __all__ = [
     "check_color_header",
     "check_directions",
     "check_orthonormal",
+    "check_same_directions",
     "check_statistics",
     "orthonormality_error",
     "validate_coded",
@@ -61,8 +62,9 @@ UNIT_TOLERANCE = 1e-6
 #: UBO2014 directions are 7.5° apart).
 MIN_CHORD = 1e-4
 #: Bound on |μ| and σ of log-YUV statistics: ln(x + ε) of any reflectance x in [0, 1e12] with
-#: ε ≥ 1e-12 lies within ±28, and the colour transform does not enlarge it past ±40.
-STAT_BOUND = 100.0
+#: ε ≥ 1e-12 lies within ±27.7, so Y within ±27.7, U within ±24.1 and V within ±34.0 (the sums
+#: of the absolute BT.601 coefficients times 27.7). Beyond ±88.7 exp() overflows float32.
+STAT_BOUND = 40.0
 #: Accepted log offsets ε (the paper's and the release's is 1e-5).
 EPS_RANGE = (1e-12, 1.0)
 #: Orthonormality of float32 / float64 dictionaries: the bundled float32 model gives 8.1e-8,
@@ -117,6 +119,22 @@ def check_directions(xyz: np.ndarray, where: str) -> None:
                 f"(chord {float(np.linalg.norm(v[i] - v[j])):.3g}); expected distinct directions "
                 f"(chord > {MIN_CHORD:g})",
             )
+
+
+def check_same_directions(xyz: np.ndarray, reference: np.ndarray, where: str, whose: str) -> None:
+    """``xyz`` equal to ``reference`` row by row (within :data:`UNIT_TOLERANCE`): codes index
+    the directions of the model they were made with, in its order."""
+    if xyz.shape != reference.shape:
+        raise _fail(where, f"{len(xyz)} directions, but {whose} table has {len(reference)}")
+    differ = np.abs(np.asarray(xyz) - np.asarray(reference)).max(axis=1) > UNIT_TOLERANCE
+    if differ.any():
+        i = int(np.flatnonzero(differ)[0])
+        raise _fail(
+            where,
+            f"row {i} is {np.round(xyz[i], 6).tolist()}, but {whose} is "
+            f"{np.round(reference[i], 6).tolist()}; expected the same directions in the same "
+            "order",
+        )
 
 
 # --------------------------------------------------------------------------- statistics
@@ -259,9 +277,10 @@ def validate_coded(
 def orthonormality_error(u: np.ndarray) -> np.ndarray:
     """max \\|UᵀU − I\\| of each matrix in ``u`` (K, m, m): one matmul per matrix."""
     a = np.asarray(u, dtype=np.float64)
-    gram = np.matmul(a.transpose(0, 2, 1), a)
-    gram -= np.eye(a.shape[-1])
-    return np.abs(gram).max(axis=(1, 2))
+    with np.errstate(all="ignore"):  # NaN / huge entries give NaN / inf: not orthonormal
+        gram = np.matmul(a.transpose(0, 2, 1), a)
+        gram -= np.eye(a.shape[-1])
+        return np.abs(gram).max(axis=(1, 2))
 
 
 def check_orthonormal(

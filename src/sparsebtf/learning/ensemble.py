@@ -489,21 +489,44 @@ class DictionaryEnsemble:
                 found = "nothing" if u is None else f"{u.dtype} {u.shape}"
                 raise FileFormatError(f"{where}: mode{n}: expected float {want}, found {found}")
         check_orthonormal(dicts, where)
-        iteration = int(arrays["iteration"])
-        objective = [float(v) for v in arrays["objective"]]
-        if iteration < 0 or not all(np.isfinite(objective)):
-            raise FileFormatError(
-                f"{where}: iteration {iteration}, objective {objective[:4]}; expected an "
-                "iteration >= 0 and finite objective values"
-            )
-        return _State(
+        state = _State(
             [u.copy() for u in dicts],
-            objective,
-            [str(v) for v in arrays["passes"]],
-            iteration,
-            arrays["ranking"].copy(),
-            [int(v) for v in arrays["reseeded_from"]],
+            [float(v) for v in np.atleast_1d(arrays["objective"])],
+            [str(v) for v in np.atleast_1d(arrays["passes"])],
+            int(arrays["iteration"]),
+            np.asarray(arrays["ranking"]).copy(),
+            [int(v) for v in np.atleast_1d(arrays["reseeded_from"])],
             bool(arrays["converged"]),
+        )
+        _check_state(state, src.n_points, self.n_dictionaries, where)
+        return state
+
+
+def _check_state(state: _State, n_points: int, k: int, where: str) -> None:
+    """What a checkpoint's counters must say: one objective value (finite, >= 0) and one
+    pass label per iteration plus the initial coding, candidates and re-seeds in range."""
+    n = len(state.objective)
+    ok_obj = all(np.isfinite(v) and v >= 0 for v in state.objective)
+    if state.iteration < 0 or n != state.iteration + 1 or len(state.passes) != n or not ok_obj:
+        raise FileFormatError(
+            f"{where}: iteration {state.iteration} with {n} objective values "
+            f"{state.objective[:3]} and {len(state.passes)} passes; expected iteration + 1 "
+            "finite objective values >= 0 and as many passes"
+        )
+    if any(p not in ("full", "partial") for p in state.passes):
+        raise FileFormatError(f"{where}: passes {state.passes[:4]}; expected 'full' or 'partial'")
+    r = state.ranking
+    if r is None or r.ndim != 2 or r.shape[0] != n_points or r.dtype.kind not in "iu" or (
+        r.size and (int(r.min()) < 0 or int(r.max()) >= k)
+    ):
+        found = "nothing" if r is None else f"{r.dtype} {r.shape}"
+        raise FileFormatError(
+            f"{where}: ranking is {found}; expected ({n_points}, c) dictionary indices in [0, {k})"
+        )
+    if any(not 0 <= i < n_points for i in state.reseeded_from):
+        raise FileFormatError(
+            f"{where}: reseeded_from {state.reseeded_from[:4]}; expected point indices in "
+            f"[0, {n_points})"
         )
 
 

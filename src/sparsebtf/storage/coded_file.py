@@ -47,7 +47,7 @@ from .._h5check import (
     require,
 )
 from .._hdf5 import create, create_dataset, write_str_attr
-from .._semantic import validate_coded
+from .._semantic import check_same_directions, validate_coded
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes
@@ -336,6 +336,9 @@ def _attach(coded: CodedBTF, model: Model, where: str) -> None:
                 f"{model_sizes}"
             )
         _check_membership(c, model.n_dictionaries(ch), f"{where}/codes/{ch}", "the model's K")
+    for group, mine, theirs in (("lights", coded.lights, model.lights),
+                                ("views", coded.views, model.views)):  # fmt: skip
+        check_same_directions(mine.xyz, theirs.xyz, f"{where}/{group}/xyz", "the model's")
     coded.attach(model)
 
 
@@ -455,4 +458,5 @@ def load_coded_with_model(
     from .bundled import find_model
 
     coded = load_coded(path)
-    return coded.attach(find_model(coded, model_path, str(path)))
+    _attach(coded, find_model(coded, model_path, str(path)), str(path))
+    return coded
