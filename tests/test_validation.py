@@ -343,16 +343,17 @@ def test_eval_and_lookup_refuse_nonfinite_results(corpus, tmp_path, capsys):
     model = str(corpus / "model.h5")
     capsys.readouterr()
     code = main(["eval", str(p), "--reference", str(corpus / "dense.h5"), "-m", model])
-    err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1, err
-    assert "eval: the result" in err and "--allow-nonfinite" in err
+    # (NumPy's overflow warnings before the line are another issue's: issue 20, item 4.)
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2 and err.startswith("sparsebtf: error: eval: the result mse_rgb is inf")
+    assert "--allow-nonfinite" in err
     look = ["lookup", str(p), "--texel", "0,0", "--light", "0", "--view", "0", "-m", model]
     assert main([*look, "--allow-nonfinite", "--json"]) == 0
     if json.loads(capsys.readouterr().out)["log"]["Y"] < 0:  # exp(-huge) = 0 is finite:
         _set(p, "codes/Y/values", lambda v: -v)  # the other sign overflows
     code = main(look)
-    err = capsys.readouterr().err
-    assert code == 2 and "lookup: the result rgb[0] is inf" in err and err.count("\n") == 1
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert code == 2 and err.startswith("sparsebtf: error: lookup: the result rgb[0] is inf")
     code = main([*look, "--allow-nonfinite", "--json"])
     assert code == 0 and "Infinity" in capsys.readouterr().out
     # The unmutated file: finite results, exit 0.
