@@ -360,3 +360,17 @@ def test_eval_and_lookup_refuse_nonfinite_results(corpus, tmp_path, capsys):
     code = main(["lookup", str(corpus / "coded.h5"), "--texel", "0,0", "--light", "0",
                  "--view", "0", "-m", model])  # fmt: skip
     assert code == 0
+
+
+def test_check_finite_result_names_the_field():
+    from sparsebtf.cli._output import check_finite_result
+    from sparsebtf.errors import SparseBTFError
+
+    check_finite_result({"a": 1.0, "b": [1, 2.0], "c": "inf", "d": None}, "x")
+    with pytest.raises(SparseBTFError, match=r"^x: the result a\.b\[1\] is nan \(2 non-finite"):
+        check_finite_result({"a": {"b": [1.0, float("nan")]}, "c": np.array([np.inf])}, "x")
+    check_finite_result({"a": float("nan")}, "x", allow=True)
+    # The PSNR of identical images is +inf exactly; NaN never is.
+    check_finite_result({"psnr_rgb": float("inf")}, "eval", exact=("psnr_rgb",))
+    with pytest.raises(SparseBTFError, match="psnr_rgb is nan"):
+        check_finite_result({"psnr_rgb": float("nan")}, "eval", exact=("psnr_rgb",))
