@@ -191,13 +191,13 @@ def check_codes(codes: SparseCodes, where: str, n_dictionaries: int | None = Non
             f"counts sum to {int(counts.sum())}, but there are {values.shape[0]} values and "
             f"{loc.shape[0]} locations; expected all three equal",
         )
-    hi = n_dictionaries if n_dictionaries is not None else np.iinfo(np.int64).max
-    bad = (member < 0) | (member >= hi)
+    k = n_dictionaries
+    bad = (member < 0) | (member >= k) if k is not None else member < 0
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
+        want = f"0 <= m < K = {k}" if k is not None else "m >= 0"
         raise _fail(
-            f"{where}/membership",
-            f"point {i} uses dictionary {int(member[i])}; expected 0 <= m < K = {hi}",
+            f"{where}/membership", f"point {i} uses dictionary {int(member[i])}; expected {want}"
         )
     if loc.size:
         out = (loc < 0) | (loc >= sizes)
@@ -232,8 +232,16 @@ def _check_distinct(loc: np.ndarray, sizes: np.ndarray, owner: np.ndarray, where
         return
     strides = np.cumprod(np.concatenate([[1], sizes[:-1]]))
     linear = loc @ strides
-    order = np.lexsort((linear, owner))
-    same = (np.diff(owner[order]) == 0) & (np.diff(linear[order]) == 0)
+    total = int(np.prod(sizes, dtype=object))
+    if (int(owner[-1]) + 1) * total < 2**63:  # one int64 key per coefficient: a plain sort
+        key = owner * total + linear
+        if not (np.diff(np.sort(key)) == 0).any():
+            return
+        order = np.argsort(key, kind="stable")  # only to name the repeat
+        same = np.diff(key[order]) == 0
+    else:
+        order = np.lexsort((linear, owner))
+        same = (np.diff(owner[order]) == 0) & (np.diff(linear[order]) == 0)
     if same.any():
         j = int(np.flatnonzero(same)[0])
         a, b = sorted((int(order[j]), int(order[j + 1])))
