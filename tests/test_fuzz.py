@@ -94,3 +94,20 @@ def test_semantic_no_silent_wrong_output(
     # Both sides of the rules are reached: impossible values and changes that stay valid.
     assert outcomes.get("rejected", 0) >= SEMANTIC_CASES // 5
     assert outcomes.get("correct", 0) >= 1
+
+
+def test_semantic_oracle_catches_a_missing_check(
+    semantic_corpus: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The fuzz can fail: with the direction-table and statistics checks switched off, cases
+    that break the rules are accepted and counted as silent wrong outputs."""
+    import sparsebtf._semantic as semantic
+    import sparsebtf.data.dense_file as dense_file
+    from sparsebtf.fuzzing import run_semantic_case
+
+    monkeypatch.setenv("SPARSEBTF_HDF5_GUARD", "0")
+    monkeypatch.setattr(dense_file, "check_directions", lambda xyz, where: None)
+    monkeypatch.setattr(semantic, "check_statistics", lambda stats, where: None)
+    outcomes = [run_semantic_case(semantic_corpus, kind, seed, tmp_path)["outcome"]
+                for kind in ("dense", "coded") for seed in range(60)]  # fmt: skip
+    assert outcomes.count("silent_wrong") >= 5
