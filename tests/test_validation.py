@@ -374,3 +374,19 @@ def test_check_finite_result_names_the_field():
     check_finite_result({"psnr_rgb": float("inf")}, "eval", exact=("psnr_rgb",))
     with pytest.raises(SparseBTFError, match="psnr_rgb is nan"):
         check_finite_result({"psnr_rgb": float("nan")}, "eval", exact=("psnr_rgb",))
+
+
+def test_writers_refuse_what_readers_refuse(tmp_path):
+    from sparsebtf.errors import BTFInputError
+    from sparsebtf.fuzzing import _coded, _model
+    from sparsebtf.storage import save_coded, save_model
+
+    model = _model()
+    model.dictionaries["Y"][0] = model.dictionaries["Y"][0] * 1.5
+    with pytest.raises(BTFInputError, match="model channel Y/mode1: dictionary 0 is not orth"):
+        save_model(model, tmp_path / "m.h5")
+    coded = _coded(_model())
+    coded.codes["U"].locations[1] = coded.codes["U"].locations[0]
+    with pytest.raises(BTFInputError, match="codes/U/locations: point 0 repeats location"):
+        save_coded(coded, tmp_path / "c.h5")
+    assert not list(tmp_path.iterdir())  # nothing written

@@ -170,6 +170,11 @@ def _check_coded(coded: CodedBTF) -> None:
             raise BTFInputError(
                 f"{name}, channel {ch}: {int((~np.isfinite(c.values)).sum())} NaN/Inf values"
             )
+    ks = {ch: k for ch in coded.channels if (k := coded.dictionary_count(ch)) is not None}
+    try:  # the reader's semantic checks, so that no file is written that cannot be read
+        validate_coded(coded, name, ks)
+    except FileFormatError as e:
+        raise BTFInputError(str(e)) from None
 
 
 def save_coded(coded: CodedBTF, path: str | os.PathLike[str]) -> Path:

@@ -73,6 +73,13 @@ def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
             sizes, model.patch, len(model.lights), len(model.views), f"model channel {ch}",
             BTFInputError,
         )
+        mats = model.dictionaries[ch]
+        half = all(exact_dtype(m) == "<f2" for m in mats)
+        try:  # what load_model refuses is not written
+            check_orthonormal(mats, f"model channel {ch}",
+                              ORTHONORMAL_TOLERANCE_FP16 if half else ORTHONORMAL_TOLERANCE)
+        except FileFormatError as e:
+            raise BTFInputError(str(e)) from None
     with atomic_output(target) as tmp, create(tmp) as f:
         write_str_attr(f, "format", MODEL_FORMAT)
         f.attrs["schema_version"] = MODEL_SCHEMA_VERSION
