@@ -390,3 +390,13 @@ def test_writers_refuse_what_readers_refuse(tmp_path):
     with pytest.raises(BTFInputError, match="codes/U/locations: point 0 repeats location"):
         save_coded(coded, tmp_path / "c.h5")
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_encode_with_a_model_of_huge_directions(corpus, tmp_path, capsys):
+    # Said "has 13×13 (tiny13) … model covers 13×13 (tiny13) only" before.
+    m = _copy(corpus, "model.h5", tmp_path)
+    _set(m, "views/xyz", lambda x: x * 1e30)
+    code = main(["encode", str(corpus / "dense.h5"), "-m", str(m), "-o", str(tmp_path / "c.h5")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"{m}/views/xyz: row 0 has length 1e+30; expected a unit vector" in err
