@@ -44,7 +44,12 @@ from .._h5check import (
     require,
 )
 from .._hdf5 import create, create_dataset, write_str_attr
-from .._semantic import ORTHONORMAL_TOLERANCE, ORTHONORMAL_TOLERANCE_FP16, check_orthonormal
+from .._semantic import (
+    ORTHONORMAL_TOLERANCE,
+    ORTHONORMAL_TOLERANCE_FP16,
+    check_orthonormal,
+    validate_model_dictionaries,
+)
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError
 from ..model import Model, dictionaries_hash
@@ -184,8 +189,7 @@ def load_model(path: str | os.PathLike[str]) -> Model:
             f"{where}: dictionaries are corrupted: their content hash is {found[:12]}…, but the "
             f"file records {stored_hash[:12]}…"
         )
-    for ch, mats in dictionaries.items():
-        check_orthonormal(mats, f"{where}/dictionaries/{ch}", tolerance[ch])
+    validate_model_dictionaries(dictionaries, f"{where}/dictionaries", tolerance)
     try:
         model = Model(
             dictionaries=dictionaries, patch=patch, lights=lights, views=views,
