@@ -23,6 +23,20 @@ including the HDF5 watchdog's forked walk (which has its own 512 MiB cap).
     python benchmarks/fuzz.py --replay coded 1234       # one case in process, with traceback
 
 A defect prints its reader and seed; ``--replay`` reproduces it.
+
+**Semantic mode** (``--semantic``): well-formed files that say impossible things. Each case
+sets one field of a valid file of a kind (ubo2014, dense, model, coded, release, checkpoint)
+to a boundary or impossible value (0, −1, huge, NaN, ±inf, tiny, a duplicated row, a
+permutation, a sign flip, a scaling), keeping the file well-formed (a model's content hash and
+a checkpoint's SHA-256 recomputed), runs what a user runs, and judges the outcome against the
+format's rules (:func:`sparsebtf.fuzzing.run_semantic_case`): **rejected** (rules broken, one
+project error), **correct** (rules hold, finite results, equal to the unmutated file's where
+the field is unused), **silent wrong** (accepted although the rules are broken, or a changed
+result from an unused field: must be 0), **false rejection** (refused although the rules
+hold). Cases run in process (the byte-level mode covers crashes and hangs):
+
+    python benchmarks/fuzz.py --semantic --cases 2000     # 12,000 cases
+    python benchmarks/fuzz.py --semantic --replay coded 17
 """
 
 from __future__ import annotations
@@ -43,7 +57,17 @@ from typing import Any
 
 from _common import machine
 from sparsebtf.errors import SparseBTFError
-from sparsebtf.fuzzing import READERS, build_corpus, exercise, sizes, write_case
+from sparsebtf.fuzzing import (
+    READERS,
+    SEMANTIC_KINDS,
+    SEMANTIC_OUTCOMES,
+    build_corpus,
+    build_semantic_corpus,
+    exercise,
+    run_semantic_case,
+    sizes,
+    write_case,
+)
 
 OUTCOMES = ("clean", "accepted", "crash", "hang", "kill")
 _CORPUS: dict[str, list[Path]] = {}
@@ -153,10 +177,74 @@ def replay(reader: str, seed: int) -> int:
     return 0
 
 
+def _semantic_task(args: tuple[str, int, int]) -> list[dict[str, Any]]:
+    kind, lo, hi = args
+    out = []
+    for seed in range(lo, hi):
+        t0 = time.perf_counter()
+        try:
+            res = run_semantic_case(_STATE["corpus"], kind, seed, _STATE["work"] / kind)
+        except Exception:  # a defect: any exception but a project error
+            res = {"kind": kind, "seed": seed, "case": "", "outcome": "crash",
+                   "message": traceback.format_exc()[-400:]}  # fmt: skip
+        res["seconds"] = time.perf_counter() - t0
+        out.append(res)
+    return out
+
+
+def semantic(args: argparse.Namespace) -> None:
+    """The semantic mode: cases per kind in ``--jobs`` forked workers, one table."""
+    kinds = [k for k in args.readers if k in SEMANTIC_KINDS] if args.readers_given else list(
+        SEMANTIC_KINDS)  # fmt: skip
+    os.environ.setdefault("SPARSEBTF_HDF5_GUARD", "0")  # in process: no watchdog fork per file
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="sparsebtf-semantic-") as d:
+        _STATE.update(corpus=build_semantic_corpus(Path(d) / "corpus"), work=Path(d) / "cases")
+        if args.replay:
+            kind, seed = args.replay[0], int(args.replay[1])
+            res = run_semantic_case(_STATE["corpus"], kind, seed, Path(d) / "replay")
+            print(json.dumps(res, indent=2))
+            return
+        tasks = [(k, lo, min(lo + args.chunk, args.first + args.cases))
+                 for lo in range(args.first, args.first + args.cases, args.chunk)
+                 for k in kinds]  # fmt: skip
+        results: list[dict[str, Any]] = []
+        with mp.get_context("fork").Pool(args.jobs) as pool:
+            for chunk in pool.imap_unordered(_semantic_task, tasks):
+                results.extend(chunk)
+                for res in chunk:
+                    if res["outcome"] in ("silent_wrong", "crash", "false_rejection"):
+                        print(f"{res['outcome'].upper()}: {res['kind']} seed {res['seed']} "
+                              f"{res['case']} (--semantic --replay {res['kind']} {res['seed']})"
+                              f" {res['message'][-300:]}", file=sys.stderr, flush=True)  # fmt: skip
+    wall = time.perf_counter() - t0
+    outcomes = (*SEMANTIC_OUTCOMES, "crash")
+    table = {}
+    for k in kinds:
+        rows = [x for x in results if x["kind"] == k]
+        table[k] = {"cases": len(rows), **{o: sum(x["outcome"] == o for x in rows)
+                                           for o in outcomes},
+                    "median_ms": sorted(x["seconds"] for x in rows)[len(rows) // 2] * 1000}
+    if args.json:
+        print(json.dumps({"table": table, "wall_seconds": wall, "jobs": args.jobs,
+                          "machine": machine()}, indent=2))  # fmt: skip
+        return
+    print("| kind | cases | rejected | correct | silent wrong | false rejections | crashes | "
+          "median time |")  # fmt: skip
+    print("|" + "---|" * 8)
+    for k, t in table.items():
+        print(f"| {k} | {t['cases']} | {t['rejected']} | {t['correct']} | {t['silent_wrong']} | "
+              f"{t['false_rejection']} | {t['crash']} | {t['median_ms']:.0f} ms |")
+    total = sum(t["cases"] for t in table.values())
+    silent = sum(t["silent_wrong"] for t in table.values())
+    print(f"\n{total} cases in {wall:.0f} s on {args.jobs} workers; {silent} silent wrong outputs")
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("--cases", type=int, default=2000, help="cases per reader (default 2000)")
-    p.add_argument("--readers", nargs="+", choices=READERS, default=list(READERS))
+    p.add_argument("--readers", nargs="+", choices=sorted({*READERS, *SEMANTIC_KINDS}),
+                   default=list(READERS))
     p.add_argument("--first", type=int, default=0, help="first case seed (default 0)")
     p.add_argument("--jobs", type=int, default=2, help="worker processes (default 2)")
     p.add_argument("--timeout", type=float, default=60.0, help="seconds per case (default 60)")
@@ -164,8 +252,15 @@ def main() -> None:
                    help="address space a case may add, GiB (default 1)")
     p.add_argument("--chunk", type=int, default=25, help="cases per task (default 25)")
     p.add_argument("--replay", nargs=2, metavar=("READER", "SEED"))
+    p.add_argument("--semantic", action="store_true",
+                   help="semantic mode: well-formed files with impossible values (kinds: "
+                   f"{', '.join(SEMANTIC_KINDS)})")
     p.add_argument("--json", action="store_true")
     args = p.parse_args()
+    if args.semantic:
+        args.readers_given = "--readers" in sys.argv
+        semantic(args)
+        return
     if args.replay:
         sys.exit(replay(args.replay[0], int(args.replay[1])))
 

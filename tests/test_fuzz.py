@@ -61,3 +61,53 @@ def test_reader_fails_cleanly(
     # The mutations reach the readers' checks (not only, say, a magic-number test).
     assert sum(outcomes.values()) >= CASES[reader] // 2  # hypothesis ran the cases
     assert outcomes.get("error", 0) > 0
+
+
+# --------------------------------------------------------------------------- semantic fuzzing
+
+#: Semantic cases per file kind here (benchmarks/fuzz.py --semantic runs thousands).
+SEMANTIC_CASES = 80
+
+
+@pytest.fixture(scope="module")
+def semantic_corpus(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    from sparsebtf.fuzzing import build_semantic_corpus
+
+    return build_semantic_corpus(tmp_path_factory.mktemp("semantic"))
+
+
+@pytest.mark.parametrize("kind", ["ubo2014", "dense", "model", "coded", "release", "checkpoint"])
+def test_semantic_no_silent_wrong_output(
+    kind: str, semantic_corpus: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """One field of a valid file set to 0, −1, huge, NaN, ±inf, a duplicate, a permutation …:
+    refused with a project error when the format's rules are broken, accepted with finite
+    results (the unmutated file's, for unused fields) when they hold."""
+    from sparsebtf.fuzzing import run_semantic_case
+
+    monkeypatch.setenv("SPARSEBTF_HDF5_GUARD", "0")  # in process: no watchdog fork per case
+    outcomes: dict[str, int] = {}
+    for seed in range(SEMANTIC_CASES):
+        res = run_semantic_case(semantic_corpus, kind, seed, tmp_path)
+        assert res["outcome"] in ("rejected", "correct"), res  # replay: run_semantic_case(...)
+        outcomes[res["outcome"]] = outcomes.get(res["outcome"], 0) + 1
+    # Both sides of the rules are reached: impossible values and changes that stay valid.
+    assert outcomes.get("rejected", 0) >= SEMANTIC_CASES // 5
+    assert outcomes.get("correct", 0) >= 1
+
+
+def test_semantic_oracle_catches_a_missing_check(
+    semantic_corpus: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The fuzz can fail: with the direction-table and statistics checks switched off, cases
+    that break the rules are accepted and counted as silent wrong outputs."""
+    import sparsebtf._semantic as semantic
+    import sparsebtf.data.dense_file as dense_file
+    from sparsebtf.fuzzing import run_semantic_case
+
+    monkeypatch.setenv("SPARSEBTF_HDF5_GUARD", "0")
+    monkeypatch.setattr(dense_file, "check_directions", lambda xyz, where: None)
+    monkeypatch.setattr(semantic, "check_statistics", lambda stats, where: None)
+    outcomes = [run_semantic_case(semantic_corpus, kind, seed, tmp_path)["outcome"]
+                for kind in ("dense", "coded") for seed in range(60)]  # fmt: skip
+    assert outcomes.count("silent_wrong") >= 5

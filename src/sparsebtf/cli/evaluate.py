@@ -9,7 +9,7 @@ import numpy as np
 
 from ._args import integer, open_source
 from ._model import MODEL_HELP
-from ._output import print_json, table
+from ._output import add_allow_nonfinite, check_finite_result, print_json, table
 
 __all__ = ["register"]
 
@@ -42,6 +42,8 @@ def run(args: argparse.Namespace) -> int:
     )
     report = storage_report(coded, coded.model, args.coded)
     out = {**metrics, **{k: report[k] for k in _STORAGE_KEYS}}
+    identical = ("psnr_rgb",) if out["mse_rgb"] == 0 else ()
+    check_finite_result(out, "eval", args.allow_nonfinite, exact=identical)
     if args.json:
         print_json(out)
     else:
@@ -86,4 +88,5 @@ def register(sub: Any) -> None:
         "--ssim-images", type=int, default=16, help="angular images sampled for SSIM (default 16)"
     )
     s.add_argument("--json", action="store_true", help="print one JSON object")
+    add_allow_nonfinite(s)
     s.set_defaults(func=run, checks={"ssim_images": integer(0, 10**6, unit="angular images")})

@@ -27,7 +27,7 @@ from ..points.preprocessing import (
 )
 from ._args import integer
 from ._model import MODEL_HELP
-from ._output import print_json, table
+from ._output import add_allow_nonfinite, check_finite_result, print_json, table
 
 __all__ = ["lookup", "register"]
 
@@ -107,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError:
         raise SparseBTFError(f"--texel must look like R,C, got {args.texel!r}") from None
     out = lookup(args.file, r, c, args.light, args.view, model_path=args.model)
+    check_finite_result(out, "lookup", args.allow_nonfinite)
     if args.json:
         print_json(out)
     else:
@@ -124,4 +125,5 @@ def register(sub: Any) -> None:
     s.add_argument("--view", type=int, required=True, help="view index, 0-based")
     s.add_argument("-m", "--model", help=MODEL_HELP + " (default: the one the coded file names)")
     s.add_argument("--json", action="store_true", help="print one JSON object")
+    add_allow_nonfinite(s)
     s.set_defaults(func=run, checks={"light": integer(0), "view": integer(0)})

@@ -38,6 +38,7 @@ from .._h5check import (
 from .._hdf5 import check_written, create, create_dataset, open_h5, read_error, write_str_attr
 from .._limits import memory_budget
 from .._progress import progress as _progress
+from .._semantic import check_directions
 from ..errors import BTFInputError, FileFormatError, SparseBTFError
 from .btf import BTF, Index
 from .directions import DirectionSet, from_vectors
@@ -61,14 +62,16 @@ def write_directions(group: h5py.Group, d: DirectionSet) -> None:
 def read_directions(group: h5py.Group, where: str) -> DirectionSet:
     """Read a direction table written by :func:`write_directions`; errors name the file field.
 
-    ``xyz`` is checked (float, (n, 3), a size the file holds, finite, on the upper
-    hemisphere) before and after it is read.
+    ``xyz`` is checked (float, (n, 3), a size the file holds) before it is read, and after:
+    finite unit vectors on the upper hemisphere, pairwise distinct
+    (:func:`sparsebtf._semantic.check_directions`); never normalised silently.
     """
     if not isinstance(group, h5py.Group):
         raise FileFormatError(f"{where}: expected a group, found a dataset")
     xyz = read_array(group, "xyz", where, kinds="f", shape=(None, 3), finite=True)
     if xyz.shape[0] == 0:
         raise FileFormatError(f"{where}/xyz: expected at least one direction, found 0")
+    check_directions(xyz, f"{where}/xyz")
     name = read_str_attr(group, "name", where) if "name" in group.attrs else "custom"
     try:
         return from_vectors(xyz.astype(np.float64), name=name)

@@ -157,6 +157,12 @@ def from_angles(theta: np.ndarray, phi: np.ndarray, name: str = "custom") -> Dir
         raise BTFInputError(
             f"direction {i}: angles must be finite, got theta={theta[i]}, phi={phi[i]} (radians)"
         )
+    if np.any(np.abs(phi) > 4 * np.pi):
+        bad = int(np.flatnonzero(np.abs(phi) > 4 * np.pi)[0])
+        raise BTFInputError(
+            f"direction {bad}: azimuth {float(phi[bad]):.6g} rad is outside ±4π (±720°); "
+            "expected radians"
+        )
     if np.any(theta < -1e-12) or np.any(theta > np.pi / 2 + 1e-9):
         bad = int(np.flatnonzero((theta < -1e-12) | (theta > np.pi / 2 + 1e-9))[0])
         raise BTFInputError(

@@ -27,6 +27,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from .._semantic import check_color_header, check_directions
 from ..data.btf import BTF, LOG_EPS, Index, _span
 from ..data.directions import from_angles
 from ..errors import BTFInputError, FileFormatError
@@ -346,6 +347,8 @@ def _parse_as(f: BinaryIO, p: Path, fsize: int, divide_cosine: bool, magic: byte
         views = from_angles(vt[:, 0], vt[:, 1], name="ubo2014-file-views")
     except BTFInputError as e:
         raise FileFormatError(f"{p}: field 'direction table': {e}") from None
+    check_directions(lights.xyz, f"{p}: field 'view 0 light directions'")
+    check_directions(views.xyz, f"{p}: field 'view directions'")
 
     # -- spatial size and rotations (§1.5) ------------------------------------------------
     w = cur.u32("width")
@@ -374,6 +377,7 @@ def _parse_as(f: BinaryIO, p: Path, fsize: int, divide_cosine: bool, magic: byte
                 f"{p}: field 'ColorModel' is {color_model}, not a supported colour model "
                 f"({', '.join(f'{k}={v}' for k, v in COLOR_MODELS.items())})"
             )
+        check_color_header(color_mean, color_transform, str(p))
         for ch in range(3):
             blocks.append(_matrix_header(cur, p, f"channel {ch} ", nl * nv, w * h))
     else:

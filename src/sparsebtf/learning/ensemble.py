@@ -32,9 +32,11 @@ fixed order, so both give the same dictionaries; the SVDs run here.
 from __future__ import annotations
 
 import functools
+import hashlib
 import json
 import os
 import time
+import zipfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +45,8 @@ from typing import Any, Protocol
 import numpy as np
 
 from .._atomic import atomic_output
-from ..errors import BTFInputError
+from .._semantic import check_orthonormal
+from ..errors import BTFInputError, FileFormatError
 from ..execution import Executor, InProcess
 from .coding import SparseCodes, reconstruct_points, sparse_code
 from .parallel import parallel_map
@@ -453,46 +456,123 @@ class DictionaryEnsemble:
         }
 
     def _save_checkpoint(self, state: _State) -> None:
+        """Write ``state`` (``.npz``) with the SHA-256 of its arrays (:func:`checkpoint_digest`),
+        so a resumed fit can tell a damaged checkpoint from a good one."""
         if self.checkpoint is None:
             return
+        arrays = {
+            "iteration": np.asarray(state.iteration),
+            "objective": np.array(state.objective, dtype=np.float64),
+            "passes": np.array(state.passes),
+            "ranking": np.asarray(state.ranking),
+            "reseeded_from": np.array(state.reseeded_from, dtype=np.int64),
+            "converged": np.asarray(state.converged),
+            "key": np.asarray(json.dumps(self._key, sort_keys=True)),
+            **{f"mode{n}": np.asarray(d) for n, d in enumerate(state.dicts)},
+        }
         path = Path(self.checkpoint)
         with atomic_output(path) as tmp:
             with open(tmp, "wb") as f:
-                np.savez(
-                    f,
-                    iteration=state.iteration,
-                    objective=np.array(state.objective),
-                    passes=np.array(state.passes),
-                    ranking=state.ranking,
-                    reseeded_from=np.array(state.reseeded_from, dtype=np.int64),
-                    converged=state.converged,
-                    key=json.dumps(self._key, sort_keys=True),
-                    **{f"mode{n}": d for n, d in enumerate(state.dicts)},
-                )
+                np.savez(f, sha256=np.asarray(checkpoint_digest(arrays)), **arrays)
 
     def _resume(self, src: PointSource, data_key: str = "") -> _State | None:
         self._key = self._params_key(src, data_key)
         if self.checkpoint is None or not Path(self.checkpoint).exists():
             return None
-        try:
-            with np.load(self.checkpoint) as ck:
-                if "passes" not in ck.files:
-                    raise ValueError("not a checkpoint of this version")
-                _check_key(self.checkpoint, json.loads(str(ck["key"])), self._key)
-                return _State(
-                    [ck[f"mode{n}"].copy() for n in range(len(src.mode_sizes))],
-                    [float(v) for v in ck["objective"]],
-                    [str(v) for v in ck["passes"]],
-                    int(ck["iteration"]),
-                    ck["ranking"].copy(),
-                    [int(v) for v in ck["reseeded_from"]],
-                    bool(ck["converged"]) if "converged" in ck.files else False,
-                )
-        except (OSError, ValueError, KeyError, EOFError) as e:
-            raise BTFInputError(
-                f"checkpoint {self.checkpoint} cannot be read ({type(e).__name__}: {e}); "
-                "delete it to start over"
-            ) from None
+        arrays = read_checkpoint(self.checkpoint)
+        where = str(self.checkpoint)
+        _check_key(self.checkpoint, json.loads(str(arrays["key"])), self._key)
+        dicts = [arrays.get(f"mode{n}") for n in range(len(src.mode_sizes))]
+        for n, (u, m) in enumerate(zip(dicts, src.mode_sizes, strict=True), start=1):
+            want = (self.n_dictionaries, m, m)
+            if u is None or u.shape != want or u.dtype.kind != "f":
+                found = "nothing" if u is None else f"{u.dtype} {u.shape}"
+                raise FileFormatError(f"{where}: mode{n}: expected float {want}, found {found}")
+        check_orthonormal(dicts, where)
+        state = _State(
+            [u.copy() for u in dicts],
+            [float(v) for v in np.atleast_1d(arrays["objective"])],
+            [str(v) for v in np.atleast_1d(arrays["passes"])],
+            int(arrays["iteration"]),
+            np.asarray(arrays["ranking"]).copy(),
+            [int(v) for v in np.atleast_1d(arrays["reseeded_from"])],
+            bool(arrays["converged"]),
+        )
+        _check_state(state, src.n_points, self.n_dictionaries, where)
+        return state
+
+
+def _check_state(state: _State, n_points: int, k: int, where: str) -> None:
+    """What a checkpoint's counters must say: one objective value (finite, >= 0) and one
+    pass label per iteration plus the initial coding, candidates and re-seeds in range."""
+    n = len(state.objective)
+    ok_obj = all(np.isfinite(v) and v >= 0 for v in state.objective)
+    if state.iteration < 0 or n != state.iteration + 1 or len(state.passes) != n or not ok_obj:
+        raise FileFormatError(
+            f"{where}: iteration {state.iteration} with {n} objective values "
+            f"{state.objective[:3]} and {len(state.passes)} passes; expected iteration + 1 "
+            "finite objective values >= 0 and as many passes"
+        )
+    if any(p not in ("full", "partial") for p in state.passes):
+        raise FileFormatError(f"{where}: passes {state.passes[:4]}; expected 'full' or 'partial'")
+    r = state.ranking
+    if r is None or r.ndim != 2 or r.shape[0] != n_points or r.dtype.kind not in "iu" or (
+        r.size and (int(r.min()) < 0 or int(r.max()) >= k)
+    ):
+        found = "nothing" if r is None else f"{r.dtype} {r.shape}"
+        raise FileFormatError(
+            f"{where}: ranking is {found}; expected ({n_points}, c) dictionary indices in [0, {k})"
+        )
+    if any(not 0 <= i < n_points for i in state.reseeded_from):
+        raise FileFormatError(
+            f"{where}: reseeded_from {state.reseeded_from[:4]}; expected point indices in "
+            f"[0, {n_points})"
+        )
+
+
+def checkpoint_digest(arrays: dict[str, np.ndarray]) -> str:
+    """SHA-256 over a checkpoint's arrays: for each name in sorted order, the name, dtype,
+    shape and C-order bytes."""
+    h = hashlib.sha256()
+    for name in sorted(arrays):
+        a = np.ascontiguousarray(arrays[name])
+        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+#: What ``np.load`` raises on a damaged ``.npz`` (truncated, flipped bits: bad CRC, bad zip).
+_NPZ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile,
+               RuntimeError, TypeError, IndexError, UnicodeDecodeError)  # fmt: skip
+
+
+def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
+    """The arrays of a training checkpoint, verified against the SHA-256 it stores.
+
+    A damaged, truncated or foreign file is one :class:`FileFormatError` line naming it."""
+    try:
+        with np.load(path, allow_pickle=False) as ck:
+            arrays = {name: ck[name] for name in ck.files}
+    except _NPZ_ERRORS as e:
+        raise FileFormatError(
+            f"checkpoint {path} is damaged or not a checkpoint ({type(e).__name__}: "
+            f"{str(e)[:120]}); delete it to start over"
+        ) from None
+    stored = str(arrays.pop("sha256", ""))
+    missing = [k for k in ("iteration", "objective", "passes", "ranking", "reseeded_from",
+                           "converged", "key") if k not in arrays]  # fmt: skip
+    if not stored or missing:
+        raise FileFormatError(
+            f"checkpoint {path}: no {'sha256' if not stored else ', '.join(missing)}: written by "
+            "an older version or not a checkpoint; delete it to start over"
+        )
+    found = checkpoint_digest(arrays)
+    if found != stored:
+        raise FileFormatError(
+            f"checkpoint {path} is damaged: its arrays hash to {found[:12]}…, the file records "
+            f"{stored[:12]}…; delete it to start over"
+        )
+    return arrays
 
 
 def _check_key(path: Any, found: dict[str, Any], want: dict[str, Any]) -> None:

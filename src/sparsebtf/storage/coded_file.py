@@ -50,6 +50,7 @@ from .._h5check import (
     require,
 )
 from .._hdf5 import create, create_dataset, write_str_attr
+from .._semantic import check_same_directions, validate_coded
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes
@@ -172,6 +173,11 @@ def _check_coded(coded: CodedBTF) -> None:
             raise BTFInputError(
                 f"{name}, channel {ch}: {int((~np.isfinite(c.values)).sum())} NaN/Inf values"
             )
+    ks = {ch: k for ch in coded.channels if (k := coded.dictionary_count(ch)) is not None}
+    try:  # the reader's semantic checks, so that no file is written that cannot be read
+        validate_coded(coded, name, ks)
+    except FileFormatError as e:
+        raise BTFInputError(str(e)) from None
 
 
 def save_coded(coded: CodedBTF, path: str | os.PathLike[str]) -> Path:
@@ -257,8 +263,10 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
     ------
     FileFormatError
         Not HDF5 or truncated; wrong ``format``; unsupported ``schema_version``; a missing
-        dataset (named); counts not summing to the number of values; inconsistent shapes;
-        memberships beyond the model's K or mode sizes differing from the given model's.
+        dataset (named); inconsistent shapes; values that cannot be right
+        (:func:`sparsebtf._semantic.validate_coded`: statistics, counts, memberships beyond
+        K, locations outside the data point or repeated within a point, directions); mode
+        sizes differing from the given model's.
     ModelMismatchError
         ``model`` is not the model the file was coded with (both hashes are named).
     """
@@ -302,7 +310,6 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         )
     for ch, c in codes.items():
         check_geometry(c.mode_sizes, patch, nl, nv, f"{where}/codes/{ch}", FileFormatError)
-        _check_membership(c, ks.get(ch), f"{where}/codes/{ch}", "the file's n_dictionaries")
     coded = CodedBTF(
         codes=codes,
         stats=stats,
@@ -316,6 +323,7 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         name=name,
         attrs=attrs,
     )
+    validate_coded(coded, where, ks)
     if model is not None:
         _attach(coded, model, where)
     return coded
@@ -339,6 +347,9 @@ def _attach(coded: CodedBTF, model: Model, where: str) -> None:
                 f"{model_sizes}"
             )
         _check_membership(c, model.n_dictionaries(ch), f"{where}/codes/{ch}", "the model's K")
+    for group, mine, theirs in (("lights", coded.lights, model.lights),
+                                ("views", coded.views, model.views)):  # fmt: skip
+        check_same_directions(mine.xyz, theirs.xyz, f"{where}/{group}/xyz", "the model's")
     coded.attach(model)
 
 
@@ -432,10 +443,6 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
         raise FileFormatError(
             f"{where}: 'mean' is {mean.shape} but 'std' is {std.shape}; they must agree"
         )
-    if std.size and float(std.min()) <= 0:
-        first = tuple(int(i[0]) for i in np.nonzero(std <= 0))
-        raise FileFormatError(f"{where}/std: standard deviations must be > 0, found "
-                              f"{float(std[first])} at index {first}")  # fmt: skip
     eps = read_float_attr(g, "eps", where, default=EPS, positive=True)
     bound = None
     if "bound" in g:
@@ -474,4 +481,5 @@ def load_coded_with_model(
     from .bundled import find_model
 
     coded = load_coded(path)
-    return coded.attach(find_model(coded, model_path, str(path)))
+    _attach(coded, find_model(coded, model_path, str(path)), str(path))
+    return coded

@@ -44,6 +44,12 @@ from .._h5check import (
     require,
 )
 from .._hdf5 import create, create_dataset, write_str_attr
+from .._semantic import (
+    ORTHONORMAL_TOLERANCE,
+    ORTHONORMAL_TOLERANCE_FP16,
+    check_orthonormal,
+    validate_model_dictionaries,
+)
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError
 from ..model import Model, dictionaries_hash
@@ -72,6 +78,13 @@ def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
             sizes, model.patch, len(model.lights), len(model.views), f"model channel {ch}",
             BTFInputError,
         )
+        mats = model.dictionaries[ch]
+        half = all(exact_dtype(m) == "<f2" for m in mats)
+        try:  # what load_model refuses is not written
+            check_orthonormal(mats, f"model channel {ch}",
+                              ORTHONORMAL_TOLERANCE_FP16 if half else ORTHONORMAL_TOLERANCE)
+        except FileFormatError as e:
+            raise BTFInputError(str(e)) from None
     with atomic_output(target) as tmp, create(tmp) as f:
         write_str_attr(f, "format", MODEL_FORMAT)
         f.attrs["schema_version"] = MODEL_SCHEMA_VERSION
@@ -113,8 +126,10 @@ def load_model(path: str | os.PathLike[str]) -> Model:
 
     Raises :class:`~sparsebtf.errors.FileFormatError` (naming the file and field) for a file
     that is not HDF5 or is truncated, has the wrong ``format``, an unsupported
-    ``schema_version``, a missing or misshapen dataset, or dictionaries whose recomputed
-    content hash differs from the stored one (corruption).
+    ``schema_version``, a missing or misshapen dataset, dictionaries whose recomputed
+    content hash differs from the stored one (corruption), dictionaries that are not
+    orthonormal (:func:`sparsebtf._semantic.check_orthonormal`) or direction tables that are
+    not distinct unit vectors.
     """
     p = Path(path)
     with open_checked(p, MODEL_FORMAT, _SUPPORTED) as f:
@@ -124,6 +139,7 @@ def load_model(path: str | os.PathLike[str]) -> Model:
         root = require(f, "dictionaries", where)
         channels = _channel_list(f, root, where)
         dictionaries: dict[str, list[np.ndarray]] = {}
+        tolerance: dict[str, float] = {}
         for ch in channels:
             g = require(root, ch, f"{where}/dictionaries")
             gw = f"{where}/dictionaries/{ch}"
@@ -137,12 +153,15 @@ def load_model(path: str | os.PathLike[str]) -> Model:
                     f"{gw}: expected datasets mode1..modeN, found {sorted(g.keys())}"
                 )
             mats = []
+            tolerance[ch] = ORTHONORMAL_TOLERANCE
             for k in names:
                 ds = checked_dataset(g, k, gw, kinds="f", shape=(None, None, None))
                 if ds.shape[1] != ds.shape[2] or min(ds.shape) < 1:
                     raise FileFormatError(
                         f"{gw}/{k}: expected shape (K, m, m) with K, m >= 1, found {ds.shape}"
                     )
+                if ds.dtype.itemsize == 2:
+                    tolerance[ch] = ORTHONORMAL_TOLERANCE_FP16
                 mats.append(read_array(g, k, gw, kinds="f", finite=True).astype(np.float64))
             if len({m.shape[0] for m in mats}) != 1:
                 raise FileFormatError(
@@ -170,6 +189,7 @@ def load_model(path: str | os.PathLike[str]) -> Model:
             f"{where}: dictionaries are corrupted: their content hash is {found[:12]}…, but the "
             f"file records {stored_hash[:12]}…"
         )
+    validate_model_dictionaries(dictionaries, f"{where}/dictionaries", tolerance)
     try:
         model = Model(
             dictionaries=dictionaries, patch=patch, lights=lights, views=views,

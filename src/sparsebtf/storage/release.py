@@ -32,6 +32,14 @@ import numpy as np
 from .._h5check import HDF5_ERRORS, read_array
 from .._hdf5 import open_h5, read_error
 from .._limits import check_allocation
+from .._semantic import (
+    ORTHONORMAL_TOLERANCE,
+    ORTHONORMAL_TOLERANCE_FP16,
+    check_codes,
+    check_directions,
+    check_orthonormal,
+    check_statistics,
+)
 from ..data.directions import DirectionSet, from_angles, ubo2014
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError, SparseBTFError
 from ..learning.coding import SparseCodes
@@ -70,12 +78,16 @@ def read_dictionaries(
     """One channel's ensemble from ``.bin`` (fp16) or ``.mat`` (fp64): (K, n, n) per mode.
 
     Returns the matrices (``[k, row, col]``, float64) and what else the file says
-    (``EnsHist``, ``TrainTime`` from a ``.mat``).
+    (``EnsHist``, ``TrainTime`` from a ``.mat``). Every matrix must be orthonormal within
+    :data:`~sparsebtf._semantic.ORTHONORMAL_TOLERANCE` (``.mat``) or
+    :data:`~sparsebtf._semantic.ORTHONORMAL_TOLERANCE_FP16` (``.bin``).
     """
     p = Path(path)
     k = n_dictionaries
     if p.suffix == ".mat":
-        return _read_mat_dictionaries(p, k, mode_sizes)
+        mats, extra = _read_mat_dictionaries(p, k, mode_sizes)
+        check_orthonormal(mats, str(p), ORTHONORMAL_TOLERANCE)
+        return mats, extra
     expected = 2 * k * sum(m * m for m in mode_sizes)
     size = _regular_size(p)
     if size != expected:
@@ -91,6 +103,7 @@ def read_dictionaries(
         off += k * m * m
         # column-major per matrix: element (row, col) at row + m·col
         mats.append(np.ascontiguousarray(block.reshape(k, m, m).transpose(0, 2, 1)))
+    check_orthonormal(mats, str(p), ORTHONORMAL_TOLERANCE_FP16)
     return mats, {}
 
 
@@ -170,9 +183,11 @@ def read_coefficients(
     order = np.lexsort((np.arange(n), -np.abs(values), owner))
     errors = np.full(n_points, np.nan)  # unknown: the release does not store residuals
     try:
-        return SparseCodes(dims, member, counts, values[order], lnz[order], errors)
+        codes = SparseCodes(dims, member, counts, values[order], lnz[order], errors)
     except BTFInputError as e:
         raise FileFormatError(f"{p}: {e}") from None
+    check_codes(codes, str(p), n_dictionaries)
+    return codes
 
 
 def read_mean_std(
@@ -187,9 +202,9 @@ def read_mean_std(
     a = np.fromfile(p, dtype="<f8")
     mean = a[:j].reshape(n_views, n_lights).T[..., None]
     std = a[j:].reshape(n_views, n_lights).T[..., None]
-    if np.any(std <= 0) or not np.all(np.isfinite(a)):
-        raise FileFormatError(f"{p}: standard deviations must be positive and finite")
-    return Standardization("shared", np.ascontiguousarray(mean), np.ascontiguousarray(std))
+    stats = Standardization("shared", np.ascontiguousarray(mean), np.ascontiguousarray(std))
+    check_statistics(stats, str(p))
+    return stats
 
 
 def read_angles(path: str | os.PathLike[str]) -> DirectionSet:
@@ -205,9 +220,11 @@ def read_angles(path: str | os.PathLike[str]) -> DirectionSet:
         raise FileFormatError(f"{p}: value {i} is {a[i]}; angles must be finite")
     phi, elev, _ = a.reshape(3, -1)
     try:
-        return from_angles(np.pi / 2 - elev, phi, name="ubo2014")
+        directions = from_angles(np.pi / 2 - elev, phi, name="ubo2014")
     except BTFInputError as e:
         raise FileFormatError(f"{p}: {e}") from None
+    check_directions(directions.xyz, f"{p} (φ, elevation)")
+    return directions
 
 
 def release_model(
