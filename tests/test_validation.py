@@ -342,6 +342,13 @@ def test_eval_and_lookup_refuse_nonfinite_results(corpus, tmp_path, capsys):
     _set(p, "stats/std", lambda s: np.full_like(s, STAT_BOUND))
     model = str(corpus / "model.h5")
     capsys.readouterr()
+    # With the bound kept with the statistics every value stays finite (at most the
+    # brightest of its angular image): the same file decodes, exit 0.
+    assert main(["eval", str(p), "--reference", str(corpus / "dense.h5"), "-m", model,
+                 "--ssim-images", "1", "--json"]) == 0  # fmt: skip
+    assert json.loads(capsys.readouterr().out)["max_decoded"] < 1e3
+    with h5py.File(p, "r+") as f:  # a file written before bounds existed
+        del f["stats/bound"]
     code = main(["eval", str(p), "--reference", str(corpus / "dense.h5"), "-m", model])
     # (NumPy's overflow warnings before the line are another issue's: issue 20, item 4.)
     err = capsys.readouterr().err.strip().splitlines()[-1]

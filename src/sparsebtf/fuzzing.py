@@ -65,7 +65,7 @@ def _model(seed: int = 0) -> Any:
 def _coded(model: Any, seed: int = 0) -> Any:
     from .learning.coding import SparseCodes
     from .model import CodedBTF
-    from .points.preprocessing import Standardization
+    from .points.preprocessing import Standardization, round_up_half
 
     rng = np.random.default_rng(seed)
     sizes = model.mode_sizes
@@ -82,7 +82,8 @@ def _coded(model: Any, seed: int = 0) -> Any:
         )  # fmt: skip
     nl, nv = len(model.lights), len(model.views)
     mean, std = rng.uniform(-2, -1, (nl, nv, 1)), rng.uniform(0.3, 0.8, (nl, nv, 1))
-    stats = Standardization("shared", mean, std)
+    bound = round_up_half(mean[..., 0] + 2 * std[..., 0])
+    stats = Standardization("shared", mean, std, bound=bound)
     params = {"tau": dict.fromkeys(model.channels, tau), "n_dictionaries": 2}
     return CodedBTF(codes, stats, 4, 4, 2, model.lights, model.views, model.content_hash,
                     params, "fuzz", {}, model)  # fmt: skip
@@ -367,6 +368,7 @@ _FIELDS: dict[str, tuple[tuple[str, bool], ...]] = {
               ("dictionaries/V/mode4", False), ("lights/xyz", False), ("views/xyz", False),
               ("lights/phi", True)),
     "coded": (("stats/mean", False), ("stats/std", False), ("stats@eps", False),
+              ("stats/bound", False),
               ("codes/Y/membership", False), ("codes/Y/counts", False),
               ("codes/U/values", False), ("codes/V/locations", False), ("codes/Y/errors", False),
               ("lights/xyz", False), ("views/xyz", False), ("views/theta", True)),
@@ -440,12 +442,16 @@ def _angles_xyz(theta: np.ndarray, phi: np.ndarray) -> np.ndarray | None:
     return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
 
 
-def _stats_ok(mean: np.ndarray, std: np.ndarray, eps: float) -> bool:
-    return bool(
+def _stats_ok(mean: np.ndarray, std: np.ndarray, eps: float, bound: Any = None) -> bool:
+    ok = bool(
         np.isfinite(mean).all() and np.isfinite(std).all() and np.all(np.abs(mean) <= _BOUND)
         and np.all(std > 0) and np.all(std <= _BOUND) and np.isfinite(eps)
         and _EPS[0] <= eps <= _EPS[1]
     )  # fmt: skip
+    if ok and bound is not None:  # decoded values never above exp(bound); black is ln(eps)
+        ok = bool(np.isfinite(bound).all() and np.all(bound <= _BOUND)
+                  and np.all(bound >= np.log(eps) - 1e-2))  # fmt: skip
+    return ok
 
 
 def _orthonormal(u: np.ndarray, tol: float) -> bool:
@@ -698,7 +704,8 @@ def _h5_legal(f: h5py.File, kind: str, model: Path) -> bool:
                 ok = ok and _orthonormal(ds[()], _ORTHO16 if ds.dtype.itemsize == 2 else _ORTHO)
         return ok
     st = f["stats"]
-    ok = ok and _stats_ok(st["mean"][()], st["std"][()], float(st.attrs["eps"]))
+    ok = ok and _stats_ok(st["mean"][()], st["std"][()], float(st.attrs["eps"]),
+                          st["bound"][()] if "bound" in st else None)
     for ch in f["codes"]:
         g = f["codes"][ch]
         sizes = tuple(int(m) for m in g.attrs["mode_sizes"])

@@ -447,14 +447,7 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
     bound = None
     if "bound" in g:
         bound = read_array(g, "bound", where, kinds="f", shape=mean.shape[:2], finite=True)
-        bound = bound.astype(np.float32)
-        floor = np.log(eps)  # ln(0 + eps): no angular image can lie below it
-        if bound.size and float(bound.min()) < floor - 1e-3:
-            first = tuple(int(i[0]) for i in np.nonzero(bound < floor - 1e-3))
-            raise FileFormatError(
-                f"{where}/bound: {float(bound[first])} at index {first} is below ln(eps) = "
-                f"{floor:.4g}, the log of a black value; the bound cannot hold"
-            )
+        bound = bound.astype(np.float32)  # its values are checked with the other statistics
     try:
         return Standardization(
             mode=mode,  # type: ignore[arg-type]
