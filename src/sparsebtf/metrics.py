@@ -4,9 +4,12 @@
 * ``mse_log`` — the same on ln(RGB + 1e-5).
 * ``mse_std`` — the same in the standardised log-YUV domain the codes live in (the release's
   ``btf4Drecon`` reports this one), using the reconstruction's statistics for both.
-* ``psnr_rgb`` — 10·log10(peak² / mse_rgb) with peak = the reference's largest value.
-* ``ssim`` — mean SSIM (scikit-image, RGB, data range = peak) over a regular sample of angular
-  images.
+* ``psnr_rgb`` — 10·log10(peak² / mse_rgb) with the fixed peak :data:`PSNR_PEAK` = 1.0
+  (reflectance 1), reported as ``peak``: the same for every material, size and render, so two
+  PSNRs compare as their MSEs do. (A peak taken from the reference, its largest value, moved
+  with one noisy texel or pixel: MSE 0.0039 gave 31.6 dB and MSE 0.0069 36.8 dB.)
+* ``ssim`` — mean SSIM (scikit-image, RGB, data range = the reference's largest value,
+  reported as ``ssim_data_range``) over a regular sample of angular images.
 
 Both BTFs are streamed by patch-aligned spatial tiles; memory is one tile of each.
 """
@@ -23,7 +26,10 @@ from .data.btf import BTF
 from .errors import BTFInputError
 from .points.preprocessing import EPS, RGB_TO_YUV, Standardization
 
-__all__ = ["compare", "psnr", "ssim_angular"]
+__all__ = ["PSNR_PEAK", "compare", "psnr", "ssim_angular"]
+
+#: The peak of every PSNR the project reports (eval, render, benchmarks): reflectance 1.
+PSNR_PEAK = 1.0
 
 
 def _sumsq(x: np.ndarray) -> float:
@@ -31,8 +37,9 @@ def _sumsq(x: np.ndarray) -> float:
     return float(np.sum(np.square(x), dtype=np.float64))
 
 
-def psnr(mse: float, peak: float) -> float:
-    """Peak signal-to-noise ratio in dB (inf for a perfect reconstruction)."""
+def psnr(mse: float, peak: float = PSNR_PEAK) -> float:
+    """Peak signal-to-noise ratio 10·log10(peak² / mse) in dB (inf for a perfect
+    reconstruction); every PSNR the project reports uses the default, fixed peak."""
     if mse <= 0:
         return float("inf")
     return float(10 * np.log10(peak**2 / mse))
@@ -90,7 +97,7 @@ def compare(
         )
     h, w = reference.height, reference.width
     sums = {"rgb": 0.0, "log": 0.0, "std": 0.0}
-    peak = 0.0
+    ref_max = 0.0
     n = 0
     yuv = RGB_TO_YUV.T.astype(np.float32)
     # 1/σ of every angular image, once (not per tile).
@@ -102,7 +109,7 @@ def compare(
             # float32 arithmetic, float64 accumulation: errors are far above float32 rounding.
             a = np.maximum(reference.region(rows, cols).astype(np.float32), 0)
             b = reconstruction.region(rows, cols).astype(np.float32)
-            peak = max(peak, float(a.max()))
+            ref_max = max(ref_max, float(a.max()))
             d = a - b
             sums["rgb"] += _sumsq(d)
             dl = np.log(a + np.float32(EPS)) - np.log(np.maximum(b, 0) + np.float32(EPS))
@@ -117,11 +124,12 @@ def compare(
     pairs = _angular_sample(len(reference.lights), len(reference.views), ssim_images)
     out: dict[str, Any] = {
         "mse_rgb": mse_rgb,
-        "psnr_rgb": psnr(mse_rgb, peak),
+        "psnr_rgb": psnr(mse_rgb),
+        "peak": PSNR_PEAK,
         "mse_log": sums["log"] / n,
-        "ssim": ssim_angular(reference, reconstruction, pairs, peak) if ssim_images else None,
+        "ssim": ssim_angular(reference, reconstruction, pairs, ref_max) if ssim_images else None,
         "ssim_images": len(pairs) if ssim_images else 0,
-        "peak": peak,
+        "ssim_data_range": ref_max,
     }
     if stats is not None:
         out["mse_std"] = sums["std"] / n

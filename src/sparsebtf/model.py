@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .data.directions import DirectionSet
-from .errors import BTFInputError, ModelMismatchError
+from .errors import BTFInputError, ModelMismatchError, SparseBTFError
 from .learning.coding import SparseCodes
 from .points.preprocessing import Standardization, StdMode, Transform
 
@@ -39,6 +39,7 @@ __all__ = [
     "Model",
     "TauSpec",
     "dictionaries_hash",
+    "model_text",
     "parse_tau",
 ]
 
@@ -132,6 +133,19 @@ def parse_tau(
     if any(c < 1 for c in counts):
         raise _tau_error(given, "every tau must be >= 1")
     return dict(zip(channels, counts, strict=True))
+
+
+def model_text(content_hash: str, file: str | None = None) -> str:
+    """How a message names a model: ``model 819ce9fcd073… (bundled 'release')``, or with its
+    file (``(file my-model.h5)``), so a user sees which model, not only a hash."""
+    from .storage.bundled import bundled_name
+
+    try:
+        name = bundled_name(content_hash)
+    except SparseBTFError:  # a damaged installation must not hide the real error
+        name = None
+    where = f"bundled '{name}'" if name else f"file {file}" if file else "not a bundled model"
+    return f"model {content_hash[:12]}… ({where})"
 
 
 def dictionaries_hash(ensembles: dict[str, list[np.ndarray]]) -> str:
@@ -317,8 +331,8 @@ class CodedBTF:
         """Attach the model these codes were made with; refuses any other model."""
         if model.content_hash != self.model_hash:
             raise ModelMismatchError(
-                f"{self.name}: coded with model {self.model_hash[:12]}…, but the given model is "
-                f"{model.content_hash[:12]}…"
+                f"{self.name}: coded with {model_text(self.model_hash, self.model_file)}, but "
+                f"the given model is {model_text(model.content_hash, model.file)}"
             )
         self.model = model
         return self

@@ -16,7 +16,7 @@ import numpy as np
 from ..errors import BTFInputError
 from ..runtime.angular import SCHEMES
 from ._args import check_output_dir, check_output_file, check_tau, integer, number
-from ._output import print_json
+from ._output import format_value, print_json
 
 __all__ = ["register"]
 
@@ -131,7 +131,8 @@ def cmd_blend(args: argparse.Namespace) -> int:
         print_json(report)
     else:
         if "output" in report:
-            print(f"wrote {report['output']}: weights {weights}, nnz {report['nnz']}")
+            print(f"wrote {report['output']}: weights {format_value(weights)}, coefficients "
+                  f"{format_value(report['nnz'])}")
         if "strip" in report:
             print(f"wrote {report['strip']} ({args.sweep} renders, α = 0 … 1)")
     return 0

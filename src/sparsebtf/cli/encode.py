@@ -18,7 +18,7 @@ from ._args import (
     parse_crop,
 )
 from ._model import MODEL_HELP, check_fits, model_label, open_model_arg
-from ._output import print_json
+from ._output import format_value, print_json
 
 __all__ = ["register"]
 
@@ -51,8 +51,9 @@ def run(args: argparse.Namespace) -> int:
         report["model"] = {"label": label, "content_hash": model.content_hash}
         reports.append({"input": coded.name, "output": str(output), **report})
         if not args.json:
-            print(f"wrote {output} with {label} ({model.content_hash[:12]}): nnz "
-                  f"{coded.nnz()}, file {report['file_bytes'] / 2**20:.3f} MiB")  # fmt: skip
+            mib = report["file_bytes"] / 2**20
+            print(f"wrote {output} with {label} ({model.content_hash[:12]}): coefficients "
+                  f"{format_value(coded.nnz())}, file {mib:.3f} MiB")  # fmt: skip
             print(f"  {ratio_line(report, args.target_ratio, per_material)}")
     if args.json:
         print_json(reports[0] if len(args.btf) == 1 else {"files": reports})

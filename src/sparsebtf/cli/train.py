@@ -23,7 +23,7 @@ from ._args import (
     open_source,
     parse_crop,
 )
-from ._output import print_json
+from ._output import format_value, print_json
 
 __all__ = ["register"]
 
@@ -115,8 +115,8 @@ def _report(args: argparse.Namespace, model: Any) -> None:
         for ch, t in model.training.items():
             print(
                 f"{ch}: {t['n_points']} points, {t['n_iter']} iterations, objective "
-                f"{t['objective'][0]:.4g} -> {t['objective'][-1]:.4g}, membership "
-                f"{t['membership_counts']}, {t['seconds']:.1f} s"
+                f"{t['objective'][0]:.4g} -> {t['objective'][-1]:.4g}, points per dictionary "
+                f"{format_value(t['membership_counts'])}, {t['seconds']:.1f} s"
             )
         print(f"wrote {args.output} (model {model.content_hash[:12]})")
 

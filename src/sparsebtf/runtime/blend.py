@@ -25,7 +25,7 @@ from ..errors import BTFInputError, ModelMismatchError
 from ..learning.coding import SparseCodes, topk_abs
 from ..learning.parallel import parallel_map
 from ..learning.tensor import reconstruct
-from ..model import CodedBTF, TauSpec, parse_tau
+from ..model import CodedBTF, TauSpec, model_text, parse_tau
 from ..points.preprocessing import Standardization
 
 __all__ = ["blend", "check_blendable"]
@@ -39,8 +39,9 @@ def check_blendable(coded: Sequence[CodedBTF]) -> None:
     for b in coded[1:]:
         if b.model_hash != a.model_hash:
             raise ModelMismatchError(
-                f"{a.name} was coded with model {a.model_hash[:12]}…, {b.name} with "
-                f"{b.model_hash[:12]}…: blending needs both coded with the same model"
+                f"{a.name} was coded with {model_text(a.model_hash, a.model_file)}, {b.name} "
+                f"with {model_text(b.model_hash, b.model_file)}: blending needs both coded with "
+                "the same model"
             )
         if not (b.lights.equals(a.lights) and b.views.equals(a.views)):
             raise BTFInputError(
