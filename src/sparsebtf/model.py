@@ -73,8 +73,10 @@ def parse_tau(
     Accepted: an integer (every channel); a sequence of integers, one per channel (or one);
     a ``{channel: τ}`` mapping; a string ``"885,64,64"``, ``"64"`` or ``"0.25"``; a fraction in
     (0, 1) of the coded τ (``nominal``, else ``full``), rounded up; ``None`` or ``"all"`` for
-    every stored coefficient (``full``). Where ``full``/``nominal`` are not given (encoding),
-    only explicit counts are accepted. Every τ is an integer >= 1.
+    every stored coefficient (``full``). Encoding passes only ``nominal`` (the release's
+    885,64,64, :data:`sparsebtf.codec.encode.RELEASE_TAU`): a fraction is of that, and a
+    count is needed. Where neither is given, only explicit counts are accepted. Every τ is an
+    integer >= 1.
     """
     given = tau
     if isinstance(tau, str):
@@ -119,6 +121,12 @@ def parse_tau(
         values = list(tau)
     counts = []
     for v in values:
+        if isinstance(v, numbers.Integral) and not isinstance(v, bool):
+            counts.append(int(v))  # exactly, however large (float() would round it)
+            continue
+        if isinstance(v, str) and v.strip().isdigit():
+            counts.append(int(v))
+            continue
         try:
             f = float(v)
         except (TypeError, ValueError):
