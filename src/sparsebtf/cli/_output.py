@@ -14,7 +14,10 @@ from typing import Any
 
 from .._json import json_default
 
-__all__ = ["LABELS", "format_value", "label", "nested_rows", "print_json", "table"]
+__all__ = [
+    "LABELS", "announce_size", "dense_bytes", "format_value", "label", "nested_rows",
+    "print_json", "table",
+]  # fmt: skip
 
 #: Words (and units) for the keys of library results that commands print as tables.
 LABELS = {
@@ -105,6 +108,21 @@ def nested_rows(obj: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str
         else:
             rows.append((key, format_value(v)))
     return rows
+
+
+def dense_bytes(btf: Any, dtype: str = "float32") -> int:
+    """Bytes of the dense file (:func:`sparsebtf.data.dense_file.write_dense`) of ``btf``:
+    its values, uncompressed, at ``dtype`` (the header and checksums add a few KiB)."""
+    import numpy as np
+
+    return int(btf.n_values) * np.dtype(dtype).itemsize
+
+
+def announce_size(path: Any, nbytes: int, what: str) -> None:
+    """One line before a large write, so a user can stop it: ``writing X: 1.05 GiB (what)``."""
+    from .._limits import format_bytes
+
+    print(f"writing {path}: {format_bytes(nbytes)} ({what})", flush=True)
 
 
 def print_json(obj: Any) -> None:

@@ -9,6 +9,7 @@ from typing import Any
 from ..errors import SparseBTFError
 from ._args import check_output_dir, check_output_file
 from ._model import MODEL_HELP
+from ._output import announce_size, dense_bytes
 
 __all__ = ["register"]
 
@@ -45,6 +46,9 @@ def run(args: argparse.Namespace) -> int:
         for path in save_angular_images(view, pairs, outdir):
             print(f"wrote {path}")
     if args.output:
+        announce_size(args.output, dense_bytes(view),
+                      f"{view.height}x{view.width} texels, {len(view.lights)} lights x "
+                      f"{len(view.views)} views, float32")  # fmt: skip
         write_dense(args.output, view, progress=None, by="regions")
         print(f"wrote {args.output}")
     return 0

@@ -7,6 +7,7 @@ from typing import Any
 
 from ..errors import SparseBTFError
 from ._args import check_output_file, integer, open_source
+from ._output import announce_size, dense_bytes
 
 __all__ = ["register"]
 
@@ -27,6 +28,9 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, [args.source])
     check_output_file(args.preview, [args.source, args.output], flag="--preview")
     if args.output:
+        announce_size(args.output, dense_bytes(btf, args.dtype),
+                      f"{btf.shape[0]}x{btf.shape[1]} texels, {len(btf.lights)} lights x "
+                      f"{len(btf.views)} views, {args.dtype}")  # fmt: skip
         write_dense(args.output, btf, dtype=args.dtype, progress=None)
         print(
             f"wrote {args.output}: {btf.shape[0]}x{btf.shape[1]} texels, "
@@ -55,7 +59,8 @@ def register(sub: Any) -> None:
         ".zip, synth:...)",
     )
     s.add_argument("--size", type=int, default=64,
-                   help="texels per side (default 64; a 100x100 UBO2014 BTF file is 2.8 GB)")
+                   help="texels per side (default 64: 1.1 GiB at UBO2014's 151x151 directions, "
+                   "said before writing; a 100x100 UBO2014 BTF file is 2.8 GB)")
     s.add_argument(
         "--directions",
         default="ubo2014",
