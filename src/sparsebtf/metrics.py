@@ -85,15 +85,15 @@ def compare(
     """
     if reference.shape != reconstruction.shape:
         raise BTFInputError(
-            f"cannot compare {reference.name} {reference.shape} with "
-            f"{reconstruction.name} {reconstruction.shape}"
+            f"cannot compare {reference.label} {reference.shape} with "
+            f"{reconstruction.label} {reconstruction.shape}"
         )
     if not (
         reference.lights.equals(reconstruction.lights)
         and reference.views.equals(reconstruction.views)
     ):
         raise BTFInputError(
-            f"{reference.name} and {reconstruction.name} have different direction tables"
+            f"{reference.label} and {reconstruction.label} have different direction tables"
         )
     h, w = reference.height, reference.width
     sums = {"rgb": 0.0, "log": 0.0, "std": 0.0}

@@ -255,7 +255,7 @@ class Model:
         """Codes only mean something on the direction tables the model was trained for."""
         if not (btf.lights.equals(self.lights) and btf.views.equals(self.views)):
             raise ModelMismatchError(
-                f"{btf.name}: {len(btf.lights)} lights x {len(btf.views)} views do not match the "
+                f"{btf.label}: {len(btf.lights)} lights x {len(btf.views)} views do not match the "
                 f"model's {len(self.lights)} x {len(self.views)} direction tables"
             )
 
@@ -289,6 +289,13 @@ class CodedBTF:
     name: str = "btf"
     attrs: dict[str, Any] = field(default_factory=dict)
     model: Model | None = None
+    #: The coded file it was read from (:func:`sparsebtf.storage.load_coded`), or None.
+    source: str | None = None
+
+    @property
+    def label(self) -> str:
+        """How messages name these codes: their file when they have one, else the name."""
+        return self.source or self.name
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -339,7 +346,7 @@ class CodedBTF:
         """Attach the model these codes were made with; refuses any other model."""
         if model.content_hash != self.model_hash:
             raise ModelMismatchError(
-                f"{self.name}: coded with {model_text(self.model_hash, self.model_file)}, but "
+                f"{self.label}: coded with {model_text(self.model_hash, self.model_file)}, but "
                 f"the given model is {model_text(model.content_hash, model.file)}"
             )
         self.model = model
@@ -348,6 +355,6 @@ class CodedBTF:
     def require_model(self) -> Model:
         if self.model is None:
             raise ModelMismatchError(
-                f"{self.name}: no model attached; load the coded file with its model file"
+                f"{self.label}: no model attached; load the coded file with its model file"
             )
         return self.model

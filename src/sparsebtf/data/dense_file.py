@@ -136,7 +136,7 @@ def write_dense(
                     c += cols.start or 0
                     vj += views.start or 0
                     raise BTFInputError(
-                        f"{btf.name}: {int(bad.sum())} NaN/Inf values; first at row {r}, "
+                        f"{btf.label}: {int(bad.sum())} NaN/Inf values; first at row {r}, "
                         f"col {c}, light {li}, view {vj}, channel {ch}"
                     )
                 ds[rows, cols, :, views, :] = block

@@ -87,10 +87,12 @@ def score_many(
     for rec in reconstructions:
         if rec.shape != reference.shape:
             raise BTFInputError(
-                f"cannot compare {reference.name} {reference.shape} with {rec.name} {rec.shape}"
+                f"cannot compare {reference.label} {reference.shape} with {rec.label} {rec.shape}"
             )
         if not (reference.lights.equals(rec.lights) and reference.views.equals(rec.views)):
-            raise BTFInputError(f"{reference.name} and {rec.name} have different direction tables")
+            raise BTFInputError(
+                f"{reference.label} and {rec.label} have different direction tables"
+            )
     h, w = reference.height, reference.width
     pairs = _angular_sample(len(reference.lights), len(reference.views), ssim_images)
     li = np.array([p[0] for p in pairs])
@@ -102,7 +104,7 @@ def score_many(
     ref_max = 0.0  # SSIM's data range
     n = 0
     tiles = [(r, c) for c in range(0, w, tile) for r in range(0, h, tile)]
-    with bar(len(tiles) * (n_rec + 1), f"score {reference.name}", "tile", progress) as pb:
+    with bar(len(tiles) * (n_rec + 1), f"score {reference.label}", "tile", progress) as pb:
         for r, c in tiles:
             rows, cols = slice(r, min(r + tile, h)), slice(c, min(c + tile, w))
             a = np.maximum(reference.region(rows, cols).astype(np.float32), 0)

@@ -277,10 +277,10 @@ def statistic_sums(
     h, w, nl, nv, _ = btf.shape
     v0, v1 = views if views is not None else (0, nv)
     if not 0 <= v0 < v1 <= nv:
-        raise BTFInputError(f"{btf.name}: view range [{v0}, {v1}) is not inside [0, {nv})")
+        raise BTFInputError(f"{btf.label}: view range [{v0}, {v1}) is not inside [0, {nv})")
     n = h * w
     if n < 2:
-        raise BTFInputError(f"{btf.name}: standardisation needs at least 2 texels, got {n}")
+        raise BTFInputError(f"{btf.label}: standardisation needs at least 2 texels, got {n}")
     s1 = np.zeros((nl, v1 - v0, 3))
     s2 = np.zeros((nl, v1 - v0, 3))
     shift = np.zeros((nl, v1 - v0, 3))
@@ -363,5 +363,5 @@ def gather_statistics(
         )
     with bar(nv, "statistics", "view", progress) as pb:
         sums = statistic_sums(btf, eps=eps, tick=pb.update)
-    warn_negatives(btf.name, [sums])
+    warn_negatives(btf.label, [sums])
     return combine_statistics([sums], mode, eps)

@@ -117,7 +117,7 @@ def storage_report(
     m = model if model is not None else coded.model
     if m is not None and m.content_hash != coded.model_hash:
         raise ModelMismatchError(
-            f"{coded.name}: coded with {model_text(coded.model_hash, coded.model_file)}, but "
+            f"{coded.label}: coded with {model_text(coded.model_hash, coded.model_file)}, but "
             f"the given model is {model_text(m.content_hash, m.file)}"
         )
     per: dict[str, dict[str, Any]] = {}

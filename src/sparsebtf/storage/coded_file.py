@@ -309,6 +309,7 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         params=params,
         name=name,
         attrs=attrs,
+        source=where,
     )
     if model is not None:
         _attach(coded, model, where)
