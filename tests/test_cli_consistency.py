@@ -140,3 +140,278 @@ def test_view_export_folder_follows_the_umask(tmp_path):
         os.umask(previous)
     assert out.stat().st_mode & 0o777 == 0o755
     assert [p.name for p in tmp_path.iterdir()] == ["site"]
+
+
+# --------------------------------------------------------------------------- shared files
+
+
+@pytest.fixture(scope="module")
+def coded_files(tmp_path_factory):
+    """A dense 8x8 tiny13 BTF with some negative values, a model for it and its codes."""
+
+    from sparsebtf.data.btf import ArrayBTF
+    from sparsebtf.data.dense_file import write_dense
+    from sparsebtf.storage import save_model
+
+    from .conftest import smooth_btf, tiny_model
+
+    d = tmp_path_factory.mktemp("cli")
+    base = smooth_btf(5)
+    data = base.to_array().copy()
+    data[0, 0, 0, :3, 0] = -0.01  # three negative values, clamped (with a note) when encoding
+    write_dense(d / "neg.h5", ArrayBTF(data, base.lights, base.views, name="smooth5"),
+                progress=False)  # fmt: skip
+    write_dense(d / "ref.h5", base, progress=False)
+    save_model(tiny_model(), d / "model.h5")
+    assert main(["encode", str(d / "ref.h5"), "-m", str(d / "model.h5"), "-o",
+                 str(d / "c.h5"), "--tau", "20,6,6"]) == 0  # fmt: skip
+    return d
+
+
+# --------------------------------------------------------------------------- warnings
+
+
+def test_encode_clamp_warning_is_one_note_line_naming_the_file(coded_files, tmp_path, capsys):
+    d = coded_files
+    code, _, err = run(["encode", d / "neg.h5", "-m", d / "model.h5", "-o", tmp_path / "n.h5",
+                        "--tau", "20,6,6"], capsys)  # fmt: skip
+    assert code == 0, err
+    notes = [line for line in err.splitlines() if line.strip()]
+    assert notes == [f"sparsebtf: note: {d / 'neg.h5'}: clamped 3 negative values to 0"], err
+
+
+def test_runtime_warnings_do_not_print_before_a_one_line_error(monkeypatch, capsys):
+    import numpy as np
+
+    from sparsebtf.cli import info
+    from sparsebtf.errors import FileFormatError
+
+    def describe(*args, **kwargs):
+        np.log(np.zeros(2))  # RuntimeWarning: divide by zero
+        raise FileFormatError("x.h5: damaged")
+
+    monkeypatch.setattr(info, "describe", describe)
+    code, _, err = run(["info", "x.h5"], capsys)
+    assert code == 2 and err == "sparsebtf: error: x.h5: damaged\n"
+
+
+def test_runtime_warnings_after_success_are_one_note_each(monkeypatch, capsys):
+    import numpy as np
+
+    from sparsebtf.cli import info
+
+    def describe(*args, **kwargs):
+        for _ in range(3):
+            np.log(np.zeros(2))
+        return {"kind": "test"}
+
+    monkeypatch.setattr(info, "describe", describe)
+    code, out, err = run(["info", "x.h5"], capsys)
+    assert code == 0 and "test" in out
+    assert err == "sparsebtf: note: divide by zero encountered in log\n"
+
+
+# --------------------------------------------------------------------------- numbers, tau
+
+
+def test_huge_tau_is_refused_in_one_line(coded_files, tmp_path, capsys):
+    d = coded_files
+    code, _, err = run(["encode", d / "ref.h5", "-m", d / "model.h5", "-o", tmp_path / "x.h5",
+                        "--tau", "99999999999999999999"], capsys)  # fmt: skip
+    assert code == 2 and err.count("\n") == 1
+    assert "tau = 99999999999999999999 is more coefficients than a data point has" in err
+    assert "4x4x13x13 = 2,704" in err and not (tmp_path / "x.h5").exists()
+
+
+def test_encode_takes_a_tau_fraction_like_render_and_view(coded_files, tmp_path, capsys):
+    import json
+    import math
+
+    d = coded_files
+    code, out, err = run(["encode", d / "ref.h5", "-m", d / "model.h5", "-o", tmp_path / "f.h5",
+                          "--tau", "0.05", "--allow-below-training", "--json"], capsys)  # fmt: skip
+    assert code == 0, err
+    # A fraction of the release's 885,64,64, rounded up (the default tau of encode).
+    want = {ch: math.ceil(0.05 * t) for ch, t in {"Y": 885, "U": 64, "V": 64}.items()}
+    assert json.loads(out)["nnz"] == {ch: 4 * t for ch, t in want.items()}
+
+
+def test_every_numeric_option_is_range_checked():
+    import argparse
+
+    from sparsebtf.cli.main import build_parser
+
+    unchecked = []
+
+    def walk(parser, name):
+        checks = parser.get_default("checks") or {}
+        for a in parser._actions:
+            if isinstance(a, argparse._SubParsersAction):
+                for sub, sp in a.choices.items():
+                    walk(sp, f"{name} {sub}")
+            elif a.type in (int, float) and a.dest not in checks:
+                unchecked.append(f"{name} {a.option_strings}")
+
+    walk(build_parser(), "sparsebtf")
+    assert unchecked == []
+
+
+@pytest.mark.parametrize("weights", ["nan,0.5", "inf,0"])
+def test_blend_weights_must_be_finite(coded_files, tmp_path, capsys, weights):
+    d = coded_files
+    code, _, err = run(["blend", d / "c.h5", d / "c.h5", "--weights", weights, "-o",
+                        tmp_path / "b.h5"], capsys)  # fmt: skip
+    assert code == 2 and "--weights must be finite numbers" in err
+
+
+# --------------------------------------------------------------------------- option names
+
+
+def test_render_image_size_and_its_deprecated_spelling(capsys):
+    from sparsebtf.cli.main import build_parser
+
+    p = build_parser()
+    new = p.parse_args(["render", "c.h5", "-o", "x.png", "--image-size", "32x24"])
+    assert new.image_size == "32x24" and capsys.readouterr().err == ""
+    old = p.parse_args(["render", "c.h5", "-o", "x.png", "--size", "32x24"])
+    assert old.image_size == "32x24"
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--size is deprecated" in err and "use --image-size" in err
+    assert p.parse_args(["render", "c.h5", "-o", "x.png"]).image_size == "256"
+    assert "--image-size" in p._subparsers._group_actions[0].choices["render"].format_help()
+
+
+def test_blend_direction_options_and_their_deprecated_spelling(coded_files, tmp_path, capsys):
+    d = coded_files
+    common = ["blend", d / "c.h5", d / "c.h5", "--sweep", "2", "--png", tmp_path / "s"]
+    code, _, err = run([*common, "--light-dir", "0,60", "--view-dir", "90,70"], capsys)
+    assert code == 0 and "deprecated" not in err, err
+    code, _, err = run([*common, "--light", "0,60", "--view", "90,70"], capsys)
+    assert code == 0
+    assert [line for line in err.splitlines() if "deprecated" in line] == [
+        "sparsebtf: note: --light is deprecated (in 'blend' it meant degrees; 'lookup --light' "
+        "is an index); use --light-dir",
+        "sparsebtf: note: --view is deprecated (in 'blend' it meant degrees; 'lookup --view' "
+        "is an index); use --view-dir",
+    ]
+    code, _, err = run([*common, "--light-dir", "0,100"], capsys)
+    assert code == 2 and "--light-dir: elevation must be in (0, 90] degrees" in err
+
+
+# --------------------------------------------------------------------------- output
+
+
+def test_eval_without_ssim_images_prints_a_table(coded_files, capsys):
+    d = coded_files
+    code, out, err = run(["eval", d / "c.h5", "--reference", d / "ref.h5", "--ssim-images", "0"],
+                         capsys)  # fmt: skip
+    assert code == 0, err
+    assert "SSIM  " in out and "not computed (--ssim-images 0)" in out
+    assert "Traceback" not in err and "{" not in out
+
+
+def test_eval_table_prints_fields_it_does_not_know(coded_files, monkeypatch, capsys):
+    from sparsebtf import metrics
+
+    compare = metrics.compare
+
+    def more(*args, **kwargs):
+        return {**compare(*args, **kwargs), "largest_decoded_value": 1.25,
+                "error_share_top_values": 0.125}  # fmt: skip
+
+    monkeypatch.setattr(metrics, "compare", more)
+    d = coded_files
+    code, out, _ = run(["eval", d / "c.h5", "--reference", d / "ref.h5", "--ssim-images", "2"],
+                       capsys)  # fmt: skip
+    assert code == 0
+    lines = out.splitlines()
+    assert any(line.split() == ["largest", "decoded", "value", "1.25"] for line in lines)
+    assert any(line.split() == ["error", "share", "top", "values", "0.125"] for line in lines)
+
+
+def test_psnr_has_one_fixed_peak(coded_files, capsys):
+    import json
+    import math
+
+    import numpy as np
+
+    from sparsebtf.metrics import PSNR_PEAK, psnr
+    from sparsebtf.rendering.render import compare_renders
+
+    d = coded_files
+    _, out, _ = run(["eval", d / "c.h5", "--reference", d / "ref.h5", "--ssim-images", "2",
+                        "--json"], capsys)  # fmt: skip
+    ev = json.loads(out)
+    assert PSNR_PEAK == 1.0 and ev["peak"] == 1.0
+    assert ev["psnr_rgb"] == pytest.approx(-10 * math.log10(ev["mse_rgb"]))
+    _code, out, _ = run(["eval", d / "c.h5", "--reference", d / "ref.h5", "--ssim-images", "2"],
+                       capsys)  # fmt: skip
+    assert f"{ev['psnr_rgb']:.2f} dB (peak 1)" in out
+    # Renders: a noisy reference's largest pixel no longer sets the peak, so a lower MSE
+    # always reads as a higher PSNR (the issue's 0.0039 -> 31.6 dB, 0.0069 -> 36.8 dB).
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(0, 1, (16, 16, 3))
+    quiet, firefly = ref.copy(), ref.copy()
+    firefly[3, 3] = 40.0  # one bright sample in the second reference
+    good = compare_renders(ref + 0.0625, quiet)
+    worse = compare_renders(ref + 0.0625 * 1.5, firefly)
+    assert good["mse"] < worse["mse"] and good["psnr"] > worse["psnr"]
+    assert good["peak"] == worse["peak"] == 1.0 and good["psnr"] == pytest.approx(psnr(good["mse"]))
+
+
+def test_tables_have_no_raw_dicts_or_snake_case_keys(coded_files, capsys):
+    d = coded_files
+    for argv in (["info", d / "c.h5", "-m", d / "model.h5"], ["info", d / "model.h5"],
+                 ["info", d / "ref.h5"],
+                 ["lookup", d / "c.h5", "--texel", "1,2", "--light", "3", "--view", "4"],
+                 ["lookup", d / "ref.h5", "--texel", "1,2", "--light", "3", "--view", "4"]):
+        code, out, err = run(argv, capsys)
+        assert code == 0, err
+        keys = [line.split("  ")[0] for line in out.splitlines()]
+        assert not [k for k in keys if "_" in k], (argv, keys)
+        assert "{" not in out and "'Y'" not in out and '"Y"' not in out, out
+    code, out, _ = run(["lookup", d / "c.h5", "--texel", "1,2", "--light", "3", "--view", "4"],
+                       capsys)  # fmt: skip
+    assert "standardised (Eq. 5)" in out and "linear RGB" in out
+    code, out, _ = run(["encode", d / "ref.h5", "-m", d / "model.h5", "-o", d / "e.h5", "--tau",
+                        "20,6,6"], capsys)  # fmt: skip
+    assert "coefficients Y 80, U 24, V 24" in out and "{" not in out
+
+
+def test_lookup_json_is_still_the_machine_form(coded_files, capsys):
+    import json
+
+    d = coded_files
+    _code, out, _ = run(["lookup", d / "c.h5", "--texel", "1,2", "--light", "3", "--view", "4",
+                        "--json"], capsys)  # fmt: skip
+    obj = json.loads(out)
+    assert set(obj["standardized"]) == {"Y", "U", "V"} and len(obj["rgb"]) == 3
+
+
+def test_wrong_model_error_names_the_models(coded_files, tmp_path, capsys):
+    from sparsebtf.storage import save_model
+
+    from .conftest import tiny_model
+
+    d = coded_files
+    save_model(tiny_model(max_iter=1), tmp_path / "other.h5")
+    code, _, err = run(["eval", d / "c.h5", "--reference", d / "ref.h5", "-m",
+                        tmp_path / "other.h5"], capsys)  # fmt: skip
+    assert code == 2 and err.count("\n") == 1
+    assert f"(file {d / 'model.h5'})" in err and f"(file {tmp_path / 'other.h5'})" in err
+    assert str(d / "c.h5") in err
+    code, _, err = run(["eval", d / "c.h5", "--reference", d / "ref.h5", "-m", "release"],
+                       capsys)  # fmt: skip
+    assert code == 2 and "(bundled 'release')" in err
+
+
+def test_errors_about_a_file_name_the_file(coded_files, tmp_path, capsys):
+    d = coded_files
+    from sparsebtf.data.dense_file import write_dense
+
+    from .conftest import smooth_btf
+
+    write_dense(tmp_path / "dirs7.h5", smooth_btf(1, n_dirs=7), progress=False)
+    code, _, err = run(["eval", d / "c.h5", "--reference", tmp_path / "dirs7.h5"], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert str(tmp_path / "dirs7.h5") in err and str(d / "c.h5") in err, err
