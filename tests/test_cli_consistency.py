@@ -415,3 +415,69 @@ def test_errors_about_a_file_name_the_file(coded_files, tmp_path, capsys):
     code, _, err = run(["eval", d / "c.h5", "--reference", tmp_path / "dirs7.h5"], capsys)
     assert code == 2 and err.count("\n") == 1
     assert str(tmp_path / "dirs7.h5") in err and str(d / "c.h5") in err, err
+
+
+# --------------------------------------------------------------------------- convert, sizes
+
+
+def test_convert_to_btf_writes_a_real_ubo2014_file(tmp_path, capsys):
+    import numpy as np
+
+    from sparsebtf.formats.ubo2014 import UBO2014BTF
+    from sparsebtf.open import open_btf
+
+    out = tmp_path / "standin.btf"
+    code, stdout, err = run(["convert", "synth:felt:8:0:tiny13", "-o", out], capsys)
+    assert code == 0, err
+    assert out.read_bytes()[:9] == b"!DFMF08FC"
+    btf, ref = open_btf(out), open_btf("synth:felt:8:0:tiny13")
+    assert isinstance(btf, UBO2014BTF)
+    assert np.array_equal(btf.to_array(), ref.to_array())  # float32 factors: exact
+    assert btf.lights.equals(ref.lights) and btf.views.equals(ref.views)
+    first = stdout.splitlines()[0]
+    from sparsebtf._limits import format_bytes
+
+    assert first.startswith(f"writing {out}: {format_bytes(out.stat().st_size)} (UBO2014")
+
+
+def test_convert_to_btf_with_more_texels_than_directions(tmp_path, capsys):
+    import numpy as np
+
+    from sparsebtf.open import open_btf
+
+    out = tmp_path / "wide.btf"  # 12x12 texels > 7x7 directions: the other factor is the identity
+    code, _, err = run(["convert", "synth:stone:12:0:tiny7", "-o", out, "--dtype", "float16"],
+                       capsys)  # fmt: skip
+    assert code == 0, err
+    a, b = open_btf(out).to_array(), open_btf("synth:stone:12:0:tiny7").to_array()
+    assert np.array_equal(a, b.astype(np.float16).astype(np.float32))
+
+
+@pytest.mark.parametrize("name", ["x.xyz", "x", "x.btf.gz"])
+def test_convert_refuses_unknown_extensions(tmp_path, capsys, name):
+    code, _, err = run(["convert", "synth:felt:8:0:tiny13", "-o", tmp_path / name], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert "unknown extension" in err and ".h5 (our dense file) or .btf (a UBO2014 file)" in err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_large_outputs_are_announced_before_they_are_written(coded_files, tmp_path, capsys):
+    from sparsebtf._limits import format_bytes
+
+    code, out, _ = run(["synth", "--class", "felt", "--size", "8", "--directions", "tiny13",
+                        "-o", tmp_path / "s.h5"], capsys)  # fmt: skip
+    # 8x8 texels x 13 x 13 directions x 3 in chunks of 8x8x8x8x3: 4 chunks of 12,288 values.
+    stored = 4 * 8 * 8 * 8 * 8 * 3
+    assert code == 0
+    assert out.splitlines()[0] == (f"writing {tmp_path / 's.h5'}: {format_bytes(4 * stored)} "
+                                   "(8x8 texels, 13 lights x 13 views, float32)")  # fmt: skip
+    code, out, _ = run(["convert", tmp_path / "s.h5", "-o", tmp_path / "h.h5", "--dtype",
+                        "float16"], capsys)  # fmt: skip
+    assert out.splitlines()[0].startswith(f"writing {tmp_path / 'h.h5'}: "
+                                          f"{format_bytes(2 * stored)} (")  # fmt: skip
+    code, out, _ = run(["decode", coded_files / "c.h5", "-o", tmp_path / "d.h5"], capsys)
+    assert out.splitlines()[0].startswith(f"writing {tmp_path / 'd.h5'}: "
+                                          f"{format_bytes(4 * stored)} (")  # fmt: skip
+    # The announced size is the file's, to the header's few KiB.
+    for name, item in (("s.h5", 4), ("h.h5", 2), ("d.h5", 4)):
+        assert 0 <= (tmp_path / name).stat().st_size - item * stored < 16 * 1024, name

@@ -111,11 +111,11 @@ def nested_rows(obj: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str
 
 
 def dense_bytes(btf: Any, dtype: str = "float32") -> int:
-    """Bytes of the dense file (:func:`sparsebtf.data.dense_file.write_dense`) of ``btf``:
-    its values, uncompressed, at ``dtype`` (the header and checksums add a few KiB)."""
-    import numpy as np
+    """Bytes of the dense file (:func:`sparsebtf.data.dense_file.write_dense`) of ``btf`` at
+    ``dtype``: its stored chunks (the header and direction tables add a few KiB)."""
+    from ..data.dense_file import dense_file_bytes
 
-    return int(btf.n_values) * np.dtype(dtype).itemsize
+    return dense_file_bytes(btf.shape, dtype)
 
 
 def announce_size(path: Any, nbytes: int, what: str) -> None:
