@@ -59,7 +59,7 @@ def register(sub: Any) -> None:
         ".zip, synth:...)",
     )
     s.add_argument("--size", type=int, default=64,
-                   help="texels per side (default 64: 1.14 GiB at UBO2014's 151x151 directions, "
+                   help="texels per side (default 64: 1.65 GiB at UBO2014's 151x151 directions, "
                    "said before writing; a 100x100 UBO2014 BTF file is 2.8 GB)")
     s.add_argument(
         "--directions",
