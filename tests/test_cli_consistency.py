@@ -481,3 +481,20 @@ def test_large_outputs_are_announced_before_they_are_written(coded_files, tmp_pa
     # The announced size is the file's, to the header's few KiB.
     for name, item in (("s.h5", 4), ("h.h5", 2), ("d.h5", 4)):
         assert 0 <= (tmp_path / name).stat().st_size - item * stored < 16 * 1024, name
+
+
+def test_writing_commands_have_json(coded_files, tmp_path, capsys):
+    import json
+
+    code, out, err = run(["convert", "synth:felt:8:0:tiny13", "-o", tmp_path / "a.btf",
+                          "--json"], capsys)  # fmt: skip
+    assert code == 0
+    (entry,) = json.loads(out)["written"]
+    assert entry["kind"] == "ubo2014" and entry["file_bytes"] == (tmp_path / "a.btf").stat().st_size
+    assert err.startswith(f"writing {tmp_path / 'a.btf'}: ")  # the size line, off stdout
+    code, out, _ = run(["synth", "--class", "felt", "--size", "4", "--directions", "tiny7",
+                        "-o", tmp_path / "s.h5", "--json"], capsys)  # fmt: skip
+    assert [e["kind"] for e in json.loads(out)["written"]] == ["dense"]
+    code, out, _ = run(["decode", coded_files / "c.h5", "--images", "0:0", "--png", tmp_path,
+                        "--json"], capsys)  # fmt: skip
+    assert [e["kind"] for e in json.loads(out)["written"]] == ["png"]

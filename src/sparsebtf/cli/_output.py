@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from collections.abc import Mapping
-from typing import Any
+from pathlib import Path
+from typing import Any, TextIO
 
 from .._json import json_default
 
 __all__ = [
-    "LABELS", "announce_size", "dense_bytes", "format_value", "label", "nested_rows",
+    "LABELS", "Written", "announce_size", "dense_bytes", "format_value", "label", "nested_rows",
     "print_json", "table",
 ]  # fmt: skip
 
@@ -118,11 +120,37 @@ def dense_bytes(btf: Any, dtype: str = "float32") -> int:
     return dense_file_bytes(btf.shape, dtype)
 
 
-def announce_size(path: Any, nbytes: int, what: str) -> None:
+def announce_size(path: Any, nbytes: int, what: str, file: TextIO | None = None) -> None:
     """One line before a large write, so a user can stop it: ``writing X: 1.05 GiB (what)``."""
     from .._limits import format_bytes
 
-    print(f"writing {path}: {format_bytes(nbytes)} ({what})", flush=True)
+    print(f"writing {path}: {format_bytes(nbytes)} ({what})", file=file or sys.stdout,
+          flush=True)  # fmt: skip
+
+
+class Written:
+    """What a command that writes files says: ``writing …`` before each large file and
+    ``wrote …`` after, for people; with ``--json`` one object ``{"written": [{"path",
+    "file_bytes", …}]}`` at the end (the ``writing`` lines then go to stderr, so stdout
+    holds only the JSON)."""
+
+    def __init__(self, as_json: bool) -> None:
+        self.as_json = as_json
+        self.files: list[dict[str, Any]] = []
+
+    def announce(self, path: Any, nbytes: int, what: str) -> None:
+        announce_size(path, nbytes, what, sys.stderr if self.as_json else sys.stdout)
+
+    def wrote(self, path: Any, text: str = "", **fields: Any) -> None:
+        """Record a finished file (``fields`` go into its JSON entry) and say so."""
+        self.files.append({"path": str(path), "file_bytes": Path(path).stat().st_size,
+                           **fields})  # fmt: skip
+        if not self.as_json:
+            print(f"wrote {path}{': ' + text if text else ''}")
+
+    def finish(self) -> None:
+        if self.as_json:
+            print_json({"written": self.files})
 
 
 def print_json(obj: Any) -> None:

@@ -9,7 +9,7 @@ from typing import Any
 
 from ..errors import SparseBTFError
 from ._args import check_output_file, open_source
-from ._output import announce_size, dense_bytes
+from ._output import Written, dense_bytes
 
 __all__ = ["register"]
 
@@ -27,17 +27,20 @@ def run(args: argparse.Namespace) -> int:
     btf = open_source(args.input, crop=args.crop)
     shape = (f"{btf.height}x{btf.width} texels, {len(btf.lights)} lights x {len(btf.views)} "
              "views")  # fmt: skip
+    say = Written(args.json)
     if suffix == ".btf":
         from ..formats.ubo2014_write import ubo2014_bytes, write_btf_ubo2014
 
         kind = "half" if args.dtype == "float16" else "float"
         nbytes = ubo2014_bytes(btf.height, btf.width, len(btf.lights), len(btf.views), kind)
-        announce_size(args.output, nbytes, f"UBO2014 DFMF, {shape}, {args.dtype}")
+        say.announce(args.output, nbytes, f"UBO2014 DFMF, {shape}, {args.dtype}")
         write_btf_ubo2014(args.output, btf, kind)
     else:
-        announce_size(args.output, dense_bytes(btf, args.dtype), f"{shape}, {args.dtype}")
+        say.announce(args.output, dense_bytes(btf, args.dtype), f"{shape}, {args.dtype}")
         write_dense(args.output, btf, dtype=args.dtype, progress=None)
-    print(f"wrote {args.output}: {shape}")
+    say.wrote(args.output, shape, kind="ubo2014" if suffix == ".btf" else "dense",
+              shape=list(btf.shape), dtype=args.dtype)  # fmt: skip
+    say.finish()
     return 0
 
 
@@ -51,5 +54,6 @@ def register(sub: Any) -> None:
     s.add_argument("--crop", metavar="R0:R1,C0:C1",
                    help="keep rows R0..R1-1 and columns C0..C1-1 (0-based, end excluded)")
     s.add_argument("--dtype", choices=["float32", "float16"], default="float32",
-                   help="value type of the dense file (default float32; float16 halves it)")
+                   help="value type of the output (default float32; float16 halves it)")
+    s.add_argument("--json", action="store_true", help="print what was written as JSON")
     s.set_defaults(func=run)

@@ -9,7 +9,7 @@ from typing import Any
 from ..errors import SparseBTFError
 from ._args import check_output_dir, check_output_file
 from ._model import MODEL_HELP
-from ._output import announce_size, dense_bytes
+from ._output import Written, dense_bytes
 
 __all__ = ["register"]
 
@@ -34,6 +34,7 @@ def run(args: argparse.Namespace) -> int:
     coded = load_coded_with_model(args.coded, args.model)
     check_output_file(args.output, [coded.model_file])
     view = coded_btf_view(coded)
+    say = Written(args.json)
     if args.images:
         from ..figures import save_angular_images
 
@@ -44,13 +45,14 @@ def run(args: argparse.Namespace) -> int:
                                          f"[0, {n}) (0-based light:view indices)")  # fmt: skip
         outdir = Path(args.png or ".")
         for path in save_angular_images(view, pairs, outdir):
-            print(f"wrote {path}")
+            say.wrote(path, kind="png")
     if args.output:
-        announce_size(args.output, dense_bytes(view),
-                      f"{view.height}x{view.width} texels, {len(view.lights)} lights x "
-                      f"{len(view.views)} views, float32")  # fmt: skip
+        shape = (f"{view.height}x{view.width} texels, {len(view.lights)} lights x "
+                 f"{len(view.views)} views")  # fmt: skip
+        say.announce(args.output, dense_bytes(view), f"{shape}, float32")
         write_dense(args.output, view, progress=None, by="regions")
-        print(f"wrote {args.output}")
+        say.wrote(args.output, shape, kind="dense", shape=list(view.shape))
+    say.finish()
     return 0
 
 
@@ -63,4 +65,5 @@ def register(sub: Any) -> None:
                    help="angular images to write as PNG: light:view index pairs, 0-based, "
                    "e.g. 0:0,10:42")
     s.add_argument("--png", metavar="DIR", help="folder for --images (default: the current one)")
+    s.add_argument("--json", action="store_true", help="print what was written as JSON")
     s.set_defaults(func=run)

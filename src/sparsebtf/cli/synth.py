@@ -7,7 +7,7 @@ from typing import Any
 
 from ..errors import SparseBTFError
 from ._args import check_output_file, integer, open_source
-from ._output import announce_size, dense_bytes
+from ._output import Written, dense_bytes
 
 __all__ = ["register"]
 
@@ -27,20 +27,20 @@ def run(args: argparse.Namespace) -> int:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --preview OUT.png")
     check_output_file(args.output, [args.source])
     check_output_file(args.preview, [args.source, args.output], flag="--preview")
+    say = Written(args.json)
+    shape = (f"{btf.shape[0]}x{btf.shape[1]} texels, {len(btf.lights)} lights x "
+             f"{len(btf.views)} views")  # fmt: skip
     if args.output:
-        announce_size(args.output, dense_bytes(btf, args.dtype),
-                      f"{btf.shape[0]}x{btf.shape[1]} texels, {len(btf.lights)} lights x "
-                      f"{len(btf.views)} views, {args.dtype}")  # fmt: skip
+        say.announce(args.output, dense_bytes(btf, args.dtype), f"{shape}, {args.dtype}")
         write_dense(args.output, btf, dtype=args.dtype, progress=None)
-        print(
-            f"wrote {args.output}: {btf.shape[0]}x{btf.shape[1]} texels, "
-            f"{len(btf.lights)} lights x {len(btf.views)} views ({btf.lights.name})"
-        )
+        say.wrote(args.output, f"{shape} ({btf.lights.name})", kind="dense",
+                  shape=list(btf.shape), directions=btf.lights.name)  # fmt: skip
         if args.preview:
             btf = open_source(args.output)
     if args.preview:
         contact_sheet(btf, args.preview)
-        print(f"wrote {args.preview}")
+        say.wrote(args.preview, kind="png")
+    say.finish()
     return 0
 
 
@@ -72,5 +72,6 @@ def register(sub: Any) -> None:
                    help="value type of the dense file (default float32; float16 halves it)")
     s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")
     s.add_argument("--preview", help="PNG contact sheet of angular images to write")
+    s.add_argument("--json", action="store_true", help="print what was written as JSON")
     s.set_defaults(func=run, checks={"size": integer(1, 16384, unit="texels per side"),
                                      "seed": integer(0, 2**32 - 1)})
