@@ -498,3 +498,15 @@ def test_writing_commands_have_json(coded_files, tmp_path, capsys):
     code, out, _ = run(["decode", coded_files / "c.h5", "--images", "0:0", "--png", tmp_path,
                         "--json"], capsys)  # fmt: skip
     assert [e["kind"] for e in json.loads(out)["written"]] == ["png"]
+
+
+def test_training_tau_is_bounded_and_takes_counts_only(tmp_path, capsys):
+    base = ["train", "synth:felt:8:0:tiny13", "-o", tmp_path / "m.h5", "--patch", "4",
+            "--dicts", "1", "--iters", "1"]  # fmt: skip
+    code, _, err = run([*base, "--tau-train", "999999999999"], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert "tau_train Y = 999999999999 is more coefficients than a data point has " \
+           "(4x4x13x13 = 2,704)" in err
+    code, _, err = run([*base, "--tau-train", "0.5"], capsys)
+    assert code == 2 and "a fraction needs a coded tau" in err and "such as 0.25" not in err
+    assert not (tmp_path / "m.h5").exists()

@@ -54,10 +54,11 @@ TauSpec = None | int | float | str | Sequence[int] | Mapping[str, int]
 _ALL = ("all", "full", "none")
 
 
-def _tau_error(tau: object, why: str) -> BTFInputError:
+def _tau_error(tau: object, why: str, fractions: bool = True) -> BTFInputError:
+    frac = "; or a fraction in (0, 1) of the coded tau such as 0.25" if fractions else ""
     return BTFInputError(
         f"tau {tau!r}: {why} (give integers: one for all channels or 'Y,U,V' such as "
-        "'885,64,64'; or a fraction in (0, 1) of the coded tau such as 0.25)"
+        f"'885,64,64'{frac})"
     )
 
 
@@ -79,6 +80,7 @@ def parse_tau(
     integer >= 1.
     """
     given = tau
+    frac = full is not None or nominal is not None
     if isinstance(tau, str):
         text = tau.strip()
         if text.lower() in _ALL:
@@ -92,28 +94,28 @@ def parse_tau(
                 try:
                     tau = float(text)
                 except ValueError:
-                    raise _tau_error(given, "not a number") from None
+                    raise _tau_error(given, "not a number", frac) from None
     if tau is None:
         if full is None:
-            raise _tau_error(given, "a count is needed here")
+            raise _tau_error(given, "a count is needed here", frac)
         return {ch: int(full[ch]) for ch in channels}
     if isinstance(tau, bool):
-        raise _tau_error(given, "not a number")
+        raise _tau_error(given, "not a number", frac)
     if isinstance(tau, numbers.Real) and not isinstance(tau, numbers.Integral):
         f = float(tau)
         if math.isfinite(f) and f.is_integer():
             tau = int(f)
         else:
             if full is None and nominal is None:
-                raise _tau_error(given, "a fraction needs a coded BTF to be a fraction of")
+                raise _tau_error(given, "a fraction needs a coded tau to be a fraction of", frac)
             if not 0 < f < 1:
-                raise _tau_error(given, "a fractional tau must be in (0, 1)")
+                raise _tau_error(given, "a fractional tau must be in (0, 1)", frac)
             base = {**(full or {}), **(nominal or {})}
             return {ch: max(1, math.ceil(f * int(base[ch]))) for ch in channels}
     if isinstance(tau, Mapping):
         missing = [ch for ch in channels if ch not in tau]
         if missing:
-            raise _tau_error(given, f"no value for channel(s) {missing}")
+            raise _tau_error(given, f"no value for channel(s) {missing}", frac)
         values: list[Any] = [tau[ch] for ch in channels]
     elif isinstance(tau, numbers.Integral):
         values = [tau]
@@ -130,16 +132,18 @@ def parse_tau(
         try:
             f = float(v)
         except (TypeError, ValueError):
-            raise _tau_error(given, f"{v!r} is not an integer") from None
+            raise _tau_error(given, f"{v!r} is not an integer", frac) from None
         if not (math.isfinite(f) and f.is_integer()):
-            raise _tau_error(given, f"{v!r} is not an integer")
+            raise _tau_error(given, f"{v!r} is not an integer", frac)
         counts.append(int(f))
     if len(counts) == 1:
         counts = counts * len(channels)
     if len(counts) != len(channels):
-        raise _tau_error(given, f"needs one value per channel {tuple(channels)}, got {len(counts)}")
+        raise _tau_error(
+            given, f"needs one value per channel {tuple(channels)}, got {len(counts)}", frac
+        )
     if any(c < 1 for c in counts):
-        raise _tau_error(given, "every tau must be >= 1")
+        raise _tau_error(given, "every tau must be >= 1", frac)
     return dict(zip(channels, counts, strict=True))
 
 
