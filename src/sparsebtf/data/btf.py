@@ -135,7 +135,7 @@ class BTF(abc.ABC):
         )
         # Every read's float32 result must fit the memory budget (sizes may come from a file).
         n = int(np.prod([ix.size for ix in out], dtype=np.int64))
-        check_allocation(12 * n, f"{self.name}: reading {'x'.join(str(ix.size) for ix in out)}x3"
+        check_allocation(12 * n, f"{self.label}: reading {'x'.join(str(ix.size) for ix in out)}x3"
                          " values at once", BTFInputError)  # fmt: skip
         return out
 
