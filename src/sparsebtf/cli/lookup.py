@@ -134,7 +134,7 @@ def lookup_table(out: dict[str, Any]) -> str:
         lines.append(f"{k:<{width}}  " + "  ".join(f"{v:>{w}}" for v, w in zip(vals, cols,
                                                                                    strict=True)))
     if out.get("rgb_note"):
-        lines.append(f"linear RGB is {out['rgb_note']}")
+        lines.append(f"(no linear RGB: {out['rgb_note'].removeprefix('null: ')})")
     return "\n".join(lines)
 
 
