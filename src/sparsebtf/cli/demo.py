@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 
 from ._args import check_output_dir, integer
-from ._output import format_value
 
 __all__ = ["DemoConfig", "register", "run_demo"]
 
@@ -137,7 +136,7 @@ def run_demo(
         print(
             f"      {ch}: objective {t['objective'][0]:.4f} -> {t['objective'][-1]:.4f} "
             f"(mean squared error per value, standardised), points per dictionary "
-            f"{format_value(t['membership_counts'])}"
+            f"{'/'.join(map(str, t['membership_counts']))}"
         )
     print(f"[3/5] encoding unseen materials at tau = {', '.join(map(str, cfg.taus))}")
     rows: list[dict[str, Any]] = []

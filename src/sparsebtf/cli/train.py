@@ -23,7 +23,7 @@ from ._args import (
     open_source,
     parse_crop,
 )
-from ._output import format_value, print_json
+from ._output import print_json
 
 __all__ = ["register"]
 
@@ -116,7 +116,7 @@ def _report(args: argparse.Namespace, model: Any) -> None:
             print(
                 f"{ch}: {t['n_points']} points, {t['n_iter']} iterations, objective "
                 f"{t['objective'][0]:.4g} -> {t['objective'][-1]:.4g}, points per dictionary "
-                f"{format_value(t['membership_counts'])}, {t['seconds']:.1f} s"
+                f"{'/'.join(map(str, t['membership_counts']))}, {t['seconds']:.1f} s"
             )
         print(f"wrote {args.output} (model {model.content_hash[:12]})")
 
