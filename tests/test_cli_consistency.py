@@ -216,11 +216,19 @@ def test_runtime_warnings_after_success_are_one_note_each(monkeypatch, capsys):
 
 def test_huge_tau_is_refused_in_one_line(coded_files, tmp_path, capsys):
     d = coded_files
-    code, _, err = run(["encode", d / "ref.h5", "-m", d / "model.h5", "-o", tmp_path / "x.h5",
-                        "--tau", "99999999999999999999"], capsys)  # fmt: skip
+    encode = ["encode", d / "ref.h5", "-m", d / "model.h5", "-o", tmp_path / "x.h5", "--tau"]
+    code, _, err = run([*encode, "99999999999999999999"], capsys)
     assert code == 2 and err.count("\n") == 1
-    assert "tau = 99999999999999999999 is more coefficients than a data point has" in err
-    assert "4x4x13x13 = 2,704" in err and not (tmp_path / "x.h5").exists()
+    assert "--tau: tau '99999999999999999999': every tau must be <= 4294967295" in err
+    code, _, err = run([*encode, "5000,6,6"], capsys)
+    assert code == 2 and err.count("\n") == 1
+    assert "tau = 5000 is more coefficients than a data point has (4x4x13x13 = 2,704)" in err
+    assert not (tmp_path / "x.h5").exists()
+    for argv in (["view", d / "c.h5", "--export", tmp_path / "site"],
+                 ["render", d / "c.h5", "-o", tmp_path / "r.png"]):
+        code, _, err = run([*argv, "--tau", "99999999999999999999"], capsys)
+        assert code == 2 and "every tau must be <= 4294967295" in err, argv
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_encode_takes_a_tau_fraction_like_render_and_view(coded_files, tmp_path, capsys):

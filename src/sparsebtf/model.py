@@ -35,6 +35,7 @@ __all__ = [
     "CHANNELS",
     "DEFAULT_STD_MODE",
     "DEFAULT_TRANSFORM",
+    "MAX_TAU",
     "CodedBTF",
     "Model",
     "TauSpec",
@@ -43,6 +44,9 @@ __all__ = [
     "parse_tau",
 ]
 
+#: The largest τ any reader accepts: per-point counts are stored as uint32. Where a model is
+#: known, encoding and training refuse more than a data point's coefficients.
+MAX_TAU = 2**32 - 1
 #: Channels of the default 4D pipeline, in order. The 5D variant uses one channel "YUV".
 CHANNELS = ("Y", "U", "V")
 #: Defaults of model parameters that older model files (and the release import) leave out.
@@ -144,6 +148,9 @@ def parse_tau(
         )
     if any(c < 1 for c in counts):
         raise _tau_error(given, "every tau must be >= 1", frac)
+    if any(c > MAX_TAU for c in counts):
+        raise _tau_error(given, f"every tau must be <= {MAX_TAU} (counts are stored as uint32)",
+                         frac)  # fmt: skip
     return dict(zip(channels, counts, strict=True))
 
 

@@ -233,15 +233,15 @@ def check_tau(text: str | None, flag: str = "--tau") -> str | None:
     from ..model import CHANNELS, parse_tau
 
     ones = dict.fromkeys(CHANNELS, 1)
-    try:
-        if not text.strip():
-            raise SparseBTFError("empty")
-        parse_tau(text, CHANNELS, full=ones, nominal=ones)
-    except SparseBTFError:
+    if not text.strip():
         raise SparseBTFError(
             f"{flag} must be 'Y,U,V' integers (e.g. 885,64,64), one integer for every channel, "
             f"or a fraction in (0, 1) of the coded tau (e.g. 0.25); got {text!r}"
-        ) from None
+        )
+    try:
+        parse_tau(text, CHANNELS, full=ones, nominal=ones)
+    except SparseBTFError as e:
+        raise SparseBTFError(f"{flag}: {e}") from None
     return text
 
 

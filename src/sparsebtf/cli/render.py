@@ -21,7 +21,7 @@ from typing import Any
 
 from ..errors import SparseBTFError
 from ..runtime.angular import SCHEMES
-from ._args import add_deprecated_alias, check_output_file, integer, number
+from ._args import add_deprecated_alias, check_output_file, check_tau, integer, number
 
 __all__ = ["cmd_render", "register"]
 
@@ -72,6 +72,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     )
 
     size = _parse_size(args.image_size)
+    check_tau(args.tau)
     if not Path(args.coded).exists():
         raise SparseBTFError(f"{args.coded}: no such file")
     inputs = [args.coded, args.model, args.reference, args.envmap]
