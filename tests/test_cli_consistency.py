@@ -518,3 +518,12 @@ def test_training_tau_is_bounded_and_takes_counts_only(tmp_path, capsys):
     code, _, err = run([*base, "--tau-train", "0.5"], capsys)
     assert code == 2 and "a fraction needs a coded tau" in err and "such as 0.25" not in err
     assert not (tmp_path / "m.h5").exists()
+
+
+def test_target_bytes_above_the_raw_size_is_refused(coded_files, tmp_path, capsys):
+    d = coded_files
+    code, _, err = run(["encode", d / "ref.h5", "-m", d / "model.h5", "-o", tmp_path / "x.h5",
+                        "--target-bytes", "99999999999999999999999"], capsys)  # fmt: skip
+    assert code == 2 and err.count("\n") == 1
+    assert f"{d / 'ref.h5'}'s raw size (64,896 bytes in fp16)" in err
+    assert not (tmp_path / "x.h5").exists()

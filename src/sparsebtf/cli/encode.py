@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ..errors import SparseBTFError
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
@@ -34,7 +35,14 @@ def run(args: argparse.Namespace) -> int:
     # One line, before any work, for an input the model cannot code (here, not on a worker,
     # so the message can name the commands that fix it).
     for source in args.btf:
-        check_fits(open_source(source, crop=args.crop), model, label, source)
+        btf = open_source(source, crop=args.crop)
+        check_fits(btf, model, label, source)
+        raw = btf.n_values * 2  # fp16, the ratio's numerator (paper Table 4)
+        if args.target_bytes is not None and args.target_bytes > raw:
+            raise SparseBTFError(
+                f"--target-bytes {args.target_bytes:,} is more than {source}'s raw size "
+                f"({raw:,} bytes in fp16): the ratio would be below 1"
+            )
     per_material = not args.with_dictionaries
     coded_all = encode_many(
         args.btf, model, tau=tau, eps=args.eps, target_bytes=args.target_bytes,
