@@ -527,3 +527,14 @@ def test_target_bytes_above_the_raw_size_is_refused(coded_files, tmp_path, capsy
     assert code == 2 and err.count("\n") == 1
     assert f"{d / 'ref.h5'}'s raw size (64,896 bytes in fp16)" in err
     assert not (tmp_path / "x.h5").exists()
+
+
+def test_a_killed_export_replacement_gets_its_previous_folder_back(tmp_path):
+    from sparsebtf._atomic import _host, remove_stale_parts
+
+    old = tmp_path / f".site.{_dead_pid()}-{_host()}.ab_12.old"
+    (old / "x").mkdir(parents=True)
+    (old / "x" / "index.html").write_text("previous export")
+    assert remove_stale_parts(tmp_path / "other") == [old]
+    assert (tmp_path / "site" / "index.html").read_text() == "previous export"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["site"]

@@ -102,6 +102,7 @@ def remove_stale_parts(target: Path) -> list[Path]:
         for entry in os.scandir(target.parent):
             if not _stale(entry, host, now):
                 continue
+            _restore_replaced(entry)
             with contextlib.suppress(FileNotFoundError):
                 if entry.is_dir(follow_symlinks=False):
                     shutil.rmtree(entry.path)
@@ -109,6 +110,19 @@ def remove_stale_parts(target: Path) -> list[Path]:
                     os.unlink(entry.path)
                 removed.append(Path(entry.path))
     return removed
+
+
+def _restore_replaced(entry: os.DirEntry[str]) -> None:
+    """A dead writer's ``.NAME.….old`` folder holds the previous output as ``x`` while the new
+    one is renamed into place (:func:`sparsebtf.rendering.viewer.export`); killed between the
+    two renames, NAME is missing: put the previous output back rather than delete it."""
+    m = _TEMP_RE.match(entry.name)
+    if m is None or not entry.name.endswith(".old"):
+        return
+    previous, target = Path(entry.path) / "x", Path(entry.path).parent / m.group("name")
+    with contextlib.suppress(OSError):
+        if previous.exists() and not target.exists():
+            os.replace(previous, target)
 
 
 def temporary_dir(target: Path, suffix: str = ".part") -> Path:
