@@ -512,8 +512,10 @@ def test_training_tau_is_bounded_and_takes_counts_only(tmp_path, capsys):
     base = ["train", "synth:felt:8:0:tiny13", "-o", tmp_path / "m.h5", "--patch", "4",
             "--dicts", "1", "--iters", "1"]  # fmt: skip
     code, _, err = run([*base, "--tau-train", "999999999999"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "every tau must be <= 4294967295" in err
+    code, _, err = run([*base, "--tau-train", "5000,4,4"], capsys)
     assert code == 2 and err.count("\n") == 1
-    assert "tau_train Y = 999999999999 is more coefficients than a data point has " \
+    assert "tau_train Y = 5000 is more coefficients than a data point has " \
            "(4x4x13x13 = 2,704)" in err
     code, _, err = run([*base, "--tau-train", "0.5"], capsys)
     assert code == 2 and "a fraction needs a coded tau" in err and "such as 0.25" not in err
@@ -538,3 +540,22 @@ def test_a_killed_export_replacement_gets_its_previous_folder_back(tmp_path):
     assert remove_stale_parts(tmp_path / "other") == [old]
     assert (tmp_path / "site" / "index.html").read_text() == "previous export"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["site"]
+
+
+@pytest.mark.parametrize("command", ["synth", "decode"])
+def test_every_btf_output_follows_its_extension(coded_files, tmp_path, capsys, command):
+    import numpy as np
+
+    from sparsebtf.formats.ubo2014 import UBO2014BTF
+    from sparsebtf.open import open_btf
+
+    argv = (["synth", "--class", "felt", "--size", "8", "--directions", "tiny13"]
+            if command == "synth" else ["decode", coded_files / "c.h5"])  # fmt: skip
+    code, _, err = run([*argv, "-o", tmp_path / "x.btf"], capsys)
+    assert code == 0, err
+    btf = open_btf(tmp_path / "x.btf")
+    assert isinstance(btf, UBO2014BTF)
+    code, _, err = run([*argv, "-o", tmp_path / "x.h5"], capsys)
+    assert np.array_equal(btf.to_array(), open_btf(tmp_path / "x.h5").to_array())
+    code, _, err = run([*argv, "-o", tmp_path / "x.png"], capsys)
+    assert code == 2 and "unknown extension '.png'" in err

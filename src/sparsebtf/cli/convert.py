@@ -4,42 +4,21 @@ or to a UBO2014 file (``-o X.btf``, exact: a stand-in for the real-data workflow
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 from typing import Any
 
-from ..errors import SparseBTFError
 from ._args import check_output_file, open_source
-from ._output import Written, dense_bytes
+from ._output import Written
+from ._write import check_btf_output, write_btf
 
 __all__ = ["register"]
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.dense_file import write_dense
-
-    suffix = Path(args.output).suffix.lower()
-    if suffix not in (".h5", ".hdf5", ".btf"):
-        raise SparseBTFError(
-            f"-o {args.output}: unknown extension {suffix or '(none)'!r}; give .h5 (our dense "
-            "file) or .btf (a UBO2014 file)"
-        )
+    check_btf_output(args.output)
     check_output_file(args.output, [args.input])
     btf = open_source(args.input, crop=args.crop)
-    shape = (f"{btf.height}x{btf.width} texels, {len(btf.lights)} lights x {len(btf.views)} "
-             "views")  # fmt: skip
     say = Written(args.json)
-    if suffix == ".btf":
-        from ..formats.ubo2014_write import ubo2014_bytes, write_btf_ubo2014
-
-        kind = "half" if args.dtype == "float16" else "float"
-        nbytes = ubo2014_bytes(btf.height, btf.width, len(btf.lights), len(btf.views), kind)
-        say.announce(args.output, nbytes, f"UBO2014 DFMF, {shape}, {args.dtype}")
-        write_btf_ubo2014(args.output, btf, kind)
-    else:
-        say.announce(args.output, dense_bytes(btf, args.dtype), f"{shape}, {args.dtype}")
-        write_dense(args.output, btf, dtype=args.dtype, progress=None)
-    say.wrote(args.output, shape, kind="ubo2014" if suffix == ".btf" else "dense",
-              shape=list(btf.shape), dtype=args.dtype)  # fmt: skip
+    write_btf(args.output, btf, args.dtype, say)
     say.finish()
     return 0
 

@@ -9,7 +9,8 @@ from typing import Any
 from ..errors import SparseBTFError
 from ._args import check_output_dir, check_output_file
 from ._model import MODEL_HELP
-from ._output import Written, dense_bytes
+from ._output import Written
+from ._write import check_btf_output, write_btf
 
 __all__ = ["register"]
 
@@ -22,12 +23,12 @@ def _parse_pairs(text: str) -> list[tuple[int, int]]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.dense_file import write_dense
     from ..runtime import coded_btf_view
     from ..storage import load_coded_with_model
 
     if not args.output and not args.images:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --images L:V,...")
+    check_btf_output(args.output)
     check_output_file(args.output, [args.coded, args.model])
     check_output_dir(args.png, "--png")
     pairs = _parse_pairs(args.images) if args.images else []
@@ -47,11 +48,7 @@ def run(args: argparse.Namespace) -> int:
         for path in save_angular_images(view, pairs, outdir):
             say.wrote(path, kind="png")
     if args.output:
-        shape = (f"{view.height}x{view.width} texels, {len(view.lights)} lights x "
-                 f"{len(view.views)} views")  # fmt: skip
-        say.announce(args.output, dense_bytes(view), f"{shape}, float32")
-        write_dense(args.output, view, progress=None, by="regions")
-        say.wrote(args.output, shape, kind="dense", shape=list(view.shape))
+        write_btf(args.output, view, "float32", say, by="regions")
     say.finish()
     return 0
 
@@ -60,7 +57,8 @@ def register(sub: Any) -> None:
     s = sub.add_parser("decode", help="reconstruct a coded BTF (dense file and/or PNG images)")
     s.add_argument("coded", help="coded file from 'sparsebtf encode'")
     s.add_argument("-m", "--model", help=MODEL_HELP + " (default: the one the coded file names)")
-    s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")
+    s.add_argument("-o", "--output",
+                   help="BTF file to write: .h5 (our dense file) or .btf (UBO2014, exact)")
     s.add_argument("--images", metavar="L:V,...",
                    help="angular images to write as PNG: light:view index pairs, 0-based, "
                    "e.g. 0:0,10:42")

@@ -7,13 +7,13 @@ from typing import Any
 
 from ..errors import SparseBTFError
 from ._args import check_output_file, integer, open_source
-from ._output import Written, dense_bytes
+from ._output import Written
+from ._write import check_btf_output, write_btf
 
 __all__ = ["register"]
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.dense_file import write_dense
     from ..data.synth import contact_sheet, synthesize
 
     if args.source:
@@ -25,16 +25,12 @@ def run(args: argparse.Namespace) -> int:
         raise SparseBTFError("give --class CLASS to synthesise, or --from BTF to preview a BTF")
     if not args.output and not args.preview:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --preview OUT.png")
+    check_btf_output(args.output)
     check_output_file(args.output, [args.source])
     check_output_file(args.preview, [args.source, args.output], flag="--preview")
     say = Written(args.json)
-    shape = (f"{btf.shape[0]}x{btf.shape[1]} texels, {len(btf.lights)} lights x "
-             f"{len(btf.views)} views")  # fmt: skip
     if args.output:
-        say.announce(args.output, dense_bytes(btf, args.dtype), f"{shape}, {args.dtype}")
-        write_dense(args.output, btf, dtype=args.dtype, progress=None)
-        say.wrote(args.output, f"{shape} ({btf.lights.name})", kind="dense",
-                  shape=list(btf.shape), directions=btf.lights.name)  # fmt: skip
+        write_btf(args.output, btf, args.dtype, say)
         if args.preview:
             btf = open_source(args.output)
     if args.preview:
@@ -70,7 +66,8 @@ def register(sub: Any) -> None:
                    help="random seed of the material's texture and geometry (default 0)")
     s.add_argument("--dtype", choices=["float32", "float16"], default="float32",
                    help="value type of the dense file (default float32; float16 halves it)")
-    s.add_argument("-o", "--output", help="dense BTF file to write (.h5)")
+    s.add_argument("-o", "--output",
+                   help="BTF file to write: .h5 (our dense file) or .btf (UBO2014, exact)")
     s.add_argument("--preview", help="PNG contact sheet of angular images to write")
     s.add_argument("--json", action="store_true", help="print what was written as JSON")
     s.set_defaults(func=run, checks={"size": integer(1, 16384, unit="texels per side"),
