@@ -14,8 +14,8 @@ __all__ = ["register"]
 
 
 def run(args: argparse.Namespace) -> int:
-    check_btf_output(args.output)
     check_output_file(args.output, [args.input])
+    check_btf_output(args.output)
     btf = open_source(args.input, crop=args.crop)
     say = Written(args.json)
     write_btf(args.output, btf, args.dtype, say)

@@ -28,8 +28,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.output and not args.images:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --images L:V,...")
-    check_btf_output(args.output)
     check_output_file(args.output, [args.coded, args.model])
+    check_btf_output(args.output)
     check_output_dir(args.png, "--png")
     pairs = _parse_pairs(args.images) if args.images else []
     coded = load_coded_with_model(args.coded, args.model)

@@ -25,8 +25,8 @@ def run(args: argparse.Namespace) -> int:
         raise SparseBTFError("give --class CLASS to synthesise, or --from BTF to preview a BTF")
     if not args.output and not args.preview:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --preview OUT.png")
-    check_btf_output(args.output)
     check_output_file(args.output, [args.source])
+    check_btf_output(args.output)
     check_output_file(args.preview, [args.source, args.output], flag="--preview")
     say = Written(args.json)
     if args.output:
