@@ -72,7 +72,7 @@ def measure(btf: Any, model: Any, ways: tuple[str, ...]) -> dict[str, Any]:
         res[w] = {
             "log_offset": views[w + "_eps"],
             "mse": [x["mse_rgb"] for x in s],
-            "max_over_peak": [x["max_decoded"] / x["peak"] for x in s],
+            "max_over_peak": [x["max_decoded"] / x["reference_max"] for x in s],
             "top_error_share": [x["top_error_share"] for x in s],
         }
     data = btf.read(slice(None), slice(None), slice(None), slice(None))

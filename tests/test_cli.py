@@ -98,7 +98,7 @@ def test_train_encode_decode_eval_info(files, capsys):
         code, out, _ = run(["info", f, "--json"], capsys)
         assert code == 0 and json.loads(out)["kind"] == kind
     code, out, _ = run(["info", paths[0]], capsys)
-    assert "value_range" in out and "13" in out
+    assert "value range" in out and "13" in out
 
 
 def test_synth_command_and_info(tmp_path, capsys):

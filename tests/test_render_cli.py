@@ -41,13 +41,15 @@ def files(tmp_path_factory):
 def test_render_with_reference_writes_png_and_json(files, capsys):
     out = files / "cmp.png"
     raw = files / "raw.npz"
-    rc = main(["render", str(files / "m.coded.h5"), "-o", str(out), "--size", "40x32",
+    rc = main(["render", str(files / "m.coded.h5"), "-o", str(out), "--image-size", "40x32",
                "--spp", "4", "--reference", str(files / "m.h5"), "--uv-scale", "2",
                "--interpolation", "barycentric", "--save-raw", str(raw), "--json"])  # fmt: skip
     assert rc == 0
     res = json.loads(capsys.readouterr().out)
     assert res["variant"] == "llvm_ad_rgb" and res["size"] == [40, 32]
-    assert 0 < res["mse"] and res["ssim"] > 0.9 and res["psnr"] > 25
+    assert 0 < res["mse"] and res["ssim"] > 0.9
+    # PSNR with the project's fixed peak 1.0, not the reference render's largest value.
+    assert res["peak"] == 1.0 and res["psnr"] == pytest.approx(-10 * np.log10(res["mse"]))
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     arrays = np.load(raw)
     assert arrays["render"].shape == (32, 40, 3) and arrays["reference"].shape == (32, 40, 3)
@@ -62,13 +64,15 @@ def test_render_sampling_option(files, capsys):
     scores = {}
     for sampling in ("cosine", "btf"):
         rc = main(["render", str(files / "m.coded.h5"), "-o", str(files / f"{sampling}.png"),
-                   "--size", "24", "--spp", "4", "--sampling", sampling, "--reference",
+                   "--image-size", "24", "--spp", "4", "--sampling", sampling, "--reference",
                    str(files / "m.h5"), "--json"])  # fmt: skip
         assert rc == 0
         res = json.loads(capsys.readouterr().out)
         assert res["sampling"] == sampling and f"sampling={sampling}" in res["plugin"]
-        scores[sampling] = (res["psnr"], res["ssim"])
-    assert all(p > 30 and s > 0.95 for p, s in scores.values()), scores
+        scores[sampling] = (res["mse"], res["ssim"])
+    # Radiance under the sky's sun lobe is far above 1: the fixed-peak PSNR is low here, so
+    # closeness is judged by SSIM.
+    assert all(s > 0.95 for _, s in scores.values()), scores
     with pytest.raises(SystemExit) as exc:
         main(["render", str(files / "m.coded.h5"), "-o", str(files / "x.png"), "--sampling",
               "importance"])  # fmt: skip
@@ -78,7 +82,7 @@ def test_render_sampling_option(files, capsys):
 def test_render_alone_cloth(files, capsys):
     out = files / "cloth.png"
     rc = main(["render", str(files / "m.coded.h5"), "-o", str(out), "--scene", "cloth",
-               "--size", "24", "--spp", "2", "--tau", "0.25"])  # fmt: skip
+               "--image-size", "24", "--spp", "2", "--tau", "0.25"])  # fmt: skip
     assert rc == 0
     assert "wrote" in capsys.readouterr().out and out.stat().st_size > 0
 
@@ -88,15 +92,15 @@ def test_render_alone_cloth(files, capsys):
     [
         (["--reference", "{d}/m.h5", "--max-gib", "1e-6"], "GiB"),
         (["--reference", "{d}/wrong.h5"], "does not match"),
-        (["--size", "big"], "--size"),
+        (["--image-size", "big"], "--image-size"),
         (["--envmap", "{d}/sky.png"], ".exr or .hdr"),
         (["--tau", "0,1,1"], "tau"),
     ],
 )
 def test_render_errors_are_clear(files, capsys, extra, message):
     args = [a.format(d=files) for a in extra]
-    rc = main(["render", str(files / "m.coded.h5"), "-o", str(files / "x.png"), "--size", "8",
-               "--spp", "1", *args])  # fmt: skip
+    rc = main(["render", str(files / "m.coded.h5"), "-o", str(files / "x.png"),
+               "--image-size", "8", "--spp", "1", *args])  # fmt: skip
     assert rc == 2
     assert message in capsys.readouterr().err
     assert not (files / "x.png").exists()

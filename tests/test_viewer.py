@@ -222,7 +222,7 @@ def test_view_command_errors(files, tmp_path, capsys):
 
     assert main(["view", str(files / "coded.h5"), "-m", str(files / "model.h5"),
                  "--tau", "x.y", "--no-browser"]) == 2  # fmt: skip
-    assert "--tau must be" in capsys.readouterr().err
+    assert "--tau: tau 'x.y': not a number" in capsys.readouterr().err
     (tmp_path / "busy").mkdir()
     (tmp_path / "busy" / "a.txt").write_text("a")
     assert main(["view", str(files / "coded.h5"), "-m", str(files / "model.h5"),

@@ -5,7 +5,7 @@ A write that fails for lack of space, quota or permission ends in one
 :class:`~sparsebtf.errors.OutputError` ("no space left on device while writing X; nothing was
 written"), with the temporary file removed. Temporaries carry their writer's process id
 (``.NAME.PID-HOST.XXXX.part``), so the next write into the folder removes those whose writer
-was killed (``kill -9`` runs no cleanup).
+was killed (``kill -9`` runs no cleanup), whichever output they were for.
 The file gets the permissions any other tool's would (0666 less the umask), not mkstemp's 0600.
 """
 
@@ -23,7 +23,7 @@ from pathlib import Path
 
 from .errors import OutputError
 
-__all__ = ["atomic_output", "output_error", "remove_stale_parts"]
+__all__ = ["atomic_output", "output_error", "remove_stale_parts", "temporary_dir"]
 
 #: errno values that can only come from writing (a read of an input never raises them).
 _WRITE_ERRNOS = {
@@ -52,7 +52,13 @@ def _owner() -> str:
     return f"{os.getpid()}-{_host()}"
 
 
-_PART_RE = re.compile(r"^(\d+)-([0-9a-f]{8})\.")
+#: Our temporaries: ``.NAME.PID-HOST.XXXX.part`` (files and folders being written) and
+#: ``.NAME.PID-HOST.XXXX.old`` (a folder being replaced); mkstemp's XXXX has no dots.
+_TEMP_RE = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)-(?P<host>[0-9a-f]{8})\.[A-Za-z0-9_]+\."
+                      r"(?:part|old)$")
+#: Another host's temporaries cannot be asked whether their writer lives: they are removed
+#: only when untouched this long (a live writer keeps its file's mtime fresh).
+FOREIGN_STALE_SECONDS = 7 * 24 * 3600
 
 
 def _alive(pid: int) -> bool:
@@ -67,24 +73,66 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def _stale(entry: os.DirEntry[str], host: str, now: float) -> bool:
+    """Whether ``entry`` is one of our temporaries whose writer is gone: on this host, its
+    process id is not alive; from another host, it is older than FOREIGN_STALE_SECONDS."""
+    m = _TEMP_RE.match(entry.name)
+    if m is None:
+        return False
+    if m.group("host") == host:
+        return int(m.group("pid")) != os.getpid() and not _alive(int(m.group("pid")))
+    try:
+        return now - entry.stat(follow_symlinks=False).st_mtime > FOREIGN_STALE_SECONDS
+    except OSError:
+        return False
+
+
 def remove_stale_parts(target: Path) -> list[Path]:
-    """Remove ``.NAME.PID-HOST.*.part`` temporaries of ``target`` left by dead writers on this
-    host (a live writer's, or another host's, are kept). Returns the paths removed."""
+    """Remove the temporaries of dead writers (``kill -9`` runs no cleanup) from the folder
+    of ``target``, whatever output they were for: ``.NAME.PID-HOST.XXXX.part`` / ``.old``
+    files and folders whose process is gone on this host (or, from another host, untouched
+    for a week). A live writer's temporaries, and any other file, are kept. Returns the
+    paths removed."""
+    import shutil
+    import time
+
     removed: list[Path] = []
-    prefix = f".{target.name}."
-    host = _host()
+    host, now = _host(), time.time()
     with contextlib.suppress(OSError):
         for entry in os.scandir(target.parent):
-            name = entry.name
-            if not (name.startswith(prefix) and name.endswith(".part")):
+            if not _stale(entry, host, now):
                 continue
-            m = _PART_RE.match(name[len(prefix):])
-            if m is None or m.group(2) != host or _alive(int(m.group(1))):
-                continue
+            _restore_replaced(entry)
             with contextlib.suppress(FileNotFoundError):
-                os.unlink(entry.path)
+                if entry.is_dir(follow_symlinks=False):
+                    shutil.rmtree(entry.path)
+                else:
+                    os.unlink(entry.path)
                 removed.append(Path(entry.path))
     return removed
+
+
+def _restore_replaced(entry: os.DirEntry[str]) -> None:
+    """A dead writer's ``.NAME.….old`` folder holds the previous output as ``x`` while the new
+    one is renamed into place (:func:`sparsebtf.rendering.viewer.export`); killed between the
+    two renames, NAME is missing: put the previous output back rather than delete it."""
+    m = _TEMP_RE.match(entry.name)
+    if m is None or not entry.name.endswith(".old"):
+        return
+    previous, target = Path(entry.path) / "x", Path(entry.path).parent / m.group("name")
+    with contextlib.suppress(OSError):
+        if previous.exists() and not target.exists():
+            os.replace(previous, target)
+
+
+def temporary_dir(target: Path, suffix: str = ".part") -> Path:
+    """A new empty folder beside ``target`` named as our temporaries are (so a later run
+    removes it if this process is killed), with the permissions ``mkdir`` would give it
+    (0777 less the umask, not mkdtemp's 0700)."""
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.{_owner()}.", suffix=suffix,
+                                dir=target.parent))  # fmt: skip
+    os.chmod(tmp, 0o777 & ~_umask())
+    return tmp
 
 
 def output_error(exc: OSError, target: Path, *, any_errno: bool = False) -> OutputError | None:

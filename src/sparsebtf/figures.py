@@ -64,7 +64,7 @@ AXIS_WORDS = {
     "bytes_coefficients": "storage of the material's coefficients (bytes, paper Table 4)",
     "mse_rgb": "mean squared error, linear RGB (lower is better)",
     "mse_log": "mean squared error, log RGB (lower is better)",
-    "psnr_rgb": "PSNR, linear RGB (dB, higher is better)",
+    "psnr_rgb": "PSNR, linear RGB (dB, peak 1, higher is better)",
     "ssim": "SSIM of angular images (higher is better)",
 }
 

@@ -5,12 +5,16 @@
 * ``mse_std`` — the same in the standardised log-YUV domain the codes live in (the release's
   ``btf4Drecon`` reports this one), using the reconstruction's statistics (and log offset) for
   both.
-* ``psnr_rgb`` — 10·log10(peak² / mse_rgb) with peak = the reference's largest value.
-* ``ssim`` — mean SSIM (scikit-image, RGB, data range = peak) over a regular sample of angular
-  images.
-* ``max_decoded`` against ``peak`` (the reference's largest value), and ``top_error_share`` —
-  the share of the squared error held by the worst :data:`TOP_SHARE` of values: near 1 when a
-  few fireworks (decoded values far above anything in the material) carry the error.
+* ``psnr_rgb`` — 10·log10(peak² / mse_rgb) with the fixed peak :data:`PSNR_PEAK` = 1.0
+  (reflectance 1), reported as ``peak``: the same for every material, size and render, so two
+  PSNRs compare as their MSEs do. (A peak taken from the reference, its largest value, moved
+  with one noisy texel or pixel: MSE 0.0039 gave 31.6 dB and MSE 0.0069 36.8 dB.)
+* ``ssim`` — mean SSIM (scikit-image, RGB, data range = the reference's largest value,
+  reported as ``ssim_data_range``) over a regular sample of angular images.
+* ``max_decoded`` against ``reference_max`` (the reference's largest value), and
+  ``top_error_share`` — the share of the squared error held by the worst :data:`TOP_SHARE` of
+  values: near 1 when a few fireworks (decoded values far above anything in the material)
+  carry the error.
 
 Both BTFs are streamed by patch-aligned spatial tiles; memory is one tile of each.
 """
@@ -27,8 +31,10 @@ from .data.btf import BTF
 from .errors import BTFInputError
 from .points.preprocessing import EPS, RGB_TO_YUV, Standardization
 
-__all__ = ["TOP_SHARE", "compare", "psnr", "ssim_angular", "top_k_largest"]
+__all__ = ["PSNR_PEAK", "TOP_SHARE", "compare", "psnr", "ssim_angular", "top_k_largest"]
 
+#: The peak of every PSNR the project reports (eval, render, benchmarks): reflectance 1.
+PSNR_PEAK = 1.0
 #: The share of values whose squared errors ``top_error_share`` adds up: the worst 0.01 %.
 TOP_SHARE = 1e-4
 
@@ -48,8 +54,9 @@ def _sumsq(x: np.ndarray) -> float:
     return float(np.sum(np.square(x), dtype=np.float64))
 
 
-def psnr(mse: float, peak: float) -> float:
-    """Peak signal-to-noise ratio in dB (inf for a perfect reconstruction)."""
+def psnr(mse: float, peak: float = PSNR_PEAK) -> float:
+    """Peak signal-to-noise ratio 10·log10(peak² / mse) in dB (inf for a perfect
+    reconstruction); every PSNR the project reports uses the default, fixed peak."""
     if mse <= 0:
         return float("inf")
     return float(10 * np.log10(peak**2 / mse))
@@ -95,19 +102,19 @@ def compare(
     """
     if reference.shape != reconstruction.shape:
         raise BTFInputError(
-            f"cannot compare {reference.name} {reference.shape} with "
-            f"{reconstruction.name} {reconstruction.shape}"
+            f"cannot compare {reference.label} {reference.shape} with "
+            f"{reconstruction.label} {reconstruction.shape}"
         )
     if not (
         reference.lights.equals(reconstruction.lights)
         and reference.views.equals(reconstruction.views)
     ):
         raise BTFInputError(
-            f"{reference.name} and {reconstruction.name} have different direction tables"
+            f"{reference.label} and {reconstruction.label} have different direction tables"
         )
     h, w = reference.height, reference.width
     sums = {"rgb": 0.0, "log": 0.0, "std": 0.0}
-    peak = 0.0
+    ref_max = 0.0
     decoded_max = -np.inf
     n = 0
     k_top = max(1, int(np.ceil(TOP_SHARE * reference.n_values)))
@@ -122,10 +129,9 @@ def compare(
             # float32 arithmetic, float64 accumulation: errors are far above float32 rounding.
             a = np.maximum(reference.region(rows, cols).astype(np.float32), 0)
             b = reconstruction.region(rows, cols).astype(np.float32)
-            peak = max(peak, float(a.max()))
+            ref_max = max(ref_max, float(a.max()))
             decoded_max = max(decoded_max, float(b.max()))
-            d = a - b
-            d2 = np.square(d)
+            d2 = np.square(a - b)
             sums["rgb"] += float(np.sum(d2, dtype=np.float64))
             worst = top_k_largest(worst, d2, k_top)
             dl = np.log(a + np.float32(EPS)) - np.log(np.maximum(b, 0) + np.float32(EPS))
@@ -144,11 +150,13 @@ def compare(
     pairs = _angular_sample(len(reference.lights), len(reference.views), ssim_images)
     out: dict[str, Any] = {
         "mse_rgb": mse_rgb,
-        "psnr_rgb": psnr(mse_rgb, peak),
+        "psnr_rgb": psnr(mse_rgb),
+        "peak": PSNR_PEAK,
         "mse_log": sums["log"] / n,
-        "ssim": ssim_angular(reference, reconstruction, pairs, peak) if ssim_images else None,
+        "ssim": ssim_angular(reference, reconstruction, pairs, ref_max) if ssim_images else None,
         "ssim_images": len(pairs) if ssim_images else 0,
-        "peak": peak,
+        "ssim_data_range": ref_max,
+        "reference_max": ref_max,
         "max_decoded": decoded_max,
         "top_error_share": (
             float(np.sum(worst, dtype=np.float64)) / sums["rgb"] if sums["rgb"] > 0 else 0.0

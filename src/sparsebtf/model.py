@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .data.directions import DirectionSet
-from .errors import BTFInputError, ModelMismatchError
+from .errors import BTFInputError, ModelMismatchError, SparseBTFError
 from .learning.coding import SparseCodes
 from .points.preprocessing import Standardization, StdMode, Transform
 
@@ -35,13 +35,18 @@ __all__ = [
     "CHANNELS",
     "DEFAULT_STD_MODE",
     "DEFAULT_TRANSFORM",
+    "MAX_TAU",
     "CodedBTF",
     "Model",
     "TauSpec",
     "dictionaries_hash",
+    "model_text",
     "parse_tau",
 ]
 
+#: The largest τ any reader accepts: per-point counts are stored as uint32. Where a model is
+#: known, encoding and training refuse more than a data point's coefficients.
+MAX_TAU = 2**32 - 1
 #: Channels of the default 4D pipeline, in order. The 5D variant uses one channel "YUV".
 CHANNELS = ("Y", "U", "V")
 #: Defaults of model parameters that older model files (and the release import) leave out.
@@ -53,10 +58,11 @@ TauSpec = None | int | float | str | Sequence[int] | Mapping[str, int]
 _ALL = ("all", "full", "none")
 
 
-def _tau_error(tau: object, why: str) -> BTFInputError:
+def _tau_error(tau: object, why: str, fractions: bool = True) -> BTFInputError:
+    frac = "; or a fraction in (0, 1) of the coded tau such as 0.25" if fractions else ""
     return BTFInputError(
         f"tau {tau!r}: {why} (give integers: one for all channels or 'Y,U,V' such as "
-        "'885,64,64'; or a fraction in (0, 1) of the coded tau such as 0.25)"
+        f"'885,64,64'{frac})"
     )
 
 
@@ -72,10 +78,13 @@ def parse_tau(
     Accepted: an integer (every channel); a sequence of integers, one per channel (or one);
     a ``{channel: τ}`` mapping; a string ``"885,64,64"``, ``"64"`` or ``"0.25"``; a fraction in
     (0, 1) of the coded τ (``nominal``, else ``full``), rounded up; ``None`` or ``"all"`` for
-    every stored coefficient (``full``). Where ``full``/``nominal`` are not given (encoding),
-    only explicit counts are accepted. Every τ is an integer >= 1.
+    every stored coefficient (``full``). Encoding passes only ``nominal`` (the release's
+    885,64,64, :data:`sparsebtf.codec.encode.RELEASE_TAU`): a fraction is of that, and a
+    count is needed. Where neither is given, only explicit counts are accepted. Every τ is an
+    integer >= 1.
     """
     given = tau
+    frac = full is not None or nominal is not None
     if isinstance(tau, str):
         text = tau.strip()
         if text.lower() in _ALL:
@@ -89,28 +98,28 @@ def parse_tau(
                 try:
                     tau = float(text)
                 except ValueError:
-                    raise _tau_error(given, "not a number") from None
+                    raise _tau_error(given, "not a number", frac) from None
     if tau is None:
         if full is None:
-            raise _tau_error(given, "a count is needed here")
+            raise _tau_error(given, "a count is needed here", frac)
         return {ch: int(full[ch]) for ch in channels}
     if isinstance(tau, bool):
-        raise _tau_error(given, "not a number")
+        raise _tau_error(given, "not a number", frac)
     if isinstance(tau, numbers.Real) and not isinstance(tau, numbers.Integral):
         f = float(tau)
         if math.isfinite(f) and f.is_integer():
             tau = int(f)
         else:
             if full is None and nominal is None:
-                raise _tau_error(given, "a fraction needs a coded BTF to be a fraction of")
+                raise _tau_error(given, "a fraction needs a coded tau to be a fraction of", frac)
             if not 0 < f < 1:
-                raise _tau_error(given, "a fractional tau must be in (0, 1)")
+                raise _tau_error(given, "a fractional tau must be in (0, 1)", frac)
             base = {**(full or {}), **(nominal or {})}
             return {ch: max(1, math.ceil(f * int(base[ch]))) for ch in channels}
     if isinstance(tau, Mapping):
         missing = [ch for ch in channels if ch not in tau]
         if missing:
-            raise _tau_error(given, f"no value for channel(s) {missing}")
+            raise _tau_error(given, f"no value for channel(s) {missing}", frac)
         values: list[Any] = [tau[ch] for ch in channels]
     elif isinstance(tau, numbers.Integral):
         values = [tau]
@@ -118,20 +127,44 @@ def parse_tau(
         values = list(tau)
     counts = []
     for v in values:
+        if isinstance(v, numbers.Integral) and not isinstance(v, bool):
+            counts.append(int(v))  # exactly, however large (float() would round it)
+            continue
+        if isinstance(v, str) and v.strip().isdigit():
+            counts.append(int(v))
+            continue
         try:
             f = float(v)
         except (TypeError, ValueError):
-            raise _tau_error(given, f"{v!r} is not an integer") from None
+            raise _tau_error(given, f"{v!r} is not an integer", frac) from None
         if not (math.isfinite(f) and f.is_integer()):
-            raise _tau_error(given, f"{v!r} is not an integer")
+            raise _tau_error(given, f"{v!r} is not an integer", frac)
         counts.append(int(f))
     if len(counts) == 1:
         counts = counts * len(channels)
     if len(counts) != len(channels):
-        raise _tau_error(given, f"needs one value per channel {tuple(channels)}, got {len(counts)}")
+        raise _tau_error(
+            given, f"needs one value per channel {tuple(channels)}, got {len(counts)}", frac
+        )
     if any(c < 1 for c in counts):
-        raise _tau_error(given, "every tau must be >= 1")
+        raise _tau_error(given, "every tau must be >= 1", frac)
+    if any(c > MAX_TAU for c in counts):
+        raise _tau_error(given, f"every tau must be <= {MAX_TAU} (counts are stored as uint32)",
+                         frac)  # fmt: skip
     return dict(zip(channels, counts, strict=True))
+
+
+def model_text(content_hash: str, file: str | None = None) -> str:
+    """How a message names a model: ``model 819ce9fcd073… (bundled 'release')``, or with its
+    file (``(file my-model.h5)``), so a user sees which model, not only a hash."""
+    from .storage.bundled import bundled_name
+
+    try:
+        name = bundled_name(content_hash)
+    except SparseBTFError:  # a damaged installation must not hide the real error
+        name = None
+    where = f"bundled '{name}'" if name else f"file {file}" if file else "not a bundled model"
+    return f"model {content_hash[:12]}… ({where})"
 
 
 def dictionaries_hash(ensembles: dict[str, list[np.ndarray]]) -> str:
@@ -233,7 +266,7 @@ class Model:
         """Codes only mean something on the direction tables the model was trained for."""
         if not (btf.lights.equals(self.lights) and btf.views.equals(self.views)):
             raise ModelMismatchError(
-                f"{btf.name}: {len(btf.lights)} lights x {len(btf.views)} views do not match the "
+                f"{btf.label}: {len(btf.lights)} lights x {len(btf.views)} views do not match the "
                 f"model's {len(self.lights)} x {len(self.views)} direction tables"
             )
 
@@ -267,6 +300,13 @@ class CodedBTF:
     name: str = "btf"
     attrs: dict[str, Any] = field(default_factory=dict)
     model: Model | None = None
+    #: The coded file it was read from (:func:`sparsebtf.storage.load_coded`), or None.
+    source: str | None = None
+
+    @property
+    def label(self) -> str:
+        """How messages name these codes: their file when they have one, else the name."""
+        return self.source or self.name
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -317,8 +357,8 @@ class CodedBTF:
         """Attach the model these codes were made with; refuses any other model."""
         if model.content_hash != self.model_hash:
             raise ModelMismatchError(
-                f"{self.name}: coded with model {self.model_hash[:12]}…, but the given model is "
-                f"{model.content_hash[:12]}…"
+                f"{self.label}: coded with {model_text(self.model_hash, self.model_file)}, but "
+                f"the given model is {model_text(model.content_hash, model.file)}"
             )
         self.model = model
         return self
@@ -326,6 +366,6 @@ class CodedBTF:
     def require_model(self) -> Model:
         if self.model is None:
             raise ModelMismatchError(
-                f"{self.name}: no model attached; load the coded file with its model file"
+                f"{self.label}: no model attached; load the coded file with its model file"
             )
         return self.model

@@ -72,12 +72,19 @@ def open_btf(
     model_path: str | os.PathLike[str] | None = None,
     progress: bool | None = None,
 ) -> BTF:
-    """Open ``source`` as a :class:`BTF` (see the module docstring for what is accepted)."""
+    """Open ``source`` as a :class:`BTF` (see the module docstring for what is accepted);
+    a file's BTF has ``source`` = the path, so messages name the file, not the material."""
     s = str(source)
     if s.startswith("synth:"):
         from .data.synth import cached
 
         return cached(**parse_synth_spec(s), progress=progress)  # type: ignore[arg-type]
+    btf = _open_file(s, model_path)
+    btf.source = s
+    return btf
+
+
+def _open_file(s: str, model_path: str | os.PathLike[str] | None) -> BTF:
     if s.lower().endswith(".btf"):
         from .formats.ubo2014 import read_ubo2014
 

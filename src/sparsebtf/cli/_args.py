@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -21,6 +22,7 @@ from ..errors import SparseBTFError
 
 __all__ = [
     "add_cluster_options",
+    "add_deprecated_alias",
     "check_args",
     "check_output_dir",
     "check_output_file",
@@ -85,6 +87,32 @@ def integer(lo: int | None = None, hi: int | None = None, *, unit: str = "") -> 
             )
 
     return check
+
+
+class _DeprecatedAlias(argparse.Action):
+    """An old option spelling that still works, with one note naming the new one."""
+
+    def __init__(self, option_strings: list[str], dest: str, *, new: str, why: str,
+                 **kwargs: Any) -> None:  # fmt: skip
+        super().__init__(option_strings, dest, **kwargs)
+        self.new, self.why = new, why
+
+    def __call__(self, parser: Any, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:  # fmt: skip
+        print(f"sparsebtf: note: {option_string} is deprecated ({self.why}); use {self.new}",
+              file=sys.stderr)  # fmt: skip
+        setattr(namespace, self.dest, values)
+
+
+def add_deprecated_alias(
+    parser: argparse.ArgumentParser, old: str, new: str, why: str
+) -> None:
+    """Let ``old`` keep working as ``new`` (same value, same checks), hidden from ``--help``;
+    using it prints ``sparsebtf: note: OLD is deprecated (WHY); use NEW``. One meaning per
+    option name across commands: ``--size`` is texels (synth), ``--light`` an index (lookup)."""
+    dest = new.lstrip("-").replace("-", "_")
+    parser.add_argument(old, dest=dest, action=_DeprecatedAlias, new=new, why=why,
+                        default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # fmt: skip
 
 
 def check_args(args: argparse.Namespace) -> None:
@@ -205,15 +233,15 @@ def check_tau(text: str | None, flag: str = "--tau") -> str | None:
     from ..model import CHANNELS, parse_tau
 
     ones = dict.fromkeys(CHANNELS, 1)
-    try:
-        if not text.strip():
-            raise SparseBTFError("empty")
-        parse_tau(text, CHANNELS, full=ones, nominal=ones)
-    except SparseBTFError:
+    if not text.strip():
         raise SparseBTFError(
             f"{flag} must be 'Y,U,V' integers (e.g. 885,64,64), one integer for every channel, "
             f"or a fraction in (0, 1) of the coded tau (e.g. 0.25); got {text!r}"
-        ) from None
+        )
+    try:
+        parse_tau(text, CHANNELS, full=ones, nominal=ones)
+    except SparseBTFError as e:
+        raise SparseBTFError(f"{flag}: {e}") from None
     return text
 
 

@@ -15,8 +15,15 @@ import numpy as np
 
 from ..errors import BTFInputError
 from ..runtime.angular import SCHEMES
-from ._args import check_output_dir, check_output_file, check_tau, integer, number
-from ._output import print_json
+from ._args import (
+    add_deprecated_alias,
+    check_output_dir,
+    check_output_file,
+    check_tau,
+    integer,
+    number,
+)
+from ._output import format_value, print_json
 
 __all__ = ["register"]
 
@@ -48,6 +55,8 @@ def _weights(args: argparse.Namespace, n: int) -> list[float]:
             raise BTFInputError(
                 f"--weights must be numbers separated by commas: {args.weights!r}"
             ) from None
+        if not all(np.isfinite(w)):
+            raise BTFInputError(f"--weights must be finite numbers, got {args.weights!r}")
         if len(w) != n:
             raise BTFInputError(f"--weights gives {len(w)} weights for {n} inputs")
         return w
@@ -111,8 +120,8 @@ def cmd_blend(args: argparse.Namespace) -> int:
     if args.sweep:
         if args.sweep < 2:
             raise BTFInputError(f"--sweep needs at least 2 steps, got {args.sweep}")
-        light = direction(args.light, "--light")
-        view = direction(args.view, "--view")
+        light = direction(args.light_dir, "--light-dir")
+        view = direction(args.view_dir, "--view-dir")
         folder = Path(args.png)
         folder.mkdir(parents=True, exist_ok=True)
         tiles, frames = [], []
@@ -131,7 +140,8 @@ def cmd_blend(args: argparse.Namespace) -> int:
         print_json(report)
     else:
         if "output" in report:
-            print(f"wrote {report['output']}: weights {weights}, nnz {report['nnz']}")
+            print(f"wrote {report['output']}: weights {format_value(weights)}, coefficients "
+                  f"{format_value(report['nnz'])}")
         if "strip" in report:
             print(f"wrote {report['strip']} ({args.sweep} renders, α = 0 … 1)")
     return 0
@@ -161,10 +171,14 @@ def register(sub: Any) -> None:
                    "name)")
     s.add_argument("--sweep", type=int, default=0, help="render N blends from α = 0 to 1")
     s.add_argument("--png", help="folder for the sweep's PNGs (blend_strip.png and one per α)")
-    s.add_argument("--light", default=FIGURE6_LIGHT,
-                   help=f"light 'azimuth,elevation' in degrees (default {FIGURE6_LIGHT})")
-    s.add_argument("--view", default=FIGURE6_VIEW,
-                   help=f"view 'azimuth,elevation' in degrees (default {FIGURE6_VIEW})")
+    s.add_argument("--light-dir", default=FIGURE6_LIGHT, metavar="AZ,EL",
+                   help=f"light direction 'azimuth,elevation' in degrees (default "
+                   f"{FIGURE6_LIGHT})")
+    s.add_argument("--view-dir", default=FIGURE6_VIEW, metavar="AZ,EL",
+                   help=f"view direction 'azimuth,elevation' in degrees (default {FIGURE6_VIEW})")
+    for what in ("light", "view"):
+        add_deprecated_alias(s, f"--{what}", f"--{what}-dir",
+                             f"in 'blend' it meant degrees; 'lookup --{what}' is an index")
     s.add_argument("--interpolation", default="linear", choices=SCHEMES,
                    help="angular interpolation of the sweep's renders (default linear)")
     s.add_argument("--json", action="store_true", help="print the result as JSON")

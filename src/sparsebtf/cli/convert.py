@@ -1,4 +1,5 @@
-"""``sparsebtf convert``: any BTF (.btf, .zip, .h5, synth:...) to our dense file."""
+"""``sparsebtf convert``: any BTF (.btf, .zip, .h5, synth:...) to our dense file (``-o X.h5``)
+or to a UBO2014 file (``-o X.btf``, exact: a stand-in for the real-data workflow)."""
 
 from __future__ import annotations
 
@@ -6,28 +7,32 @@ import argparse
 from typing import Any
 
 from ._args import check_output_file, open_source
+from ._output import Written
+from ._write import check_btf_output, write_btf
 
 __all__ = ["register"]
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.dense_file import write_dense
-
     check_output_file(args.output, [args.input])
+    check_btf_output(args.output)
     btf = open_source(args.input, crop=args.crop)
-    write_dense(args.output, btf, dtype=args.dtype, progress=None)
-    print(f"wrote {args.output}: {btf.height}x{btf.width} texels, {len(btf.lights)} lights x "
-          f"{len(btf.views)} views")
+    say = Written(args.json)
+    write_btf(args.output, btf, args.dtype, say)
+    say.finish()
     return 0
 
 
 def register(sub: Any) -> None:
-    s = sub.add_parser("convert", help="any BTF (.btf, .zip, .h5, synth:...) to our dense file")
+    s = sub.add_parser("convert", help="any BTF (.btf, .zip, .h5, synth:...) to our dense file "
+                       "(.h5) or a UBO2014 file (.btf)")
     s.add_argument("input", metavar="IN", help="a UBO2014 .btf, UBO2003 .zip, dense or coded "
                    ".h5, or synth:CLASS[:SIZE]")
-    s.add_argument("-o", "--output", required=True, help="dense BTF file to write (.h5)")
+    s.add_argument("-o", "--output", required=True,
+                   help="file to write: .h5 (our dense file) or .btf (UBO2014, DFMF, exact)")
     s.add_argument("--crop", metavar="R0:R1,C0:C1",
                    help="keep rows R0..R1-1 and columns C0..C1-1 (0-based, end excluded)")
     s.add_argument("--dtype", choices=["float32", "float16"], default="float32",
-                   help="value type of the dense file (default float32; float16 halves it)")
+                   help="value type of the output (default float32; float16 halves it)")
+    s.add_argument("--json", action="store_true", help="print what was written as JSON")
     s.set_defaults(func=run)

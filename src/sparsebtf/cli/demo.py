@@ -135,8 +135,8 @@ def run_demo(
     for ch, t in model.training.items():
         print(
             f"      {ch}: objective {t['objective'][0]:.4f} -> {t['objective'][-1]:.4f} "
-            f"(mean squared error per value, standardised), membership "
-            f"{t['membership_counts']}"
+            f"(mean squared error per value, standardised), points per dictionary "
+            f"{'/'.join(map(str, t['membership_counts']))}"
         )
     print(f"[3/5] encoding unseen materials at tau = {', '.join(map(str, cfg.taus))}")
     rows: list[dict[str, Any]] = []
@@ -174,9 +174,9 @@ def run_demo(
     plot = quality_plot([r for r in rows if r["model"] == "trained"],
                         out / "quality_vs_storage.png", x="bytes_coefficients")  # fmt: skip
     print(
-        "[5/5] results. MSE on linear RGB. Bytes as the paper's Table 4. 'ratio/mat' = raw fp16 "
-        "bytes / the material's own codes; 'ratio+dict' also counts the model's dictionaries, "
-        "which every material coded on it shares"
+        "[5/5] results. MSE on linear RGB, PSNR = 10·log10(1/MSE) (peak 1). Bytes as the "
+        "paper's Table 4. 'ratio/mat' = raw fp16 bytes / the material's own codes; 'ratio+dict' "
+        "also counts the model's dictionaries, which every material coded on it shares"
     )
     header = (
         f"{'material':<24} {'model':<8} {'tau (Y/U/V)':<14} {'coef bytes':>11} "

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ..errors import SparseBTFError
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
@@ -19,7 +20,7 @@ from ._args import (
     parse_crop,
 )
 from ._model import MODEL_HELP, check_fits, model_label, open_model_arg
-from ._output import print_json
+from ._output import format_value, print_json
 
 __all__ = ["register"]
 
@@ -36,7 +37,14 @@ def run(args: argparse.Namespace) -> int:
     # One line, before any work, for an input the model cannot code (here, not on a worker,
     # so the message can name the commands that fix it).
     for source in args.btf:
-        check_fits(open_source(source, crop=args.crop), model, label, source)
+        btf = open_source(source, crop=args.crop)
+        check_fits(btf, model, label, source)
+        raw = btf.n_values * 2  # fp16, the ratio's numerator (paper Table 4)
+        if args.target_bytes is not None and args.target_bytes > raw:
+            raise SparseBTFError(
+                f"--target-bytes {args.target_bytes:,} is more than {source}'s raw size "
+                f"({raw:,} bytes in fp16): the ratio would be below 1"
+            )
     per_material = not args.with_dictionaries
     coded_all = encode_many(
         args.btf, model, tau=tau, eps=args.eps, target_bytes=args.target_bytes,
@@ -53,8 +61,9 @@ def run(args: argparse.Namespace) -> int:
         report["model"] = {"label": label, "content_hash": model.content_hash}
         reports.append({"input": coded.name, "output": str(output), **report})
         if not args.json:
-            print(f"wrote {output} with {label} ({model.content_hash[:12]}): nnz "
-                  f"{coded.nnz()}, file {report['file_bytes'] / 2**20:.3f} MiB")  # fmt: skip
+            mib = report["file_bytes"] / 2**20
+            print(f"wrote {output} with {label} ({model.content_hash[:12]}): coefficients "
+                  f"{format_value(coded.nnz())}, file {mib:.3f} MiB")  # fmt: skip
             print(f"  {ratio_line(report, args.target_ratio, per_material)}")
     if args.json:
         print_json(reports[0] if len(args.btf) == 1 else {"files": reports})

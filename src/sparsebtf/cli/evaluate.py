@@ -9,7 +9,15 @@ import numpy as np
 
 from ._args import integer, open_source
 from ._model import MODEL_HELP
-from ._output import add_allow_nonfinite, check_finite_result, print_json, table
+from ._output import (
+    add_allow_nonfinite,
+    check_finite_result,
+    format_value,
+    label,
+    nested_rows,
+    print_json,
+    table,
+)
 
 __all__ = ["register"]
 
@@ -52,28 +60,39 @@ def run(args: argparse.Namespace) -> int:
 
 
 def quality_table(out: dict[str, Any]) -> str:
-    """The numbers of ``eval`` as a table with words and units."""
-    nnz = out["nnz"]
-    return table([
-        ("MSE, linear RGB", f"{out['mse_rgb']:.4g}"),
-        ("PSNR, linear RGB", f"{out['psnr_rgb']:.2f} dB (peak {out['peak']:.4g})"),
-        ("SSIM", f"{out['ssim']:.4f} (mean over {out['ssim_images']} angular images)"),
-        ("largest value", f"{out['max_decoded']:.4g} decoded, {out['peak']:.4g} in the "
-                          f"reference ({out['max_decoded'] / out['peak']:.3g}x)"
-                          if out["peak"] > 0 else f"{out['max_decoded']:.4g} decoded"),
-        ("worst 0.01 % of values", f"{100 * out['top_error_share']:.1f} % of the squared error"),
-        ("MSE, log RGB", f"{out['mse_log']:.4g}"),
-        ("MSE, standardised", f"{out['mse_std']:.4g} (the codes' residual: "
-                              f"{out['mse_std_codes']:.4g})"),
-        ("coefficients", ", ".join(f"{ch} {n:,}" for ch, n in nnz.items())),
-        ("coefficient bytes", f"{out['bytes_coefficients']:,} (paper Table 4)"),
-        ("dictionary bytes", f"{out['bytes_dictionaries']:,} (shared by every material)"),
-        ("statistics bytes", f"{out['bytes_stats']:,}"),
-        ("raw bytes (fp16)", f"{out['bytes_raw']:,}"),
-        ("ratio per material", f"{out['compression_ratio_per_material']:.1f}"),
-        ("ratio with dictionaries", f"{out['compression_ratio']:.1f}"),
-        ("file bytes", f"{out['file_bytes']:,}"),
-    ])  # fmt: skip
+    """The numbers of ``eval`` as a table in words (:func:`.label`) with units: the quality
+    metrics, the storage figures, then any other field the result has."""
+    ssim = ("not computed (--ssim-images 0)" if out.get("ssim") is None else
+            f"{out['ssim']:.4f} (mean over {out['ssim_images']} angular images, data range "
+            f"{out['ssim_data_range']:.4g})")  # fmt: skip
+    shown = {
+        "mse_rgb": f"{out['mse_rgb']:.4g}",
+        "psnr_rgb": f"{out['psnr_rgb']:.2f} dB (peak {out['peak']:g})",
+        "ssim": ssim,
+        "max_decoded": _largest(out),
+        "top_error_share": f"{100 * out['top_error_share']:.1f} % of the squared error",
+        "mse_log": f"{out['mse_log']:.4g}",
+        "mse_std": f"{out['mse_std']:.4g} (the codes' residual: {out['mse_std_codes']:.4g})",
+        "nnz": format_value(out["nnz"]),
+        "bytes_coefficients": f"{out['bytes_coefficients']:,}",
+        "bytes_dictionaries": f"{out['bytes_dictionaries']:,}",
+        "bytes_stats": f"{out['bytes_stats']:,}",
+        "bytes_raw": f"{out['bytes_raw']:,}",
+        "compression_ratio_per_material": f"{out['compression_ratio_per_material']:.1f}",
+        "compression_ratio": f"{out['compression_ratio']:.1f}",
+        "file_bytes": f"{out['file_bytes']:,}",
+    }
+    in_other_rows = {"peak", "ssim_images", "ssim_data_range", "mse_std_codes", "reference_max"}
+    rest = {k: v for k, v in out.items() if k not in shown and k not in in_other_rows}
+    return table([(label(k), v) for k, v in shown.items()] + nested_rows(rest))
+
+
+def _largest(out: dict[str, Any]) -> str:
+    """The largest decoded value beside the reference's (a firework shows as a big ratio)."""
+    top, ref = out["max_decoded"], out["reference_max"]
+    if ref <= 0:
+        return f"{top:.4g}"
+    return f"{top:.4g}, the reference's largest {ref:.4g} ({top / ref:.3g}x)"
 
 
 def register(sub: Any) -> None:

@@ -1,20 +1,19 @@
-"""``sparsebtf info``: what a file holds, as a flat dictionary (also the ``--json`` object)."""
+"""``sparsebtf info``: what a file holds, as a table in words (``--json``: the same nested
+dictionary as one JSON object)."""
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from .._json import json_default
 from ..data.btf import BTF
 from ..open import file_format, open_btf
 from ._model import MODEL_HELP
-from ._output import print_json, table
+from ._output import nested_rows, print_json, table
 
 __all__ = ["describe", "describe_btf", "register"]
 
@@ -137,35 +136,6 @@ def describe(
     return {"kind": "unknown", "format": fmt, "file_bytes": size}
 
 
-def flat_rows(obj: dict[str, Any], prefix: str = "") -> list[tuple[str, str]]:
-    """A nested description as table rows: nested keys joined by dots, short lists inline,
-    long ones summarised, direction tables as "151 (ubo2014)"."""
-    rows: list[tuple[str, str]] = []
-    for k, v in obj.items():
-        key = f"{prefix}{k}"
-        if isinstance(v, dict) and set(v) == {"name", "count"}:
-            rows.append((key, f"{v['count']} ({v['name']})"))
-        elif isinstance(v, dict) and v:
-            rows += flat_rows(v, key + ".")
-        elif isinstance(v, list | tuple) and len(v) > 12:
-            rows.append((key, f"[{len(v)} values: {_text(v[0])} … {_text(v[-1])}]"))
-        elif isinstance(v, list | tuple):
-            rows.append((key, ", ".join(_text(x) for x in v) or "(none)"))
-        else:
-            rows.append((key, _text(v)))
-    return rows
-
-
-def _text(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    if isinstance(v, int) and not isinstance(v, bool) and abs(v) >= 1000:
-        return f"{v:,}"
-    if isinstance(v, dict | list):
-        return json.dumps(v, default=json_default)
-    return str(v)
-
-
 def _integrity(path: str) -> str:
     """Which checksums protect the file (schema 2: fletcher32 on every dataset)."""
     from .._h5check import integrity
@@ -180,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(info)
     else:
-        print(table(flat_rows(info)))
+        print(table(nested_rows(info)))
     return 0
 
 

@@ -2,20 +2,19 @@
 
 For texel (row, col) (the release's convention: ``point = row//p + (H/p)·(col//p)``), light
 index l and view index v, reports per channel the ``standardized`` value (Eq. 5 on the codes),
-the ``log`` value (x·σ + μ, the log-YUV domain) and ``rgb`` (exp(YUV⁻¹·log) − 1e-5), or null
+the ``log`` value (x·σ + μ, the log-YUV domain) and ``rgb`` (exp(min(YUV⁻¹·log, bound)) − ε,
+the material's log offset ε and bound, as every decoder), or null
 when a channel is missing (the release ships no Y coefficients; ``rgb_note`` says so).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import os
 from typing import Any
 
 import numpy as np
 
-from .._json import json_default
 from ..errors import BTFInputError, SparseBTFError
 from ..open import file_format, open_btf
 from ..points.grid import PatchGrid
@@ -27,7 +26,7 @@ from ..points.preprocessing import (
 )
 from ._args import integer
 from ._model import MODEL_HELP
-from ._output import add_allow_nonfinite, check_finite_result, print_json, table
+from ._output import add_allow_nonfinite, check_finite_result, format_value, print_json, table
 
 __all__ = ["lookup", "register"]
 
@@ -111,9 +110,41 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(out)
     else:
-        print(table([(k, v if isinstance(v, str) else json.dumps(v, default=json_default))
-                     for k, v in out.items()]))  # fmt: skip
+        print(lookup_table(out))
     return 0
+
+
+def lookup_table(out: dict[str, Any]) -> str:
+    """:func:`lookup`'s result for people: where, then one row per domain, one column per
+    channel (``-`` for a channel the file does not code)."""
+    where = [("texel (row, col)", format_value(out["texel"])),
+             ("light, view (indices)", f"{out['light']}, {out['view']}")]  # fmt: skip
+    if "point" in out:
+        where.append(("data point", f"{out['point']} (texel {format_value(out['in_patch'])} "
+                                    "of its patch)"))  # fmt: skip
+    channels = ("Y", "U", "V")
+
+    def cells(values: dict[str, float] | list[float] | None) -> list[str]:
+        if values is None:
+            return ["-"] * 3
+        if isinstance(values, dict):
+            return [f"{values[ch]:.6g}" if ch in values else "-" for ch in channels]
+        return [f"{v:.6g}" for v in values]
+
+    grid = [("", ["Y", "U", "V"]),
+            ("standardised (Eq. 5)", cells(out.get("standardized"))),
+            ("log-YUV", cells(out.get("log"))),
+            ("", ["R", "G", "B"]),
+            ("linear RGB", cells(out.get("rgb")))]  # fmt: skip
+    lines = [table(where)]
+    width = max(len(k) for k, _ in grid)
+    cols = [max(len(row[1][i]) for row in grid) for i in range(3)]
+    for k, vals in grid:
+        lines.append(f"{k:<{width}}  " + "  ".join(f"{v:>{w}}" for v, w in zip(vals, cols,
+                                                                                   strict=True)))
+    if out.get("rgb_note"):
+        lines.append(f"(no linear RGB: {out['rgb_note'].removeprefix('null: ')})")
+    return "\n".join(lines)
 
 
 def register(sub: Any) -> None:

@@ -2,8 +2,10 @@
 
 Every command has ``--help``; long work shows a progress bar with ETA on a terminal
 (``SPARSEBTF_PROGRESS=1`` forces it, ``=0`` silences it); ``--json`` prints one JSON object.
-Errors in the user's input print one line ``sparsebtf: error: …`` and exit with status 2.
-Each command module has ``register(subparsers)``; heavy imports happen inside its ``run``.
+Errors in the user's input print one line ``sparsebtf: error: …`` and exit with status 2;
+warnings print as one ``sparsebtf: note: …`` line each (no source line). ``sparsebtf … |
+head`` exits 0 when the reader goes away. Each command module has ``register(subparsers)``;
+heavy imports happen inside its ``run``.
 """
 
 from __future__ import annotations
@@ -12,8 +14,12 @@ import argparse
 import os
 import signal
 import sys
-from collections.abc import Sequence
+import warnings
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from typing import Any, NoReturn
 
+from .. import library_version
 from ..errors import SparseBTFError
 from . import (
     bench,
@@ -43,12 +49,24 @@ COMMANDS = (
 )  # fmt: skip
 
 
+class Parser(argparse.ArgumentParser):
+    """argparse with one addition to its usage errors: a value that starts with '-' (``--crop
+    -10:10,0:10``) reads as an option to argparse, so the error says how to give it."""
+
+    def error(self, message: str) -> NoReturn:
+        if message.endswith("expected one argument"):
+            flag = message.split(":")[0].removeprefix("argument ").split("/")[-1]
+            message += f" (a value that starts with '-' must be attached: {flag}=VALUE)"
+        super().error(message)
+
+
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = Parser(
         prog="sparsebtf",
         description="SparseBTF: learn, encode, store and decode Bidirectional Texture Functions "
         "with sparse coefficients on an ensemble of orthonormal 4D dictionaries (EGSR 2023).",
     )
+    p.add_argument("--version", action="version", version=f"sparsebtf {library_version()}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for module in COMMANDS:
         module.register(sub)
@@ -60,6 +78,41 @@ def _terminate(signum: int, frame: object) -> None:
     raise SystemExit(128 + signum)
 
 
+def _note(message: Warning | str) -> None:
+    print(f"sparsebtf: note: {message}", file=sys.stderr)
+
+
+@contextmanager
+def _warnings_as_notes() -> Iterator[list[str]]:
+    """Warnings as ``sparsebtf: note: …`` lines, without the source line Python adds.
+
+    Numeric RuntimeWarnings (overflow, invalid value) are held back: before a one-line error
+    they are noise the error explains; after a success they print once each at the end. The
+    list yielded collects them; the caller prints it (:func:`_flush_notes`).
+    """
+    held: list[str] = []
+
+    def show(message: Warning | str, category: type[Warning], *_: Any, **__: Any) -> None:
+        text = str(message)
+        if issubclass(category, RuntimeWarning):
+            if text not in held:
+                held.append(text)
+        else:
+            _note(text)
+
+    with warnings.catch_warnings():
+        warnings.showwarning = show
+        yield held
+
+
+def _stdout_gone() -> int:
+    # The reader went away (``sparsebtf info … | head``): what it wanted it has; stop quietly
+    # and point stdout at /dev/null so the interpreter's final flush does not complain either.
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -68,8 +121,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ValueError:  # not the main thread (embedded use): keep the default
         previous = None
     try:
-        check_args(args)
-        return int(args.func(args) or 0)
+        with _warnings_as_notes() as held:
+            check_args(args)
+            code = int(args.func(args) or 0)
+            sys.stdout.flush()  # a closed pipe shows here, inside the handler below
+        for text in held:
+            _note(text)
+        return code
     except SparseBTFError as e:
         print(f"sparsebtf: error: {e}", file=sys.stderr)
         return 2
@@ -77,11 +135,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("sparsebtf: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:
-        # The reader went away (``sparsebtf info … | head``): stop quietly, and point stdout
-        # at /dev/null so the interpreter's final flush does not complain either.
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        return 1
+        return _stdout_gone()
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -2,7 +2,8 @@
 
 ::
 
-    sparsebtf render stone.coded.h5 -o stone.png --scene sphere --spp 64 --size 512 --uv-scale 2
+    sparsebtf render stone.coded.h5 -o stone.png --scene sphere --spp 64 --image-size 512 \
+        --uv-scale 2
     sparsebtf render stone.coded.h5 -o cmp.png --reference stone.h5 --json   # Figures 7/8 style
 
 With ``--reference`` the same scene (same sampler seed) is rendered with the uncompressed BTF
@@ -20,7 +21,7 @@ from typing import Any
 
 from ..errors import SparseBTFError
 from ..runtime.angular import SCHEMES
-from ._args import check_output_file, integer, number
+from ._args import add_deprecated_alias, check_output_file, check_tau, integer, number
 
 __all__ = ["cmd_render", "register"]
 
@@ -32,9 +33,12 @@ def _parse_size(text: str) -> tuple[int, int]:
         else:
             w = h = int(text)
     except ValueError:
-        raise SparseBTFError(f"--size must look like 256 or 320x240, got {text!r}") from None
-    if w < 1 or h < 1 or w * h > 16384 * 16384:
-        raise SparseBTFError(f"--size {text!r} is out of range")
+        raise SparseBTFError(
+            f"--image-size must look like 256 or 320x240 (pixels), got {text!r}"
+        ) from None
+    if not (1 <= w <= 16384 and 1 <= h <= 16384):
+        raise SparseBTFError(f"--image-size {text!r}: width and height must be in [1, 16384] "
+                             "pixels")  # fmt: skip
     return w, h
 
 
@@ -53,7 +57,8 @@ def _refuse_slow_scalar(args: argparse.Namespace, size: tuple[int, int]) -> None
             f"no usable libLLVM (>= 17) for Mitsuba's fast CPU backend; install one with "
             f"'apt-get install libllvm19' (Debian/Ubuntu) or set DRJIT_LIBLLVM_PATH. Without it "
             f"this render would take about {seconds / 60:.0f} min in the scalar fallback: "
-            f"lower --size/--spp (e.g. --size 32 --spp 4) or pass --backend scalar to wait"
+            f"lower --image-size/--spp (e.g. --image-size 32 --spp 4) or pass --backend scalar "
+            "to wait"
         )
 
 
@@ -66,7 +71,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         save_side_by_side,
     )
 
-    size = _parse_size(args.size)
+    size = _parse_size(args.image_size)
+    check_tau(args.tau)
     if not Path(args.coded).exists():
         raise SparseBTFError(f"{args.coded}: no such file")
     inputs = [args.coded, args.model, args.reference, args.envmap]
@@ -209,7 +215,10 @@ def register(sub: Any) -> None:
     s.add_argument("--envmap", default=None,
                    help="environment map: .exr/.hdr lat-long file (default: a procedural sky)")
     s.add_argument("--spp", type=int, default=16, help="samples per pixel (default 16)")
-    s.add_argument("--size", default="256", help="image size, 256 or WxH (default 256)")
+    s.add_argument("--image-size", default="256", metavar="PIXELS",
+                   help="image size in pixels, 256 or WxH (default 256)")
+    add_deprecated_alias(s, "--size", "--image-size",
+                         "in 'render' it meant pixels; 'synth --size' is texels")
     s.add_argument("--uv-scale", type=float, default=1.0,
                    help="texture tiling: uv -> uv*scale (default 1)")
     s.add_argument("--tau", default=None,

@@ -117,8 +117,8 @@ def _report(args: argparse.Namespace, model: Any) -> None:
         for ch, t in model.training.items():
             print(
                 f"{ch}: {t['n_points']} points, {t['n_iter']} iterations, objective "
-                f"{t['objective'][0]:.4g} -> {t['objective'][-1]:.4g}, membership "
-                f"{t['membership_counts']}, {t['seconds']:.1f} s"
+                f"{t['objective'][0]:.4g} -> {t['objective'][-1]:.4g}, points per dictionary "
+                f"{'/'.join(map(str, t['membership_counts']))}, {t['seconds']:.1f} s"
             )
         print(f"wrote {args.output} (model {model.content_hash[:12]})")
 

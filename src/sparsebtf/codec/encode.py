@@ -8,6 +8,7 @@ Dask worker); :mod:`.jobs` runs the ranges and the statistics pass on an executo
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -87,10 +88,22 @@ def encode(
     )[0]
 
 
+#: The release's τ per channel: encoding's default, and what a fractional τ (0.25) is a
+#: fraction of when encoding (elsewhere it is a fraction of the coded τ).
+RELEASE_TAU = {"Y": 885, "U": 64, "V": 64}
+
+
 def _check_levels(levels: list[dict[str, int]], model: Model, allow_below: bool) -> None:
     tau_train = model.tau_train
     for taus_c in levels:
         for ch, t in taus_c.items():
+            atoms = math.prod(int(d.shape[1]) for d in model.dictionaries[ch])
+            if t > atoms:
+                sizes = "x".join(str(int(d.shape[1])) for d in model.dictionaries[ch])
+                raise BTFInputError(
+                    f"channel {ch}: tau = {t} is more coefficients than a data point has "
+                    f"({sizes} = {atoms:,}); give at most {atoms}"
+                )
             if ch in tau_train and t < tau_train[ch] and not allow_below:
                 raise BTFInputError(
                     f"channel {ch}: testing sparsity tau_t = {t} is below the training "
@@ -117,7 +130,8 @@ class FixedTau:
         cls, model: Model, taus: Sequence[TauSpec], eps: float = 1e-5, dtype: str = "float32",
         allow_below_training: bool = False,
     ) -> FixedTau:  # fmt: skip
-        levels = [parse_tau(t, model.channels) for t in taus]
+        nominal = RELEASE_TAU if set(model.channels) <= set(RELEASE_TAU) else None
+        levels = [parse_tau(t, model.channels, nominal=nominal) for t in taus]
         _check_levels(levels, model, allow_below_training)
         if eps < 0:
             raise BTFInputError(f"eps must be >= 0, got {eps}")

@@ -114,10 +114,17 @@ class Header:
     lights: DirectionSet
     views: DirectionSet
     attrs: dict[str, Any] = field(default_factory=dict)
+    source: str | None = None
 
     @classmethod
     def of(cls, btf: BTF) -> Header:
-        return cls(btf.name, btf.height, btf.width, btf.lights, btf.views, dict(btf.attrs))
+        return cls(btf.name, btf.height, btf.width, btf.lights, btf.views, dict(btf.attrs),
+                   btf.source)  # fmt: skip
+
+    @property
+    def label(self) -> str:
+        """How messages name the BTF: its file when it has one (:attr:`BTF.label`)."""
+        return self.source or self.name
 
     @property
     def shape(self) -> tuple[int, int, int, int, int]:
@@ -277,6 +284,6 @@ def _statistics(
     results = ex.results(tasks, weights=weights, desc="statistics", unit="view", progress=progress)
     del tasks
     for b, parts in _by_owner(results, owner):
-        warn_negatives(headers[b].name, parts)
+        warn_negatives(headers[b].label, parts)
         out.append(combine_statistics(parts, mode, offsets[b]))
     return out

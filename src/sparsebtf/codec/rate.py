@@ -78,7 +78,7 @@ def material_target_bytes(
     dicts = sum(DICTIONARY_ENTRY_BYTES * model.dictionary_entries(ch) for ch in model.channels)
     if total <= dicts:
         raise BTFInputError(
-            f"{btf.name}: the target of {total:,d} bytes does not even hold the model's shared "
+            f"{btf.label}: the target of {total:,d} bytes does not even hold the model's shared "
             f"dictionaries ({dicts:,d} bytes); ask for a per-material target "
             "(per_material=True, --per-material) or a larger size"
         )

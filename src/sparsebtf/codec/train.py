@@ -12,6 +12,7 @@ and loaded once into a worker's memory (:func:`load_partition`).
 from __future__ import annotations
 
 import hashlib
+import math
 import os
 import time
 from collections.abc import Callable, Sequence
@@ -137,6 +138,18 @@ def _partitions(ex: Executor, points: BTFPointSource, sources: list[Source],
     return partition
 
 
+def _check_tau_fits(taus: dict[str, int], patch: int, btf: BTF, colour_mode: bool) -> None:
+    """τ_l can be at most the coefficients of a data point (p·p·L·V, ×3 in colour mode)."""
+    sizes = [patch, patch, len(btf.lights), len(btf.views)] + ([3] if colour_mode else [])
+    atoms = math.prod(sizes)
+    for ch, t in taus.items():
+        if t > atoms:
+            raise BTFInputError(
+                f"tau_train {ch} = {t} is more coefficients than a data point has "
+                f"({'x'.join(map(str, sizes))} = {atoms:,}); give at most {atoms}"
+            )
+
+
 def train(
     btfs: Sequence[BTF | str | os.PathLike[str]],
     *,
@@ -208,6 +221,7 @@ def train(
         Path(checkpoint_dir).mkdir(parents=True, exist_ok=True)
     sources = [Source.of(b, crop) for b in btfs]
     opened = [s.open() for s in sources]
+    _check_tau_fits(taus, patch, opened[0], colour_mode)
     points = training_points(opened, patch, sample, seed, std_mode, preprocessing, progress,
                              rule)
     dictionaries: dict[str, list[np.ndarray]] = {}

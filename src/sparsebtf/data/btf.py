@@ -64,6 +64,7 @@ class BTF(abc.ABC):
     lights, views : DirectionSet of the sampled light (ω_i) and view (ω_o) directions.
     name : a label for tables and file names.
     attrs : free-form provenance (material class, seed, source file...).
+    source : the file it was read from (:func:`sparsebtf.open.open_btf` sets it), or None.
     """
 
     lights: DirectionSet
@@ -72,6 +73,12 @@ class BTF(abc.ABC):
     attrs: dict[str, Any]
     #: (rows, views) a scan should read at once to follow the storage (a file's chunks).
     block_hint: tuple[int, int] = (1, 1)
+    source: str | None = None
+
+    @property
+    def label(self) -> str:
+        """How messages name this BTF: its file when it has one, else its name."""
+        return self.source or self.name
 
     def __init__(
         self,
@@ -128,7 +135,7 @@ class BTF(abc.ABC):
         )
         # Every read's float32 result must fit the memory budget (sizes may come from a file).
         n = int(np.prod([ix.size for ix in out], dtype=np.int64))
-        check_allocation(12 * n, f"{self.name}: reading {'x'.join(str(ix.size) for ix in out)}x3"
+        check_allocation(12 * n, f"{self.label}: reading {'x'.join(str(ix.size) for ix in out)}x3"
                          " values at once", BTFInputError)  # fmt: skip
         return out
 
@@ -193,7 +200,7 @@ class BTF(abc.ABC):
         nbytes = self.n_values * 4
         if nbytes > memory_budget():
             raise BTFInputError(
-                f"{self.name}: refusing to load {nbytes / 2**30:.1f} GiB into memory (budget "
+                f"{self.label}: refusing to load {nbytes / 2**30:.1f} GiB into memory (budget "
                 f"{format_bytes(memory_budget())}, $SPARSEBTF_MAX_MEMORY_GB); stream it by region "
                 "or view block instead"
             )
@@ -268,7 +275,7 @@ class FunctionBTF(BTF):
         expected = (self.height, self.width, len(self.lights), 3)
         if block.shape != expected:
             raise BTFInputError(
-                f"{self.name}: view block {v} has shape {block.shape}, expected {expected}"
+                f"{self.label}: view block {v} has shape {block.shape}, expected {expected}"
             )
         self._last = (int(v), block)
         return block

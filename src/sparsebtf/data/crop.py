@@ -12,13 +12,14 @@ class CroppedBTF(BTF):
     """Rows ``rows`` and columns ``cols`` (step 1) of ``base``; nothing is copied."""
 
     def __init__(self, base: BTF, rows: slice, cols: slice) -> None:
-        r0, r1 = _bounds(rows, base.height, "rows", base.name)
-        c0, c1 = _bounds(cols, base.width, "cols", base.name)
+        r0, r1 = _bounds(rows, base.height, "rows", base.label)
+        c0, c1 = _bounds(cols, base.width, "cols", base.label)
         super().__init__(
             r1 - r0, c1 - c0, base.lights, base.views, base.name,
             {**base.attrs, "crop": [r0, r1, c0, c1]},
         )  # fmt: skip
         self.base = base
+        self.source = base.source
         self._r0, self._c0 = r0, c0
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:

@@ -18,7 +18,9 @@ the fletcher32 checksum to every dataset and HDF5 1.10 structures with metadata 
 from __future__ import annotations
 
 import json
+import math
 import os
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +45,9 @@ from ..errors import BTFInputError, FileFormatError, SparseBTFError
 from .btf import BTF, Index
 from .directions import DirectionSet, from_vectors
 
-__all__ = ["DEFAULT_CHUNK", "FORMAT", "SCHEMA_VERSION", "DenseFileBTF", "write_dense"]
+__all__ = [
+    "DEFAULT_CHUNK", "FORMAT", "SCHEMA_VERSION", "DenseFileBTF", "dense_file_bytes", "write_dense",
+]  # fmt: skip
 
 FORMAT = "sparsebtf-dense"
 SCHEMA_VERSION = 2
@@ -79,6 +83,20 @@ def read_directions(group: h5py.Group, where: str) -> DirectionSet:
         raise FileFormatError(f"{where}/xyz: {e}") from None
 
 
+def _chunk(shape: Sequence[int], chunks: Sequence[int] | None) -> tuple[int, ...]:
+    return tuple(min(c, s) for c, s in zip(chunks or DEFAULT_CHUNK, shape, strict=True))
+
+
+def dense_file_bytes(
+    shape: Sequence[int], dtype: str = "float32", chunks: Sequence[int] | None = None
+) -> int:
+    """Bytes the values of :func:`write_dense`'s file take on disk: every chunk is stored
+    whole (edge chunks padded), uncompressed; the header and direction tables add a few KiB."""
+    chunk = _chunk(shape, chunks)
+    n_chunks = math.prod(-(-s // c) for s, c in zip(shape, chunk, strict=True))
+    return n_chunks * math.prod(chunk) * np.dtype(dtype).itemsize
+
+
 def write_dense(
     path: str | os.PathLike[str],
     btf: BTF,
@@ -102,7 +120,7 @@ def write_dense(
     if dtype not in ("float32", "float16"):
         raise BTFInputError(f"dense files store float32 or float16, not {dtype!r}")
     shape = btf.shape
-    chunk = tuple(min(c, s) for c, s in zip(chunks or DEFAULT_CHUNK, shape, strict=True))
+    chunk = _chunk(shape, chunks)
     meta = dict(btf.attrs)
     meta.update(attrs or {})
     target = Path(path)
@@ -139,7 +157,7 @@ def write_dense(
                     c += cols.start or 0
                     vj += views.start or 0
                     raise BTFInputError(
-                        f"{btf.name}: {int(bad.sum())} NaN/Inf values; first at row {r}, "
+                        f"{btf.label}: {int(bad.sum())} NaN/Inf values; first at row {r}, "
                         f"col {c}, light {li}, view {vj}, channel {ch}"
                     )
                 ds[rows, cols, :, views, :] = block

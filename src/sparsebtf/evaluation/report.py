@@ -215,7 +215,7 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
             if rs:
                 per[method] = {
                     "mse": [r["mse_rgb"] for r in rs],
-                    "max_over_peak": max(r["max_decoded"] / r["peak"] for r in rs),
+                    "max_over_peak": max(r["max_decoded"] / r["reference_max"] for r in rs),
                     "top_error_share": max(r["top_error_share"] for r in rs),
                     "log_offset": rs[0].get("log_offset"),
                 }
@@ -336,7 +336,7 @@ def table_black(result: dict[str, Any]) -> str:
             first = next(iter(rs.values()))
             body.append([m, names.get(method, method), f"{first.get('log_offset', 0):.3g}",
                          *[_fmt(rs[lv]["mse_rgb"]) if lv in rs else "—" for lv in levels],
-                         f"{max(r['max_decoded'] / r['peak'] for r in rs.values()):.3g}x",
+                         f"{max(r['max_decoded'] / r['reference_max'] for r in rs.values()):.3g}x",
                          f"{100 * max(r['top_error_share'] for r in rs.values()):.0f} %"])
     return _table(["material", "coding", "log offset", *[f"L{lv}" for lv in levels],
                    "largest / reference max", "worst 0.01 % share"], body)

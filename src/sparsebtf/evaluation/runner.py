@@ -93,7 +93,7 @@ def _figure_pairs(btf: BTF) -> list[tuple[int, int]]:
 
 def _metrics(ref: BTF, recs: Sequence[BTF], cfg: BenchConfig) -> list[dict[str, Any]]:
     """Every metric of every reconstruction of ``ref``, in one pass over it."""
-    keys = ("mse_rgb", "mse_log", "mse_std", "psnr_rgb", "ssim", "peak", "max_decoded",
+    keys = ("mse_rgb", "mse_log", "mse_std", "psnr_rgb", "ssim", "reference_max", "max_decoded",
             "top_error_share")
     scores = score_many(
         ref, recs, ssim_images=cfg.ssim_images, tile=2 * cfg.patch, progress=False

@@ -19,8 +19,8 @@ second time. The benchmark scores some twenty reconstructions per material, so
   value needs clamping (tests check both).
 
 Every metric keeps :func:`compare`'s definition (linear-RGB MSE over every value, log MSE on
-ln(RGB + 1e-5), PSNR with the reference's peak, mean SSIM over the same regular sample of
-angular images); ``tests/test_evaluation.py`` checks the two agree.
+ln(RGB + 1e-5), PSNR with the fixed peak ``metrics.PSNR_PEAK``, mean SSIM over the same
+regular sample of angular images); ``tests/test_evaluation.py`` checks the two agree.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from .._progress import bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.parallel import single_threaded_blas
-from ..metrics import TOP_SHARE, _angular_sample, _sumsq, psnr, top_k_largest
+from ..metrics import PSNR_PEAK, TOP_SHARE, _angular_sample, _sumsq, psnr, top_k_largest
 from ..model import CodedBTF
 from ..points.preprocessing import EPS, yuv_to_rgb
 from ..runtime.dense import DecodedBTF
@@ -91,10 +91,12 @@ def score_many(
     for rec in reconstructions:
         if rec.shape != reference.shape:
             raise BTFInputError(
-                f"cannot compare {reference.name} {reference.shape} with {rec.name} {rec.shape}"
+                f"cannot compare {reference.label} {reference.shape} with {rec.label} {rec.shape}"
             )
         if not (reference.lights.equals(rec.lights) and reference.views.equals(rec.views)):
-            raise BTFInputError(f"{reference.name} and {rec.name} have different direction tables")
+            raise BTFInputError(
+                f"{reference.label} and {rec.label} have different direction tables"
+            )
     h, w = reference.height, reference.width
     pairs = _angular_sample(len(reference.lights), len(reference.views), ssim_images)
     li = np.array([p[0] for p in pairs])
@@ -103,18 +105,18 @@ def score_many(
     sums = np.zeros((n_rec, 2))  # linear RGB, log
     ref_img = np.zeros((len(pairs), h, w, 3), dtype=np.float32)
     rec_img = np.zeros((n_rec, len(pairs), h, w, 3), dtype=np.float32)
-    peak = 0.0
+    ref_max = 0.0  # SSIM's data range
     n = 0
     k_top = max(1, int(np.ceil(TOP_SHARE * reference.n_values)))
     worst = [np.empty(0, dtype=np.float32) for _ in range(n_rec)]
     top = [-np.inf] * n_rec
     tiles = [(r, c) for c in range(0, w, tile) for r in range(0, h, tile)]
-    with bar(len(tiles) * (n_rec + 1), f"score {reference.name}", "tile", progress) as pb:
+    with bar(len(tiles) * (n_rec + 1), f"score {reference.label}", "tile", progress) as pb:
         for r, c in tiles:
             rows, cols = slice(r, min(r + tile, h)), slice(c, min(c + tile, w))
             a = np.maximum(reference.region(rows, cols).astype(np.float32), 0)
             la = np.log(a + np.float32(EPS))
-            peak = max(peak, float(a.max()))
+            ref_max = max(ref_max, float(a.max()))
             n += a.size
             if ssim_images:
                 ref_img[:, rows, cols] = np.moveaxis(a[:, :, li, vi], 2, 0)
@@ -137,16 +139,18 @@ def score_many(
         mse_rgb = sums[j, 0] / n
         res: dict[str, Any] = {
             "mse_rgb": mse_rgb,
-            "psnr_rgb": psnr(mse_rgb, peak),
+            "psnr_rgb": psnr(mse_rgb),
+            "peak": PSNR_PEAK,
             "mse_log": sums[j, 1] / n,
             "ssim": float(np.mean([
                 structural_similarity(ref_img[i].astype(np.float64),
-                                      rec_img[j, i].astype(np.float64), data_range=peak,
+                                      rec_img[j, i].astype(np.float64), data_range=ref_max,
                                       channel_axis=2, win_size=win)
                 for i in range(len(pairs))
             ])) if ssim_images else None,
             "ssim_images": len(pairs) if ssim_images else 0,
-            "peak": peak,
+            "ssim_data_range": ref_max,
+            "reference_max": ref_max,
             "max_decoded": top[j],
             "top_error_share": (float(np.sum(worst[j], dtype=np.float64)) / sums[j, 0]
                                 if sums[j, 0] > 0 else 0.0),

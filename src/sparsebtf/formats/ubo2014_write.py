@@ -1,4 +1,5 @@
-"""Write Bonn UBO2014 ``.btf`` files from raw factor matrices (synthetic fixtures for tests).
+"""Write Bonn UBO2014 ``.btf`` files: from raw factor matrices (synthetic fixtures for tests),
+or any BTF exactly (:func:`write_btf_ubo2014`, ``sparsebtf convert -o X.btf``).
 
 Every branch the reader (:mod:`sparsebtf.formats.ubo2014`) decodes can be written: DFMF and
 FMF layouts, half/float/double, with or without rotations, the colour models, DRR, header
@@ -11,6 +12,7 @@ import os
 import struct
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -18,7 +20,7 @@ from ..data.directions import DirectionSet
 from ..errors import BTFInputError
 from .ubo2014 import _DTYPE_NAMES, _SCALARS
 
-__all__ = ["write_ubo2014"]
+__all__ = ["ubo2014_bytes", "write_btf_ubo2014", "write_ubo2014"]
 
 
 def _mat(a: np.ndarray, dt: np.dtype) -> bytes:
@@ -170,3 +172,52 @@ def write_ubo2014(
         out += _mat(np.ones(k), dt) + _mat(an[0], dt) + _mat(sp[0], dt)
     Path(path).write_bytes(bytes(out))
     return offsets
+
+
+def _exact_rank(height: int, width: int, n_lights: int, n_views: int) -> int:
+    """K of the exact factorisation :func:`write_btf_ubo2014` writes: the smaller side."""
+    return min(height * width, n_lights * n_views)
+
+
+def ubo2014_bytes(
+    height: int, width: int, n_lights: int, n_views: int, dtype: str = "float"
+) -> int:
+    """Bytes of the file :func:`write_btf_ubo2014` writes for this shape (header included)."""
+    item = _DTYPE_NAMES[dtype]
+    npix, nlv = height * width, n_lights * n_views
+    k = _exact_rank(height, width, n_lights, n_views)
+    meta = 4 + 3 * 80 + 16 + 4 + 4 + 4 + 3 * (4 + 1)  # version 4, no XML, channels Y, U, V
+    header = len(b"!DFMF08FC") + 4 + meta + 4 + n_views * (12 + 8 * n_lights) + 8
+    payload = 4 + 4 + 12 + 36 + 3 * (13 + item * k * (1 + nlv + npix))
+    return header + payload
+
+
+def write_btf_ubo2014(path: str | os.PathLike[str], btf: Any, dtype: str = "float") -> None:
+    """Write ``btf`` as a UBO2014 ``.btf`` that reads back to the same values (exactly for
+    ``dtype="float"``; ``"half"`` rounds to binary16): DFMF, colour model 0 (RGB), one factor
+    the identity and the other the data, whichever side (H·W texels or L·V directions) is
+    smaller, so K = min(H·W, L·V) and the file is about the raw data's size.
+
+    The whole BTF is read into memory (refused above ``$SPARSEBTF_MAX_MEMORY_GB``) and the
+    file is written atomically.
+    """
+    from .._atomic import atomic_output
+    from .._limits import check_allocation
+
+    h, w, nl, nv = btf.height, btf.width, len(btf.lights), len(btf.views)
+    check_allocation(2 * ubo2014_bytes(h, w, nl, nv, dtype), f"writing {path} (UBO2014)")
+    rgb = btf.to_array()  # (H, W, L, V, 3)
+    # Rows of the file's matrices: texel row·W + col; direction view·nL + light.
+    m = np.ascontiguousarray(rgb.transpose(0, 1, 3, 2, 4)).reshape(h * w, nv * nl, 3)
+    k = _exact_rank(h, w, nl, nv)
+    spatial, angular = [], []
+    for c in range(3):
+        if k == h * w:  # SxV = I, U = data^T
+            spatial.append(np.eye(k, dtype=np.float32))
+            angular.append(m[:, :, c].T)
+        else:  # U = I, SxV = data
+            spatial.append(m[:, :, c])
+            angular.append(np.eye(k, dtype=np.float32))
+    with atomic_output(path) as tmp:
+        write_ubo2014(tmp, spatial, angular, h, w, btf.lights, btf.views, "DFMF", dtype,
+                      rotations=False, color_model=0)  # fmt: skip

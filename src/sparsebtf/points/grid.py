@@ -125,13 +125,13 @@ def iter_points(
     grid = PatchGrid.for_btf(btf, patch)
     if (pre.stats.n_lights, pre.stats.n_views) != btf.shape[2:4]:
         raise BTFInputError(
-            f"{btf.name}: statistics are for {pre.stats.n_lights}x{pre.stats.n_views} directions "
+            f"{btf.label}: statistics are for {pre.stats.n_lights}x{pre.stats.n_views} directions "
             f"but the BTF has {btf.shape[2]}x{btf.shape[3]}"
         )
     idx = np.arange(grid.n_points) if points is None else np.asarray(points, dtype=np.int64)
     if idx.size and (idx.min() < 0 or idx.max() >= grid.n_points):
         bad = int(idx[(idx < 0) | (idx >= grid.n_points)][0])
-        raise BTFInputError(f"{btf.name}: data point {bad} is out of range [0, {grid.n_points})")
+        raise BTFInputError(f"{btf.label}: data point {bad} is out of range [0, {grid.n_points})")
     if batch < 1:
         raise BTFInputError(f"batch must be >= 1, got {batch}")
     _, _, nl, nv, _ = btf.shape

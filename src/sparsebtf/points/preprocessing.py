@@ -338,10 +338,10 @@ def statistic_sums(
     h, w, nl, nv, _ = btf.shape
     v0, v1 = views if views is not None else (0, nv)
     if not 0 <= v0 < v1 <= nv:
-        raise BTFInputError(f"{btf.name}: view range [{v0}, {v1}) is not inside [0, {nv})")
+        raise BTFInputError(f"{btf.label}: view range [{v0}, {v1}) is not inside [0, {nv})")
     n = h * w
     if n < 2:
-        raise BTFInputError(f"{btf.name}: standardisation needs at least 2 texels, got {n}")
+        raise BTFInputError(f"{btf.label}: standardisation needs at least 2 texels, got {n}")
     s1 = np.zeros((nl, v1 - v0, 3))
     s2 = np.zeros((nl, v1 - v0, 3))
     shift = np.zeros((nl, v1 - v0, 3))
@@ -349,7 +349,7 @@ def statistic_sums(
     negatives = 0
     for j, v in enumerate(range(v0, v1)):
         block = btf.view_block(v)
-        check_finite(block[:, :, :, None, :], btf.name, offset=(0, 0, 0, v))
+        check_finite(block[:, :, :, None, :], btf.label, offset=(0, 0, 0, v))
         negatives += int((block < 0).sum())
         # float32 transforms (the release computed its statistics in single precision),
         # float64 accumulators.
@@ -439,7 +439,7 @@ def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
     counts = np.zeros(_HIST_EDGES.size - 1, dtype=np.int64)
     for v in views:
         block = btf.view_block(int(v))
-        check_finite(block[:, :, :, None, :], btf.name, offset=(0, 0, 0, int(v)))
+        check_finite(block[:, :, :, None, :], btf.label, offset=(0, 0, 0, int(v)))
         counts += np.histogram(block[block > 0], bins=_HIST_EDGES)[0]
     total = int(counts.sum())
     if total == 0:
@@ -485,5 +485,5 @@ def gather_statistics(
         )
     with bar(nv, "statistics", "view", progress) as pb:
         sums = statistic_sums(btf, eps=eps, tick=pb.update)
-    warn_negatives(btf.name, [sums])
+    warn_negatives(btf.label, [sums])
     return combine_statistics([sums], mode, eps)

@@ -212,8 +212,8 @@ def check_same_directions(btfs: Sequence[BTF]) -> None:
     for b in btfs[1:]:
         if not (b.lights.equals(ref.lights) and b.views.equals(ref.views)):
             raise BTFInputError(
-                f"{b.name}: its direction tables ({len(b.lights)} lights, {len(b.views)} views) "
-                f"differ from {ref.name}'s; one model needs one angular sampling"
+                f"{b.label}: its direction tables ({len(b.lights)} lights, {len(b.views)} views) "
+                f"differ from {ref.label}'s; one model needs one angular sampling"
             )
 
 

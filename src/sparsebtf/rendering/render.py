@@ -148,11 +148,14 @@ def compare_renders(
 ) -> dict[str, float]:
     """MSE and PSNR of linear RGB, SSIM and MSE of the tone-mapped sRGB images.
 
-    PSNR = 10·log10(peak² / MSE) with ``peak`` the reference's largest value (returned);
+    PSNR = 10·log10(peak² / MSE) with the project's fixed peak
+    (:data:`sparsebtf.metrics.PSNR_PEAK`, returned as ``peak``), so renders compare;
     SSIM (scikit-image, RGB, data range 1) compares the images as displayed (same exposure,
     default :func:`auto_exposure` of the reference).
     """
     from skimage.metrics import structural_similarity
+
+    from ..metrics import PSNR_PEAK, psnr
 
     a = np.asarray(image, dtype=np.float64)
     b = np.asarray(reference, dtype=np.float64)
@@ -160,15 +163,14 @@ def compare_renders(
         raise BTFInputError(f"cannot compare images of shapes {a.shape} and {b.shape}")
     exposure = auto_exposure(b) if exposure is None else exposure
     mse = float(np.mean((a - b) ** 2))
-    peak = float(b.max())
     ta, tb = tonemap_srgb(a, exposure), tonemap_srgb(b, exposure)
     side = min(a.shape[:2])
     win = 7 if side >= 7 else (side if side % 2 else side - 1)  # odd, <= the image
     ssim = float(structural_similarity(ta, tb, data_range=1.0, channel_axis=2, win_size=win))
     return {
         "mse": mse,
-        "psnr": float(10 * np.log10(peak * peak / mse)) if mse > 0 and peak > 0 else float("inf"),
-        "peak": peak,
+        "psnr": psnr(mse),
+        "peak": PSNR_PEAK,
         "mse_srgb": float(np.mean((ta - tb) ** 2)),
         "ssim": ssim,
         "exposure": exposure,
@@ -222,7 +224,7 @@ def save_side_by_side(
     error_colorbar(fig, axes[2], error_scale, "/ reference 99.5th pct")
     fig.suptitle(
         f"linear RGB: MSE {metrics['mse']:.3g}, PSNR {metrics['psnr']:.2f} dB (peak "
-        f"{metrics.get('peak', float(reference.max())):.3g})   SSIM {metrics['ssim']:.4f}",
+        f"{metrics['peak']:.3g})   SSIM {metrics['ssim']:.4f}",
         fontsize=9,
     )
     return save_figure(fig, path, dpi=100)

@@ -26,7 +26,7 @@ from ..errors import BTFInputError, ModelMismatchError
 from ..learning.coding import SparseCodes, topk_abs
 from ..learning.parallel import parallel_map
 from ..learning.tensor import reconstruct
-from ..model import CodedBTF, TauSpec, parse_tau
+from ..model import CodedBTF, TauSpec, model_text, parse_tau
 from ..points.preprocessing import Standardization, round_up_half
 
 __all__ = ["blend", "check_blendable"]
@@ -40,25 +40,26 @@ def check_blendable(coded: Sequence[CodedBTF]) -> None:
     for b in coded[1:]:
         if b.model_hash != a.model_hash:
             raise ModelMismatchError(
-                f"{a.name} was coded with model {a.model_hash[:12]}…, {b.name} with "
-                f"{b.model_hash[:12]}…: blending needs both coded with the same model"
+                f"{a.label} was coded with {model_text(a.model_hash, a.model_file)}, {b.label} "
+                f"with {model_text(b.model_hash, b.model_file)}: blending needs both coded with "
+                "the same model"
             )
         if not (b.lights.equals(a.lights) and b.views.equals(a.views)):
             raise BTFInputError(
-                f"{a.name} ({len(a.lights)}x{len(a.views)} directions) and {b.name} "
+                f"{a.label} ({len(a.lights)}x{len(a.views)} directions) and {b.label} "
                 f"({len(b.lights)}x{len(b.views)}) have different direction tables"
             )
         if (b.height, b.width, b.patch) != (a.height, a.width, a.patch):
             raise BTFInputError(
-                f"{a.name} is {a.height}x{a.width} (patch {a.patch}), {b.name} is "
+                f"{a.label} is {a.height}x{a.width} (patch {a.patch}), {b.label} is "
                 f"{b.height}x{b.width} (patch {b.patch}): crop them to one size first"
             )
         if b.channels != a.channels:
-            raise BTFInputError(f"{a.name} has channels {a.channels}, {b.name} {b.channels}")
+            raise BTFInputError(f"{a.label} has channels {a.channels}, {b.label} {b.channels}")
         if (b.stats.mode, b.stats.transform) != (a.stats.mode, a.stats.transform):
             raise BTFInputError(
-                f"{a.name} uses {a.stats.mode} standardisation ({a.stats.transform}), {b.name} "
-                f"{b.stats.mode} ({b.stats.transform}); they cannot be blended"
+                f"{a.label} uses {a.stats.mode} standardisation ({a.stats.transform}), "
+                f"{b.label} {b.stats.mode} ({b.stats.transform}); they cannot be blended"
             )
     a.require_model()
 

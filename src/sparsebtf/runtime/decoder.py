@@ -74,18 +74,18 @@ class RuntimeBTF:
         model = coded.require_model()
         if tuple(coded.channels) != CHANNELS:
             raise BTFInputError(
-                f"{coded.name}: the runtime needs channels Y, U and V as separate 4D codes, "
+                f"{coded.label}: the runtime needs channels Y, U and V as separate 4D codes, "
                 f"this file has {coded.channels}"
             )
         if coded.stats.transform != "log_yuv":
             raise BTFInputError(
-                f"{coded.name}: coded without the log-YUV preprocessing "
+                f"{coded.label}: coded without the log-YUV preprocessing "
                 f"({coded.stats.transform!r}); the runtime decodes log-YUV codes only"
             )
         sizes = model.mode_sizes
         if len(sizes) != 4 or max(sizes) > 256:
             raise BTFInputError(
-                f"{coded.name}: the runtime needs 4D data points with every mode <= 256 "
+                f"{coded.label}: the runtime needs 4D data points with every mode <= 256 "
                 f"(packed locations), got {sizes}"
             )
         self.tau = coded.resolve_tau(tau)

@@ -98,11 +98,12 @@ class DecodedBTF(BTF):
         coded.require_model()
         if "YUV" not in coded.channels and len(coded.channels) < 3:
             raise BTFInputError(
-                f"{coded.name}: only channels {coded.channels} are coded; RGB needs Y, U and V"
+                f"{coded.label}: only channels {coded.channels} are coded; RGB needs Y, U and V"
             )
         super().__init__(
             coded.height, coded.width, coded.lights, coded.views, coded.name, dict(coded.attrs)
         )
+        self.source = coded.source
         self.coded = coded
         self.grid = PatchGrid(coded.height, coded.width, coded.patch)
         self.pre = Preprocessor(coded.stats)

@@ -19,7 +19,7 @@ from typing import Any
 
 from ..errors import BTFInputError, ModelMismatchError
 from ..learning.cost import channel_storage, raw_bytes
-from ..model import CHANNELS, CodedBTF, Model
+from ..model import CHANNELS, CodedBTF, Model, model_text
 
 __all__ = ["MIB", "paper_storage", "storage_report"]
 
@@ -117,8 +117,8 @@ def storage_report(
     m = model if model is not None else coded.model
     if m is not None and m.content_hash != coded.model_hash:
         raise ModelMismatchError(
-            f"{coded.name}: coded with model {coded.model_hash[:12]}…, but the given model is "
-            f"{m.content_hash[:12]}…"
+            f"{coded.label}: coded with {model_text(coded.model_hash, coded.model_file)}, but "
+            f"the given model is {model_text(m.content_hash, m.file)}"
         )
     per: dict[str, dict[str, Any]] = {}
     for ch in coded.channels:

@@ -173,7 +173,7 @@ def find_model(
     else:
         why = f"the model file it recorded, {recorded}, does not exist"
     raise ModelMismatchError(
-        f"{where or coded.name}: coded with model {coded.model_hash[:12]}…, which is not a "
+        f"{where or coded.label}: coded with model {coded.model_hash[:12]}…, which is not a "
         f"bundled model, and {why}; give the model file it was coded with (--model MODEL.h5 on "
         "the command line, model_path=... in Python)"
     )

@@ -55,7 +55,7 @@ from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes
 from ..learning.cost import location_width
-from ..model import CodedBTF, Model
+from ..model import CodedBTF, Model, model_text
 from ..points.preprocessing import EPS, STD_MODES, Standardization
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 
@@ -322,6 +322,7 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         params=params,
         name=name,
         attrs=attrs,
+        source=where,
     )
     validate_coded(coded, where, ks)
     if model is not None:
@@ -332,8 +333,9 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
 def _attach(coded: CodedBTF, model: Model, where: str) -> None:
     if model.content_hash != coded.model_hash:
         raise ModelMismatchError(
-            f"{where}: coded with model {coded.model_hash[:12]}…, but the given model is "
-            f"{model.content_hash[:12]}…; load the model file this BTF was coded with"
+            f"{where}: coded with {model_text(coded.model_hash, coded.model_file)}, but the "
+            f"given model is {model_text(model.content_hash, model.file)}; load the model "
+            "this BTF was coded with"
         )
     for ch, c in coded.codes.items():
         if ch not in model.dictionaries:

@@ -140,7 +140,7 @@ def dense_table(btf: Any, max_gib: float = DENSE_MAX_GIB) -> np.ndarray:
     need = h * w * nl * nv * c * 4
     if need > max_gib * 2**30:
         raise BTFInputError(
-            f"reference BTF {btf.name!r} ({h}x{w} texels, {nl} lights x {nv} views) needs "
+            f"reference BTF {btf.label} ({h}x{w} texels, {nl} lights x {nv} views) needs "
             f"{need / 2**30:.1f} GiB as a float32 table, above the {max_gib:g} GiB limit; crop "
             "it first (sparsebtf convert BTF -o crop.h5 --crop R0:R1,C0:C1) or raise max_gib "
             "(sparsebtf render --max-gib)"

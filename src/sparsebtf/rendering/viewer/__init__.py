@@ -25,7 +25,6 @@ import contextlib
 import json
 import os
 import shutil
-import tempfile
 import threading
 from dataclasses import dataclass
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
@@ -35,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from ..._atomic import remove_stale_parts, temporary_dir
 from ..._json import json_default
 from ...errors import BTFInputError, FileFormatError, SparseBTFError
 from ...runtime.decoder import NO_BOUND
@@ -319,15 +319,14 @@ def export(bundle: ViewerBundle, out_dir: str | os.PathLike[str]) -> Path:
             f"{target}: folder is not empty and holds no earlier viewer export; choose another"
         )
     target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent))
+    remove_stale_parts(target)
+    tmp = temporary_dir(target)  # the user's umask, not mkdtemp's 0700: it becomes the export
     old: Path | None = None
     try:
         for name, content in bundle.files().items():
             (tmp / name).write_bytes(content)
         if target.exists():
-            old = Path(
-                tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".old", dir=target.parent)
-            )
+            old = temporary_dir(target, ".old")
             os.replace(target, old / "x")
         os.replace(tmp, target)
     except BaseException:
