@@ -247,3 +247,23 @@ def test_cli_log_offset(tmp_path, capsys):
                  "--reference", src, "--ssim-images", "1"]) == 0  # fmt: skip
     out = capsys.readouterr().out
     assert "largest value" in out and "worst 0.01 %" in out
+
+
+def test_blend_carries_offsets_and_bounds_and_decodes_bounded():
+    from sparsebtf.runtime import blend
+
+    model = tiny_model()
+    a = encode(smooth_btf(9), model, tau=(40, 8, 8), eps=0.0, progress=False)
+    b = encode(smooth_btf(5), model, tau=(40, 8, 8), eps=0.0, log_offset="release",
+               progress=False)  # fmt: skip
+    assert a.stats.eps != b.stats.eps  # different offsets blend (they were refused before)
+    mix = blend([a, b], alpha=0.3, progress=False)
+    want = round_up_half((1 - 0.3) * a.stats.bound.astype(np.float64)
+                         + 0.3 * b.stats.bound.astype(np.float64))
+    assert np.array_equal(mix.stats.bound, want)
+    assert mix.stats.eps == pytest.approx(0.7 * a.stats.eps + 0.3 * b.stats.eps)
+    same = blend([a, b], alpha=0.0, progress=False)
+    assert np.array_equal(same.stats.bound, a.stats.bound) and same.stats.eps == a.stats.eps
+    got = coded_btf_view(mix).read(*ALL)
+    cap = np.exp(mix.stats.bound.astype(np.float64)) - mix.stats.eps
+    assert np.all(got <= cap[None, None, :, :, None] * (1 + 1e-5) + 1e-7)
