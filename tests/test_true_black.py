@@ -246,7 +246,7 @@ def test_cli_log_offset(tmp_path, capsys):
     assert main(["eval", str(tmp_path / "release.h5"), "-m", str(tmp_path / "m.h5"),
                  "--reference", src, "--ssim-images", "1"]) == 0  # fmt: skip
     out = capsys.readouterr().out
-    assert "largest value" in out and "worst 0.01 %" in out
+    assert "largest decoded value" in out and "worst 0.01 %" in out
 
 
 def test_blend_carries_offsets_and_bounds_and_decodes_bounded():
