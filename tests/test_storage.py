@@ -169,8 +169,8 @@ def test_coded_round_trip(files: tuple[Path, Path, CodedBTF], model: Model) -> N
         assert g["membership"].dtype == np.uint8
         assert g["counts"].dtype == np.uint16
         assert g["values"].dtype == np.float16
-        assert g["locations"].dtype == np.uint8
-        assert g["locations"].shape == (coded.codes["Y"].nnz, 3)
+        assert g["location_gaps"].dtype == np.uint32
+        assert g["location_gaps"].shape == (coded.codes["Y"].nnz,)
         assert g["errors"].dtype == np.float32
         assert f["stats/mean"].dtype == np.float32 and f["stats/mean"].shape == (7, 7, 1)
         assert json.loads(f.attrs["channels"]) == list(CH)
@@ -222,8 +222,7 @@ def test_decode_one_value_with_h5py_only(files: tuple[Path, Path, CodedBTF], mod
         counts = g["counts"][()].astype(np.int64)
         start = int(counts[:point].sum())
         stop = start + int(counts[point])
-        b = g["locations"][start:stop].astype(np.int64)
-        lin = b[:, 0] + 256 * b[:, 1] + 65536 * b[:, 2]
+        lin = np.cumsum(g["location_gaps"][start:stop].astype(np.int64))  # schema 3
         l1, l2, l3, l4 = np.unravel_index(lin, sizes, order="F")
         v = g["values"][start:stop].astype(np.float64)
         k = int(g["membership"][point])

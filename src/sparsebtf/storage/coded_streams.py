@@ -1,0 +1,174 @@
+"""Schema-3 coefficient streams: sorted locations as gaps, values in the same order, HDF5's
+built-in lossless filters (layout and inverse in ``docs/format.md`` §3).
+
+Per channel and data point the coefficients are stored in increasing column-major linear
+location ``l = l1 + m1·l2 + m1·m2·l3 + …`` (MATLAB's ``sub2ind``, the release's index) instead
+of decreasing magnitude::
+
+    location_gaps (NNZ,) <u4   first coefficient of a point: l; each next one: l − previous l
+                                (> 0: locations are unique within a point)
+    values        (NNZ,) <f2   the values in that order (<f4 when one overflows binary16)
+    rank          (NNZ,) <u2|<u4   optional: each coefficient's position in its point's
+                                magnitude order, written only when that order is not the rule
+                                below (codes from before the rule, e.g. an old file converted)
+
+Sorted locations are mostly small gaps, so ``shuffle`` + ``deflate`` packs them to ~5 bits
+instead of Table 4's 24; the values stay exact. The reader restores each point's magnitude
+order — the order level of detail truncates — by the **magnitude rule**: decreasing
+``|stored value|``, ties by increasing ``l``. :func:`canonical_codes` puts codes in that order
+(the encoders do, so their files need no ``rank``), hence a schema-3 file decodes to the very
+arrays, in the very order, of a schema-2 file of the same codes.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import h5py
+import numpy as np
+
+from .._h5check import checked_dataset, read_array
+from .._hdf5 import create_dataset
+from ..errors import BTFInputError, FileFormatError
+from ..learning.coding import SparseCodes
+
+__all__ = [
+    "canonical_codes",
+    "linear_locations",
+    "magnitude_order",
+    "read_streams",
+    "stored_values",
+    "write_streams",
+]
+
+_FP16_MAX = float(np.finfo(np.float16).max)
+
+
+def stored_values(values: np.ndarray, where: str = "") -> np.ndarray:
+    """The values as a coded file stores them: binary16 (round to nearest even), or float32
+    for a channel with a finite value beyond ±65504 (with a warning naming ``where``)."""
+    vals = np.asarray(values)
+    if vals.size and float(np.max(np.abs(vals))) > _FP16_MAX:
+        warnings.warn(
+            f"{where}: values up to {float(np.max(np.abs(vals))):.4g} overflow binary16; "
+            "storing this channel's values in float32",
+            stacklevel=3,
+        )
+        return vals.astype("<f4")
+    return vals.astype("<f2")
+
+
+def linear_locations(locations: np.ndarray, mode_sizes: tuple[int, ...]) -> np.ndarray:
+    """(NNZ, N) multi-indices → (NNZ,) int64 column-major linear indices ``l``."""
+    strides = np.cumprod((1, *mode_sizes[:-1]), dtype=np.int64)
+    return np.asarray(locations, dtype=np.int64) @ strides
+
+
+def _point_ids(counts: np.ndarray) -> np.ndarray:
+    return np.repeat(np.arange(counts.size, dtype=np.int64), np.asarray(counts, dtype=np.int64))
+
+
+def magnitude_order(counts: np.ndarray, values: np.ndarray, linear: np.ndarray) -> np.ndarray:
+    """The permutation that puts every point's coefficients in magnitude-rule order:
+    point by point, decreasing ``|values|``, ties by increasing ``linear``. (NNZ,) int64."""
+    mag = np.abs(np.asarray(values, dtype=np.float64))
+    return np.lexsort((linear, -mag, _point_ids(counts)))
+
+
+def canonical_codes(codes: SparseCodes) -> SparseCodes:
+    """``codes`` with each point's coefficients in magnitude-rule order on their stored
+    (binary16) values: only ties among equal stored magnitudes move, so any τ prefix keeps
+    its error up to rounding. Returns ``codes`` itself when already in that order."""
+    if codes.nnz == 0:
+        return codes
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        vs = stored_values(codes.values)
+    lin = linear_locations(codes.locations, tuple(int(m) for m in codes.mode_sizes))
+    order = magnitude_order(codes.counts, vs, lin)
+    if np.array_equal(order, np.arange(order.size)):
+        return codes
+    return SparseCodes(
+        codes.mode_sizes, codes.membership, codes.counts, codes.values[order],
+        codes.locations[order], codes.errors,
+    )  # fmt: skip
+
+
+def write_streams(g: h5py.Group, c: SparseCodes, where: str) -> None:
+    """Write ``location_gaps``, ``values`` (and ``rank`` if needed) of ``c`` into ``g``."""
+    sizes = tuple(int(m) for m in c.mode_sizes)
+    vals = stored_values(c.values, where)
+    lin = linear_locations(c.locations, sizes)
+    pid = _point_ids(c.counts)
+    by_loc = np.lexsort((lin, pid))
+    lin_s = lin[by_loc]
+    starts = np.asarray(c.offsets[:-1], dtype=np.int64)[np.asarray(c.counts) > 0]
+    gaps = np.diff(lin_s, prepend=0)
+    gaps[starts] = lin_s[starts]
+    first = np.zeros(lin_s.size, dtype=bool)
+    first[starts] = True
+    if np.any((gaps <= 0) & ~first):
+        i = int(pid[by_loc][np.argmax((gaps <= 0) & ~first)])
+        raise BTFInputError(f"{where}: point {i} repeats a location; locations must be unique")
+    vals_s = vals[by_loc]
+    create_dataset(g, "location_gaps", data=gaps.astype("<u4"), compress=True)
+    create_dataset(g, "values", data=vals_s, compress=True)
+    # Stored order → the given magnitude order: the rule reproduces it, or a rank is kept.
+    rule = magnitude_order(c.counts, vals_s, lin_s)
+    inverse = np.empty_like(by_loc)
+    inverse[by_loc] = np.arange(by_loc.size)
+    wanted = inverse  # position in sorted storage of the k-th coefficient in given order
+    if not np.array_equal(rule, wanted):
+        rank = np.empty(by_loc.size, dtype=np.int64)
+        rank[wanted] = np.arange(by_loc.size) - np.repeat(c.offsets[:-1], c.counts)
+        big = c.n_points and int(np.max(c.counts)) > 65535
+        create_dataset(g, "rank", data=rank.astype("<u4" if big else "<u2"), compress=True)
+
+
+def read_streams(
+    g: h5py.Group, where: str, sizes: tuple[int, ...], counts: np.ndarray, total: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Read a schema-3 channel's streams; returns (values float32 (NNZ,), locations int32
+    (NNZ, N)) in each point's magnitude order. Errors name the dataset."""
+    for name in ("location_gaps", "values"):
+        ds = checked_dataset(g, name, where, kinds="u" if name[0] == "l" else "f", shape=(None,))
+        if ds.shape[0] != total:
+            raise FileFormatError(
+                f"{where}: counts sum to {total} coefficients but '{name}' holds {ds.shape[0]}"
+            )
+    gaps = read_array(g, "location_gaps", where, kinds="u").astype(np.int64)
+    values = read_array(g, "values", where, kinds="f", finite=True)
+    offsets = np.concatenate(([0], np.cumsum(counts, dtype=np.int64)))
+    starts = offsets[:-1][counts > 0]
+    first = np.zeros(total, dtype=bool)
+    first[starts] = True
+    if np.any((gaps == 0) & ~first):
+        i = int(np.argmax((gaps == 0) & ~first))
+        raise FileFormatError(
+            f"{where}/location_gaps: entry {i} is 0 (a repeated location in its point); "
+            "expected > 0 after a point's first entry"
+        )
+    run = np.cumsum(gaps)
+    lin = run - np.repeat(run[starts] - gaps[starts], counts[counts > 0])
+    limit = int(np.prod(sizes, dtype=np.int64))
+    if lin.size and int(lin.max()) >= limit:
+        i = int(np.argmax(lin >= limit))
+        raise FileFormatError(
+            f"{where}/location_gaps: entry {i} reaches location {int(lin[i])}, outside the "
+            f"{limit} entries of a data point"
+        )
+    if "rank" in g:
+        rank = read_array(g, "rank", where, kinds="u", shape=(total,)).astype(np.int64)
+        pos = offsets[:-1].repeat(counts) + rank
+        if rank.size and (np.any(rank >= np.repeat(counts, counts)) or
+                          np.unique(pos).size != pos.size):  # fmt: skip
+            raise FileFormatError(
+                f"{where}/rank: not a permutation of each point's coefficients"
+            )
+        order = np.empty(total, dtype=np.int64)
+        order[pos] = np.arange(total)
+    else:
+        order = magnitude_order(counts, values, lin)
+    lin = lin[order]
+    locs = np.stack(np.unravel_index(lin, sizes, order="F"), axis=1).astype(np.int32)
+    return values[order].astype(np.float32), locs
