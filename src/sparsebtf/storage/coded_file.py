@@ -30,6 +30,7 @@ finiteness) before using it.
 
 from __future__ import annotations
 
+import io
 import json
 import os
 from pathlib import Path
@@ -48,7 +49,7 @@ from .._h5check import (
     read_str_attr,
     require,
 )
-from .._hdf5 import CompressedGroup, create, create_dataset, write_str_attr
+from .._hdf5 import LIBVER, CompressedGroup, create, create_dataset, write_str_attr
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes
@@ -62,6 +63,7 @@ __all__ = [
     "CODED_FORMAT",
     "CODED_SCHEMA_VERSION",
     "WRITABLE_SCHEMAS",
+    "coded_image",
     "load_coded",
     "pack_locations",
     "save_coded",
@@ -190,16 +192,39 @@ def save_coded(
     one) is recorded as ``params["model_file"]`` unless one is set already, so the coded file
     finds its model. Returns the path written.
     """
-    if schema not in WRITABLE_SCHEMAS:
-        raise BTFInputError(f"coded files are written in schema {WRITABLE_SCHEMAS}, not {schema}")
+    _check_schema(schema)
     _check_coded(coded)
+    target = Path(path)
+    with atomic_output(target) as tmp, create(tmp) as f:
+        write_coded(f, coded, _file_params(coded), schema)
+    return target
+
+
+def coded_image(coded: CodedBTF, schema: int = CODED_SCHEMA_VERSION) -> bytes:
+    """The bytes :func:`save_coded` would write for ``coded``, made in memory (to measure the
+    stored size without touching the disk)."""
+    _check_schema(schema)
+    _check_coded(coded)
+    buf = io.BytesIO()
+    with h5py.File(buf, "w", libver=LIBVER) as f:
+        write_coded(f, coded, _file_params(coded), schema)
+    return buf.getvalue()
+
+
+def _check_schema(schema: int) -> None:
+    if schema not in WRITABLE_SCHEMAS:
+        raise BTFInputError(
+            f"coded files are written in schema {' or '.join(map(str, WRITABLE_SCHEMAS))}, "
+            f"not {schema}"
+        )
+
+
+def _file_params(coded: CodedBTF) -> dict:
+    """``coded.params`` with the attached model's file recorded (when it has one)."""
     params = dict(coded.params)
     if not params.get("model_file") and coded.model is not None and coded.model.file:
         params["model_file"] = coded.model.file
-    target = Path(path)
-    with atomic_output(target) as tmp, create(tmp) as f:
-        write_coded(f, coded, params, schema)
-    return target
+    return params
 
 
 def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> None:
