@@ -33,7 +33,9 @@ from ..errors import BTFInputError, ModelMismatchError
 from ..learning.cost import channel_storage, raw_bytes
 from ..model import CHANNELS, CodedBTF, Model
 
-__all__ = ["MIB", "STORED_PARTS", "paper_storage", "stored_bytes", "storage_report"]
+__all__ = [
+    "MIB", "STORED_PARTS", "paper_storage", "storage_report", "storage_summary", "stored_bytes",
+]  # fmt: skip
 
 #: Bytes per MiB (the paper reports sizes in MiB = 2^20 bytes).
 MIB = float(1 << 20)
@@ -117,8 +119,9 @@ def paper_storage(
 
     ``tau_per_channel`` is a mapping channel → τ or a sequence in the order Y, U, V. The
     returned dict has the Table 4 keys of :func:`storage_report` (``bytes_stats`` is our
-    float32 shared statistics, ``file_bytes`` is None; nothing is stored, so no stored keys). Example: ``paper_storage(400, 400, 151, 151,
-    10, (885, 64, 64), 8)["bytes_total"] == 10_312_096`` (9.83 MiB, ratio ≈ 2122.6).
+    float32 shared statistics, ``file_bytes`` is None; nothing is stored, so no stored keys).
+    Example: ``paper_storage(400, 400, 151, 151, 10, (885, 64, 64), 8)["bytes_total"] ==
+    10_312_096`` (9.83 MiB, ratio ≈ 2122.6).
     """
     if isinstance(tau_per_channel, Mapping):
         taus = {str(k): int(v) for k, v in tau_per_channel.items()}
@@ -197,8 +200,48 @@ def storage_report(
         per, coded.height, coded.width, len(coded.lights), len(coded.views), stats_bytes, parts,
     )
     out["file_bytes"] = Path(file_path).stat().st_size if file_path is not None else None
-    model_file = m.file if m is not None else None
-    out["bytes_model_file"] = (
-        Path(model_file).stat().st_size if model_file and Path(model_file).exists() else None
-    )
+    out["bytes_model_file"] = _model_file_bytes(m, coded.model_hash)
+    return out
+
+
+def _model_file_bytes(model: Model | None, content_hash: str) -> int | None:
+    """Size of the model's file (its own, or the bundled one of that hash); None if unknown."""
+    from .bundled import bundled_models, bundled_name
+
+    path = model.file if model is not None else None
+    name = bundled_name(content_hash)
+    if not path and name is not None:
+        path = str(bundled_models()[name].path)
+    return Path(path).stat().st_size if path and Path(path).exists() else None
+
+
+def storage_summary(report: dict[str, Any]) -> dict[str, Any]:
+    """The figures of a :func:`storage_report` that a person reads, grouped by accounting:
+    ``stored`` (what the file holds, part by part, summing to its size, and raw / that),
+    ``table4`` (the paper's bytes and ratios), ``shared`` (the model, not in any
+    per-material figure) and ``stored_codes_vs_table4``."""
+    out: dict[str, Any] = {"bytes_raw_fp16": report["bytes_raw"]}
+    if "bytes_stored" in report:
+        out["stored"] = {
+            "bytes_codes": report["bytes_stored_codes"],
+            "bytes_statistics": report["bytes_stored_stats"],
+            "bytes_directions": report["bytes_stored_directions"],
+            "bytes_header": report["bytes_stored_header"],
+            "bytes_file": report["bytes_stored"],
+            "ratio_per_material": report["compression_ratio_per_material"],
+        }
+    out["table4"] = {
+        "bytes_coefficients": report["bytes_coefficients"],
+        "bytes_membership_counts": report["bytes_membership_counts"],
+        "bytes_material": report["bytes_table4_material"],
+        "ratio_per_material": report["compression_ratio_table4_material"],
+        "bytes_with_dictionaries": report["bytes_total"],
+        "ratio_with_dictionaries": report["compression_ratio"],
+    }
+    out["shared"] = {
+        "bytes_dictionaries_table4": report["bytes_dictionaries"],
+        "bytes_model_file": report.get("bytes_model_file"),
+    }
+    if "stored_codes_vs_table4" in report:
+        out["stored_codes_vs_table4"] = report["stored_codes_vs_table4"]
     return out
