@@ -36,6 +36,7 @@ from ..points.preprocessing import (
     statistic_sums,
     warn_negatives,
 )
+from ..storage.coded_streams import binary16_statistics
 
 __all__ = ["EncodingPlan", "Header", "Source", "run_plan"]
 
@@ -248,7 +249,9 @@ def _statistics(
     ex: Executor, opened: list[Any], headers: list[Header], model: Model, mode: StdMode,
     progress: bool | None,
 ) -> list[Any]:  # fmt: skip
-    """Each BTF's standardisation in the model's preprocessing, from view-range tasks."""
+    """Each BTF's standardisation in the model's preprocessing, from view-range tasks;
+    log-YUV statistics rounded to binary16 (:func:`~sparsebtf.storage.coded_streams.
+    binary16_statistics`), the precision the coded file keeps."""
     if model.transform != "log_yuv":
         return [
             gather_statistics(h, mode, transform=model.transform)  # type: ignore[arg-type]
@@ -266,5 +269,6 @@ def _statistics(
     del tasks
     for b, parts in _by_owner(results, owner):
         warn_negatives(headers[b].name, parts)
-        out.append(combine_statistics(parts, mode))
+        # μ, σ as the coded file stores them (binary16), before any point is coded
+        out.append(binary16_statistics(combine_statistics(parts, mode)))
     return out

@@ -58,6 +58,7 @@ from ..model import CodedBTF, Model
 from ..points.preprocessing import EPS, STD_MODES, Standardization
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 from .coded_streams import read_streams, stored_values, write_streams
+from .model_file import exact_dtype
 
 __all__ = [
     "CODED_FORMAT",
@@ -250,8 +251,10 @@ def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> Non
         st = CompressedGroup(st.id)
     write_str_attr(st, "mode", coded.stats.mode)
     st.attrs["eps"] = float(coded.stats.eps)
-    create_dataset(st, "mean", data=np.asarray(coded.stats.mean, dtype="<f4"))
-    create_dataset(st, "std", data=np.asarray(coded.stats.std, dtype="<f4"))
+    for name in ("mean", "std"):
+        a = np.asarray(getattr(coded.stats, name), dtype="<f4")
+        # schema 3: binary16 when that holds every value exactly (the encoders' statistics)
+        create_dataset(st, name, data=a.astype(exact_dtype(a)) if schema >= 3 else a)
     write_directions(f.create_group("lights"), coded.lights)
     write_directions(f.create_group("views"), coded.views)
 

@@ -1,0 +1,231 @@
+"""Stored bytes of coded files (schema 3) against the paper's Table 4 and schema 2.
+
+The benchmark's unseen materials (``sparsebtf.evaluation.benchmark_set``: seven synthetic
+classes, seeds 12 and 13, 30×30 texels, UBO2014 directions) and one 100×100 material (the
+Table 5 carpet), coded on the bundled ``release`` model at the storage levels 16/32/64/128
+with the benchmark's fixed τ per level (eps = 0: every point keeps exactly τ coefficients).
+For every material and level:
+
+* Table 4's per-material bytes (5 B per coefficient, 2 B per point and channel) and the
+  schema-3 file's stored codes, statistics, directions and header (they add up to its size);
+* the per-material ratio raw / file bytes, and at 400×400 extrapolated (the codes' stored
+  bytes per data point × 1600 plus this file's statistics, directions and header);
+* on the 100×100 material, the time to read the file (schema 2 vs 3, best of 3) and to read
+  it and decode 16 data points (Eq. 4, all channels);
+* at level 128, what float16 statistics would cost: the linear-RGB MSE between the decoding
+  with the stored float32 statistics and with them rounded to float16, against the codes' own
+  MSE to the reference, and the bytes float16 statistics would save.
+
+    python benchmarks/bench_storage.py [--quick] [--json]
+
+``--quick``: the seven seed-12 materials at 20×20 and a 40×40 one (about a minute).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+from tempfile import TemporaryDirectory
+from typing import Any
+
+import numpy as np
+
+from _common import best_of, machine
+from sparsebtf.codec import encode_levels
+from sparsebtf.data.synth import cached
+from sparsebtf.evaluation.benchmark_set import BenchConfig, level_tau
+from sparsebtf.learning.coding import reconstruct_points
+from sparsebtf.metrics import compare
+from sparsebtf.runtime import coded_btf_view
+from sparsebtf.storage import load_coded, save_coded, storage_report
+from sparsebtf.storage.bundled import load_bundled
+
+LEVELS = (16, 32, 64, 128)
+UBO_POINTS = 1600  # 400×400 texels in 10×10 patches
+
+
+def materials(quick: bool) -> tuple[list[tuple[str, int, int]], tuple[str, int, int]]:
+    """(class, seed, size) of the unseen materials and of the large one."""
+    cfg = BenchConfig()
+    if quick:
+        return [(c, 12, 20) for c in cfg.classes], ("carpet", 12, 40)
+    large = (*cfg.table5_materials[0], cfg.table5_size)
+    return [(c, s, cfg.test_size) for c, s in cfg.test_set()], large  # type: ignore[return-value]
+
+
+def level_taus(levels: tuple[int, ...], tau_l: tuple[int, ...]) -> dict[int, tuple[int, int, int]]:
+    """τ of each level as the benchmark codes it: the per-material ratio of SparseBTF(L),
+    chroma at least the model's τ_l."""
+    ratios = BenchConfig(levels=levels).ratios()
+    point_raw = 10 * 10 * 151 * 151 * 3 * 2
+    return {lv: level_tau(point_raw / ratios[lv], minimum=tau_l) for lv in levels}
+
+
+def _row(name: str, lv: int, tau: tuple, coded: Any, model: Any, path: Path) -> dict[str, Any]:
+    rep = storage_report(coded, model, path)
+    p = coded.n_points
+    fixed = rep["bytes_stored_stats"] + rep["bytes_stored_directions"] + rep["bytes_stored_header"]
+    raw400 = 400 * 400 * 151 * 151 * 3 * 2
+    codes400 = rep["bytes_stored_codes"] / p * UBO_POINTS
+    t4_400 = rep["bytes_table4_material"] / p * UBO_POINTS
+    return {
+        "material": name, "level": lv, "tau": list(tau), "n_points": p,
+        "table4_material_bytes": rep["bytes_table4_material"],
+        "stored_codes_bytes": rep["bytes_stored_codes"],
+        "stored_codes_vs_table4": rep["stored_codes_vs_table4"],
+        "stored_stats_bytes": rep["bytes_stored_stats"],
+        "stored_directions_bytes": rep["bytes_stored_directions"],
+        "stored_header_bytes": rep["bytes_stored_header"],
+        "stored_bytes": rep["bytes_stored"],
+        "ratio_stored": rep["compression_ratio_per_material"],
+        "ratio_table4": rep["compression_ratio_table4_material"],
+        "ratio_stored_400": raw400 / (codes400 + fixed),
+        "ratio_table4_400": raw400 / t4_400,
+    }  # fmt: skip
+
+
+def _read_decode(p2: Path, p3: Path, model: Any, points: np.ndarray) -> dict[str, float]:
+    """Best-of-3 read time of each schema, and read + decode of ``points`` (Eq. 4)."""
+
+    def read(path: Path) -> Any:
+        return load_coded(path, model)
+
+    def decode(coded: Any) -> None:
+        for ch in coded.channels:
+            reconstruct_points(coded.codes[ch], model.dictionaries[ch], points, np.float32)
+
+    r2, r3 = best_of(lambda: read(p2)), best_of(lambda: read(p3))
+    c2, c3 = read(p2), read(p3)
+    d2, d3 = best_of(lambda: decode(c2), 1), best_of(lambda: decode(c3), 1)
+    return {"read_v2_s": r2, "read_v3_s": r3, "decode_s": min(d2, d3),
+            "read_ratio": r3 / r2, "read_decode_ratio": (r3 + d3) / (r2 + d2)}  # fmt: skip
+
+
+def _fp16_stats(btf: Any, coded: Any) -> dict[str, float]:
+    """Linear-RGB MSE of float16 statistics (against the float32 decoding) vs the codes' own."""
+    rounded = replace(
+        coded.stats,
+        mean=coded.stats.mean.astype(np.float16).astype(np.float64),
+        std=coded.stats.std.astype(np.float16).astype(np.float64),
+    )
+    coded16 = replace(coded, stats=rounded).attach(coded.require_model())
+    v32, v16 = coded_btf_view(coded), coded_btf_view(coded16)
+    codes = compare(btf, v32, ssim_images=0, progress=False)["mse_rgb"]
+    moved = compare(v32, v16, ssim_images=0, progress=False)["mse_rgb"]
+    worse = compare(btf, v16, ssim_images=0, progress=False)["mse_rgb"] - codes
+    return {"mse_codes": codes, "mse_fp16_vs_fp32": moved, "mse_increase": worse}
+
+
+def run(quick: bool, levels: tuple[int, ...] = LEVELS) -> dict[str, Any]:
+    model = load_bundled()
+    taus = level_taus(levels, tuple(model.params["tau_train"][ch] for ch in model.channels))
+    unseen, large = materials(quick)
+    rows, timing, fp16 = [], [], []
+    t0 = time.perf_counter()
+    with TemporaryDirectory() as tmp:
+        d = Path(tmp)
+        for cls, seed, size in [*unseen, large]:
+            btf = cached(cls, size=size, seed=seed)
+            coded_levels = encode_levels(btf, model, [taus[lv] for lv in levels], eps=0.0,
+                                         progress=False)  # fmt: skip
+            for lv, coded in zip(levels, coded_levels, strict=True):
+                p3 = save_coded(coded, d / f"{btf.name}_{lv}.h5")
+                rows.append(_row(btf.name, lv, taus[lv], coded, model, p3))
+                if (cls, seed, size) == large:
+                    p2 = save_coded(coded, d / f"{btf.name}_{lv}_v2.h5", schema=2)
+                    pts = np.linspace(0, coded.n_points - 1, 16).astype(np.int64)
+                    timing.append({"material": btf.name, "level": lv,
+                                   **_read_decode(p2, p3, model, pts)})  # fmt: skip
+                elif lv == max(levels):
+                    fp16.append({"material": btf.name, "level": lv,
+                                 **_fp16_stats(btf, load_coded(p3, model))})  # fmt: skip
+    stats_f32 = float(np.mean([r["stored_stats_bytes"] for r in rows]))
+    return {
+        "benchmark": "bench_storage", "quick": quick, "machine": machine(),
+        "model": "release (bundled)", "levels": list(levels),
+        "taus": {str(k): list(v) for k, v in taus.items()},
+        "rows": rows, "timing": timing, "fp16_stats": fp16,
+        "fp16_stats_summary": _fp16_summary(fp16, stats_f32),
+        "seconds": time.perf_counter() - t0,
+    }  # fmt: skip
+
+
+def _fp16_summary(fp16: list[dict[str, float]], stats_bytes: float) -> dict[str, float]:
+    if not fp16:
+        return {}
+    moved = float(np.mean([r["mse_fp16_vs_fp32"] for r in fp16]))
+    codes = float(np.mean([r["mse_codes"] for r in fp16]))
+    return {"mse_fp16_vs_fp32": moved, "mse_codes": codes, "share_of_codes_error": moved / codes,
+            "stored_stats_bytes_fp32": stats_bytes}  # fmt: skip
+
+
+def summary(result: dict[str, Any]) -> list[dict[str, Any]]:
+    """Per level: means over the materials (ratios: of the whole set; stored/T4: geo. mean)."""
+    out = []
+    for lv in result["levels"]:
+        rs = [r for r in result["rows"] if r["level"] == lv]
+        out.append({
+            "level": lv, "tau": "/".join(map(str, rs[0]["tau"])), "n": len(rs),
+            "codes_vs_table4": float(np.exp(np.mean([np.log(r["stored_codes_vs_table4"])
+                                                     for r in rs]))),
+            "codes_vs_table4_max": max(r["stored_codes_vs_table4"] for r in rs),
+            "table4_bytes": float(np.mean([r["table4_material_bytes"] for r in rs])),
+            "stored_codes": float(np.mean([r["stored_codes_bytes"] for r in rs])),
+            "stored_total": float(np.mean([r["stored_bytes"] for r in rs])),
+            "ratio_table4_400": float(np.mean([r["ratio_table4_400"] for r in rs])),
+            "ratio_stored_400": float(np.mean([r["ratio_stored_400"] for r in rs])),
+        })  # fmt: skip
+    return out
+
+
+def table(result: dict[str, Any]) -> str:
+    lines = [
+        f"{'level':>5} {'tau Y/U/V':>14} {'n':>3} {'codes/T4':>9} {'max':>6} "
+        f"{'T4 bytes':>10} {'stored codes':>13} {'stored total':>13} {'ratio T4@400':>13} "
+        f"{'stored@400':>11}"
+    ]
+    for s in summary(result):
+        lines.append(
+            f"{s['level']:>5} {s['tau']:>14} {s['n']:>3} {s['codes_vs_table4']:>9.3f} "
+            f"{s['codes_vs_table4_max']:>6.3f} {s['table4_bytes']:>10,.0f} "
+            f"{s['stored_codes']:>13,.0f} {s['stored_total']:>13,.0f} "
+            f"{s['ratio_table4_400']:>13.0f} {s['ratio_stored_400']:>11.0f}"
+        )
+    lines.append("")
+    lines.append(f"{'material':<34} {'level':>5} {'read v2 s':>10} {'read v3 s':>10} "
+                 f"{'decode s':>9} {'read':>6} {'read+decode':>12}")  # fmt: skip
+    for t in result["timing"]:
+        lines.append(f"{t['material']:<34} {t['level']:>5} {t['read_v2_s']:>10.4f} "
+                     f"{t['read_v3_s']:>10.4f} {t['decode_s']:>9.3f} {t['read_ratio']:>5.2f}x "
+                     f"{t['read_decode_ratio']:>11.3f}x")  # fmt: skip
+    f = result["fp16_stats_summary"]
+    if f:
+        lines.append("")
+        lines.append(
+            f"float16 statistics at level {max(result['levels'])}: linear-RGB MSE against the "
+            f"float32 decoding {f['mse_fp16_vs_fp32']:.3g}, the codes' own MSE "
+            f"{f['mse_codes']:.3g}: {100 * f['share_of_codes_error']:.2f} % of it "
+            f"(mean over {len(result['fp16_stats'])} materials)"
+        )
+    lines.append(f"({result['seconds']:.0f} s)")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--quick", action="store_true", help="seven 20x20 materials and a 40x40 one")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    args = p.parse_args(argv)
+    result = run(args.quick)
+    if args.json:
+        print(json.dumps(result, indent=2, default=float))
+    else:
+        print(table(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
