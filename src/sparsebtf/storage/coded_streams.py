@@ -78,6 +78,30 @@ def magnitude_order(counts: np.ndarray, values: np.ndarray, linear: np.ndarray) 
     return np.lexsort((linear, -mag, _point_ids(counts)))
 
 
+def _rule_order_of_sorted(counts: np.ndarray, values: np.ndarray) -> np.ndarray:
+    """:func:`magnitude_order` of coefficients already sorted by increasing location within
+    each point (the stored order): a stable sort on one integer key, point then decreasing
+    magnitude (the IEEE bits of |v| order like |v|), keeps the location order of ties."""
+    v = np.abs(np.asarray(values))
+    pid = _point_ids(counts)
+    if v.dtype.itemsize == 2 and counts.size <= 1 << 16:
+        # two stable 16-bit sorts (NumPy radix-sorts them): magnitude, then point
+        by_mag = np.argsort(np.uint16(0xFFFF) - v.view(np.uint16), kind="stable")
+        return by_mag[np.argsort(pid[by_mag].astype(np.uint16), kind="stable")]
+    bits = v.view(np.uint16 if v.dtype.itemsize == 2 else np.uint32).astype(np.int64)
+    key = (pid << (8 * v.dtype.itemsize)) - bits
+    return np.argsort(key, kind="stable")
+
+
+def _unravel(lin: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
+    """(NNZ,) column-major linear indices → (NNZ, N) int32 multi-indices."""
+    out = np.empty((lin.size, len(sizes)), dtype=np.int32)
+    rest = lin.astype(np.int64)
+    for n, m in enumerate(sizes):
+        rest, out[:, n] = np.divmod(rest, m)
+    return out
+
+
 def canonical_codes(codes: SparseCodes) -> SparseCodes:
     """``codes`` with each point's coefficients in magnitude-rule order on their stored
     (binary16) values: only ties among equal stored magnitudes move, so any τ prefix keeps
@@ -117,7 +141,7 @@ def write_streams(g: h5py.Group, c: SparseCodes, where: str) -> None:
     create_dataset(g, "location_gaps", data=gaps.astype("<u4"), compress=True)
     create_dataset(g, "values", data=vals_s, compress=True)
     # Stored order → the given magnitude order: the rule reproduces it, or a rank is kept.
-    rule = magnitude_order(c.counts, vals_s, lin_s)
+    rule = _rule_order_of_sorted(c.counts, vals_s)
     inverse = np.empty_like(by_loc)
     inverse[by_loc] = np.arange(by_loc.size)
     wanted = inverse  # position in sorted storage of the k-th coefficient in given order
@@ -171,10 +195,8 @@ def read_streams(
         order = np.empty(total, dtype=np.int64)
         order[pos] = np.arange(total)
     else:
-        order = magnitude_order(counts, values, lin)
-    lin = lin[order]
-    locs = np.stack(np.unravel_index(lin, sizes, order="F"), axis=1).astype(np.int32)
-    return values[order].astype(np.float32), locs
+        order = _rule_order_of_sorted(counts, values)
+    return values[order].astype(np.float32), _unravel(lin[order], sizes)
 
 
 def binary16_statistics(stats: Standardization) -> Standardization:
