@@ -191,7 +191,9 @@ def storage_report(
         entry["dictionary_source"] = source
         per[ch] = entry
     parts = None
-    if stored:
+    # A coded BTF the file format cannot hold (an evaluation baseline's identity
+    # preprocessing) has no stored size: its report has no stored keys.
+    if stored and (file_path is not None or coded.stats.transform == "log_yuv"):
         from .coded_file import coded_image
 
         parts = stored_bytes(file_path if file_path is not None else coded_image(coded))
