@@ -39,6 +39,7 @@ from _common import best_of, machine
 from sparsebtf.codec import encode_levels
 from sparsebtf.data.synth import cached
 from sparsebtf.evaluation.benchmark_set import BenchConfig, level_tau
+from sparsebtf.evaluation.report import table_stored
 from sparsebtf.learning.coding import reconstruct_points
 from sparsebtf.metrics import compare
 from sparsebtf.runtime import coded_btf_view
@@ -181,38 +182,8 @@ def _fp16_summary(fp16: list[dict[str, float]], stats_bytes: float) -> dict[str,
             "stored_stats_bytes_fp16": stats_bytes}  # fmt: skip
 
 
-def summary(result: dict[str, Any]) -> list[dict[str, Any]]:
-    """Per level: means over the materials (ratios: of the whole set; stored/T4: geo. mean)."""
-    out = []
-    for lv in result["levels"]:
-        rs = [r for r in result["rows"] if r["level"] == lv]
-        out.append({
-            "level": lv, "tau": "/".join(map(str, rs[0]["tau"])), "n": len(rs),
-            "codes_vs_table4": float(np.exp(np.mean([np.log(r["stored_codes_vs_table4"])
-                                                     for r in rs]))),
-            "codes_vs_table4_max": max(r["stored_codes_vs_table4"] for r in rs),
-            "table4_bytes": float(np.mean([r["table4_material_bytes"] for r in rs])),
-            "stored_codes": float(np.mean([r["stored_codes_bytes"] for r in rs])),
-            "stored_total": float(np.mean([r["stored_bytes"] for r in rs])),
-            "ratio_table4_400": float(np.mean([r["ratio_table4_400"] for r in rs])),
-            "ratio_stored_400": float(np.mean([r["ratio_stored_400"] for r in rs])),
-        })  # fmt: skip
-    return out
-
-
 def table(result: dict[str, Any]) -> str:
-    lines = [
-        f"{'level':>5} {'tau Y/U/V':>14} {'n':>3} {'codes/T4':>9} {'max':>6} "
-        f"{'T4 bytes':>10} {'stored codes':>13} {'stored total':>13} {'ratio T4@400':>13} "
-        f"{'stored@400':>11}"
-    ]
-    for s in summary(result):
-        lines.append(
-            f"{s['level']:>5} {s['tau']:>14} {s['n']:>3} {s['codes_vs_table4']:>9.3f} "
-            f"{s['codes_vs_table4_max']:>6.3f} {s['table4_bytes']:>10,.0f} "
-            f"{s['stored_codes']:>13,.0f} {s['stored_total']:>13,.0f} "
-            f"{s['ratio_table4_400']:>13.0f} {s['ratio_stored_400']:>11.0f}"
-        )
+    lines = [table_stored(result)]
     lines.append("")
     lines.append(f"{'material':<34} {'level':>5} {'read v2 s':>10} {'read v3 s':>10} "
                  f"{'decode s':>9} {'read':>6} {'read+decode':>12}")  # fmt: skip

@@ -31,6 +31,7 @@ import select
 import signal
 import stat
 import time
+import zlib
 from collections import OrderedDict
 from collections.abc import Iterator
 from pathlib import Path
@@ -52,6 +53,7 @@ __all__ = [
     "create_file",
     "open_h5",
     "read_error",
+    "shrinks",
     "write_str_attr",
 ]
 
@@ -198,16 +200,19 @@ def create_dataset(
     Unless ``chunks`` is given, chunks are whole rows, at most 1 MiB and of equal size (h5py's
     guess splits (n, 3) location tables into column chunks; HDF5 stores edge chunks whole).
     ``compress`` adds HDF5's built-in ``shuffle`` and ``deflate`` (gzip level
-    :data:`DEFLATE_LEVEL`) filters, lossless and readable by any HDF5 reader without plugins;
-    so does a :class:`CompressedGroup` for every dataset created in it. Empty and scalar
+    :data:`DEFLATE_LEVEL`) filters, lossless and readable by any HDF5 reader without plugins,
+    unless they would not shrink the data (:func:`shrinks`: a few bytes); so does a
+    :class:`CompressedGroup` for every dataset created in it. Empty and scalar
     datasets hold no data to protect and are written plainly.
     """
     shape = tuple(kwargs.get("shape", None if data is None else np.shape(data)) or ())
     if shape and int(np.prod(shape, dtype=np.int64)) > 0:
-        if compress or isinstance(group, CompressedGroup):
+        if (compress or isinstance(group, CompressedGroup)) and shrinks(data):
             kwargs.setdefault("shuffle", True)
             kwargs.setdefault("compression", "gzip")
             kwargs.setdefault("compression_opts", DEFLATE_LEVEL)
+        elif isinstance(group, CompressedGroup):
+            kwargs["compression"] = None  # tells the group this one was decided here
         if kwargs.get("chunks") in (None, True):
             itemsize = np.dtype(kwargs.get("dtype") or np.asarray(data).dtype).itemsize
             row = itemsize * int(np.prod(shape[1:], dtype=np.int64))
@@ -230,13 +235,28 @@ class CompressedGroup(h5py.Group):
     def create_dataset(self, name: Any, shape: Any = None, dtype: Any = None, data: Any = None,
                        **kwds: Any) -> h5py.Dataset:  # fmt: skip
         shp = shape if shape is not None else (None if data is None else np.shape(data))
-        if shp and int(np.prod(shp, dtype=np.int64)) > 0 and "compression" not in kwds:
-            kwds.setdefault("shuffle", True)
-            kwds["compression"] = "gzip"
-            kwds["compression_opts"] = DEFLATE_LEVEL
+        if shp and int(np.prod(shp, dtype=np.int64)) > 0:
+            if "compression" not in kwds and shrinks(data):
+                kwds.setdefault("shuffle", True)
+                kwds["compression"] = "gzip"
+                kwds["compression_opts"] = DEFLATE_LEVEL
             kwds.setdefault("fletcher32", True)
             kwds.setdefault("chunks", True)
         return super().create_dataset(name, shape=shape, dtype=dtype, data=data, **kwds)
+
+
+def shrinks(data: Any) -> bool:
+    """Whether ``shuffle`` + ``deflate`` make ``data`` smaller in the file: always for data of
+    64 KiB or more (or not given yet); below, the zlib stream of its byte planes (what the
+    two filters store) must be shorter than the raw bytes — a dataset of a few bytes would
+    grow."""
+    if data is None:
+        return True
+    a = np.ascontiguousarray(data)
+    if a.nbytes >= 1 << 16 or a.dtype.kind not in "fiub":
+        return True
+    planes = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T.tobytes()
+    return len(zlib.compress(planes, DEFLATE_LEVEL)) < a.nbytes
 
 
 def write_str_attr(obj: h5py.HLObject, key: str, text: str) -> None:
