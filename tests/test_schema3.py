@@ -245,3 +245,37 @@ def test_a_statistic_added_later_is_compressed_too(tmp_path):
         assert f["stats/offset"][()].sum() == sum(range(300))
         assert f["stats/tiny"].compression is None and f["stats/tiny"][0] == 3.5
         assert f["stats/tiny"].fletcher32
+
+
+def test_info_and_eval_totals_reconcile_with_the_file(levels, model, tmp_path, capsys):
+    import json
+
+    from sparsebtf.data.dense_file import write_dense
+
+    mpath = save_model_file(model, tmp_path)
+    coded = levels[1]
+    coded.params["model_file"] = str(mpath)
+    path = save_coded(coded, tmp_path / "c.h5")
+    assert main(["info", str(path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    st = info["storage"]["stored"]
+    size = path.stat().st_size
+    parts = ("bytes_codes", "bytes_statistics", "bytes_directions", "bytes_header")
+    assert sum(st[k] for k in parts) == st["bytes_file"] == size
+    assert st["ratio_per_material"] == pytest.approx(2 * smooth_btf(5).n_values / size)
+    assert info["storage"]["shared"]["bytes_model_file"] == mpath.stat().st_size
+    assert info["schema_version"] == 3
+    ref = write_dense(tmp_path / "ref.h5", smooth_btf(5), progress=False)
+    assert main(["eval", str(path), "--reference", str(ref), "--json", "--ssim-images",
+                 "1"]) == 0  # fmt: skip
+    ev = json.loads(capsys.readouterr().out)
+    assert ev["bytes_stored"] == ev["file_bytes"] == size
+    assert ev["compression_ratio_per_material"] == ev["bytes_raw"] / size
+    assert main(["info", str(path)]) == 0
+    assert "storage.stored.bytes_file" in capsys.readouterr().out
+
+
+def save_model_file(model, folder: Path) -> Path:
+    from sparsebtf.storage import save_model
+
+    return save_model(model, folder / "model.h5")
