@@ -35,7 +35,7 @@ from unittest import mock
 
 import numpy as np
 
-from _common import best_of, machine
+from _common import machine
 from sparsebtf.codec import encode_levels
 from sparsebtf.data.synth import cached
 from sparsebtf.evaluation.benchmark_set import BenchConfig, level_tau
