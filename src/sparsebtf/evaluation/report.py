@@ -356,9 +356,11 @@ def _stored_section(result: dict[str, Any]) -> list[str]:
     return [
         "", "## Stored bytes vs Table 4", "",
         f"From `python benchmarks/bench_storage.py{quick} --json` (stored as `{STORAGE_JSON}` "
-        "beside `results.json`), not from this quality run: the same unseen materials and "
-        "levels, coded on the bundled `release` model with the levels' fixed tau, in coded-file "
-        "schema 3 (sorted locations as gaps, shuffle + deflate; docs/format.md §3). Per level: "
+        "beside `results.json`), not from this quality run: the benchmark's unseen materials "
+        "and its 100x100 Table-5 carpet at the same levels, coded with the levels' fixed tau on "
+        "the bundled `release` model (this run codes on models it trains; the bytes depend on "
+        "the codes' statistics, not on which model), written in coded-file schema 3 (sorted "
+        "locations as gaps, shuffle + deflate; docs/format.md §3). Per level: "
         "Table 4's per-material bytes (5 B per coefficient + 2 B per point and channel), the "
         "stored codes and their share of Table 4's, the whole file (codes, statistics, "
         "directions, header: everything a material stores), and the per-material ratio at "
