@@ -211,7 +211,17 @@ def test_damaged_gaps_are_one_clear_error(levels, tmp_path):
     with h5py.File(path, "a") as f:
         gaps[1] = 2**31
         f["codes/Y/location_gaps"][...] = gaps
-    with pytest.raises(FileFormatError, match=r"location_gaps: entry 1 reaches location"):
+    with pytest.raises(FileFormatError, match=r"location_gaps: entry 1 is 2147483648, beyond"):
+        load_coded(path)
+    gaps[:16] = 400  # each gap in range (< 2704 entries), their sum beyond them
+    with h5py.File(path, "a") as f:
+        f["codes/Y/location_gaps"][...] = gaps
+    with pytest.raises(FileFormatError, match=r"location_gaps: entry \d+ reaches location"):
+        load_coded(path)
+    with h5py.File(path, "a") as f:  # 64-bit gaps beyond int64: refused, never wrapped
+        del f["codes/Y/location_gaps"]
+        f.create_dataset("codes/Y/location_gaps", data=np.full(gaps.size, 2**63 + 5, "<u8"))
+    with pytest.raises(FileFormatError, match=r"location_gaps: entry 0 is 9223372036854775813"):
         load_coded(path)
 
 

@@ -163,7 +163,15 @@ def read_streams(
             raise FileFormatError(
                 f"{where}: counts sum to {total} coefficients but '{name}' holds {ds.shape[0]}"
             )
-    gaps = read_array(g, "location_gaps", where, kinds="u").astype(np.int64)
+    raw_gaps = read_array(g, "location_gaps", where, kinds="u")
+    limit = int(np.prod(sizes, dtype=np.int64))
+    if raw_gaps.size and int(raw_gaps.max()) >= limit:  # before int64 sums could overflow
+        i = int(np.argmax(raw_gaps >= limit))
+        raise FileFormatError(
+            f"{where}/location_gaps: entry {i} is {int(raw_gaps[i])}, beyond the {limit} "
+            "entries of a data point"
+        )
+    gaps = raw_gaps.astype(np.int64)
     values = read_array(g, "values", where, kinds="f", finite=True)
     offsets = np.concatenate(([0], np.cumsum(counts, dtype=np.int64)))
     starts = offsets[:-1][counts > 0]
@@ -177,7 +185,6 @@ def read_streams(
         )
     run = np.cumsum(gaps)
     lin = run - np.repeat(run[starts] - gaps[starts], counts[counts > 0])
-    limit = int(np.prod(sizes, dtype=np.int64))
     if lin.size and int(lin.max()) >= limit:
         i = int(np.argmax(lin >= limit))
         raise FileFormatError(
