@@ -111,8 +111,8 @@ def main() -> None:
     coded = synthetic_coded(size=args.size)
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
-        ours = save_coded(coded, d / "schema2.h5")
-        t_write = best_of(lambda: save_coded(coded, d / "w.h5"), 3)
+        ours = save_coded(coded, d / "schema2.h5", schema=2)
+        t_write = best_of(lambda: save_coded(coded, d / "w.h5", schema=2), 3)
         plain = _rewrite(ours, d / "nofletcher.h5", ("v110", "v110"), fletcher32=False)
         old = _legacy_copy(ours, d / "schema1.h5")
         with h5py.File(plain, "a") as f:  # read like a schema-1 file

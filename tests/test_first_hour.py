@@ -52,10 +52,14 @@ def test_readme_command_line_runs_top_to_bottom(tmp_path):
     lines = [ln for ln in block.splitlines() if ln.startswith("sparsebtf ")]
     assert len(lines) >= 15 and r.stderr.count("+ sparsebtf ") >= len(lines)
     for f in ("stone.png", "stone.coded.h5", "out", "model.h5", "stone.mine.h5",
-              "stone.2000.h5", "mix.h5", "strip/blend_strip.png", "corner.h5", "cmp.png",
+              "stone.r50.h5", "mix.h5", "strip/blend_strip.png", "corner.h5", "cmp.png",
               "viewer/index.html"):  # fmt: skip
         assert (tmp_path / f).exists(), f
-    assert "ratio 2000.0 per material" in r.stdout or "(asked 2000)" in r.stdout
+    assert "(asked 50)" in r.stdout
+    # the ratio asked for is raw / the file's size, as `ls -l` shows it (README "Ratios")
+    raw = 10 * 10 * 151 * 151 * 3 * 2  # SIZE=10
+    size = (tmp_path / "stone.r50.h5").stat().st_size
+    assert size <= raw / 50 and raw / size == pytest.approx(50, rel=0.01)
     # outputs are readable by the group, like any other tool's (umask 022 here)
     assert (tmp_path / "stone.coded.h5").stat().st_mode & 0o044 == 0o044
 
@@ -175,7 +179,7 @@ def test_demo_prints_the_trained_and_the_bundled_rows(tmp_path, capsys):
     out = capsys.readouterr().out
     assert [(r["model"], r["tau"]) for r in result["rows"]] == [
         ("trained", "256/32/32"), ("release", "885/64/64")]  # fmt: skip
-    assert "ratio/mat" in out and "ratio+dict" in out and " release " in out
+    assert "file bytes" in out and "T4+dict" in out and " release " in out
     release = result["rows"][1]
     assert release["compression_ratio_per_material"] > release["compression_ratio"]
     assert (tmp_path / "synth-felt-10x10-s7_release_tau885.h5").exists()

@@ -56,7 +56,7 @@ def test_encode_to_size_ratio_includes_dictionaries(model):
     dicts = sum(2 * model.dictionary_entries(ch) for ch in model.channels)
     total = dicts + 3000
     ratio = 2 * btf.n_values / total
-    coded = encode_to_size(btf, model, target_ratio=ratio)
+    coded = encode_to_size(btf, model, target_ratio=ratio, budget="paper")
     rep = storage_report(coded, model)
     assert rep["compression_ratio"] == pytest.approx(ratio, rel=0.01)
     assert rep["bytes_total"] <= total
@@ -154,16 +154,51 @@ def test_cli_encode_target_bytes(model, tmp_path, capsys):
     target = dicts + 2500
     out = tmp_path / "c.h5"
     rc = main(["encode", str(src), "-m", str(tmp_path / "model.h5"), "-o", str(out),
-               "--target-bytes", str(target), "--with-dictionaries"])
+               "--target-bytes", str(target), "--with-dictionaries", "--budget", "paper"])
     assert rc == 0
     rep = storage_report(load_coded(out, load_model(tmp_path / "model.h5")))
     assert abs(rep["bytes_total"] - target) <= 0.01 * target
-    # the default counts the material's own bytes, and says so beside the ratio asked for
+    # the paper's per-material ratio (Table 4 codes), said beside the ratio asked for
     rc = main(["encode", str(src), "-m", str(tmp_path / "model.h5"), "-o", str(out),
-               "--target-ratio", "60"])
+               "--target-ratio", "60", "--budget", "paper"])
     assert rc == 0 and "(asked 60)" in capsys.readouterr().out
     rep = storage_report(load_coded(out, load_model(tmp_path / "model.h5")))
-    assert abs(rep["compression_ratio_per_material"] - 60) <= 0.01 * 60
+    assert abs(rep["compression_ratio_table4_material"] - 60) <= 0.01 * 60
     with pytest.raises(SystemExit):
         main(["encode", str(src), "-m", "x", "-o", "y", "--tau", "8", "--target-ratio", "5"])
     capsys.readouterr()
+
+
+def _big_smooth(seed: int = 7):
+    """A material large enough that its codes outweigh the file's fixed part (statistics,
+    directions, header): 16x16 texels, 16 data points of 4x4."""
+    return smooth_btf(seed, size=16)
+
+
+@pytest.mark.parametrize("ratio", [6.0, 15.0])
+def test_cli_encode_hits_a_stored_target_within_one_percent(model, tmp_path, capsys, ratio):
+    """The default budget: raw / the coded file's bytes (``ls -l``) is the ratio asked for."""
+    src = write_dense(tmp_path / "m.h5", _big_smooth(), progress=False)
+    save_model(model, tmp_path / "model.h5")
+    out = tmp_path / "c.h5"
+    rc = main(["encode", str(src), "-m", str(tmp_path / "model.h5"), "-o", str(out),
+               "--target-ratio", str(ratio)])
+    assert rc == 0 and f"(asked {ratio:g})" in capsys.readouterr().out
+    raw = 2 * _big_smooth().n_values
+    got = raw / out.stat().st_size
+    assert abs(got - ratio) <= 0.01 * ratio
+    rep = storage_report(load_coded(out, load_model(tmp_path / "model.h5")), None, out)
+    assert rep["compression_ratio_per_material"] == pytest.approx(got, rel=1e-12)
+    # a size in bytes: the file's size within 1 % (never above)
+    want = out.stat().st_size * 6 // 5
+    assert main(["encode", str(src), "-m", str(tmp_path / "model.h5"), "-o", str(out),
+                 "--target-size", str(want)]) == 0
+    assert 0.99 * want <= out.stat().st_size <= want
+
+
+def test_stored_target_below_the_fixed_part_is_one_clear_line(model, tmp_path):
+    btf = _big_smooth()
+    with pytest.raises(BTFInputError, match="below the smallest coded file"):
+        encode_to_size(btf, model, target_bytes=1000, per_material=True, budget="stored")
+    with pytest.raises(BTFInputError, match="--budget paper"):
+        encode_to_size(btf, model, target_bytes=10**6, budget="stored")

@@ -169,8 +169,8 @@ def test_coded_round_trip(files: tuple[Path, Path, CodedBTF], model: Model) -> N
         assert g["membership"].dtype == np.uint8
         assert g["counts"].dtype == np.uint16
         assert g["values"].dtype == np.float16
-        assert g["locations"].dtype == np.uint8
-        assert g["locations"].shape == (coded.codes["Y"].nnz, 3)
+        assert g["location_gaps"].dtype == np.uint32
+        assert g["location_gaps"].shape == (coded.codes["Y"].nnz,)
         assert g["errors"].dtype == np.float32
         assert f["stats/mean"].dtype == np.float32 and f["stats/mean"].shape == (7, 7, 1)
         assert json.loads(f.attrs["channels"]) == list(CH)
@@ -222,8 +222,7 @@ def test_decode_one_value_with_h5py_only(files: tuple[Path, Path, CodedBTF], mod
         counts = g["counts"][()].astype(np.int64)
         start = int(counts[:point].sum())
         stop = start + int(counts[point])
-        b = g["locations"][start:stop].astype(np.int64)
-        lin = b[:, 0] + 256 * b[:, 1] + 65536 * b[:, 2]
+        lin = np.cumsum(g["location_gaps"][start:stop].astype(np.int64))  # schema 3
         l1, l2, l3, l4 = np.unravel_index(lin, sizes, order="F")
         v = g["values"][start:stop].astype(np.float64)
         k = int(g["membership"][point])
@@ -455,7 +454,6 @@ def test_paper_table4_figure() -> None:
     assert r["bytes_dictionaries"] == 3 * 732_832
     assert r["bytes_membership_counts"] == 3 * 3200
     assert r["nnz"] == {"Y": 1600 * 885, "U": 102_400, "V": 102_400}
-    assert r["bytes_stats_release"] == 364_816
     assert r["channels"]["U"]["bytes_total"] == 1_248_032  # the release's per-channel figure
     assert paper_storage(400, 400, 151, 151, 10, {"Y": 885, "U": 64, "V": 64}, 8) == r
 
@@ -473,8 +471,19 @@ def test_storage_report(files: tuple[Path, Path, CodedBTF], model: Model) -> Non
     assert r["bytes_total"] == r["bytes_coefficients"] + r["bytes_dictionaries"] + 36
     assert r["bytes_raw"] == 4 * 6 * 7 * 7 * 3 * 2
     assert r["compression_ratio"] == pytest.approx(r["bytes_raw"] / r["bytes_total"])
-    assert r["bytes_stats"] == 2 * 49 * 4 and r["bytes_stats_release"] == 2 * 49 * 8
+    assert r["bytes_stats"] == 2 * 49 * 4
     assert r["file_bytes"] == cpath.stat().st_size
+    # Stored bytes: the parts add up to the file's size; the per-material ratio is raw / file.
+    parts = ("codes", "stats", "directions", "header")
+    assert sum(r[f"bytes_stored_{p}"] for p in parts) == r["bytes_stored"] == r["file_bytes"]
+    assert min(r[f"bytes_stored_{p}"] for p in parts) > 0
+    assert r["compression_ratio_per_material"] == r["bytes_raw"] / cpath.stat().st_size
+    assert r["compression_ratio_table4_material"] == r["bytes_raw"] / (r["bytes_total"] - r[
+        "bytes_dictionaries"])
+    # Without a file, the file save_coded would write is measured in memory: the same bytes.
+    mem = storage_report(coded, model)
+    assert {k: mem[k] for k in mem if k.startswith("bytes_stored")} == {
+        k: r[k] for k in r if k.startswith("bytes_stored")}
     assert r["channels"]["Y"] == {
         **channel_storage(nnz["Y"], 6, K, sizes), "dictionary_source": "model"
     }

@@ -31,6 +31,7 @@ import select
 import signal
 import stat
 import time
+import zlib
 from collections import OrderedDict
 from collections.abc import Iterator
 from pathlib import Path
@@ -42,7 +43,9 @@ import numpy as np
 from .errors import FileFormatError, SparseBTFError
 
 __all__ = [
+    "DEFLATE_LEVEL",
     "LIBVER",
+    "CompressedGroup",
     "check_written",
     "close_file",
     "create",
@@ -50,10 +53,13 @@ __all__ = [
     "create_file",
     "open_h5",
     "read_error",
+    "shrinks",
     "write_str_attr",
 ]
 
 LIBVER = ("v110", "v110")
+#: gzip level of compressed datasets (HDF5's built-in deflate filter; any reader has it).
+DEFLATE_LEVEL = 9
 TIMEOUT_ENV = "SPARSEBTF_HDF5_TIMEOUT"
 GUARD_ENV = "SPARSEBTF_HDF5_GUARD"
 _SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -186,15 +192,27 @@ def check_written(f: h5py.File) -> None:
         raise sink.error
 
 
-def create_dataset(group: h5py.Group, name: str, data: Any = None, **kwargs: Any) -> h5py.Dataset:
+def create_dataset(
+    group: h5py.Group, name: str, data: Any = None, *, compress: bool = False, **kwargs: Any
+) -> h5py.Dataset:
     """``group.create_dataset`` with the ``fletcher32`` checksum (chunked, as HDF5 requires).
 
     Unless ``chunks`` is given, chunks are whole rows, at most 1 MiB and of equal size (h5py's
     guess splits (n, 3) location tables into column chunks; HDF5 stores edge chunks whole).
-    Empty and scalar datasets hold no data to protect and are written plainly.
+    ``compress`` adds HDF5's built-in ``shuffle`` and ``deflate`` (gzip level
+    :data:`DEFLATE_LEVEL`) filters, lossless and readable by any HDF5 reader without plugins,
+    unless they would not shrink the data (:func:`shrinks`: a few bytes); so does a
+    :class:`CompressedGroup` for every dataset created in it. Empty and scalar
+    datasets hold no data to protect and are written plainly.
     """
     shape = tuple(kwargs.get("shape", None if data is None else np.shape(data)) or ())
     if shape and int(np.prod(shape, dtype=np.int64)) > 0:
+        if (compress or isinstance(group, CompressedGroup)) and shrinks(data):
+            kwargs.setdefault("shuffle", True)
+            kwargs.setdefault("compression", "gzip")
+            kwargs.setdefault("compression_opts", DEFLATE_LEVEL)
+        elif isinstance(group, CompressedGroup):
+            kwargs["compression"] = None  # tells the group this one was decided here
         if kwargs.get("chunks") in (None, True):
             itemsize = np.dtype(kwargs.get("dtype") or np.asarray(data).dtype).itemsize
             row = itemsize * int(np.prod(shape[1:], dtype=np.int64))
@@ -203,6 +221,42 @@ def create_dataset(group: h5py.Group, name: str, data: Any = None, **kwargs: Any
             kwargs["chunks"] = (-(-shape[0] // n), *shape[1:])
         kwargs["fletcher32"] = True
     return group.create_dataset(name, data=data, **kwargs)
+
+
+class CompressedGroup(h5py.Group):
+    """An HDF5 group whose datasets are all stored with the lossless ``shuffle`` + ``deflate``
+    (+ ``fletcher32``) filters, however they are created (:func:`create_dataset` or
+    ``group.create_dataset``): a policy for a whole group (a coded file's ``stats/``), so a
+    dataset added there later is compressed without a special case.
+
+    ``CompressedGroup(parent.create_group(name).id)`` wraps a new group.
+    """
+
+    def create_dataset(self, name: Any, shape: Any = None, dtype: Any = None, data: Any = None,
+                       **kwds: Any) -> h5py.Dataset:  # fmt: skip
+        shp = shape if shape is not None else (None if data is None else np.shape(data))
+        if shp and int(np.prod(shp, dtype=np.int64)) > 0:
+            if "compression" not in kwds and shrinks(data):
+                kwds.setdefault("shuffle", True)
+                kwds["compression"] = "gzip"
+                kwds["compression_opts"] = DEFLATE_LEVEL
+            kwds.setdefault("fletcher32", True)
+            kwds.setdefault("chunks", True)
+        return super().create_dataset(name, shape=shape, dtype=dtype, data=data, **kwds)
+
+
+def shrinks(data: Any) -> bool:
+    """Whether ``shuffle`` + ``deflate`` make ``data`` smaller in the file: always for data of
+    64 KiB or more (or not given yet); below, the zlib stream of its byte planes (what the
+    two filters store) must be shorter than the raw bytes — a dataset of a few bytes would
+    grow."""
+    if data is None:
+        return True
+    a = np.ascontiguousarray(data)
+    if a.nbytes >= 1 << 16 or a.dtype.kind not in "fiub":
+        return True
+    planes = a.view(np.uint8).reshape(-1, a.dtype.itemsize).T.tobytes()
+    return len(zlib.compress(planes, DEFLATE_LEVEL)) < a.nbytes
 
 
 def write_str_attr(obj: h5py.HLObject, key: str, text: str) -> None:

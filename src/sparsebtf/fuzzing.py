@@ -167,7 +167,8 @@ def build_corpus(folder: str | os.PathLike[str]) -> dict[str, list[Path]]:
     coded = _coded(model)
     coded.params["model_file"] = str(d / "model.h5")
     out["coded"].append(save_coded(coded, d / "coded.h5"))
-    out["coded"].append(_legacy_copy(out["coded"][0], d / "coded_v1.h5"))
+    out["coded"].append(save_coded(coded, d / "coded_v2.h5", schema=2))
+    out["coded"].append(_legacy_copy(out["coded"][1], d / "coded_v1.h5"))
 
     out["release"] = _release_files(d / "release", model, coded)
     return out

@@ -15,11 +15,32 @@ __all__ = ["register"]
 
 def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, [args.input])
+    if args.schema is not None:
+        return rewrite_coded(args)
     check_btf_output(args.output)
     btf = open_source(args.input, crop=args.crop)
     say = Written(args.json)
     write_btf(args.output, btf, args.dtype, say)
     say.finish()
+    return 0
+
+
+def rewrite_coded(args: argparse.Namespace) -> int:
+    """``--schema N``: a coded file rewritten in coded-file schema N, same codes, same order."""
+    from pathlib import Path
+
+    from ..errors import BTFInputError
+    from ..storage import load_coded, save_coded
+
+    if args.crop:
+        raise BTFInputError("--schema rewrites a coded file as it is; --crop does not apply")
+    if Path(args.output).suffix.lower() != ".h5":
+        raise BTFInputError(f"-o {args.output}: a coded file is HDF5; give a .h5 name")
+    coded = load_coded(args.input)
+    save_coded(coded, args.output, schema=args.schema)
+    before, after = Path(args.input).stat().st_size, Path(args.output).stat().st_size
+    print(f"wrote {args.output}: coded file schema {args.schema}, {after:,} bytes (was "
+          f"{before:,}: {after / before:.3f}x)")
     return 0
 
 
@@ -32,6 +53,11 @@ def register(sub: Any) -> None:
                    help="file to write: .h5 (our dense file) or .btf (UBO2014, DFMF, exact)")
     s.add_argument("--crop", metavar="R0:R1,C0:C1",
                    help="keep rows R0..R1-1 and columns C0..C1-1 (0-based, end excluded)")
+    s.add_argument("--schema", type=int, choices=[2, 3], default=None,
+                   help="rewrite a coded file (from 'sparsebtf encode') in this coded-file "
+                   "schema instead of decoding it: 3 (sorted locations as gaps, compressed; "
+                   "what encode writes) or 2 (Table 4's uncompressed layout); the decoded "
+                   "values do not change")
     s.add_argument("--dtype", choices=["float32", "float16"], default="float32",
                    help="value type of the output (default float32; float16 halves it)")
     s.add_argument("--json", action="store_true", help="print what was written as JSON")

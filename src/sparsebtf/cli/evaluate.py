@@ -21,16 +21,25 @@ from ._output import (
 
 __all__ = ["register"]
 
-#: Storage figures reported beside the quality metrics.
+#: Storage figures reported beside the quality metrics (see storage_report).
 _STORAGE_KEYS = (
     "nnz",
     "bytes_coefficients",
+    "bytes_membership_counts",
+    "bytes_table4_material",
     "bytes_dictionaries",
     "bytes_stats",
     "bytes_total",
     "bytes_raw",
     "compression_ratio",
+    "compression_ratio_table4_material",
+    "bytes_stored_codes",
+    "bytes_stored_stats",
+    "bytes_stored_directions",
+    "bytes_stored_header",
+    "bytes_stored",
     "compression_ratio_per_material",
+    "stored_codes_vs_table4",
     "file_bytes",
 )
 
@@ -60,31 +69,43 @@ def run(args: argparse.Namespace) -> int:
 
 
 def quality_table(out: dict[str, Any]) -> str:
-    """The numbers of ``eval`` as a table in words (:func:`.label`) with units: the quality
-    metrics, the storage figures, then any other field the result has."""
+    """The numbers of ``eval`` as a table in words with units: the quality metrics, the
+    bytes actually stored (adding up to the file), Table 4's bytes, then any other field the
+    result has (:func:`.label`)."""
     ssim = ("not computed (--ssim-images 0)" if out.get("ssim") is None else
             f"{out['ssim']:.4f} (mean over {out['ssim_images']} angular images, data range "
             f"{out['ssim_data_range']:.4g})")  # fmt: skip
-    shown = {
-        "mse_rgb": f"{out['mse_rgb']:.4g}",
-        "psnr_rgb": f"{out['psnr_rgb']:.2f} dB (peak {out['peak']:g})",
-        "ssim": ssim,
-        "max_decoded": _largest(out),
-        "top_error_share": f"{100 * out['top_error_share']:.1f} % of the squared error",
-        "mse_log": f"{out['mse_log']:.4g}",
-        "mse_std": f"{out['mse_std']:.4g} (the codes' residual: {out['mse_std_codes']:.4g})",
-        "nnz": format_value(out["nnz"]),
-        "bytes_coefficients": f"{out['bytes_coefficients']:,}",
-        "bytes_dictionaries": f"{out['bytes_dictionaries']:,}",
-        "bytes_stats": f"{out['bytes_stats']:,}",
-        "bytes_raw": f"{out['bytes_raw']:,}",
-        "compression_ratio_per_material": f"{out['compression_ratio_per_material']:.1f}",
-        "compression_ratio": f"{out['compression_ratio']:.1f}",
-        "file_bytes": f"{out['file_bytes']:,}",
-    }
-    in_other_rows = {"peak", "ssim_images", "ssim_data_range", "mse_std_codes", "reference_max"}
-    rest = {k: v for k, v in out.items() if k not in shown and k not in in_other_rows}
-    return table([(label(k), v) for k, v in shown.items()] + nested_rows(rest))
+    rows = [
+        ("MSE, linear RGB", f"{out['mse_rgb']:.4g}"),
+        ("PSNR, linear RGB", f"{out['psnr_rgb']:.2f} dB (peak {out['peak']:g})"),
+        ("SSIM", ssim),
+        (label("max_decoded"), _largest(out)),
+        (label("top_error_share"), f"{100 * out['top_error_share']:.1f} % of the squared error"),
+        ("MSE, log RGB", f"{out['mse_log']:.4g}"),
+        ("MSE, standardised", f"{out['mse_std']:.4g} (the codes' residual: "
+                              f"{out['mse_std_codes']:.4g})"),
+        ("coefficients", format_value(out["nnz"])),
+        ("raw bytes (fp16)", f"{out['bytes_raw']:,}"),
+        ("stored: codes", f"{out['bytes_stored_codes']:,} bytes "
+                          f"({out['stored_codes_vs_table4']:.2f} x Table 4's)"),
+        ("stored: statistics", f"{out['bytes_stored_stats']:,} bytes"),
+        ("stored: directions", f"{out['bytes_stored_directions']:,} bytes"),
+        ("stored: header", f"{out['bytes_stored_header']:,} bytes"),
+        ("stored: file", f"{out['bytes_stored']:,} bytes (the material; the model is shared)"),
+        ("ratio per material", f"{out['compression_ratio_per_material']:.1f} (raw / file bytes)"),
+        ("Table 4: material", f"{out['bytes_table4_material']:,} bytes (coefficients "
+                              f"{out['bytes_coefficients']:,}, memberships and counts "
+                              f"{out['bytes_membership_counts']:,}), ratio "
+                              f"{out['compression_ratio_table4_material']:.1f}"),
+        ("Table 4: with dictionaries", f"{out['bytes_total']:,} bytes (dictionaries "
+                                       f"{out['bytes_dictionaries']:,}, shared by every "
+                                       f"material), ratio {out['compression_ratio']:.1f}"),
+    ]  # fmt: skip
+    shown = {"mse_rgb", "psnr_rgb", "peak", "ssim", "ssim_images", "ssim_data_range",
+             "max_decoded", "reference_max", "top_error_share", "mse_log", "mse_std",
+             "mse_std_codes", "nnz", *_STORAGE_KEYS}  # fmt: skip
+    rest = {k: v for k, v in out.items() if k not in shown}
+    return table(rows + nested_rows(rest))
 
 
 def _largest(out: dict[str, Any]) -> str:

@@ -95,6 +95,7 @@ def describe(
     if fmt == "sparsebtf-coded":
         from ..errors import ModelMismatchError
         from ..storage import load_coded, storage_report
+        from ..storage.accounting import storage_summary
         from ..storage.bundled import bundled_name, find_model
 
         coded = load_coded(s)
@@ -130,10 +131,19 @@ def describe(
                 "lights": {"name": coded.lights.name, "count": len(coded.lights)},
                 "views": {"name": coded.views.name, "count": len(coded.views)},
             },
-            **{k: v for k, v in report.items() if not isinstance(v, dict) or k == "nnz"},
+            "schema_version": _schema(s),
+            "nnz": report["nnz"],
+            "storage": storage_summary(report),
             "integrity": _integrity(s),
         }
     return {"kind": "unknown", "format": fmt, "file_bytes": size}
+
+
+def _schema(path: str) -> int:
+    from .._hdf5 import open_h5
+
+    with open_h5(path) as f:
+        return int(f.attrs["schema_version"])
 
 
 def _integrity(path: str) -> str:

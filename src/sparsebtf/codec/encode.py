@@ -35,7 +35,12 @@ def coded_btf(
     params: dict[str, Any],
 ) -> CodedBTF:
     """The coded BTF of ``btf`` (or its header) on ``model`` (model attached), from its codes
-    and statistics."""
+    and statistics; each point's coefficients in the magnitude rule's order (decreasing
+    stored magnitude, ties by location: :func:`~sparsebtf.storage.coded_streams.canonical_codes`),
+    the order every coded file gives back."""
+    from ..storage.coded_streams import canonical_codes
+
+    codes = {ch: canonical_codes(c) for ch, c in codes.items()}
     params = {
         **params,
         "std_mode": stats.mode,

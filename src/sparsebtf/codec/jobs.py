@@ -38,6 +38,7 @@ from ..points.preprocessing import (
     statistic_sums,
     warn_negatives,
 )
+from ..storage.coded_streams import binary16_statistics
 
 __all__ = ["EncodingPlan", "Header", "Source", "run_plan"]
 
@@ -266,7 +267,9 @@ def _statistics(
     log_offset: LogOffset, progress: bool | None,
 ) -> list[Any]:  # fmt: skip
     """Each BTF's standardisation in the model's preprocessing, from view-range tasks (after
-    one task per BTF that chooses its log offset)."""
+    one task per BTF that chooses its log offset); log-YUV statistics rounded to binary16
+    (:func:`~sparsebtf.storage.coded_streams.binary16_statistics`), the precision the coded
+    file keeps."""
     if model.transform != "log_yuv":
         return [
             gather_statistics(h, mode, transform=model.transform)  # type: ignore[arg-type]
@@ -285,5 +288,6 @@ def _statistics(
     del tasks
     for b, parts in _by_owner(results, owner):
         warn_negatives(headers[b].label, parts)
-        out.append(combine_statistics(parts, mode, offsets[b]))
+        # μ, σ as the coded file stores them (binary16), before any point is coded
+        out.append(binary16_statistics(combine_statistics(parts, mode, offsets[b])))
     return out

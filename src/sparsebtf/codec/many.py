@@ -38,6 +38,7 @@ def encode_many(
     target_bytes: int | None = None,
     target_ratio: float | None = None,
     per_material: bool = False,
+    budget: str = "paper",
     weighting: str = "rgb",
     std_mode: StdMode | None = None,
     log_offset: LogOffset = "auto",
@@ -55,7 +56,8 @@ def encode_many(
     ``sources`` are paths or ``synth:`` specs (opened by whoever runs the task: on a cluster,
     every worker must see the files) or BTF objects. Sparsity: ``tau`` / ``eps`` (see
     :func:`~sparsebtf.codec.encode`, default τ = 885,64,64), or rate control to
-    ``target_bytes`` / ``target_ratio`` per BTF (see :func:`~sparsebtf.codec.encode_to_size`).
+    ``target_bytes`` / ``target_ratio`` per BTF, counted as ``budget`` says (see
+    :func:`~sparsebtf.codec.encode_to_size`).
     ``crop`` = (rows, cols) applies to every source. ``client`` / ``scheduler`` / ``workers``
     choose the cluster (:func:`sparsebtf.execution.executor`; default: this process).
     Iterate to the end (or close the iterator) to release a cluster it started.
@@ -67,7 +69,7 @@ def encode_many(
             raise BTFInputError("give a sparsity tau or a target size, not both")
         plan: FixedTau | RateTargets = RateTargets(
             target_bytes=target_bytes, target_ratio=target_ratio, per_material=per_material,
-            weighting=weighting, dtype=dtype,
+            budget=budget, weighting=weighting, dtype=dtype,
         ).check(model)  # fmt: skip
     else:
         taus = [tau if tau is not None else (885, 64, 64)]

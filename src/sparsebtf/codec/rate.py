@@ -35,6 +35,7 @@ from .encode import coded_btf
 from .jobs import Header, Source, run_plan
 
 __all__ = [
+    "BUDGETS",
     "WEIGHTINGS",
     "RateTargets",
     "encode_rate_levels",
@@ -45,6 +46,29 @@ __all__ = [
 
 #: Error weightings of the rate control (see :func:`encode_rate_levels`).
 WEIGHTINGS = ("rgb", "log", "uniform")
+#: What a size or ratio target counts: the coded file's bytes, or the paper's Table 4 bytes.
+BUDGETS = ("stored", "paper")
+#: A stored-bytes target is met when the file is at most this fraction below it.
+STORED_TOLERANCE = 0.004
+#: Stored codes per Table 4 byte assumed to size the candidate pool (measured: 0.41–0.47).
+_STORED_PER_TABLE4 = 0.45
+
+
+def stored_target_bytes(
+    btf: BTF | Header, *, target_bytes: int | None = None, target_ratio: float | None = None
+) -> int:
+    """The coded file's size asked for: ``target_bytes``, or raw fp16 bytes / ``target_ratio``
+    (:func:`~sparsebtf.storage.storage_report`'s ``bytes_stored`` and
+    ``compression_ratio_per_material``: everything the material stores)."""
+    if (target_bytes is None) == (target_ratio is None):
+        raise BTFInputError("give exactly one of target_bytes and target_ratio")
+    if target_ratio is not None:
+        if not target_ratio > 0:
+            raise BTFInputError(f"target ratio must be > 0, got {target_ratio}")
+        return int(raw_bytes(btf.n_values) / float(target_ratio))
+    if int(target_bytes) <= 0:  # type: ignore[arg-type]
+        raise BTFInputError(f"target bytes must be > 0, got {target_bytes}")
+    return int(target_bytes)  # type: ignore[arg-type]
 
 
 def material_target_bytes(
@@ -121,13 +145,17 @@ class RateTargets:
 
     ``targets``: bytes per material by Table 4, one per level; or None, then each BTF's single
     target comes from ``target_bytes`` / ``target_ratio`` / ``per_material`` by
-    :func:`material_target_bytes` (the BTFs of one call may differ in size).
+    :func:`material_target_bytes` (the BTFs of one call may differ in size). With ``budget``
+    "stored" that single target is the coded file's size instead
+    (:func:`stored_target_bytes`): the Table 4 budget is searched until the file written by
+    :func:`~sparsebtf.storage.save_coded` is within :data:`STORED_TOLERANCE` below it.
     """
 
     targets: tuple[int, ...] | None = None
     target_bytes: int | None = None
     target_ratio: float | None = None
     per_material: bool = False
+    budget: str = "paper"
     weighting: str = "rgb"
     split: tuple[float, ...] | None = None
     candidate_factor: float = 4.0
@@ -138,6 +166,14 @@ class RateTargets:
         """Refuse bad parameters before any work; returns self."""
         if self.weighting not in WEIGHTINGS:
             raise BTFInputError(f"weighting must be one of {WEIGHTINGS}, got {self.weighting!r}")
+        if self.budget not in BUDGETS:
+            raise BTFInputError(f"budget must be one of {BUDGETS}, got {self.budget!r}")
+        if self.budget == "stored" and (self.targets is not None or not self.per_material):
+            raise BTFInputError(
+                "a stored-bytes target counts the coded file, which holds no dictionaries: "
+                "the model file is shared by every material; give a per-material target "
+                "(without --with-dictionaries) or use the paper's budget (--budget paper)"
+            )
         if self.targets is not None and not self.targets:
             raise BTFInputError("give at least one target size")
         if self.candidate_factor < 1:
@@ -149,13 +185,19 @@ class RateTargets:
     def prepare(self, header: Header, model: Model) -> dict[str, Any]:
         """The BTF's targets, reference counts and candidate counts per level."""
         targets = self.targets
-        if targets is None:
+        stored = None
+        channels = model.channels
+        n_pts = PatchGrid.for_btf(header, model.patch).n_points  # type: ignore[arg-type]
+        if targets is None and self.budget == "stored":
+            stored = stored_target_bytes(
+                header, target_bytes=self.target_bytes, target_ratio=self.target_ratio
+            )
+            targets = (_table4_estimate(stored, header, n_pts, len(channels), model),)
+        elif targets is None:
             targets = (material_target_bytes(
                 header, model, target_bytes=self.target_bytes, target_ratio=self.target_ratio,
                 per_material=self.per_material,
             ),)  # fmt: skip
-        channels = model.channels
-        n_pts = PatchGrid.for_btf(header, model.patch).n_points  # type: ignore[arg-type]
         shape = model.mode_sizes
         size = int(np.prod(shape))
         split = self.split
@@ -168,7 +210,8 @@ class RateTargets:
             for r in refs
         ]
         nmax = {ch: max(nc[ch] for nc in ncand) for ch in channels}
-        return {"targets": targets, "refs": refs, "ncand": ncand, "nmax": nmax, "split": split}
+        return {"targets": targets, "refs": refs, "ncand": ncand, "nmax": nmax, "split": split,
+                "stored_target": stored}
 
     def code_range(
         self, btf: BTF, model: Model, stats: Standardization, lo: int, hi: int,
@@ -251,22 +294,91 @@ class RateTargets:
                 )
                 for ch in channels
             }  # fmt: skip
-            codes, summary = allocate(cands, int(target), loc_w)
-            params = {
-                "tau": {ch: int(codes[ch].counts.max()) for ch in channels},
-                "eps": 0.0,
-                "dtype": self.dtype,
-                "rate_control": {
-                    "target_material_bytes": int(target),
+            def build(t: int, lv: int = lv, cands: dict = cands) -> CodedBTF:
+                codes, summary = allocate(cands, int(t), loc_w)
+                control = {
+                    "budget": self.budget,
+                    "target_material_bytes": int(t),
                     "material_bytes": summary["bytes"],
                     "weighting": self.weighting,
                     "reference_counts": extra["refs"][lv],
                     "candidates": extra["ncand"][lv],
                     "split": list(extra["split"]),
-                },
-            }
-            out.append(coded_btf(header, model, codes, stats, params))
+                }
+                if extra.get("stored_target") is not None:
+                    control["target_stored_bytes"] = int(extra["stored_target"])
+                params = {
+                    "tau": {ch: int(codes[ch].counts.max()) for ch in channels},
+                    "eps": 0.0,
+                    "dtype": self.dtype,
+                    "rate_control": control,
+                }
+                return coded_btf(header, model, codes, stats, params)
+
+            if extra.get("stored_target") is not None:
+                out.append(_search_stored(build, cands, int(extra["stored_target"]), loc_w,
+                                          header.name))  # fmt: skip
+            else:
+                out.append(build(int(target)))
         return out
+
+
+def _table4_estimate(stored: int, header: Header | BTF, n_points: int, n_channels: int,
+                     model: Model) -> int:  # fmt: skip
+    """A Table 4 budget whose file is about ``stored`` bytes (sizes the candidate pool; the
+    exact budget is searched later): the bytes left beside the statistics, directions and
+    header, at :data:`_STORED_PER_TABLE4` stored bytes per Table 4 byte."""
+    from ..learning.cost import material_bytes
+
+    nl, nv = len(header.lights), len(header.views)
+    fixed = 0.7 * 8 * nl * nv + 40 * (nl + nv) + 12_000
+    least = material_bytes(n_points * n_channels, n_points, n_channels,
+                           location_width(model.mode_sizes))  # fmt: skip
+    return max(least, int((stored - fixed) / _STORED_PER_TABLE4))
+
+
+def _search_stored(
+    build: Callable[[int], CodedBTF], cands: dict[str, ChannelCandidates], target: int,
+    loc_w: int, name: str,
+) -> CodedBTF:  # fmt: skip
+    """The coded BTF whose file is the largest not above ``target`` bytes: the file's size
+    grows with the Table 4 budget, so a bracketing secant search over that budget, each step
+    measured by writing the file in memory (:func:`~sparsebtf.storage.coded_file.coded_image`)
+    until it is within :data:`STORED_TOLERANCE` below the target."""
+    from ..learning.cost import material_bytes
+    from ..storage.coded_file import coded_image
+
+    p = next(iter(cands.values())).n_points
+    c = len(cands)
+    pool = sum(int(cd.values.shape[0] * cd.values.shape[1]) for cd in cands.values())
+    lo_t = material_bytes(p * c, p, c, loc_w)
+    hi_t = material_bytes(pool, p, c, loc_w)
+
+    def size(t: int) -> tuple[int, CodedBTF]:
+        coded = build(t)
+        return len(coded_image(coded)), coded
+
+    lo_s, best = size(lo_t)
+    if lo_s > target:
+        raise BTFInputError(
+            f"{name}: a target of {target:,d} stored bytes is below the smallest coded file "
+            f"({lo_s:,d} bytes with one coefficient per point and channel: statistics, "
+            "directions and header need most of it); ask for a larger size or a lower ratio"
+        )
+    hi_s, top = size(hi_t)
+    if hi_s <= target:
+        return top  # the candidate pool runs out first
+    for _ in range(24):
+        if target - lo_s <= STORED_TOLERANCE * target or hi_t - lo_t <= 5:
+            break
+        frac = (target - lo_s) / max(hi_s - lo_s, 1)
+        t = int(lo_t + min(max(frac, 0.02), 0.98) * (hi_t - lo_t))
+        s, coded = size(t)
+        if s <= target:
+            lo_t, lo_s, best = t, s, coded
+        else:
+            hi_t, hi_s = t, s
+    return best
 
 
 def encode_rate_levels(
@@ -322,6 +434,7 @@ def encode_to_size(
     target_bytes: int | None = None,
     target_ratio: float | None = None,
     per_material: bool = False,
+    budget: str = "paper",
     weighting: str = "rgb",
     std_mode: StdMode | None = None,
     log_offset: LogOffset = "auto",
@@ -334,18 +447,21 @@ def encode_to_size(
 ) -> CodedBTF:
     """Encode ``btf`` to a target size or compression ratio by rate control.
 
-    ``target_bytes`` / ``target_ratio`` are in the sense of
-    :func:`~sparsebtf.storage.storage_report` (``bytes_total`` with the dictionaries,
-    ``compression_ratio``), or per material with ``per_material`` (see
-    :func:`material_target_bytes`). The storage report of the result lands within one
-    coefficient (5 bytes) of the target. See :func:`encode_rate_levels`.
+    ``budget="paper"``: ``target_bytes`` / ``target_ratio`` are in the sense of
+    :func:`~sparsebtf.storage.storage_report`'s Table 4 figures (``bytes_total`` with the
+    dictionaries, ``compression_ratio``), or per material with ``per_material`` (see
+    :func:`material_target_bytes`); the result lands within one coefficient (5 bytes) of the
+    target. ``budget="stored"`` (needs ``per_material``): they are the coded file's size
+    (``bytes_stored``, ``compression_ratio_per_material``), met to within
+    :data:`STORED_TOLERANCE` below. See :func:`encode_rate_levels`.
     """
-    target = material_target_bytes(
-        btf, model, target_bytes=target_bytes, target_ratio=target_ratio,
-        per_material=per_material,
-    )
-    return encode_rate_levels(
-        btf, model, [target], weighting=weighting, std_mode=std_mode, log_offset=log_offset,
-        batch_size=batch_size,
-        dtype=dtype, progress=progress, client=client, scheduler=scheduler, workers=workers,
-    )[0]
+    plan = RateTargets(
+        target_bytes=target_bytes, target_ratio=target_ratio, per_material=per_material,
+        budget=budget, weighting=weighting, dtype=dtype,
+    ).check(model)  # fmt: skip
+    ((coded,),) = run_plan(
+        [Source.of(btf)], model, plan, std_mode=std_mode, log_offset=log_offset,
+        batch_size=batch_size, progress=progress, client=client, scheduler=scheduler,
+        workers=workers,
+    )  # fmt: skip
+    return coded

@@ -35,7 +35,13 @@ from ..figures import save_figure
 from ..storage.accounting import paper_storage
 from .history import describe, moved, record
 
-__all__ = ["previous_record", "regenerate", "summarise", "write_report"]
+__all__ = [
+    "STORAGE_JSON", "previous_record", "regenerate", "stored_levels", "summarise", "write_report",
+]  # fmt: skip
+
+#: ``benchmarks/bench_storage.py --json`` output beside a run's results.json (or in
+#: ``docs/results/``): its per-level figures go into results.md's "stored bytes vs Table 4".
+STORAGE_JSON = "storage.json"
 
 _ORDER = ["sparsebtf", "rate", "per_channel", "raw", "pca_log", "pca_linear"]
 
@@ -354,11 +360,75 @@ def table_storage(result: dict[str, Any]) -> str:
                 continue
             b = [r["material_bytes"] / np.prod(r["size"]) for r in rs]
             mse = [r["mse_rgb"] for r in rs]
+            stored = [r["stored_codes_bytes"] / r["material_bytes"] for r in rs
+                      if r.get("stored_codes_bytes") and r["material_bytes"]]
             body.append([f"{lv}", names[m], f"{np.mean(b):.2f}",
                          f"{np.mean([r['ratio_per_material'] or np.nan for r in rs]):.0f}",
+                         f"{np.mean(stored):.3f}" if stored else "—",
                          _fmt(_gmean(mse)), str(len(rs))])
-    return _table(["level", "method", "bytes / texel", "ratio (per material)",
-                   "geo. mean MSE x1e-4", "n"], body)
+    head = ["level", "method", "bytes / texel", "ratio (per material)",
+            "stored codes / Table 4", "geo. mean MSE x1e-4", "n"]
+    if all(row[4] == "—" for row in body):  # a run from before stored bytes were recorded
+        head.pop(4)
+        body = [row[:4] + row[5:] for row in body]
+    return _table(head, body)
+
+
+def stored_levels(storage: dict[str, Any]) -> list[dict[str, Any]]:
+    """Per level of a ``bench_storage.py`` result: Table 4's and the stored bytes per
+    material (means), stored codes / Table 4 (geometric mean and largest), ratios at
+    400×400 (Table 4's codes; the stored file)."""
+    out = []
+    for lv in storage["levels"]:
+        rs = [r for r in storage["rows"] if r["level"] == lv]
+        if not rs:
+            continue
+        out.append({
+            "level": lv, "tau": "/".join(map(str, rs[0]["tau"])), "n": len(rs),
+            "codes_vs_table4": float(np.exp(np.mean(np.log(
+                [r["stored_codes_vs_table4"] for r in rs])))),
+            "codes_vs_table4_max": max(r["stored_codes_vs_table4"] for r in rs),
+            "table4_bytes": float(np.mean([r["table4_material_bytes"] for r in rs])),
+            "stored_codes": float(np.mean([r["stored_codes_bytes"] for r in rs])),
+            "stored_total": float(np.mean([r["stored_bytes"] for r in rs])),
+            "ratio_table4_400": float(np.mean([r["ratio_table4_400"] for r in rs])),
+            "ratio_stored_400": float(np.mean([r["ratio_stored_400"] for r in rs])),
+        })  # fmt: skip
+    return out
+
+
+def table_stored(storage: dict[str, Any]) -> str:
+    """The "stored bytes vs Table 4" rows of results.md, from a bench_storage result."""
+    body = [[str(s["level"]), s["tau"], str(s["n"]), f"{s['table4_bytes']:,.0f}",
+             f"{s['stored_codes']:,.0f}",
+             f"{s['codes_vs_table4']:.3f} (max {s['codes_vs_table4_max']:.3f})",
+             f"{s['stored_total']:,.0f}", f"{s['ratio_table4_400']:.0f}",
+             f"{s['ratio_stored_400']:.0f}"]
+            for s in stored_levels(storage)]  # fmt: skip
+    return _table(["level", "tau Y/U/V", "n", "Table 4 bytes", "stored codes",
+                   "stored bytes vs Table 4", "stored file", "ratio 400x400, Table 4",
+                   "ratio 400x400, stored file"], body)  # fmt: skip
+
+
+def _stored_section(result: dict[str, Any]) -> list[str]:
+    storage = result.get("storage")
+    if not storage:
+        return []
+    quick = " --quick" if storage.get("quick") else ""
+    return [
+        "", "## Stored bytes vs Table 4", "",
+        f"From `python benchmarks/bench_storage.py{quick} --json` (stored as `{STORAGE_JSON}` "
+        "beside `results.json`), not from this quality run: the benchmark's unseen materials "
+        "and its 100x100 Table-5 carpet at the same levels, coded with the levels' fixed tau on "
+        "the bundled `release` model (this run codes on the models it trains, whose codes may "
+        "compress somewhat differently), written in coded-file schema 3 (sorted "
+        "locations as gaps, shuffle + deflate; docs/format.md §3). Per level: "
+        "Table 4's per-material bytes (5 B per coefficient + 2 B per point and channel), the "
+        "stored codes and their share of Table 4's, the whole file (codes, statistics, "
+        "directions, header: everything a material stores), and the per-material ratio at "
+        "400x400 (stored codes per point x 1600 + this file's statistics, directions, header).",
+        "", table_stored(storage),
+    ]
 
 
 # -- plots --------------------------------------------------------------------------------------
@@ -562,6 +632,7 @@ def render_markdown(
         ]
     lines += [
         "", "## Storage of every method", "", table_storage(result),
+        *_stored_section(result),
         "", "## Figure 3 shape", "", f"![Figure 3]({img}figure3.png)",
         "", "## Quality vs storage", "", f"![quality vs storage]({img}quality_storage.png)",
         "", "## Image grids (Figures 4 and 5 shape)", "",
@@ -618,13 +689,22 @@ def regenerate(
 
     Beside each verdict goes how it moved from a previous run: the ``results.json`` at
     ``previous``; else the run's own ``previous`` record; else the run that ``docs`` held
-    until now (``docs/results/results.json``), which this call then replaces.
+    until now (``docs/results/results.json``), which this call then replaces. A
+    ``benchmarks/bench_storage.py --json`` output named :data:`STORAGE_JSON` in the run's
+    folder (else in ``docs/results/``) adds the "stored bytes vs Table 4" section.
     """
     run = Path(run_dir)
     result = json.loads((run / "results.json").read_text())
     summary = summarise(result)
     docs = Path(docs)
     img_dir = docs / "results"
+    for folder in (run, img_dir):
+        if (folder / STORAGE_JSON).exists():
+            result["storage"] = json.loads((folder / STORAGE_JSON).read_text())
+            if not (img_dir / STORAGE_JSON).exists() or not (
+                    img_dir / STORAGE_JSON).samefile(folder / STORAGE_JSON):  # fmt: skip
+                shutil.copyfile(folder / STORAGE_JSON, img_dir / STORAGE_JSON)
+            break
     img_dir.mkdir(parents=True, exist_ok=True)
     held = img_dir / "results.json"
     if previous is not None:
@@ -640,8 +720,9 @@ def regenerate(
         src, dst = run / g, img_dir / g
         if src.exists() and not (dst.exists() and src.samefile(dst)):
             shutil.copyfile(src, dst)
-    with atomic_output(held) as tmp:
-        tmp.write_text(json.dumps(result, indent=2, default=json_default))
+    with atomic_output(held) as tmp:  # the storage figures stay in their own file
+        kept = {k: v for k, v in result.items() if k != "storage"}
+        tmp.write_text(json.dumps(kept, indent=2, default=json_default))
     target = docs / "results.md"
     text = render_markdown(result, summary, img="results/", previous=result.get("previous"))
     text = text.replace(

@@ -110,6 +110,10 @@ def _coded_row(coded: CodedBTF, model: Model) -> dict[str, Any]:
         "material_bytes": int(mat),
         "bytes_raw": int(rep["bytes_raw"]),
         "ratio_per_material": rep["bytes_raw"] / mat,
+        # stored bytes of the schema-3 file (None for codes no coded file holds)
+        "stored_codes_bytes": rep.get("bytes_stored_codes"),
+        "stored_bytes": rep.get("bytes_stored"),
+        "ratio_stored": rep.get("compression_ratio_per_material"),
         "bytes_dictionaries_shared": int(rep["bytes_dictionaries"]),
         "nnz": {k: int(v) for k, v in nnz.items()},
         "coefficients_per_point": sum(nnz.values()) / p,

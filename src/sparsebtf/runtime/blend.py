@@ -28,6 +28,7 @@ from ..learning.parallel import parallel_map
 from ..learning.tensor import reconstruct
 from ..model import CodedBTF, TauSpec, model_text, parse_tau
 from ..points.preprocessing import Standardization, round_up_half
+from ..storage.coded_streams import canonical_codes
 
 __all__ = ["blend", "check_blendable"]
 
@@ -194,11 +195,13 @@ def blend(
     channels = first.channels
     widest = {ch: max(c.coded_tau[ch] for c in coded) for ch in channels}
     taus = parse_tau(tau, channels, full=widest)
+    # in the coded files' magnitude order (ties of stored magnitude by location), so a saved
+    # blend needs no explicit order (storage.coded_streams)
     codes = {
-        ch: _blend_channel(
+        ch: canonical_codes(_blend_channel(
             [c.codes[ch] for c in coded], w, model.dictionaries[ch], taus[ch], progress,
             f"blend {ch}",
-        )
+        ))
         for ch in channels
     }  # fmt: skip
     st = first.stats

@@ -1,9 +1,11 @@
 """Model and coded-BTF files (HDF5) and the paper's storage accounting (Table 4).
 
 * :func:`save_model` / :func:`load_model` — the trained dictionaries, float64, content-hashed.
-* :func:`save_coded` / :func:`load_coded` — one material's sparse codes (binary16 values,
-  3-byte packed locations), statistics and directions; checked against its model's hash.
-* :func:`storage_report` / :func:`paper_storage` — bytes as counted by ``btf4Dcomp``.
+* :func:`save_coded` / :func:`load_coded` — one material's sparse codes (binary16 values;
+  schema 3: sorted locations as gaps, compressed losslessly; schema 2: 3-byte packed
+  locations), statistics and directions; checked against its model's hash.
+* :func:`storage_report` / :func:`paper_storage` — bytes as counted by ``btf4Dcomp`` (Table 4)
+  and, for coded BTFs, the bytes the file stores (:func:`stored_bytes`).
 
 Every write is atomic; every read error is a :class:`~sparsebtf.errors.FileFormatError` or
 :class:`~sparsebtf.errors.ModelMismatchError` naming the file and field. Layouts:
@@ -13,7 +15,7 @@ Every write is atomic; every read error is a :class:`~sparsebtf.errors.FileForma
 from __future__ import annotations
 
 from ..learning.cost import channel_storage, location_width
-from .accounting import MIB, paper_storage, storage_report
+from .accounting import MIB, paper_storage, storage_report, storage_summary, stored_bytes
 from .coded_file import (
     CODED_FORMAT,
     CODED_SCHEMA_VERSION,
@@ -41,5 +43,7 @@ __all__ = [
     "save_coded",
     "save_model",
     "storage_report",
+    "storage_summary",
+    "stored_bytes",
     "unpack_locations",
 ]

@@ -1,6 +1,6 @@
 """Coded BTF file: the sparse coefficients of one material, in HDF5 (schema in ``docs/format.md``).
 
-Layout (``format="sparsebtf-coded"``, ``schema_version=2``; schema 1 lacks the checksums)::
+Layout (``format="sparsebtf-coded"``, ``schema_version=3``; 2 and 1 are read too)::
 
     /                       attrs: format, schema_version, model_hash, library_version, name,
                             height, width, patch, channels (JSON list), params_json, attrs_json
@@ -8,9 +8,11 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=2``; schema 1 lacks the c
                             n_dictionaries (K; only when known at write time)
     /codes/<CH>/membership  (P,) uint8 (K <= 255) or uint16     dictionary of each point (m)
     /codes/<CH>/counts      (P,) uint16 (or uint32 if a count > 65535)   coefficients per point (z)
-    /codes/<CH>/values      (NNZ,) float16 (float32 only if a value overflows binary16)
-    /codes/<CH>/locations   (NNZ, 3) uint8, or (NNZ, 4) when ∏m >= 2^24: little-endian bytes
-                            of the column-major linear index l1 + m1·l2 + m1·m2·l3 + …
+    /codes/<CH>/location_gaps, values [, rank]    schema 3: :mod:`.coded_streams`
+    /codes/<CH>/values      schema 1–2: (NNZ,) float16 (float32 only if a value overflows)
+    /codes/<CH>/locations   schema 1–2: (NNZ, 3) uint8, or (NNZ, 4) when ∏m >= 2^24:
+                            little-endian bytes of the column-major linear index
+                            l1 + m1·l2 + m1·m2·l3 + …
     /codes/<CH>/errors      (P,) float32    residual MSE per tensor entry (diagnostic)
     /stats/mean, /stats/std (L, V, C) float32; attrs mode ("shared" | "per_channel"), eps
     /stats/bound            (L, V) float16: largest ln(x + eps) over texels and R, G, B of each
@@ -18,21 +20,22 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=2``; schema 1 lacks the c
                             written before it existed: no clamp)
     /lights, /views         direction tables, as in the dense file
 
-Points are in release order (``point = row_block + n_row_blocks·col_block``); within a point
-the coefficients keep their order, by decreasing magnitude, so truncating τ is a prefix read.
-Location packing follows the 3-bytes-per-coefficient accounting of the paper's Table 4.
-Schema 2 adds the fletcher32 checksum to every dataset and HDF5 structures with metadata
-checksums (:mod:`sparsebtf._hdf5`): a flipped bit in values, locations, membership, counts,
-errors or statistics is reported as corruption naming the dataset. The reader checks every
-attribute and dataset (dtype, shape, size against the file and the memory budget, finiteness)
-before using it.
+Points are in release order (``point = row_block + n_row_blocks·col_block``). Schema 3 stores
+each point's coefficients by increasing location (as gaps) and every dataset of ``codes/`` and
+``stats/`` with HDF5's built-in ``shuffle`` + ``deflate`` filters (lossless; no plugin needed);
+the reader gives them back, like schemas 1–2 store them, by decreasing magnitude (ties by
+increasing location), so truncating τ is a prefix read. Schema 2 added the fletcher32 checksum
+to every dataset and HDF5 structures with metadata checksums (:mod:`sparsebtf._hdf5`): a
+flipped bit in any dataset is reported as corruption naming the dataset. The reader checks
+every attribute and dataset (dtype, shape, size against the file and the memory budget,
+finiteness) before using it.
 """
 
 from __future__ import annotations
 
+import io
 import json
 import os
-import warnings
 from pathlib import Path
 
 import h5py
@@ -49,7 +52,7 @@ from .._h5check import (
     read_str_attr,
     require,
 )
-from .._hdf5 import create, create_dataset, write_str_attr
+from .._hdf5 import LIBVER, CompressedGroup, create, create_dataset, write_str_attr
 from .._semantic import check_same_directions, validate_coded
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
@@ -58,10 +61,14 @@ from ..learning.cost import location_width
 from ..model import CodedBTF, Model, model_text
 from ..points.preprocessing import EPS, STD_MODES, Standardization
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
+from .coded_streams import read_streams, stored_values, write_streams
+from .model_file import exact_dtype
 
 __all__ = [
     "CODED_FORMAT",
     "CODED_SCHEMA_VERSION",
+    "WRITABLE_SCHEMAS",
+    "coded_image",
     "load_coded",
     "pack_locations",
     "save_coded",
@@ -69,11 +76,12 @@ __all__ = [
 ]
 
 CODED_FORMAT = "sparsebtf-coded"
-CODED_SCHEMA_VERSION = 2
-_SUPPORTED = (1, 2)
+CODED_SCHEMA_VERSION = 3
+_SUPPORTED = (1, 2, 3)
+#: Schemas :func:`save_coded` can write (2: the uncompressed Table 4 layout, for old readers).
+WRITABLE_SCHEMAS = (2, 3)
 _MAX_SIDE = 2**20  # texels per side
 _MAX_PATCH = 4096
-_FP16_MAX = float(np.finfo(np.float16).max)
 
 
 # --------------------------------------------------------------------------- location packing
@@ -180,51 +188,94 @@ def _check_coded(coded: CodedBTF) -> None:
         raise BTFInputError(str(e)) from None
 
 
-def save_coded(coded: CodedBTF, path: str | os.PathLike[str]) -> Path:
+def save_coded(
+    coded: CodedBTF, path: str | os.PathLike[str], *, schema: int = CODED_SCHEMA_VERSION
+) -> Path:
     """Write ``coded`` to ``path`` (HDF5, atomically: an interrupted write leaves no file).
 
     Values are rounded to binary16 (round-to-nearest-even, as the release's ``.bin`` files);
     a channel with a finite value beyond ±65504 is kept in float32 instead, with a warning.
-    Locations are packed to 3 bytes (4 when ∏m ≥ 2^24). The file of the attached model (if it
-    was saved or loaded from one) is recorded as ``params["model_file"]`` unless one is set
-    already, so the coded file finds its model. Returns the path written.
+    ``schema`` 3 (default) stores sorted locations as gaps and compresses every dataset of
+    ``codes/`` and ``stats/`` losslessly; ``schema`` 2 packs locations to 3 bytes (4 when
+    ∏m ≥ 2^24), uncompressed, as the paper's Table 4 counts them. Both decode to the same
+    values in the same order. The file of the attached model (if it was saved or loaded from
+    one) is recorded as ``params["model_file"]`` unless one is set already, so the coded file
+    finds its model. Returns the path written.
     """
+    _check_schema(schema)
     _check_coded(coded)
-    params = dict(coded.params)
-    if not params.get("model_file") and coded.model is not None and coded.model.file:
-        params["model_file"] = coded.model.file
     target = Path(path)
     with atomic_output(target) as tmp, create(tmp) as f:
-        write_str_attr(f, "format", CODED_FORMAT)
-        f.attrs["schema_version"] = CODED_SCHEMA_VERSION
-        write_str_attr(f, "model_hash", coded.model_hash)
-        write_str_attr(f, "library_version", library_version())
-        write_str_attr(f, "name", coded.name)
-        f.attrs["height"] = int(coded.height)
-        f.attrs["width"] = int(coded.width)
-        f.attrs["patch"] = int(coded.patch)
-        write_str_attr(f, "channels", json.dumps(list(coded.channels)))
-        write_str_attr(f, "params_json", to_json(params))
-        write_str_attr(f, "attrs_json", to_json(coded.attrs))
-        root = f.create_group("codes")
-        for ch in coded.channels:
-            k = coded.dictionary_count(ch)
-            _write_codes(root.create_group(ch), coded.codes[ch], k, coded.name, ch)
-        st = f.create_group("stats")
-        write_str_attr(st, "mode", coded.stats.mode)
-        st.attrs["eps"] = float(coded.stats.eps)
-        create_dataset(st, "mean", data=np.asarray(coded.stats.mean, dtype="<f4"))
-        create_dataset(st, "std", data=np.asarray(coded.stats.std, dtype="<f4"))
-        if coded.stats.bound is not None:
-            # Exact: the bound is rounded up to binary16 when it is made.
-            create_dataset(st, "bound", data=np.asarray(coded.stats.bound, dtype="<f2"))
-        write_directions(f.create_group("lights"), coded.lights)
-        write_directions(f.create_group("views"), coded.views)
+        write_coded(f, coded, _file_params(coded), schema)
     return target
 
 
-def _write_codes(g: h5py.Group, c: SparseCodes, k: int | None, name: str, ch: str) -> None:
+def coded_image(coded: CodedBTF, schema: int = CODED_SCHEMA_VERSION) -> bytes:
+    """The bytes :func:`save_coded` would write for ``coded``, made in memory (to measure the
+    stored size without touching the disk)."""
+    _check_schema(schema)
+    _check_coded(coded)
+    buf = io.BytesIO()
+    with h5py.File(buf, "w", libver=LIBVER) as f:
+        write_coded(f, coded, _file_params(coded), schema)
+    return buf.getvalue()
+
+
+def _check_schema(schema: int) -> None:
+    if schema not in WRITABLE_SCHEMAS:
+        raise BTFInputError(
+            f"coded files are written in schema {' or '.join(map(str, WRITABLE_SCHEMAS))}, "
+            f"not {schema}"
+        )
+
+
+def _file_params(coded: CodedBTF) -> dict:
+    """``coded.params`` with the attached model's file recorded (when it has one)."""
+    params = dict(coded.params)
+    if not params.get("model_file") and coded.model is not None and coded.model.file:
+        params["model_file"] = coded.model.file
+    return params
+
+
+def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> None:
+    """The content of a coded file into the open, empty HDF5 file ``f`` (see
+    :func:`save_coded`; also used to measure the stored size without a file)."""
+    write_str_attr(f, "format", CODED_FORMAT)
+    f.attrs["schema_version"] = int(schema)
+    write_str_attr(f, "model_hash", coded.model_hash)
+    write_str_attr(f, "library_version", library_version())
+    write_str_attr(f, "name", coded.name)
+    f.attrs["height"] = int(coded.height)
+    f.attrs["width"] = int(coded.width)
+    f.attrs["patch"] = int(coded.patch)
+    write_str_attr(f, "channels", json.dumps(list(coded.channels)))
+    write_str_attr(f, "params_json", to_json(params))
+    write_str_attr(f, "attrs_json", to_json(coded.attrs))
+    root = f.create_group("codes")
+    for ch in coded.channels:
+        k = coded.dictionary_count(ch)
+        _write_codes(root.create_group(ch), coded.codes[ch], k, schema, coded.name, ch)
+    st = f.create_group("stats")
+    if schema >= 3:  # every dataset of the group compressed, whoever adds it
+        st = CompressedGroup(st.id)
+    write_str_attr(st, "mode", coded.stats.mode)
+    st.attrs["eps"] = float(coded.stats.eps)
+    for name in ("mean", "std"):
+        a = np.asarray(getattr(coded.stats, name), dtype="<f4")
+        # schema 3: binary16 when that holds every value exactly (the encoders' statistics)
+        create_dataset(st, name, data=a.astype(exact_dtype(a)) if schema >= 3 else a)
+    if coded.stats.bound is not None:
+        # Exact: the bound is rounded up to binary16 when it is made.
+        create_dataset(st, "bound", data=np.asarray(coded.stats.bound, dtype="<f2"))
+    write_directions(f.create_group("lights"), coded.lights)
+    write_directions(f.create_group("views"), coded.views)
+
+
+def _write_codes(
+    g: h5py.Group, c: SparseCodes, k: int | None, schema: int, name: str, ch: str
+) -> None:
     sizes = tuple(int(m) for m in c.mode_sizes)
+    packed = schema >= 3
     g.attrs["mode_sizes"] = np.array(sizes, dtype=np.int64)
     g.attrs["n_points"] = c.n_points
     g.attrs["nnz"] = c.nnz
@@ -233,21 +284,17 @@ def _write_codes(g: h5py.Group, c: SparseCodes, k: int | None, name: str, ch: st
         g.attrs["n_dictionaries"] = k
     k_eff = k if k is not None else (int(c.membership.max()) + 1 if c.n_points else 1)
     m_dtype = "<u1" if k_eff <= 255 else "<u2" if k_eff <= 65535 else "<u4"
-    create_dataset(g, "membership", data=np.asarray(c.membership).astype(m_dtype))
+    create_dataset(g, "membership", data=np.asarray(c.membership).astype(m_dtype),
+                   compress=packed)  # fmt: skip
     big = c.n_points and int(c.counts.max()) > 65535
-    create_dataset(g, "counts", data=np.asarray(c.counts).astype("<u4" if big else "<u2"))
-    vals = np.asarray(c.values)
-    if vals.size and float(np.max(np.abs(vals))) > _FP16_MAX:
-        warnings.warn(
-            f"{name}, channel {ch}: values up to {float(np.max(np.abs(vals))):.4g} overflow "
-            f"binary16; storing this channel's values in float32",
-            stacklevel=3,
-        )
-        create_dataset(g, "values", data=vals.astype("<f4"))
+    create_dataset(g, "counts", data=np.asarray(c.counts).astype("<u4" if big else "<u2"),
+                   compress=packed)  # fmt: skip
+    if packed:
+        write_streams(g, c, f"{name}, channel {ch}")
     else:
-        create_dataset(g, "values", data=vals.astype("<f2"))
-    create_dataset(g, "locations", data=pack_locations(c.locations, sizes))
-    create_dataset(g, "errors", data=np.asarray(c.errors).astype("<f4"))
+        create_dataset(g, "values", data=stored_values(c.values, f"{name}, channel {ch}"))
+        create_dataset(g, "locations", data=pack_locations(c.locations, sizes))
+    create_dataset(g, "errors", data=np.asarray(c.errors).astype("<f4"), compress=packed)
 
 
 # --------------------------------------------------------------------------- reading
@@ -273,6 +320,7 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
     p = Path(path)
     where = str(p)
     with open_checked(p, CODED_FORMAT, _SUPPORTED) as f:
+        schema = read_int_attr(f, "schema_version", where)
         model_hash = read_str_attr(f, "model_hash", where)
         name = read_str_attr(f, "name", where) if "name" in f.attrs else p.stem
         height = read_int_attr(f, "height", where, 1, _MAX_SIDE)
@@ -295,7 +343,7 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
             g = require(root, ch, f"{where}/codes")
             if not isinstance(g, h5py.Group):
                 raise FileFormatError(f"{where}/codes/{ch}: expected a group, found a dataset")
-            codes[ch], k = _read_codes(g, f"{where}/codes/{ch}", n_points)
+            codes[ch], k = _read_codes(g, f"{where}/codes/{ch}", n_points, schema)
             if k is not None:
                 ks[ch] = k
         stats = _read_stats(require(f, "stats", where), f"{where}/stats")
@@ -399,13 +447,37 @@ def _mode_sizes(g: h5py.Group, where: str) -> tuple[int, ...]:
     return sizes
 
 
-def _read_codes(g: h5py.Group, where: str, n_points: int) -> tuple[SparseCodes, int | None]:
+def _read_codes(
+    g: h5py.Group, where: str, n_points: int, schema: int
+) -> tuple[SparseCodes, int | None]:
     sizes = _mode_sizes(g, where)
     k = read_int_attr(g, "n_dictionaries", where, 1, 2**32) if "n_dictionaries" in g.attrs else None
     membership = read_array(g, "membership", where, kinds="u", shape=(n_points,))
-    counts = read_array(g, "counts", where, kinds="u", shape=(n_points,))
+    counts = read_array(g, "counts", where, kinds="u", shape=(n_points,)).astype(np.int64)
     errors = read_array(g, "errors", where, kinds="f", shape=(n_points,))
     total = int(counts.sum(dtype=np.int64))
+    if schema >= 3:
+        values, locations = read_streams(g, where, sizes, counts, total)
+    else:
+        values, locations = _read_packed(g, where, sizes, total)
+    try:
+        codes = SparseCodes(
+            sizes,
+            membership.astype(np.int64),
+            counts,
+            values.astype(np.float32),
+            locations,
+            errors.astype(np.float64),
+        )
+    except BTFInputError as e:
+        raise FileFormatError(f"{where}: {e}") from None
+    return codes, k
+
+
+def _read_packed(
+    g: h5py.Group, where: str, sizes: tuple[int, ...], total: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """Schemas 1–2: (NNZ,) values and (NNZ, w) packed locations, in magnitude order."""
     values_ds = checked_dataset(g, "values", where, kinds="f", shape=(None,))
     if total != values_ds.shape[0]:
         raise FileFormatError(
@@ -421,18 +493,9 @@ def _read_codes(g: h5py.Group, where: str, n_points: int) -> tuple[SparseCodes, 
     values = read_array(g, "values", where, kinds="f", finite=True)
     packed = read_array(g, "locations", where, kinds="u")
     try:
-        locations = unpack_locations(packed, sizes)
-        codes = SparseCodes(
-            sizes,
-            membership.astype(np.int64),
-            counts.astype(np.int64),
-            values.astype(np.float32),
-            locations,
-            errors.astype(np.float64),
-        )
+        return values, unpack_locations(packed, sizes)
     except BTFInputError as e:
         raise FileFormatError(f"{where}: {e}") from None
-    return codes, k
 
 
 def _read_stats(g: h5py.Group, where: str) -> Standardization:

@@ -7,7 +7,8 @@ Layout (``format="sparsebtf-model"``, ``schema_version=2``; schema 1 lacks the c
                               training_json
     /dictionaries/<CH>        attrs: n_dictionaries (K), mode_sizes (N,) int64
     /dictionaries/<CH>/modeN  (K, m_n, m_n) float64 (float32 / float16 when that type holds
-                              every value exactly); [k, row, col]: row = sample index
+                              every value exactly; shuffle + deflate filters, lossless);
+                              [k, row, col]: row = sample index
                               (texel offset or direction), col = atom index (paper Eq. 4/5)
     /lights, /views           direction tables (xyz, theta, phi), as in the dense file
 
@@ -68,8 +69,9 @@ def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
     """Write ``model`` to ``path`` (HDF5, atomically: an interrupted write leaves no file).
 
     Every mode is stored in the narrowest of float16 / float32 / float64 that holds its values
-    exactly (:func:`exact_dtype`), contiguous and uncompressed, so the content hash that coded
-    files refer to is preserved exactly. Returns the path written; ``model.file`` remembers it.
+    exactly (:func:`exact_dtype`), so the content hash that coded files refer to is preserved
+    exactly, with HDF5's built-in lossless ``shuffle`` + ``deflate`` filters (any HDF5 reader
+    has them). Returns the path written; ``model.file`` remembers it.
     """
     target = Path(path)
     for ch in model.channels:
@@ -103,7 +105,7 @@ def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
             g.attrs["mode_sizes"] = np.array([m.shape[1] for m in mats], dtype=np.int64)
             for n, m in enumerate(mats, start=1):
                 a = np.asarray(m, dtype="<f8")
-                create_dataset(g, f"mode{n}", data=a.astype(exact_dtype(a)))
+                create_dataset(g, f"mode{n}", data=a.astype(exact_dtype(a)), compress=True)
         write_directions(f.create_group("lights"), model.lights)
         write_directions(f.create_group("views"), model.views)
     model.file = str(target.resolve())
