@@ -66,11 +66,11 @@ def test_coded_eps_out_of_range(corpus, tmp_path):
         f["stats"].attrs["eps"] = float(2**62)  # decoded to -4.6e18 everywhere before
     with pytest.raises(FileFormatError) as e:
         load_coded(p)
-    _one_line(e, str(p), "stats@eps", "4.6116", "expected 1e-12 <= eps <= 1")
+    _one_line(e, str(p), "stats@eps", "4.6116", "expected 1e-12 <= eps <= 1000")
 
 
 def test_coded_repeated_locations_within_a_point(corpus, tmp_path):
-    p = _copy(corpus, "coded.h5", tmp_path)
+    p = _copy(corpus, "coded_v2.h5", tmp_path)  # schema 2: packed locations
     _set(p, "codes/Y/locations", lambda b: np.zeros_like(b))
     with pytest.raises(FileFormatError) as e:
         load_coded(p)
@@ -79,7 +79,7 @@ def test_coded_repeated_locations_within_a_point(corpus, tmp_path):
 
 
 def test_coded_location_outside_the_data_point(corpus, tmp_path):
-    p = _copy(corpus, "coded.h5", tmp_path)
+    p = _copy(corpus, "coded_v2.h5", tmp_path)  # schema 2: packed locations
     _set(p, "codes/U/locations", lambda b: np.full_like(b, 255))
     with pytest.raises(FileFormatError) as e:
         load_coded(p)
@@ -105,7 +105,7 @@ def test_coded_membership_beyond_k(corpus, tmp_path):
 def test_coded_values_out_of_order(corpus, tmp_path):
     # Truncating to τ reads a prefix: a point whose values are not by decreasing |v| would
     # silently keep the wrong coefficients.
-    p = _copy(corpus, "coded.h5", tmp_path)
+    p = _copy(corpus, "coded_v2.h5", tmp_path)  # schema 2 keeps the stored order
     _set(p, "codes/U/values", lambda v: v[::-1].copy())
     with pytest.raises(FileFormatError) as e:
         load_coded(p)

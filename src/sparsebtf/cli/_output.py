@@ -111,8 +111,9 @@ def nested_rows(obj: Mapping[str, Any], prefix: str = "") -> list[tuple[str, str
         key = f"{prefix}{label(str(k))}"
         if isinstance(v, Mapping) and set(v) == {"name", "count"}:
             rows.append((key, f"{v['count']} ({v['name']})"))
-        elif isinstance(v, Mapping) and v and any(
-            isinstance(x, Mapping | list | tuple | str) for x in v.values()
+        elif isinstance(v, Mapping) and v and (
+            any(isinstance(x, Mapping | list | tuple | str) for x in v.values())
+            or any(len(str(x)) > 3 for x in v)  # one row only for {channel: number}
         ):
             rows += nested_rows(v, key + ".")
         else:
