@@ -232,7 +232,7 @@ def test_writer_refuses_repeated_locations(levels, tmp_path):
     locs[1] = locs[0]
     coded.codes["Y"] = SparseCodes(c.mode_sizes, c.membership, c.counts, c.values, locs,
                                    c.errors)  # fmt: skip
-    with pytest.raises(BTFInputError, match="point 0 repeats( a)? location"):
+    with pytest.raises(BTFInputError, match=r"point 0 repeats( a)? location"):
         save_coded(coded, tmp_path / "c.h5")
     assert not (tmp_path / "c.h5").exists()
 
