@@ -70,7 +70,7 @@ def tight_bound(coded):
     image's shared μ), so that tests see every decoder's clamp at work."""
     from dataclasses import replace
 
-    from sparsebtf.points.preprocessing import round_up_half
+    from sparsebtf.points.preprocessing import round_up_bound
 
-    bound = round_up_half(coded.stats.mean.mean(axis=2))
+    bound = round_up_bound(coded.stats.mean.mean(axis=2))
     return replace(coded, stats=replace(coded.stats, bound=bound))

@@ -155,7 +155,8 @@ def test_bench_meets_true_black(tiny_run):
     assert {r["method"] for r in black} == {"sparsebtf", "release", "floored"}
     assert {r["material"] for r in black} == {"metal12+black"}
     for r in black:
-        assert r["max_decoded"] <= r["reference_max"] * 1.01  # the bound, whatever the offset
+        # the bound (kept rounded up to 1/32 in the log), whatever the offset
+        assert r["max_decoded"] <= r["reference_max"] * 1.033
         assert 0 < r["top_error_share"] <= 1
     offsets = {r["method"]: r["log_offset"] for r in black}
     assert offsets["release"] == offsets["floored"] == 1e-5 < offsets["sparsebtf"]

@@ -155,7 +155,7 @@ def check_statistics(stats: Standardization, where: str) -> None:
     _check_range(np.asarray(stats.mean), f"{where}/mean", -STAT_BOUND, STAT_BOUND, "mean")
     _check_range(np.asarray(stats.std), f"{where}/std", 0.0, STAT_BOUND, "std", lo_open=True)
     if stats.bound is not None:
-        # No angular image lies below ln(0 + ε), the log of black (less a binary16 step).
+        # No angular image lies below ln(0 + ε), the log of black (the bound is rounded up).
         _check_range(np.asarray(stats.bound), f"{where}/bound", float(np.log(eps)) - 1e-2,
                      STAT_BOUND, "bound")
 

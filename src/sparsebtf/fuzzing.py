@@ -65,7 +65,7 @@ def _model(seed: int = 0) -> Any:
 def _coded(model: Any, seed: int = 0) -> Any:
     from .learning.coding import SparseCodes
     from .model import CodedBTF
-    from .points.preprocessing import Standardization, round_up_half
+    from .points.preprocessing import Standardization, round_up_bound
 
     rng = np.random.default_rng(seed)
     sizes = model.mode_sizes
@@ -82,7 +82,7 @@ def _coded(model: Any, seed: int = 0) -> Any:
         )  # fmt: skip
     nl, nv = len(model.lights), len(model.views)
     mean, std = rng.uniform(-2, -1, (nl, nv, 1)), rng.uniform(0.3, 0.8, (nl, nv, 1))
-    bound = round_up_half(mean[..., 0] + 2 * std[..., 0])
+    bound = round_up_bound(mean[..., 0] + 2 * std[..., 0])
     stats = Standardization("shared", mean, std, bound=bound)
     params = {"tau": dict.fromkeys(model.channels, tau), "n_dictionaries": 2}
     return CodedBTF(codes, stats, 4, 4, 2, model.lights, model.views, model.content_hash,

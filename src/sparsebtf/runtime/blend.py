@@ -12,7 +12,7 @@ it is then cut back to the τ largest coefficients per point (the output's spars
 
 The blend lives in each material's standardised domain; the output's statistics μ, σ, its log
 offset ε and its bound on ln(RGB + ε) are the same weighted sums of the inputs' (so α = 0 and
-1 return the inputs exactly; the bound is rounded up to binary16 like every stored bound).
+1 return the inputs exactly; the bound is rounded up to 1/32 like every stored bound).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from ..learning.coding import SparseCodes, topk_abs
 from ..learning.parallel import parallel_map
 from ..learning.tensor import reconstruct
 from ..model import CodedBTF, TauSpec, model_text, parse_tau
-from ..points.preprocessing import Standardization, round_up_half
+from ..points.preprocessing import Standardization, round_up_bound
 from ..storage.coded_streams import canonical_codes
 
 __all__ = ["blend", "check_blendable"]
@@ -214,7 +214,7 @@ def blend(
         sum(wj * c.stats.std for wj, c in pairs),
         eps if len({c.stats.eps for c in coded}) > 1 else st.eps,
         st.transform,
-        round_up_half(sum(wj * c.stats.bound.astype(np.float64) for wj, c in pairs))
+        round_up_bound(sum(wj * c.stats.bound.astype(np.float64) for wj, c in pairs))
         if bounded else None,
     )
     names = [c.name for c in coded]

@@ -265,7 +265,7 @@ def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> Non
         # schema 3: binary16 when that holds every value exactly (the encoders' statistics)
         create_dataset(st, name, data=a.astype(exact_dtype(a)) if schema >= 3 else a)
     if coded.stats.bound is not None:
-        # Exact: the bound is rounded up to binary16 when it is made.
+        # Exact: the bound is a multiple of 1/32 (round_up_bound), which binary16 holds.
         create_dataset(st, "bound", data=np.asarray(coded.stats.bound, dtype="<f2"))
     write_directions(f.create_group("lights"), coded.lights)
     write_directions(f.create_group("views"), coded.views)
