@@ -41,7 +41,7 @@ def _enabled(flag: bool | None) -> bool:
 
 def _duration(seconds: float) -> str:
     """``42s``, ``3m07s``, ``2h05m``."""
-    s = int(round(seconds))
+    s = round(seconds)
     if s < 60:
         return f"{s}s"
     if s < 3600:
