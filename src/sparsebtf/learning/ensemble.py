@@ -546,8 +546,16 @@ _NPZ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipf
                RuntimeError, TypeError, IndexError, UnicodeDecodeError)  # fmt: skip
 
 
-def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
-    """The arrays of a training checkpoint, verified against the SHA-256 it stores.
+#: The arrays every training checkpoint holds (besides ``sha256`` and the dictionaries).
+TRAIN_FIELDS = ("iteration", "objective", "passes", "ranking", "reseeded_from", "converged",
+                "key")  # fmt: skip
+
+
+def read_checkpoint(
+    path: str | os.PathLike[str], required: tuple[str, ...] = TRAIN_FIELDS
+) -> dict[str, np.ndarray]:
+    """The arrays of a checkpoint (training: ``required`` = :data:`TRAIN_FIELDS`; encoding:
+    :mod:`sparsebtf.codec.checkpoint`), verified against the SHA-256 it stores.
 
     A damaged, truncated or foreign file is one :class:`FileFormatError` line naming it."""
     try:
@@ -559,8 +567,7 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
             f"{str(e)[:120]}); delete it to start over"
         ) from None
     stored = str(arrays.pop("sha256", ""))
-    missing = [k for k in ("iteration", "objective", "passes", "ranking", "reseeded_from",
-                           "converged", "key") if k not in arrays]  # fmt: skip
+    missing = [k for k in required if k not in arrays]
     if not stored or missing:
         raise FileFormatError(
             f"checkpoint {path}: no {'sha256' if not stored else ', '.join(missing)}: written by "
@@ -575,8 +582,9 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
     return arrays
 
 
-def _check_key(path: Any, found: dict[str, Any], want: dict[str, Any]) -> None:
-    """One line naming what differs between a checkpoint and this fit."""
+def _check_key(path: Any, found: dict[str, Any], want: dict[str, Any],
+               what: str = "training parameters or data") -> None:  # fmt: skip
+    """One line naming what differs between a checkpoint and this run."""
     diff = [k for k in sorted(set(found) | set(want)) if found.get(k) != want.get(k)]
     if not diff:
         return
@@ -584,7 +592,7 @@ def _check_key(path: Any, found: dict[str, Any], want: dict[str, Any]) -> None:
         f"{k}: {_short(found.get(k))} in the checkpoint, {_short(want.get(k))} now" for k in diff
     )
     raise BTFInputError(
-        f"checkpoint {path} was made with other training parameters or data ({shown}); "
+        f"checkpoint {path} was made with other {what} ({shown}); "
         "delete it or choose another checkpoint path"
     )
 
