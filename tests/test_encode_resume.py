@@ -185,3 +185,71 @@ def test_same_name_other_content_refused(tmp_path):
     assert "\n" not in str(e.value) and "input" not in str(e.value).split("(")[1]
     again = next(encode_many([first], model, **kw))  # every range read back
     assert again.codes["Y"].values.tobytes() == ref.codes["Y"].values.tobytes()
+
+
+def _saved_ranges(monkeypatch) -> list:
+    """Spy on the ranges saved (on the client: also for a Dask encode)."""
+    saved: list = []
+    save = ckmod.EncodeCheckpoint.save
+
+    def spy(self, b, lo, hi, key, part):
+        save(self, b, lo, hi, key, part)
+        saved.append((b, lo, hi))
+
+    monkeypatch.setattr(ckmod.EncodeCheckpoint, "save", spy)
+    return saved
+
+
+def test_dask_encode_resumes(tmp_path, model_file, monkeypatch):
+    """Interrupted on a local cluster of 2 workers (started here), resumed on another: the
+    ranges are the same wherever they run, and so is the file."""
+    ref, out = tmp_path / "ref", tmp_path / "out"
+    assert _encode(model_file, [A, B], f"{ref}/") == 0  # in process
+    with monkeypatch.context() as m:
+        _interrupt_after(m, 3)
+        assert _encode(model_file, [A, B], f"{out}/", "--workers", "2") == 130
+    saved = _saved_ranges(monkeypatch)
+    assert _encode(model_file, [A, B], f"{out}/", "--workers", "2", "--resume") == 0
+    assert saved == [(0, 12, 16), (1, 0, 4), (1, 4, 8), (1, 8, 12), (1, 12, 16)]
+    for n in sorted(p.name for p in ref.iterdir()):
+        assert (out / n).read_bytes() == (ref / n).read_bytes(), n
+    assert not (tmp_path / "out.checkpoint").exists()
+
+
+SLOW_ENCODE = """
+import sys, time
+from sparsebtf.codec import checkpoint, jobs
+from sparsebtf.cli.main import main
+jobs.RANGE_BATCHES = 2
+save = checkpoint.EncodeCheckpoint.save
+def slow(*a):
+    save(*a)
+    time.sleep(0.5)  # time for the test to kill it between two ranges
+checkpoint.EncodeCheckpoint.save = slow
+sys.exit(main(sys.argv[1:]))
+"""
+
+
+def test_resume_after_kill(tmp_path, model_file):
+    """``kill -9`` after the first range is saved; --resume writes the uninterrupted file."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    from ._cluster import wait_for
+
+    ref, out = tmp_path / "ref.h5", tmp_path / "out.h5"
+    assert _encode(model_file, [A], ref) == 0
+    env = {**os.environ, "PYTHONPATH": str(Path(ckmod.__file__).parents[2])}
+    argv = ["encode", A, "-m", str(model_file), "-o", str(out), *OPTS]
+    p = subprocess.Popen([sys.executable, "-c", SLOW_ENCODE, *argv], env=env,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    try:
+        wait_for(tmp_path / "out.h5.checkpoint" / "points_0_0_4.npz")
+        p.send_signal(signal.SIGKILL)
+    finally:
+        p.wait(timeout=60)
+    assert p.returncode == -signal.SIGKILL and not out.exists()
+    assert _encode(model_file, [A], out, "--resume") == 0
+    assert out.read_bytes() == ref.read_bytes()
