@@ -10,7 +10,11 @@ from pathlib import Path
 from typing import Any
 
 from ..execution import ClusterError
-from ..learning.ensemble import CANDIDATES, FULL_PASS_EVERY
+from ..learning.ensemble import (
+    CANDIDATES,
+    EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY,
+    FULL_PASS_EVERY,
+)
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
@@ -144,9 +148,11 @@ def register(sub: Any) -> None:
     s.add_argument(
         "--candidates",
         type=int,
-        default=CANDIDATES,
+        default=None,
         help="dictionaries tried per point between full coding passes: its best ones at the "
-        f"last full pass (default {CANDIDATES}; >= --dicts tries all K every iteration)",
+        f"last full pass (default: all K, the exhaustive trainer, below "
+        f"{EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY} training points per dictionary, else "
+        f"{CANDIDATES}; >= --dicts tries all K every iteration)",
     )
     s.add_argument(
         "--full-pass-every",

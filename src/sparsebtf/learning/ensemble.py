@@ -72,6 +72,7 @@ from .tensor import unfold
 
 __all__ = [
     "CANDIDATES",
+    "EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY",
     "FULL_PASS_EVERY",
     "UPDATES",
     "ArraySource",
@@ -90,6 +91,12 @@ __all__ = [
 CANDIDATES = 1
 #: Default period of the full coding passes, in iterations (0: only those that must be full).
 FULL_PASS_EVERY = 10
+#: With fewer training points per dictionary than this, the default (``candidates=None``) is
+#: the exhaustive trainer: a full pass costs little there (points x K projections), while each
+#: point that stays with a stale dictionary weighs much in the objective (4 materials of 20x20
+#: texels, 2 points per dictionary: the candidate schedule ended 3.8 % above the exhaustive
+#: objective on V; docs/benchmarks.md §2).
+EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY = 8
 
 #: How Z⁽ⁿ'ᵏ⁾ is built: from the codes (fast) or from dense partial projections (reference).
 UPDATES = ("codes", "projections")
@@ -166,7 +173,9 @@ class DictionaryEnsemble:
     init : "points" (per-mode HOSVD of K random training points) or "random" (Haar-random).
     reseed_empty : re-seed a dictionary left without members from the worst-fitted point.
     candidates : dictionaries tried per point in a partial coding pass: its best ones at the
-        last full pass (module docstring). ``>= n_dictionaries``: every pass is full.
+        last full pass (module docstring). ``>= n_dictionaries``: every pass is full. None
+        (default): all K with fewer than :data:`EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY` points
+        per dictionary, else :data:`CANDIDATES` (:meth:`candidates_for`).
     full_pass_every : every this-many-th iteration ends with a full pass (0: only the
         iterations that must: after a re-seed, on meeting ``tol``, the last one).
     update : how Z⁽ⁿ'ᵏ⁾ is built: "codes" (from the τ_l coefficients, :mod:`.steps`) or
@@ -188,6 +197,7 @@ class DictionaryEnsemble:
     counts_ : (K,) members per dictionary (the release's ``EnsHist``).
     objective_ : mean squared error per entry after each coding step (non-increasing).
     passes_ : "full" or "partial" for each coding step of ``objective_``.
+    candidates_ : dictionaries tried per point in the partial passes (K: every pass full).
     n_iter_ : iterations run.
     iteration_seconds_ : wall time of each iteration run by this ``fit`` (update + coding).
     iteration_cpu_seconds_ : CPU time of this process (all threads) in each of them.
@@ -203,7 +213,7 @@ class DictionaryEnsemble:
         tol: float = 1e-4,
         init: str = "points",
         reseed_empty: bool = True,
-        candidates: int = CANDIDATES,
+        candidates: int | None = None,
         full_pass_every: int = FULL_PASS_EVERY,
         update: str = "codes",
         batch_size: int = 4,
@@ -254,7 +264,7 @@ class DictionaryEnsemble:
         ex = executor if executor is not None else InProcess()
         t0 = time.perf_counter()
         dt = np.dtype(self.dtype).type
-        n_cand = min(self.candidates, self.n_dictionaries)
+        n_cand = self.candidates_for(src.n_points)
         bounds = partition_bounds(src.n_points, self.partition_size)
         if partition is None:
             partition = functools.partial(_default_partition, ex, src, self.batch_size)
@@ -324,6 +334,7 @@ class DictionaryEnsemble:
         self.counts_ = counts[order]
         self.objective_ = state.objective
         self.passes_ = state.passes
+        self.candidates_ = n_cand
         self.n_iter_ = state.iteration
         self.mode_sizes_ = src.mode_sizes
         self.fit_seconds_ = time.perf_counter() - t0
@@ -339,6 +350,15 @@ class DictionaryEnsemble:
         self._check_fitted()
         return reconstruct_points(codes, self.dictionaries_)
 
+    def candidates_for(self, n_points: int) -> int:
+        """Dictionaries tried per point in a partial pass on ``n_points`` training points:
+        ``candidates`` if given, else all K below :data:`EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY`
+        points per dictionary (the exhaustive trainer), else :data:`CANDIDATES`."""
+        k = self.n_dictionaries
+        if self.candidates is not None:
+            return min(self.candidates, k)
+        return k if n_points < EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY * k else min(CANDIDATES, k)
+
     # -- steps ------------------------------------------------------------------------------
     def _validate(self) -> None:
         if self.n_dictionaries < 1 or self.n_dictionaries > 255:
@@ -349,7 +369,7 @@ class DictionaryEnsemble:
             raise BTFInputError(f"init must be 'points' or 'random', got {self.init!r}")
         if self.dtype not in ("float32", "float64"):
             raise BTFInputError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
-        if self.candidates < 1:
+        if self.candidates is not None and self.candidates < 1:
             raise BTFInputError(f"candidates must be >= 1, got {self.candidates}")
         if self.full_pass_every < 0:
             raise BTFInputError(f"full_pass_every must be >= 0, got {self.full_pass_every}")
@@ -446,7 +466,7 @@ class DictionaryEnsemble:
             "init": self.init,
             "seed": self.random_state,
             "dtype": self.dtype,
-            "candidates": min(self.candidates, self.n_dictionaries),
+            "candidates": self.candidates_for(src.n_points),
             "full_pass_every": self.full_pass_every,
             "update": self.update,
             "partition_size": self.partition_size,
