@@ -253,3 +253,4 @@ def test_resume_after_kill(tmp_path, model_file):
     assert p.returncode == -signal.SIGKILL and not out.exists()
     assert _encode(model_file, [A], out, "--resume") == 0
     assert out.read_bytes() == ref.read_bytes()
+    assert not (tmp_path / "out.h5.checkpoint").exists()

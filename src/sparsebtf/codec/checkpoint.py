@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from .._atomic import atomic_output
+from .._atomic import atomic_output, remove_stale_parts
 from ..errors import BTFInputError, FileFormatError
 from ..learning.coding import SparseCodes
 from ..learning.ensemble import _check_key, checkpoint_digest, read_checkpoint
@@ -192,9 +192,11 @@ class EncodeCheckpoint:
         return out
 
     def remove(self) -> None:
-        """Delete the range files, and the folder if nothing else is in it."""
+        """Delete the range files (and temporaries left by a killed writer), and the folder
+        if nothing else is in it."""
         for p in self.files():
             p.unlink(missing_ok=True)
+        remove_stale_parts(self.folder / "points")
         try:
             self.folder.rmdir()
         except OSError:
