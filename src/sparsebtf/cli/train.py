@@ -12,7 +12,7 @@ from typing import Any
 from ..execution import ClusterError
 from ..learning.ensemble import (
     CANDIDATES,
-    EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY,
+    EXHAUSTIVE_MAX_ENTRIES,
     FULL_PASS_EVERY,
 )
 from ..points.preprocessing import STD_MODES
@@ -150,9 +150,10 @@ def register(sub: Any) -> None:
         type=int,
         default=None,
         help="dictionaries tried per point between full coding passes: its best ones at the "
-        f"last full pass (default: all K, the exhaustive trainer, below "
-        f"{EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY} training points per dictionary, else "
-        f"{CANDIDATES}; >= --dicts tries all K every iteration)",
+        "last full pass (default: all K, the exhaustive trainer, when a full pass is cheap: "
+        f"points x K x point size <= 2^{EXHAUSTIVE_MAX_ENTRIES.bit_length() - 1}, e.g. 29 "
+        f"points of 10x10x151x151 at K = 8; else {CANDIDATES}; >= --dicts tries all K every "
+        "iteration)",
     )
     s.add_argument(
         "--full-pass-every",

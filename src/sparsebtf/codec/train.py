@@ -188,9 +188,9 @@ def train(
     ``colour_mode`` trains one ensemble on 5D points (p, p, L, V, 3), the paper's Table 6.
     ``candidates`` and ``full_pass_every`` set the coding passes between full ones
     (:class:`~sparsebtf.learning.ensemble.DictionaryEnsemble`; ``candidates >= n_dictionaries``
-    is the exhaustive trainer; None: all K below
-    :data:`~sparsebtf.learning.ensemble.EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY` points per
-    dictionary, else 1); the final memberships always come from a full pass.
+    is the exhaustive trainer; None: all K when a full pass projects at most
+    :data:`~sparsebtf.learning.ensemble.EXHAUSTIVE_MAX_ENTRIES` tensor entries, else 1); the
+    final memberships always come from a full pass.
     With ``checkpoint_dir`` each channel resumes from its last completed iteration.
     ``stage`` preprocesses the sampled points once into a temporary file in ``stage_dir``
     (default: when they need at most :data:`~sparsebtf.points.sources.STAGE_LIMIT_BYTES` and

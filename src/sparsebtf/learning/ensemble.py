@@ -34,6 +34,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import math
 import os
 import time
 import zipfile
@@ -72,7 +73,7 @@ from .tensor import unfold
 
 __all__ = [
     "CANDIDATES",
-    "EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY",
+    "EXHAUSTIVE_MAX_ENTRIES",
     "FULL_PASS_EVERY",
     "UPDATES",
     "ArraySource",
@@ -91,12 +92,12 @@ __all__ = [
 CANDIDATES = 1
 #: Default period of the full coding passes, in iterations (0: only those that must be full).
 FULL_PASS_EVERY = 10
-#: With fewer training points per dictionary than this, the default (``candidates=None``) is
-#: the exhaustive trainer: a full pass costs little there (points x K projections), while each
-#: point that stays with a stale dictionary weighs much in the objective (4 materials of 20x20
-#: texels, 2 points per dictionary: the candidate schedule ended 3.8 % above the exhaustive
-#: objective on V; docs/benchmarks.md §2).
-EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY = 8
+#: The default (``candidates=None``) is the exhaustive trainer when a full coding pass
+#: projects at most this many tensor entries (points x K x entries per point): 2^29, e.g. 29
+#: points of 10x10x151x151 at K = 8, about 4 s of projections per pass on 2 cores. On such
+#: problems the candidate schedule ended 1-8 % above the exhaustive objective
+#: (docs/benchmarks.md §2, "Small problems"), and a full pass costs little.
+EXHAUSTIVE_MAX_ENTRIES = 2**29
 
 #: How Z⁽ⁿ'ᵏ⁾ is built: from the codes (fast) or from dense partial projections (reference).
 UPDATES = ("codes", "projections")
@@ -174,8 +175,8 @@ class DictionaryEnsemble:
     reseed_empty : re-seed a dictionary left without members from the worst-fitted point.
     candidates : dictionaries tried per point in a partial coding pass: its best ones at the
         last full pass (module docstring). ``>= n_dictionaries``: every pass is full. None
-        (default): all K with fewer than :data:`EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY` points
-        per dictionary, else :data:`CANDIDATES` (:meth:`candidates_for`).
+        (default): all K when a full pass is cheap (at most :data:`EXHAUSTIVE_MAX_ENTRIES`
+        entries projected), else :data:`CANDIDATES` (:meth:`candidates_for`).
     full_pass_every : every this-many-th iteration ends with a full pass (0: only the
         iterations that must: after a re-seed, on meeting ``tol``, the last one).
     update : how Z⁽ⁿ'ᵏ⁾ is built: "codes" (from the τ_l coefficients, :mod:`.steps`) or
@@ -264,7 +265,7 @@ class DictionaryEnsemble:
         ex = executor if executor is not None else InProcess()
         t0 = time.perf_counter()
         dt = np.dtype(self.dtype).type
-        n_cand = self.candidates_for(src.n_points)
+        n_cand = self.candidates_for(src.n_points, src.mode_sizes)
         bounds = partition_bounds(src.n_points, self.partition_size)
         if partition is None:
             partition = functools.partial(_default_partition, ex, src, self.batch_size)
@@ -350,14 +351,16 @@ class DictionaryEnsemble:
         self._check_fitted()
         return reconstruct_points(codes, self.dictionaries_)
 
-    def candidates_for(self, n_points: int) -> int:
-        """Dictionaries tried per point in a partial pass on ``n_points`` training points:
-        ``candidates`` if given, else all K below :data:`EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY`
-        points per dictionary (the exhaustive trainer), else :data:`CANDIDATES`."""
+    def candidates_for(self, n_points: int, mode_sizes: tuple[int, ...]) -> int:
+        """Dictionaries tried per point in a partial pass on ``n_points`` training points of
+        shape ``mode_sizes``: ``candidates`` if given, else all K (the exhaustive trainer) when
+        a full pass projects at most :data:`EXHAUSTIVE_MAX_ENTRIES` entries
+        (``n_points · K · prod(mode_sizes)``), else :data:`CANDIDATES`."""
         k = self.n_dictionaries
         if self.candidates is not None:
             return min(self.candidates, k)
-        return k if n_points < EXHAUSTIVE_BELOW_POINTS_PER_DICTIONARY * k else min(CANDIDATES, k)
+        entries = n_points * k * math.prod(mode_sizes)
+        return k if entries <= EXHAUSTIVE_MAX_ENTRIES else min(CANDIDATES, k)
 
     # -- steps ------------------------------------------------------------------------------
     def _validate(self) -> None:
@@ -466,7 +469,7 @@ class DictionaryEnsemble:
             "init": self.init,
             "seed": self.random_state,
             "dtype": self.dtype,
-            "candidates": self.candidates_for(src.n_points),
+            "candidates": self.candidates_for(src.n_points, src.mode_sizes),
             "full_pass_every": self.full_pass_every,
             "update": self.update,
             "partition_size": self.partition_size,
