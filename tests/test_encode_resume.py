@@ -254,3 +254,15 @@ def test_resume_after_kill(tmp_path, model_file):
     assert _encode(model_file, [A], out, "--resume") == 0
     assert out.read_bytes() == ref.read_bytes()
     assert not (tmp_path / "out.h5.checkpoint").exists()
+
+
+def test_rate_control_resumes(tmp_path, model_file, monkeypatch):
+    """A --target-ratio encode keeps per-range candidates (not codes): they resume too."""
+    rate = ["--batch", "2", "--target-ratio", "40"]
+    ref, out = tmp_path / "ref.h5", tmp_path / "out.h5"
+    assert main(["encode", A, "-m", str(model_file), "-o", str(ref), *rate]) == 0
+    with monkeypatch.context() as m:
+        _interrupt_after(m, 3)
+        assert main(["encode", A, "-m", str(model_file), "-o", str(out), *rate]) == 130
+    assert main(["encode", A, "-m", str(model_file), "-o", str(out), *rate, "--resume"]) == 0
+    assert out.read_bytes() == ref.read_bytes()
