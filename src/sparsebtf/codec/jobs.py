@@ -42,7 +42,8 @@ from .checkpoint import MEASURED, EncodeCheckpoint, range_key, range_layout
 
 __all__ = ["EncodingPlan", "Header", "Source", "run_plan"]
 
-#: Longest point range of one task, in batches: bounds what a lost worker costs.
+#: Longest point range of one task, in batches: bounds what a lost worker costs, and (the
+#: range of every task when checkpointing, :mod:`.checkpoint`) what a stopped encode loses.
 RANGE_BATCHES = 8
 
 
