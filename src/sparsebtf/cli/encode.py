@@ -55,6 +55,7 @@ def _encode(args: argparse.Namespace, tau: str | None, offset: Any, outputs: lis
             ck: Path) -> None:  # fmt: skip
     from ..codec import encode_many
     from ..storage import save_coded, storage_report
+
     model = open_model_arg(args.model)
     label = model_label(args.model, model)
     # One line, before any work, for an input the model cannot code (here, not on a worker,
