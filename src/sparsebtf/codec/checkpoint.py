@@ -12,8 +12,10 @@ A checkpoint folder holds one ``points_B_LO_HI.npz`` per finished range ``[LO, H
   by a JSON ``tree``), and ``sha256`` over all of them
   (:func:`~sparsebtf.learning.ensemble.checkpoint_digest`, as training's checkpoints).
 
-A resumed run reads them back instead of coding those ranges; ranges start on batch boundaries,
-so the coded file equals an uninterrupted run's. A file that does not match this run is one
+A resumed run checks every file first (all but the statistics before the statistics pass,
+then those) and reads each range back instead of coding it when its turn comes (one range in
+memory at a time); ranges start on batch boundaries, so the coded file equals an uninterrupted
+run's. A file that does not match this run is one
 line naming what differs; a damaged one, one line naming the file.
 """
 
@@ -143,15 +145,19 @@ class EncodeCheckpoint:
         with atomic_output(self.path(b, lo, hi)) as tmp, open(tmp, "wb") as f:
             np.savez(f, sha256=np.asarray(checkpoint_digest(arrays)), **arrays)
 
-    def load(self, keys: list[dict[str, Any]], ranges: list[list[tuple[int, int]]],
-             skip: tuple[str, ...] = ()) -> list[dict[tuple[int, int], Any]]:  # fmt: skip
-        """Per input, the results of its finished ranges, ``{(lo, hi): result}``.
+    def scan(
+        self, keys: list[dict[str, Any]], ranges: list[list[tuple[int, int]]],
+        skip: tuple[str, ...] = (),
+    ) -> list[dict[tuple[int, int], dict[str, Any]]]:  # fmt: skip
+        """Per input, its finished ranges and their keys, ``{(lo, hi): key}``, every file read
+        and verified (its result is read again, by :meth:`read`, when it is needed: memory
+        holds one range at a time, not a whole resumed job).
 
         Every file must belong to this run: its input ``b`` among ``keys``, its key equal to
-        ``keys[b]`` (but for the entries in ``skip``, checked later), its range in ``ranges[b]``;
-        otherwise one line says what differs.
+        ``keys[b]`` (but for the entries in ``skip``, checked later by :meth:`check`), its
+        range in ``ranges[b]``; otherwise one line says what differs.
         """
-        done: list[dict[tuple[int, int], Any]] = [{} for _ in keys]
+        done: list[dict[tuple[int, int], dict[str, Any]]] = [{} for _ in keys]
         for path in self.files():
             b, lo, hi = (int(g) for g in _NAME.match(path.name).groups())  # type: ignore[union-attr]
             if b >= len(keys):
@@ -159,16 +165,7 @@ class EncodeCheckpoint:
                     f"checkpoint {path} is for input {b + 1}, but this run has {len(keys)} "
                     "input(s); resume with the same inputs, or delete the folder to start over"
                 )
-            arrays = read_checkpoint(path, required=("key", "tree"))
-            try:
-                found = json.loads(str(arrays.pop("key")))
-                tree = json.loads(str(arrays.pop("tree")))
-                part = _unflatten(tree, arrays)
-            except (ValueError, KeyError, TypeError, AttributeError) as e:
-                raise FileFormatError(
-                    f"checkpoint {path}: not an encode checkpoint ({type(e).__name__}: {e}); "
-                    "delete it to start over"
-                ) from None
+            found, _ = self._read(path)
             want = {k: v for k, v in keys[b].items() if k not in skip}
             _check_key(path, {k: v for k, v in found.items() if k not in skip}, want,
                        "inputs or encoding parameters")  # fmt: skip
@@ -177,19 +174,38 @@ class EncodeCheckpoint:
                     f"checkpoint {path}: points [{lo}, {hi}) are not a range of this run's "
                     f"layout ({len(ranges[b])} ranges); delete the folder to start over"
                 )
-            done[b][(lo, hi)] = (found, part)
+            done[b][(lo, hi)] = found
         return done
 
-    def check(self, done: list[dict[tuple[int, int], Any]], keys: list[dict[str, Any]]
-              ) -> list[dict[tuple[int, int], Any]]:  # fmt: skip
-        """The results of :meth:`load` once the entries it skipped are known: every key must
-        now equal ``keys[b]`` in full (one line otherwise)."""
-        out: list[dict[tuple[int, int], Any]] = []
+    def check(self, done: list[dict[tuple[int, int], dict[str, Any]]],
+              keys: list[dict[str, Any]]) -> list[set[tuple[int, int]]]:  # fmt: skip
+        """The ranges found by :meth:`scan` once the entries it skipped are known: every key
+        must now equal ``keys[b]`` in full (one line otherwise)."""
         for b, ranges in enumerate(done):
-            for (lo, hi), (found, _) in ranges.items():
+            for (lo, hi), found in ranges.items():
                 _check_key(self.path(b, lo, hi), found, keys[b], "inputs or encoding parameters")
-            out.append({r: part for r, (_, part) in ranges.items()})
-        return out
+        return [set(ranges) for ranges in done]
+
+    def read(self, b: int, lo: int, hi: int, key: dict[str, Any]) -> Any:
+        """The result saved for range ``[lo, hi)`` of input ``b`` (verified again: SHA-256,
+        and ``key``, in case the file changed since :meth:`scan`)."""
+        path = self.path(b, lo, hi)
+        found, part = self._read(path)
+        _check_key(path, found, key, "inputs or encoding parameters")
+        return part
+
+    def _read(self, path: Path) -> tuple[dict[str, Any], Any]:
+        """(key, result) of one file, or one line naming it."""
+        arrays = read_checkpoint(path, required=("key", "tree"))
+        try:
+            found = json.loads(str(arrays.pop("key")))
+            tree = json.loads(str(arrays.pop("tree")))
+            return found, _unflatten(tree, arrays)
+        except (ValueError, KeyError, TypeError, AttributeError) as e:
+            raise FileFormatError(
+                f"checkpoint {path}: not an encode checkpoint ({type(e).__name__}: {e}); "
+                "delete it to start over"
+            ) from None
 
     def remove(self) -> None:
         """Delete the range files (and temporaries left by a killed writer), and the folder

@@ -246,13 +246,13 @@ def _run(
         layout = [range_layout(n, at_most) for n in n_points]
         early = [range_key(h, model, plan, None, batch_size, r)
                  for h, r in zip(headers, layout, strict=True)]  # fmt: skip
-        loaded = ck.load(early, layout, skip=MEASURED)  # refused before the statistics pass
+        found = ck.scan(early, layout, skip=MEASURED)  # refused before the statistics pass
     stats = _statistics(ex, opened, headers, model, mode, log_offset, progress)
-    done: list[dict[tuple[int, int], Any]] = [{} for _ in headers]
+    done: list[set[tuple[int, int]]] = [set() for _ in headers]
     if ck is not None:
         keys = [range_key(h, model, plan, s, batch_size, r)
                 for h, s, r in zip(headers, stats, layout, strict=True)]  # fmt: skip
-        done = ck.check(loaded, keys)
+        done = ck.check(found, keys)
     model_h = ex.constant(model)
     stats_h = [ex.constant(s) for s in stats]
     owner, weights, tasks = [], [], []
@@ -276,7 +276,7 @@ def _run(
         for b in range(len(headers)):
             for lo, hi in layout[b]:
                 if (lo, hi) in done[b]:
-                    yield done[b].pop((lo, hi))
+                    yield ck.read(b, lo, hi, keys[b])  # type: ignore[union-attr]
                     continue
                 part = next(results)
                 if ck is not None:
