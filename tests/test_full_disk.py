@@ -100,11 +100,12 @@ def _check_failed(res: subprocess.CompletedProcess[str], target: Path, what: str
     lines = [ln for ln in res.stderr.strip().splitlines() if ln]
     assert res.returncode == 2, res.stderr
     assert len(lines) == 1, res.stderr
-    if name == "train":
-        # Training fails at its first checkpoint (beside the output), before hours of work;
-        # the folder it made for it is removed.
+    if name in ("train", "encode"):
+        # Training and encoding fail at their first checkpoint (beside the output), before
+        # hours of work; the folder made for it is removed.
         ck = target.with_name(target.name + ".checkpoint")
-        assert lines[0] == (f"sparsebtf: error: {what} while writing {ck / 'train_Y.npz'}; "
+        first = "train_Y.npz" if name == "train" else "points_0_0_4.npz"
+        assert lines[0] == (f"sparsebtf: error: {what} while writing {ck / first}; "
                             "nothing was written")  # fmt: skip
         assert not ck.exists()
     else:

@@ -186,6 +186,31 @@ def check_output_dir(path: str | os.PathLike[str] | None, flag: str) -> Path | N
     return p
 
 
+def checkpoint_dir(args: argparse.Namespace) -> Path:
+    """``--checkpoint-dir``, or ``OUTPUT.checkpoint`` beside the output (file or folder)."""
+    if args.checkpoint_dir:
+        return Path(args.checkpoint_dir)
+    out = Path(args.output)
+    return out.with_name(out.name + ".checkpoint")
+
+
+def check_resume(folder: Path, resume: bool, pattern: str, command: str) -> None:
+    """A run starts clean or resumes on purpose, never both by accident: ``--resume`` needs
+    checkpoints (files matching ``pattern``) in ``folder``, and checkpoints need ``--resume``."""
+    found = sorted(p.name for p in folder.glob(pattern)) if folder.is_dir() else []
+    if resume and not found:
+        raise SparseBTFError(
+            f"--resume: no checkpoint in {folder} (an interrupted 'sparsebtf {command}' with "
+            "the same -o, or --checkpoint-dir, leaves one there)"
+        )
+    if found and not resume:
+        shown = ", ".join(found[:3]) + (f" and {len(found) - 3} more" if len(found) > 3 else "")
+        raise SparseBTFError(
+            f"{folder} holds the checkpoints of an earlier run ({shown}); add "
+            "--resume to continue it, or delete the folder to start over"
+        )
+
+
 # --------------------------------------------------------------------------- BTF sources
 
 

@@ -4,13 +4,18 @@ or on a Dask cluster (``--workers`` / ``--scheduler``)."""
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError
+from ..execution import ClusterError
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
+    check_output_dir,
+    check_resume,
     check_tau,
+    checkpoint_dir,
     cluster_options,
     integer,
     log_offset,
@@ -26,12 +31,31 @@ __all__ = ["register"]
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..codec import encode_many
-    from ..storage import save_coded, storage_report
+    from ..codec.checkpoint import EncodeCheckpoint
 
     tau = check_tau(args.tau)
     offset = log_offset(args.log_offset)
     outputs = output_files(args.btf, args.output, inputs=[args.model])
+    ck = checkpoint_dir(args)
+    check_output_dir(str(ck), "--checkpoint-dir")
+    check_resume(ck, args.resume, "points_*.npz", "encode")
+    try:
+        _encode(args, tau, offset, outputs, ck)
+    except BaseException as e:
+        if ck.is_dir() and not any(ck.iterdir()):  # nothing to resume from: leave no folder
+            ck.rmdir()
+        elif isinstance(e, ClusterError):
+            raise ClusterError(f"{e}; rerun with --resume to continue from {ck}") from None
+        raise
+    EncodeCheckpoint(ck).remove()  # every output is written: the ranges have served
+    return 0
+
+
+def _encode(args: argparse.Namespace, tau: str | None, offset: Any, outputs: list[Any],
+            ck: Path) -> None:  # fmt: skip
+    from ..codec import encode_many
+    from ..storage import save_coded, storage_report
+
     model = open_model_arg(args.model)
     label = model_label(args.model, model)
     # One line, before any work, for an input the model cannot code (here, not on a worker,
@@ -51,7 +75,7 @@ def run(args: argparse.Namespace) -> int:
         target_ratio=args.target_ratio, per_material=per_material, budget=args.budget,
         std_mode=args.std_mode, log_offset=offset, batch_size=args.batch,
         allow_below_training=args.allow_below_training,
-        crop=parse_crop(args.crop), **cluster_options(args),
+        crop=parse_crop(args.crop), checkpoint_dir=ck, **cluster_options(args),
     )  # fmt: skip
     reports = []
     for coded, output in zip(coded_all, outputs, strict=True):
@@ -67,7 +91,6 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {ratio_line(report, args.target_ratio, args.budget, per_material)}")
     if args.json:
         print_json(reports[0] if len(args.btf) == 1 else {"files": reports})
-    return 0
 
 
 def ratio_line(
@@ -145,6 +168,13 @@ def register(sub: Any) -> None:
     s.add_argument("--allow-below-training", action="store_true",
                    help="accept a tau below the model's training sparsity tau_l (the paper "
                    "requires tau >= tau_l)")
+    s.add_argument("--checkpoint-dir",
+                   help="save each finished range of data points here (default: "
+                   "OUTPUT.checkpoint beside the output, removed once every output is written)")
+    s.add_argument("--resume", action="store_true",
+                   help="continue an interrupted or killed run from its finished ranges (same "
+                   "inputs and options; an error names what differs); the output equals an "
+                   "uninterrupted run's")
     add_cluster_options(s)
     s.add_argument("--json", action="store_true", help="print the storage report(s) as JSON")
     s.set_defaults(func=run, checks={

@@ -9,14 +9,19 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from ..errors import SparseBTFError
 from ..execution import ClusterError
-from ..learning.ensemble import CANDIDATES, FULL_PASS_EVERY
+from ..learning.ensemble import (
+    CANDIDATES,
+    EXHAUSTIVE_MAX_ENTRIES,
+    FULL_PASS_EVERY,
+)
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
     check_output_dir,
     check_output_file,
+    check_resume,
+    checkpoint_dir,
     cluster_options,
     integer,
     log_offset,
@@ -29,39 +34,15 @@ from ._output import print_json
 __all__ = ["register"]
 
 
-def checkpoint_dir(args: argparse.Namespace) -> Path:
-    """``--checkpoint-dir``, or ``OUTPUT.checkpoint`` beside the model."""
-    if args.checkpoint_dir:
-        return Path(args.checkpoint_dir)
-    out = Path(args.output)
-    return out.with_name(out.name + ".checkpoint")
-
-
-def _check_resume(folder: Path, resume: bool) -> None:
-    """A run starts clean or resumes on purpose: never both by accident."""
-    from ..codec.train import checkpoint_path
-
-    pattern = Path(checkpoint_path(folder, "*")).name
-    found = sorted(p.name for p in folder.glob(pattern)) if folder.is_dir() else []
-    if resume and not found:
-        raise SparseBTFError(
-            f"--resume: no checkpoint in {folder} (an interrupted 'sparsebtf train' with the "
-            "same -o, or --checkpoint-dir, leaves one there)"
-        )
-    if found and not resume:
-        raise SparseBTFError(
-            f"{folder} holds the checkpoints of an earlier run ({', '.join(found)}); add "
-            "--resume to continue it, or delete the folder to start over"
-        )
-
-
 def run(args: argparse.Namespace) -> int:
     from ..storage import save_model
 
     check_output_file(args.output, args.btfs)
+    from ..codec.train import checkpoint_path
+
     ck = checkpoint_dir(args)
     check_output_dir(str(ck), "--checkpoint-dir")
-    _check_resume(ck, args.resume)
+    check_resume(ck, args.resume, Path(checkpoint_path(ck, "*")).name, "train")
     for s in args.btfs:  # one clear line for a bad input, before any work
         open_source(s, crop=args.crop)
     try:
@@ -167,9 +148,12 @@ def register(sub: Any) -> None:
     s.add_argument(
         "--candidates",
         type=int,
-        default=CANDIDATES,
+        default=None,
         help="dictionaries tried per point between full coding passes: its best ones at the "
-        f"last full pass (default {CANDIDATES}; >= --dicts tries all K every iteration)",
+        "last full pass (default: all K, the exhaustive trainer, when a full pass is cheap: "
+        f"points x K x point size <= 2^{EXHAUSTIVE_MAX_ENTRIES.bit_length() - 1}, e.g. 29 "
+        f"points of 10x10x151x151 at K = 8; else {CANDIDATES}; >= --dicts tries all K every "
+        "iteration)",
     )
     s.add_argument(
         "--full-pass-every",

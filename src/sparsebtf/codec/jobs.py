@@ -39,10 +39,12 @@ from ..points.preprocessing import (
     warn_negatives,
 )
 from ..storage.coded_streams import binary16_statistics
+from .checkpoint import MEASURED, EncodeCheckpoint, range_key, range_layout
 
 __all__ = ["EncodingPlan", "Header", "Source", "run_plan"]
 
-#: Longest point range of one task, in batches: bounds what a lost worker costs.
+#: Longest point range of one task, in batches: bounds what a lost worker costs, and (the
+#: range of every task when checkpointing, :mod:`.checkpoint`) what a stopped encode loses.
 RANGE_BATCHES = 8
 
 
@@ -197,24 +199,30 @@ def run_plan(
     client: Any = None,
     scheduler: str | None = None,
     workers: int | None = None,
+    checkpoint_dir: str | os.PathLike[str] | None = None,
 ) -> Iterator[list[Any]]:
     """Encode ``sources`` by ``plan``; yield each one's result, in order, as it completes.
 
     Runs in process, or on the cluster of ``client`` / ``scheduler`` / ``workers``
     (:func:`sparsebtf.execution.executor`). Every BTF is checked before work starts.
     ``log_offset`` is the rule for each BTF's log offset ε
-    (:func:`~sparsebtf.points.preprocessing.choose_log_offset`).
+    (:func:`~sparsebtf.points.preprocessing.choose_log_offset`). With ``checkpoint_dir`` every
+    finished point range is saved there (:mod:`.checkpoint`: ranges of :data:`RANGE_BATCHES`
+    batches, in process too) and the ranges already there are read back instead of coded:
+    the results equal an uninterrupted run's. The caller removes the folder when done.
     """
     if batch_size < 1:
         raise SparseBTFError(f"batch size must be >= 1, got {batch_size}")
     rule = resolve_log_offset(log_offset)
+    ck = None if checkpoint_dir is None else EncodeCheckpoint(checkpoint_dir)
     with executor(client=client, scheduler=scheduler, workers=workers) as ex:
-        yield from _run(ex, list(sources), model, plan, std_mode, rule, batch_size, progress)
+        yield from _run(ex, list(sources), model, plan, std_mode, rule, batch_size, progress, ck)
 
 
 def _run(
     ex: Executor, sources: list[Source], model: Model, plan: EncodingPlan,
     std_mode: StdMode | None, log_offset: LogOffset, batch_size: int, progress: bool | None,
+    ck: EncodeCheckpoint | None = None,
 ) -> Iterator[list[Any]]:  # fmt: skip
     mode = std_mode or model.std_mode
     check_std_mode(mode)
@@ -231,25 +239,53 @@ def _run(
         model.check_directions(h)  # type: ignore[arg-type]
         n_points.append(PatchGrid.for_btf(h, model.patch).n_points)  # type: ignore[arg-type]
     extras = [plan.prepare(h, model) for h in headers]
+    at_most = RANGE_BATCHES * batch_size
+    if ck is None:
+        layout = [ex.chunks(n, batch_size, at_most=at_most, total=sum(n_points))
+                  for n in n_points]  # fmt: skip
+    else:  # the same ranges wherever they run, so that any run can resume them
+        layout = [range_layout(n, at_most) for n in n_points]
+        early = [range_key(h, model, plan, None, batch_size, r)
+                 for h, r in zip(headers, layout, strict=True)]  # fmt: skip
+        found = ck.scan(early, layout, skip=MEASURED)  # refused before the statistics pass
     stats = _statistics(ex, opened, headers, model, mode, log_offset, progress)
+    done: list[set[tuple[int, int]]] = [set() for _ in headers]
+    if ck is not None:
+        keys = [range_key(h, model, plan, s, batch_size, r)
+                for h, s, r in zip(headers, stats, layout, strict=True)]  # fmt: skip
+        done = ck.check(found, keys)
     model_h = ex.constant(model)
     stats_h = [ex.constant(s) for s in stats]
     owner, weights, tasks = [], [], []
-    at_most = RANGE_BATCHES * batch_size
     for b, o in enumerate(opened):
-        for lo, hi in ex.chunks(n_points[b], batch_size, at_most=at_most, total=sum(n_points)):
+        for lo, hi in layout[b]:
+            owner.append(b)
+            if (lo, hi) in done[b]:
+                continue
             tasks.append(ex.submit(
                 _range, plan, o, model_h, stats_h[b], lo, hi, extras[b], batch_size, ticks=True
             ))  # fmt: skip
-            owner.append(b)
             weights.append(hi - lo)
     what = headers[0].name if len(headers) == 1 else f"{len(headers)} BTFs"
     results = ex.results(
         tasks, weights=weights, desc=f"{plan.desc} {what}", unit="pt", progress=progress
     )
     del tasks  # each range's result is released once read
-    for b, parts in _by_owner(results, owner):
-        yield plan.finish(headers[b], model, stats[b], parts, extras[b])
+
+    def parts() -> Iterator[Any]:
+        """Every range's result in order: read back from the checkpoint, or coded (and saved)."""
+        for b in range(len(headers)):
+            for lo, hi in layout[b]:
+                if (lo, hi) in done[b]:
+                    yield ck.read(b, lo, hi, keys[b])  # type: ignore[union-attr]
+                    continue
+                part = next(results)
+                if ck is not None:
+                    ck.save(b, lo, hi, keys[b], part)
+                yield part
+
+    for b, ordered in _by_owner(parts(), owner):
+        yield plan.finish(headers[b], model, stats[b], ordered, extras[b])
 
 
 def _by_owner(results: Iterator[Any], owner: list[int]) -> Iterator[tuple[int, list[Any]]]:

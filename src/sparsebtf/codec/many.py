@@ -50,6 +50,7 @@ def encode_many(
     client: Any = None,
     scheduler: str | None = None,
     workers: int | None = None,
+    checkpoint_dir: str | os.PathLike[str] | None = None,
 ) -> Iterator[CodedBTF]:
     """Encode every BTF of ``sources`` on ``model``; yield their coded BTFs in order.
 
@@ -61,6 +62,8 @@ def encode_many(
     ``crop`` = (rows, cols) applies to every source. ``client`` / ``scheduler`` / ``workers``
     choose the cluster (:func:`sparsebtf.execution.executor`; default: this process).
     Iterate to the end (or close the iterator) to release a cluster it started.
+    ``checkpoint_dir`` saves each finished point range there and resumes from the ranges it
+    already holds (:mod:`.checkpoint`; the coded BTFs are those of an uninterrupted run).
     """
     if not sources:
         raise BTFInputError("nothing to encode: give at least one BTF")
@@ -78,7 +81,7 @@ def encode_many(
         [Source.of(s, crop) for s in sources], model, plan, std_mode=std_mode,
         log_offset=log_offset,
         batch_size=batch_size, progress=progress, client=client, scheduler=scheduler,
-        workers=workers,
+        workers=workers, checkpoint_dir=checkpoint_dir,
     ):  # fmt: skip
         yield levels[0]
 

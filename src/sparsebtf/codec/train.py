@@ -26,7 +26,6 @@ from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..execution import Executor, executor
 from ..learning.ensemble import (
-    CANDIDATES,
     FULL_PASS_EVERY,
     DictionaryEnsemble,
     PointSource,
@@ -56,7 +55,7 @@ def _train_channel(
     max_iter: int,
     tol: float,
     init: str,
-    candidates: int,
+    candidates: int | None,
     full_pass_every: int,
     batch_size: int,
     partition_size: int,
@@ -93,6 +92,10 @@ def _train_channel(
         "n_iter": int(ens.n_iter_),
         "seconds": float(ens.fit_seconds_),
         "n_points": int(src.n_points),
+        # dictionaries tried per point between full passes (K: every pass full), and whether
+        # the caller chose it or the size rule did (DictionaryEnsemble.candidates_for)
+        "candidates": int(ens.candidates_),
+        "candidate_rule": "given" if candidates is not None else "auto",
         "iteration_seconds": [float(v) for v in ens.iteration_seconds_],
     }
 
@@ -162,7 +165,7 @@ def train(
     std_mode: StdMode = "shared",
     colour_mode: bool = False,
     init: str = "points",
-    candidates: int = CANDIDATES,
+    candidates: int | None = None,
     full_pass_every: int = FULL_PASS_EVERY,
     batch_size: int = 4,
     partition_size: int = PARTITION_POINTS,
@@ -185,7 +188,9 @@ def train(
     ``colour_mode`` trains one ensemble on 5D points (p, p, L, V, 3), the paper's Table 6.
     ``candidates`` and ``full_pass_every`` set the coding passes between full ones
     (:class:`~sparsebtf.learning.ensemble.DictionaryEnsemble`; ``candidates >= n_dictionaries``
-    is the exhaustive trainer); the final memberships always come from a full pass.
+    is the exhaustive trainer; None: all K when a full pass projects at most
+    :data:`~sparsebtf.learning.ensemble.EXHAUSTIVE_MAX_ENTRIES` tensor entries, else 1); the
+    final memberships always come from a full pass.
     With ``checkpoint_dir`` each channel resumes from its last completed iteration.
     ``stage`` preprocesses the sampled points once into a temporary file in ``stage_dir``
     (default: when they need at most :data:`~sparsebtf.points.sources.STAGE_LIMIT_BYTES` and
@@ -266,7 +271,8 @@ def train(
         "std_mode": std_mode,
         "colour_mode": colour_mode,
         "init": init,
-        "candidates": min(candidates, n_dictionaries),
+        # what the passes used (the channels share their points, so one value)
+        "candidates": max(t["candidates"] for t in training.values()),
         "full_pass_every": full_pass_every,
         "partition_size": partition_size,
         "seed": seed,

@@ -34,6 +34,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import math
 import os
 import time
 import zipfile
@@ -72,6 +73,7 @@ from .tensor import unfold
 
 __all__ = [
     "CANDIDATES",
+    "EXHAUSTIVE_MAX_ENTRIES",
     "FULL_PASS_EVERY",
     "UPDATES",
     "ArraySource",
@@ -90,6 +92,12 @@ __all__ = [
 CANDIDATES = 1
 #: Default period of the full coding passes, in iterations (0: only those that must be full).
 FULL_PASS_EVERY = 10
+#: The default (``candidates=None``) is the exhaustive trainer when a full coding pass
+#: projects at most this many tensor entries (points x K x entries per point): 2^29, e.g. 29
+#: points of 10x10x151x151 at K = 8, about 4 s of projections per pass on 2 cores. On such
+#: problems the candidate schedule ended 1-8 % above the exhaustive objective
+#: (docs/benchmarks.md §2, "Small problems"), and a full pass costs little.
+EXHAUSTIVE_MAX_ENTRIES = 2**29
 
 #: How Z⁽ⁿ'ᵏ⁾ is built: from the codes (fast) or from dense partial projections (reference).
 UPDATES = ("codes", "projections")
@@ -166,7 +174,9 @@ class DictionaryEnsemble:
     init : "points" (per-mode HOSVD of K random training points) or "random" (Haar-random).
     reseed_empty : re-seed a dictionary left without members from the worst-fitted point.
     candidates : dictionaries tried per point in a partial coding pass: its best ones at the
-        last full pass (module docstring). ``>= n_dictionaries``: every pass is full.
+        last full pass (module docstring). ``>= n_dictionaries``: every pass is full. None
+        (default): all K when a full pass is cheap (at most :data:`EXHAUSTIVE_MAX_ENTRIES`
+        entries projected), else :data:`CANDIDATES` (:meth:`candidates_for`).
     full_pass_every : every this-many-th iteration ends with a full pass (0: only the
         iterations that must: after a re-seed, on meeting ``tol``, the last one).
     update : how Z⁽ⁿ'ᵏ⁾ is built: "codes" (from the τ_l coefficients, :mod:`.steps`) or
@@ -188,6 +198,7 @@ class DictionaryEnsemble:
     counts_ : (K,) members per dictionary (the release's ``EnsHist``).
     objective_ : mean squared error per entry after each coding step (non-increasing).
     passes_ : "full" or "partial" for each coding step of ``objective_``.
+    candidates_ : dictionaries tried per point in the partial passes (K: every pass full).
     n_iter_ : iterations run.
     iteration_seconds_ : wall time of each iteration run by this ``fit`` (update + coding).
     iteration_cpu_seconds_ : CPU time of this process (all threads) in each of them.
@@ -203,7 +214,7 @@ class DictionaryEnsemble:
         tol: float = 1e-4,
         init: str = "points",
         reseed_empty: bool = True,
-        candidates: int = CANDIDATES,
+        candidates: int | None = None,
         full_pass_every: int = FULL_PASS_EVERY,
         update: str = "codes",
         batch_size: int = 4,
@@ -254,7 +265,7 @@ class DictionaryEnsemble:
         ex = executor if executor is not None else InProcess()
         t0 = time.perf_counter()
         dt = np.dtype(self.dtype).type
-        n_cand = min(self.candidates, self.n_dictionaries)
+        n_cand = self.candidates_for(src.n_points, src.mode_sizes)
         bounds = partition_bounds(src.n_points, self.partition_size)
         if partition is None:
             partition = functools.partial(_default_partition, ex, src, self.batch_size)
@@ -324,6 +335,7 @@ class DictionaryEnsemble:
         self.counts_ = counts[order]
         self.objective_ = state.objective
         self.passes_ = state.passes
+        self.candidates_ = n_cand
         self.n_iter_ = state.iteration
         self.mode_sizes_ = src.mode_sizes
         self.fit_seconds_ = time.perf_counter() - t0
@@ -339,6 +351,17 @@ class DictionaryEnsemble:
         self._check_fitted()
         return reconstruct_points(codes, self.dictionaries_)
 
+    def candidates_for(self, n_points: int, mode_sizes: tuple[int, ...]) -> int:
+        """Dictionaries tried per point in a partial pass on ``n_points`` training points of
+        shape ``mode_sizes``: ``candidates`` if given, else all K (the exhaustive trainer) when
+        a full pass projects at most :data:`EXHAUSTIVE_MAX_ENTRIES` entries
+        (``n_points · K · prod(mode_sizes)``), else :data:`CANDIDATES`."""
+        k = self.n_dictionaries
+        if self.candidates is not None:
+            return min(self.candidates, k)
+        entries = n_points * k * math.prod(mode_sizes)
+        return k if entries <= EXHAUSTIVE_MAX_ENTRIES else min(CANDIDATES, k)
+
     # -- steps ------------------------------------------------------------------------------
     def _validate(self) -> None:
         if self.n_dictionaries < 1 or self.n_dictionaries > 255:
@@ -349,7 +372,7 @@ class DictionaryEnsemble:
             raise BTFInputError(f"init must be 'points' or 'random', got {self.init!r}")
         if self.dtype not in ("float32", "float64"):
             raise BTFInputError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
-        if self.candidates < 1:
+        if self.candidates is not None and self.candidates < 1:
             raise BTFInputError(f"candidates must be >= 1, got {self.candidates}")
         if self.full_pass_every < 0:
             raise BTFInputError(f"full_pass_every must be >= 0, got {self.full_pass_every}")
@@ -446,7 +469,7 @@ class DictionaryEnsemble:
             "init": self.init,
             "seed": self.random_state,
             "dtype": self.dtype,
-            "candidates": min(self.candidates, self.n_dictionaries),
+            "candidates": self.candidates_for(src.n_points, src.mode_sizes),
             "full_pass_every": self.full_pass_every,
             "update": self.update,
             "partition_size": self.partition_size,
@@ -546,8 +569,16 @@ _NPZ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipf
                RuntimeError, TypeError, IndexError, UnicodeDecodeError)  # fmt: skip
 
 
-def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
-    """The arrays of a training checkpoint, verified against the SHA-256 it stores.
+#: The arrays every training checkpoint holds (besides ``sha256`` and the dictionaries).
+TRAIN_FIELDS = ("iteration", "objective", "passes", "ranking", "reseeded_from", "converged",
+                "key")  # fmt: skip
+
+
+def read_checkpoint(
+    path: str | os.PathLike[str], required: tuple[str, ...] = TRAIN_FIELDS
+) -> dict[str, np.ndarray]:
+    """The arrays of a checkpoint (training: ``required`` = :data:`TRAIN_FIELDS`; encoding:
+    :mod:`sparsebtf.codec.checkpoint`), verified against the SHA-256 it stores.
 
     A damaged, truncated or foreign file is one :class:`FileFormatError` line naming it."""
     try:
@@ -559,8 +590,7 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
             f"{str(e)[:120]}); delete it to start over"
         ) from None
     stored = str(arrays.pop("sha256", ""))
-    missing = [k for k in ("iteration", "objective", "passes", "ranking", "reseeded_from",
-                           "converged", "key") if k not in arrays]  # fmt: skip
+    missing = [k for k in required if k not in arrays]
     if not stored or missing:
         raise FileFormatError(
             f"checkpoint {path}: no {'sha256' if not stored else ', '.join(missing)}: written by "
@@ -575,8 +605,9 @@ def read_checkpoint(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
     return arrays
 
 
-def _check_key(path: Any, found: dict[str, Any], want: dict[str, Any]) -> None:
-    """One line naming what differs between a checkpoint and this fit."""
+def _check_key(path: Any, found: dict[str, Any], want: dict[str, Any],
+               what: str = "training parameters or data") -> None:  # fmt: skip
+    """One line naming what differs between a checkpoint and this run."""
     diff = [k for k in sorted(set(found) | set(want)) if found.get(k) != want.get(k)]
     if not diff:
         return
@@ -584,7 +615,7 @@ def _check_key(path: Any, found: dict[str, Any], want: dict[str, Any]) -> None:
         f"{k}: {_short(found.get(k))} in the checkpoint, {_short(want.get(k))} now" for k in diff
     )
     raise BTFInputError(
-        f"checkpoint {path} was made with other training parameters or data ({shown}); "
+        f"checkpoint {path} was made with other {what} ({shown}); "
         "delete it or choose another checkpoint path"
     )
 
