@@ -104,3 +104,33 @@ def test_render_errors_are_clear(files, capsys, extra, message):
     assert rc == 2
     assert message in capsys.readouterr().err
     assert not (files / "x.png").exists()
+
+
+def test_render_refuses_nonfinite_pixels(files, tmp_path, capsys):
+    """A file without a bound (written before it existed) whose values overflow on decode:
+    one line and no image."""
+    import h5py
+
+    from sparsebtf._semantic import STAT_BOUND
+
+    p = tmp_path / "old.coded.h5"
+    p.write_bytes((files / "m.coded.h5").read_bytes())
+    with h5py.File(p, "r+") as f:
+        del f["stats/bound"]
+        for ch in "YUV":
+            v = f[f"codes/{ch}/values"]
+            v[...] = np.sign(v[()]) * np.float16(60000)
+        s = f["stats/std"]
+        s[...] = np.full(s.shape, STAT_BOUND, s.dtype)
+    out = tmp_path / "bad.png"
+    args = ["render", str(p), "-m", str(files / "model.h5"), "-o", str(out), "--image-size",
+            "16", "--spp", "1"]  # fmt: skip
+    capsys.readouterr()
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "non-finite pixels" in err[0]
+    assert not out.exists()
+    # The same values with the bound every new file has: a finite render.
+    with h5py.File(p, "r+") as f:
+        f["stats"].create_dataset("bound", data=np.zeros((13, 13), np.float16))
+    assert main(args) == 0 and out.exists()
