@@ -256,9 +256,10 @@ def test_resume_after_kill(tmp_path, model_file):
     assert not (tmp_path / "out.h5.checkpoint").exists()
 
 
-def test_rate_control_resumes(tmp_path, model_file, monkeypatch):
+@pytest.mark.parametrize(("budget", "ratio"), [("paper", "40"), ("stored", "8")])
+def test_rate_control_resumes(tmp_path, model_file, monkeypatch, budget, ratio):
     """A --target-ratio encode keeps per-range candidates (not codes): they resume too."""
-    rate = ["--batch", "2", "--target-ratio", "40"]
+    rate = ["--batch", "2", "--target-ratio", ratio, "--budget", budget]
     ref, out = tmp_path / "ref.h5", tmp_path / "out.h5"
     assert main(["encode", A, "-m", str(model_file), "-o", str(ref), *rate]) == 0
     with monkeypatch.context() as m:
