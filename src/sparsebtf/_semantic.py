@@ -25,17 +25,45 @@ once per file. The bounds are documented in ``docs/format.md`` §7.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import TYPE_CHECKING
+from collections.abc import Mapping, Sequence
+from typing import Protocol
 
 import numpy as np
 
 from .errors import FileFormatError
 
-if TYPE_CHECKING:
-    from .learning.coding import SparseCodes
-    from .model import CodedBTF
-    from .points.preprocessing import Standardization
+
+# What the checks read of the project's objects, named by structure: this module sits under
+# every reader (data, formats, learning, storage), so it imports none of the layers above.
+class Standardization(Protocol):
+    """The fields of :class:`sparsebtf.points.preprocessing.Standardization` checked here."""
+
+    mean: np.ndarray
+    std: np.ndarray
+    eps: float
+    transform: str
+    bound: np.ndarray | None
+
+
+class SparseCodes(Protocol):
+    """The fields of :class:`sparsebtf.learning.coding.SparseCodes` checked here."""
+
+    mode_sizes: tuple[int, ...]
+    membership: np.ndarray
+    counts: np.ndarray
+    values: np.ndarray
+    locations: np.ndarray
+    errors: np.ndarray
+
+
+class CodedBTF(Protocol):
+    """The fields of :class:`sparsebtf.model.CodedBTF` checked here."""
+
+    @property
+    def stats(self) -> Standardization: ...
+
+    @property
+    def codes(self) -> Mapping[str, SparseCodes]: ...
 
 __all__ = [
     "COLOR_BOUND",

@@ -17,7 +17,7 @@ from __future__ import annotations
 import hashlib
 import math
 import numbers
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -154,15 +154,23 @@ def parse_tau(
     return dict(zip(channels, counts, strict=True))
 
 
+#: Functions that name a model from its content hash, or return None: the registry of bundled
+#: models adds its own when it is imported (:mod:`sparsebtf.storage.bundled`), so this module
+#: does not import the storage layer above it.
+MODEL_NAMERS: list[Callable[[str], str | None]] = []
+
+
 def model_text(content_hash: str, file: str | None = None) -> str:
     """How a message names a model: ``model 819ce9fcd073… (bundled 'release')``, or with its
     file (``(file my-model.h5)``), so a user sees which model, not only a hash."""
-    from .storage.bundled import bundled_name
-
-    try:
-        name = bundled_name(content_hash)
-    except SparseBTFError:  # a damaged installation must not hide the real error
-        name = None
+    name = None
+    for namer in MODEL_NAMERS:
+        try:
+            name = namer(content_hash)
+        except SparseBTFError:  # a damaged installation must not hide the real error
+            name = None
+        if name:
+            break
     where = f"bundled '{name}'" if name else f"file {file}" if file else "not a bundled model"
     return f"model {content_hash[:12]}… ({where})"
 

@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from .._h5check import read_json_attr, read_str_attr
 from ..errors import FileFormatError, ModelMismatchError
+from ..model import MODEL_NAMERS
 from ._common import open_checked
 
 if TYPE_CHECKING:
@@ -144,6 +145,9 @@ def bundled_name(content_hash: str) -> str | None:
     """The name of the bundled model with this content hash, if any."""
     return next((m.name for m in bundled_models().values() if m.content_hash == content_hash),
                 None)  # fmt: skip
+
+
+MODEL_NAMERS.append(bundled_name)  # messages name bundled models (model.model_text)
 
 
 def find_model(
