@@ -18,6 +18,7 @@ For every material and level:
   statistics after coding, as shares of the codes' own MSE, and the stored bytes of both.
 
     python benchmarks/bench_storage.py [--quick] [--json]
+    python benchmarks/bench_storage.py --timing --repeat 9     # the timing alone, idle machine
 
 ``--quick``: the seven seed-12 materials at 20×20 and a 40×40 one (about a minute).
 """
@@ -144,10 +145,13 @@ def _fp16_stats(btf: Any, model: Any, tau: tuple, coded16: Any, tmp: Path) -> di
             "stats_bytes_fp32": stored_bytes(tmp / "f32.h5")["bytes_stored_stats"]}  # fmt: skip
 
 
-def run(quick: bool, levels: tuple[int, ...] = LEVELS) -> dict[str, Any]:
+def run(quick: bool, levels: tuple[int, ...] = LEVELS, timing_only: bool = False,
+        repeat: int = 3) -> dict[str, Any]:  # fmt: skip
     model = load_bundled()
     taus = level_taus(levels, tuple(model.params["tau_train"][ch] for ch in model.channels))
     unseen, large = materials(quick)
+    if timing_only:  # the read / decode timing alone, on the large material
+        unseen = []
     rows, timing, fp16 = [], [], []
     t0 = time.perf_counter()
     with TemporaryDirectory() as tmp:
@@ -163,7 +167,7 @@ def run(quick: bool, levels: tuple[int, ...] = LEVELS) -> dict[str, Any]:
                     p2 = save_coded(coded, d / f"{btf.name}_{lv}_v2.h5", schema=2)
                     pts = np.arange(coded.n_points)
                     timing.append({"material": btf.name, "level": lv,
-                                   **_read_decode(p2, p3, model, pts)})  # fmt: skip
+                                   **_read_decode(p2, p3, model, pts, repeat)})  # fmt: skip
                 elif lv == max(levels) and seed == unseen[0][1]:
                     fp16.append({"material": btf.name, "level": lv, **_fp16_stats(
                         btf, model, taus[lv], load_coded(p3, model), d)})  # fmt: skip
@@ -173,7 +177,7 @@ def run(quick: bool, levels: tuple[int, ...] = LEVELS) -> dict[str, Any]:
         "model": "release (bundled)", "levels": list(levels),
         "taus": {str(k): list(v) for k, v in taus.items()},
         "rows": rows, "timing": timing, "fp16_stats": fp16,
-        "fp16_stats_summary": _fp16_summary(fp16, stats_f16),
+        "fp16_stats_summary": _fp16_summary(fp16, stats_f16) if fp16 else None,
         "seconds": time.perf_counter() - t0,
     }  # fmt: skip
 
@@ -224,9 +228,14 @@ def table(result: dict[str, Any]) -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--quick", action="store_true", help="seven 20x20 materials and a 40x40 one")
+    p.add_argument("--timing", action="store_true",
+                   help="only the read and read + decode timing of the large material (run it "
+                   "on an idle machine)")
+    p.add_argument("--repeat", type=int, default=3,
+                   help="read + decode runs per schema, best kept (default 3)")
     p.add_argument("--json", action="store_true", help="print one JSON object")
     args = p.parse_args(argv)
-    result = run(args.quick)
+    result = run(args.quick, timing_only=args.timing, repeat=args.repeat)
     if args.json:
         print(json.dumps(result, indent=2, default=float))
     else:
