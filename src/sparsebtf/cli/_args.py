@@ -11,10 +11,11 @@ failure is one ``sparsebtf: error: …`` line (exit 2).
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
 import os
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -209,6 +210,22 @@ def check_resume(folder: Path, resume: bool, pattern: str, command: str) -> None
             f"{folder} holds the checkpoints of an earlier run ({shown}); add "
             "--resume to continue it, or delete the folder to start over"
         )
+
+
+@contextlib.contextmanager
+def resumable(folder: Path) -> Iterator[None]:
+    """Run work that checkpoints into ``folder``: on any failure an empty folder (nothing to
+    resume from) is removed, and a lost cluster's one line says how to resume."""
+    from ..execution import ClusterError
+
+    try:
+        yield
+    except BaseException as e:
+        if folder.is_dir() and not any(folder.iterdir()):
+            folder.rmdir()
+        elif isinstance(e, ClusterError):
+            raise ClusterError(f"{e}; rerun with --resume to continue from {folder}") from None
+        raise
 
 
 # --------------------------------------------------------------------------- BTF sources

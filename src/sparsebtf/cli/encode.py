@@ -8,7 +8,6 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError
-from ..execution import ClusterError
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
@@ -23,6 +22,7 @@ from ._args import (
     open_source,
     output_files,
     parse_crop,
+    resumable,
 )
 from ._model import MODEL_HELP, check_fits, model_label, open_model_arg
 from ._output import format_value, print_json
@@ -39,14 +39,8 @@ def run(args: argparse.Namespace) -> int:
     ck = checkpoint_dir(args)
     check_output_dir(str(ck), "--checkpoint-dir")
     check_resume(ck, args.resume, "points_*.npz", "encode")
-    try:
+    with resumable(ck):
         _encode(args, tau, offset, outputs, ck)
-    except BaseException as e:
-        if ck.is_dir() and not any(ck.iterdir()):  # nothing to resume from: leave no folder
-            ck.rmdir()
-        elif isinstance(e, ClusterError):
-            raise ClusterError(f"{e}; rerun with --resume to continue from {ck}") from None
-        raise
     EncodeCheckpoint(ck).remove()  # every output is written: the ranges have served
     return 0
 

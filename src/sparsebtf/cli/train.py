@@ -9,7 +9,6 @@ import shutil
 from pathlib import Path
 from typing import Any
 
-from ..execution import ClusterError
 from ..learning.ensemble import (
     CANDIDATES,
     EXHAUSTIVE_MAX_ENTRIES,
@@ -28,6 +27,7 @@ from ._args import (
     number,
     open_source,
     parse_crop,
+    resumable,
 )
 from ._output import print_json
 
@@ -45,14 +45,8 @@ def run(args: argparse.Namespace) -> int:
     check_resume(ck, args.resume, Path(checkpoint_path(ck, "*")).name, "train")
     for s in args.btfs:  # one clear line for a bad input, before any work
         open_source(s, crop=args.crop)
-    try:
+    with resumable(ck):
         model = _train(args, ck)
-    except BaseException as e:
-        if ck.is_dir() and not any(ck.iterdir()):  # nothing to resume from: leave no folder
-            ck.rmdir()
-        elif isinstance(e, ClusterError):
-            raise ClusterError(f"{e}; rerun with --resume to continue from {ck}") from None
-        raise
     save_model(model, args.output)
     if not args.checkpoint_dir:  # the default folder has served its purpose
         shutil.rmtree(ck, ignore_errors=True)
