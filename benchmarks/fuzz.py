@@ -192,6 +192,13 @@ def _semantic_task(args: tuple[str, int, int]) -> list[dict[str, Any]]:
     return out
 
 
+def _tasks(kinds: Any, args: argparse.Namespace) -> list[tuple[str, int, int]]:
+    """(kind, first seed, end seed) of every task: ``--chunk`` cases of one kind each."""
+    end = args.first + args.cases
+    return [(k, lo, min(lo + args.chunk, end))
+            for lo in range(args.first, end, args.chunk) for k in kinds]  # fmt: skip
+
+
 def semantic(args: argparse.Namespace) -> None:
     """The semantic mode: cases per kind in ``--jobs`` forked workers, one table."""
     kinds = [k for k in args.readers if k in SEMANTIC_KINDS] if args.readers_given else list(
@@ -205,9 +212,7 @@ def semantic(args: argparse.Namespace) -> None:
             res = run_semantic_case(_STATE["corpus"], kind, seed, Path(d) / "replay")
             print(json.dumps(res, indent=2))
             return
-        tasks = [(k, lo, min(lo + args.chunk, args.first + args.cases))
-                 for lo in range(args.first, args.first + args.cases, args.chunk)
-                 for k in kinds]  # fmt: skip
+        tasks = _tasks(kinds, args)
         results: list[dict[str, Any]] = []
         with mp.get_context("fork").Pool(args.jobs) as pool:
             for chunk in pool.imap_unordered(_semantic_task, tasks):
@@ -267,9 +272,7 @@ def main() -> None:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="sparsebtf-corpus-") as d:
         corpus = build_corpus(d)
-        tasks = [(r, lo, min(lo + args.chunk, args.first + args.cases))
-                 for lo in range(args.first, args.first + args.cases, args.chunk)
-                 for r in args.readers]  # fmt: skip
+        tasks = _tasks(args.readers, args)
         cap = int(args.cap_gib * 2**30)
         ctx = mp.get_context("fork")
         results: list[dict[str, Any]] = []
