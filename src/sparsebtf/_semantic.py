@@ -80,6 +80,7 @@ __all__ = [
     "check_same_directions",
     "check_statistics",
     "orthonormality_error",
+    "stored_dtype",
     "validate_coded",
     "validate_model_dictionaries",
 ]
@@ -95,7 +96,7 @@ MIN_CHORD = 1e-4
 #: of the absolute BT.601 coefficients times 27.7). Beyond ±88.7 exp() overflows float32.
 STAT_BOUND = 40.0
 #: Accepted log offsets ε (the paper's and the release's is 1e-5; ``encode --log-offset``
-#: chooses one per material in [1e-5, 1e3]).
+#: chooses one per material in [1e-5, the upper end]).
 EPS_RANGE = (1e-12, 1e3)
 #: Orthonormality of float32 / float64 dictionaries: the bundled float32 model gives 8.1e-8,
 #: the release's float64 ``.mat`` files 1.2e-14.
@@ -286,16 +287,21 @@ def _check_distinct(loc: np.ndarray, sizes: np.ndarray, owner: np.ndarray, where
         )
 
 
+def stored_dtype(values: np.ndarray) -> np.dtype:
+    """The type a coded file stores ``values`` in: binary16, or float32 when a finite value
+    lies beyond binary16's ±65504 (the format's rule, docs/format.md §3)."""
+    vals = np.asarray(values)
+    big = vals.size and float(np.max(np.abs(vals))) > float(np.finfo(np.float16).max)
+    return np.dtype("<f4" if big else "<f2")
+
+
 def _check_order(values: np.ndarray, owner: np.ndarray, where: str) -> None:
     """|v| non-increasing within each point: truncating to τ reads a prefix. Compared in the
     precision a coded file stores (binary16 unless a value overflows it): the encoders order
     values that round to the same binary16 number by location, not by their float32 digits."""
     if values.shape[0] < 2:
         return
-    fits = not values.size or float(np.max(np.abs(values))) <= float(np.finfo(np.float16).max)
-    with np.errstate(over="ignore"):
-        stored = values.astype(np.float16) if fits else values.astype(np.float32)
-    mag = np.abs(stored.astype(np.float64))
+    mag = np.abs(values.astype(stored_dtype(values)).astype(np.float64))
     rise = (np.diff(owner) == 0) & (np.diff(mag) > 0)
     if rise.any():
         j = int(np.flatnonzero(rise)[0])

@@ -47,6 +47,7 @@ from typing import Literal
 import numpy as np
 
 from .._progress import bar
+from .._semantic import EPS_RANGE
 from ..data.btf import BTF, LOG_EPS, Index, as_index
 from ..data.validate import check_finite
 from ..errors import BTFInputError
@@ -116,8 +117,9 @@ LOG_OFFSET_FRACTION = 0.01
 BOUND_STEP = 1 / 32
 #: Named log-offset rules: "auto" (:func:`choose_log_offset`) and "release" (ε = 1e-5).
 LOG_OFFSETS = ("auto", "release")
-#: A log offset must lie in [EPS, _MAX_LOG_OFFSET]: beyond it the log is all but linear.
-_MAX_LOG_OFFSET = 1e3
+#: A log offset must lie in [EPS, _MAX_LOG_OFFSET]: beyond it the log is all but linear (the
+#: readers' bound, so that every offset the encoder takes makes a file they accept).
+_MAX_LOG_OFFSET = EPS_RANGE[1]
 #: Views read to choose the log offset (evenly spaced; all of them up to this many).
 _OFFSET_VIEWS = 12
 #: Log-spaced histogram of positive values for the median: 64 bins per decade, 1e-12 … 1e12.

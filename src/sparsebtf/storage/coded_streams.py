@@ -30,6 +30,7 @@ import numpy as np
 
 from .._h5check import checked_dataset, read_array
 from .._hdf5 import create_dataset
+from .._semantic import stored_dtype
 from ..errors import BTFInputError, FileFormatError
 from ..learning.coding import SparseCodes
 from ..points.preprocessing import Standardization
@@ -51,14 +52,14 @@ def stored_values(values: np.ndarray, where: str = "") -> np.ndarray:
     """The values as a coded file stores them: binary16 (round to nearest even), or float32
     for a channel with a finite value beyond ±65504 (with a warning naming ``where``)."""
     vals = np.asarray(values)
-    if vals.size and float(np.max(np.abs(vals))) > _FP16_MAX:
+    dtype = stored_dtype(vals)
+    if dtype.itemsize == 4:
         warnings.warn(
             f"{where}: values up to {float(np.max(np.abs(vals))):.4g} overflow binary16; "
             "storing this channel's values in float32",
             stacklevel=3,
         )
-        return vals.astype("<f4")
-    return vals.astype("<f2")
+    return vals.astype(dtype)
 
 
 def linear_locations(locations: np.ndarray, mode_sizes: tuple[int, ...]) -> np.ndarray:
