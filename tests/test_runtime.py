@@ -154,6 +154,49 @@ def test_tau_truncation_keeps_the_largest_coefficients(coded):
         low.evaluate(wi, wo, uv=uv, tau=20)
 
 
+@pytest.mark.parametrize("domain", ["standardized", "log"])
+def test_per_query_tau_is_each_query_at_its_own_tau(coded, domain):
+    """A per-query τ array equals evaluating every query alone at its τ (integer τ), is
+    linear between integers in the sums (fractional τ fades in the next coefficient), and the
+    numba kernels agree with the NumPy reference."""
+    rt = RuntimeBTF(coded)
+    rng = np.random.default_rng(11)
+    n = 60
+    uv, wi, wo = rng.uniform(0, 1, (n, 2)), _random_dirs(rng, n), _random_dirs(rng, n)
+    full = np.array([rt.tau[ch] for ch in "YUV"])
+    ints = rng.integers(1, full + 1, (n, 3))
+    got = rt.evaluate(wi, wo, uv=uv, tau=ints, domain=domain, backend="numpy")
+    for q in range(0, n, 7):
+        one = rt.evaluate(wi[q : q + 1], wo[q : q + 1], uv=uv[q : q + 1], domain=domain,
+                          tau=dict(zip("YUV", ints[q].tolist(), strict=True)))  # fmt: skip
+        np.testing.assert_allclose(got[q], one[0], rtol=1e-6)
+    # (n,) applies one τ to every channel
+    same = rng.integers(1, full.min() + 1, n)
+    np.testing.assert_allclose(
+        rt.evaluate(wi, wo, uv=uv, tau=same, domain=domain, backend="numpy"),
+        rt.evaluate(wi, wo, uv=uv, tau=np.repeat(same[:, None], 3, 1), domain=domain,
+                    backend="numpy"), rtol=1e-6)  # fmt: skip
+    # fractional τ: the log-YUV value is the linear blend of the two integer levels around it
+    lo = rng.integers(1, full, (n, 3))
+    t = rng.uniform(0, 1, (n, 1))
+    logs = [rt.evaluate(wi, wo, uv=uv, tau=x, domain=domain, output="log_yuv", backend="numpy")
+            for x in (lo, lo + 1, lo + t)]  # fmt: skip
+    blend = (1 - t) * logs[0].astype(np.float64) + t * logs[1]
+    np.testing.assert_allclose(logs[2], blend, rtol=1e-5, atol=1e-5)
+    assert np.abs(logs[1] - logs[0]).max() > 1e-3  # the levels differ
+    if kernels.HAVE_NUMBA:
+        frac = rng.uniform(0, 1, (n, 3)) * full
+        a = rt.evaluate(wi, wo, uv=uv, tau=frac, domain=domain, backend="numpy")
+        b = rt.evaluate(wi, wo, uv=uv, tau=frac, domain=domain, backend="numba")
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
+    with pytest.raises(BTFInputError, match=r"query 3, channel U: .* not in \[0, "):
+        bad = ints.astype(float)
+        bad[3, 1] = full[1] + 0.5
+        rt.evaluate(wi, wo, uv=uv, tau=bad)
+    with pytest.raises(BTFInputError, match="shape"):
+        rt.evaluate(wi, wo, uv=uv, tau=np.ones((n, 2)))
+
+
 def test_uv_wraps_for_tiling(coded):
     row, col = texels_from_uv(np.array([[0, 0], [0.999, 0.5], [1.0, 1.0], [-0.001, -0.5]]), 8, 8)
     assert col.tolist() == [0, 7, 0, 7]

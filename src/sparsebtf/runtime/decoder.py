@@ -6,7 +6,9 @@ inverse preprocessing (de-standardisation, YUV → RGB, exp). It never reconstru
 
 Level of detail: coefficients are stored by decreasing magnitude, so keeping τ' ≤ τ of them is
 a prefix; :meth:`RuntimeBTF.with_tau` truncates at load time (smaller arrays) and the ``tau``
-argument of :meth:`RuntimeBTF.evaluate` caps the sum at run time (the paper's real-time knob).
+argument of :meth:`RuntimeBTF.evaluate` caps the sum at run time (the paper's real-time knob),
+for the whole batch or per query (a renderer's level of detail: fractional τ fades the last
+coefficient in, :func:`~sparsebtf.runtime.kernels.prefix_weights`).
 
 The flat arrays a GPU or Dr.Jit shader needs come from :meth:`RuntimeBTF.arrays` (layout in
 ``docs/format.md``, "Renderer arrays").
@@ -230,6 +232,36 @@ class RuntimeBTF:
             raise BTFInputError("backend 'numba' requested but numba is not installed")
         return backend
 
+    def _run_tau(self, tau: TauSpec | np.ndarray, n: int) -> dict[str, Any]:
+        """The run-time τ' per channel: an int, or (n,) float64 per query (``tau`` array)."""
+        if isinstance(tau, np.ndarray):
+            return self._per_query_tau(tau, n)
+        caps = self.tau if tau is None else self.coded.resolve_tau(tau)
+        over = {ch: v for ch, v in caps.items() if v > self.tau[ch]}
+        if over:
+            raise BTFInputError(f"run-time tau {over} exceeds the loaded tau {self.tau}")
+        return caps
+
+    def _per_query_tau(self, tau: np.ndarray, n: int) -> dict[str, np.ndarray]:
+        if tau.shape not in ((n,), (n, len(CHANNELS))) or tau.dtype.kind not in "iuf":
+            raise BTFInputError(
+                f"a per-query tau must be a real array of shape ({n},) or ({n}, "
+                f"{len(CHANNELS)}), got {tau.dtype} {tau.shape}"
+            )
+        t = np.asarray(tau, dtype=np.float64).reshape(n, -1)
+        out = {}
+        for c, ch in enumerate(CHANNELS):
+            col = t[:, c if t.shape[1] > 1 else 0]
+            bad = ~((col >= 0) & (col <= self.tau[ch]))
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise BTFInputError(
+                    f"per-query tau of query {i}, channel {ch}: {col[i]} is not in "
+                    f"[0, {self.tau[ch]}] (the loaded tau)"
+                )
+            out[ch] = np.ascontiguousarray(col)
+        return out
+
     def evaluate(
         self,
         wi: np.ndarray,
@@ -240,7 +272,7 @@ class RuntimeBTF:
         domain: Domain | str = "standardized",
         k: int | None = None,
         beta: float = 20.0,
-        tau: TauSpec = None,
+        tau: TauSpec | np.ndarray = None,
         backend: str = "auto",
         output: Literal["rgb", "log_yuv"] = "rgb",
         release_matrix: bool = False,
@@ -261,6 +293,11 @@ class RuntimeBTF:
             de-standardised log values, from the same single pass over the coefficients.
             Both equal the blend of separately decoded bins in their domain.
         tau : run-time cap τ' (≤ the loaded τ) per channel; None = all loaded coefficients.
+            A NumPy array is per query: (n,) (the same τ' for every channel) or (n, 3) (Y, U,
+            V), real values in [0, loaded τ]: ⌊τ'⌋ coefficients count fully and the next one
+            with weight τ' − ⌊τ'⌋ (:func:`~sparsebtf.runtime.kernels.prefix_weights`), so the
+            value is continuous in τ' (a level of detail without seams). Give per-channel
+            levels as a list, tuple, dict or string.
         backend : "numba" (compiled, parallel), "numpy", or "auto" (numba when installed).
         output : "rgb" or "log_yuv" (the de-standardised log-YUV values, before YUV → RGB and
             before the bound).
@@ -282,10 +319,7 @@ class RuntimeBTF:
             raise BTFInputError(f"wi {wi.shape} and wo {wo.shape} must have the same shape")
         n = wi.shape[0] if wi.ndim == 2 else -1
         pts, i1, i2 = self._texels(uv, texel, n)
-        caps = self.tau if tau is None else self.coded.resolve_tau(tau)
-        over = {ch: v for ch, v in caps.items() if v > self.tau[ch]}
-        if over:
-            raise BTFInputError(f"run-time tau {over} exceeds the loaded tau {self.tau}")
+        caps = self._run_tau(tau, pts.size)
         be = self._select_backend(backend)
         li, lw = angular_weights(self.coded.lights, wi, interpolation, k, beta)
         vi, vw = angular_weights(self.coded.views, wo, interpolation, k, beta)
