@@ -505,3 +505,70 @@ def test_adding_under_an_existing_key_replaces_the_material(material):
     second = _eval(mi.load_dict(d), _si(wi, uv), wo)
     np.testing.assert_allclose(second, low.evaluate(wo, wi, uv=uv), rtol=2e-5, atol=2e-6)
     assert np.abs(first - second).max() > 1e-3
+
+
+def _lod_si(rng, n, cam, first):
+    """Shading points with the geometry the level of detail reads: rays of length t from the
+    camera (``first``) or from elsewhere, tangents of varied length (texel size)."""
+    wi, _, uv = _queries(9, n)
+    si = _si(wi, uv)
+    t = rng.uniform(0.5, 40.0, n).astype(np.float32)
+    du, dv = rng.uniform(0.2, 3.0, (2, n)).astype(np.float32)
+    origin = np.where(first[:, None], cam[None, :], cam[None, :] + [0.0, 1.5, -0.7])
+    p = (origin - t[:, None] * wi).astype(np.float32)  # identity frame: to_world(wi) = wi
+    si.p, si.t = mi.Point3f(p.T), mi.Float(t)
+    si.dp_du, si.dp_dv = mi.Vector3f(du, 0 * du, 0 * du), mi.Vector3f(0 * dv, dv, 0 * dv)
+    return si, wi, uv, t, du, dv
+
+
+def test_lod_tau_per_query_equals_the_runtime_and_is_counted(material):
+    """lod = auto: each lookup's τ' is the NumPy rule's (first vertex by footprint, later ones
+    a fraction), the value equals RuntimeBTF.evaluate at that per-query τ', and the loop
+    iterations the plugin counts per depth class are Σ min(count, ⌈τ'⌉)."""
+    from sparsebtf.runtime.lod import cone_texels_per_pixel, footprint_fraction, lod_tau
+
+    rng = np.random.default_rng(3)
+    n, cam, pixel = 400, np.array([0.5, 2.0, 6.0]), 0.004
+    first = rng.uniform(size=n) < 0.6
+    si, wi, uv, t, du, dv = _lod_si(rng, n, cam, first)
+    wo = _dirs(rng, n)
+    rt = material["rt"]
+    bsdf = mi.load_dict({"type": "sparsebtf", "key": material["key"], "uv_scale": 2.0,
+                         "lod_camera": ",".join(map(str, cam)), "lod_pixel": pixel,
+                         "lod_later": 0.3, "lod_stats": True})  # fmt: skip
+    got = _eval(bsdf, si, wo)
+    h, w = rt.meta["height"], rt.meta["width"]
+    rho = cone_texels_per_pixel(t, pixel, wi[:, 2], du, dv, 1.0 / (h * w * 4.0))
+    frac = np.where(first, footprint_fraction(rho), 0.3)
+    f1 = frac[first]
+    assert f1.min() == 0.1 and f1.max() == 1.0 and ((f1 > 0.15) & (f1 < 0.9)).sum() > 20
+    tau = lod_tau(rt.tau, frac)
+    ref = rt.evaluate(wo, wi, uv=uv * 2.0, tau=tau)
+    np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=5e-4, atol=2e-5)
+    full = rt.evaluate(wo, wi, uv=uv * 2.0)
+    assert np.abs(full - ref).max() > 1e-2  # the level of detail changed the values
+    stats = bsdf.lod_stats()
+    pts = rt._texels(uv * 2.0, None, n)[0]
+    for cls, sel in (("first", first), ("later", ~first)):
+        assert stats[cls]["lookups"] == sel.sum()
+        for c, ch in enumerate("YUV"):
+            cnt = np.diff(rt.coded.codes[ch].offsets)[pts[sel]]
+            want = np.minimum(cnt, np.ceil(tau[sel, c] - 1e-4)).sum() / sel.sum()
+            assert stats[cls]["tau"][c] == pytest.approx(want, rel=2e-3), (cls, ch)
+
+
+def test_lod_off_is_the_full_tau_plugin(material):
+    """lod = off renders what lod = auto renders at fraction 1 everywhere, bit for bit (the
+    per-query loop at τ' = τ is the plugin's plain loop), and auto without a camera is off."""
+    opts = {"scene": "sphere", "size": (16, 16), "spp": 2, "seed": 3}
+    base = {"type": "sparsebtf", "key": material["key"], "uv_scale": 3.0}
+    off = render_material(base, lod="off", **opts)
+    one = render_material({**base, "lod_later": 1.0, "lod_min": 1.0}, lod="auto", **opts)
+    low = render_material(base, lod="auto", **opts)
+    assert "lod=off" in off["plugin"] and "lod=auto" in one["plugin"]
+    np.testing.assert_array_equal(off.image, one.image)
+    assert np.abs(low.image - off.image).max() > 0  # auto at its own fractions differs
+    bare = mi.load_dict({**base, "lod": "auto"})
+    assert "lod=off (auto needs lod_camera)" in str(bare)
+    with pytest.raises(BTFInputError, match="lod must be one of auto, off"):
+        render_material({**base, "lod": "fast"}, **opts)

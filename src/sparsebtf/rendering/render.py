@@ -70,12 +70,15 @@ def render_material(
     floor: str | None = None,
     backend: str = "auto",
     progress: bool | None = None,
+    lod: str | None = None,
 ) -> RenderResult:
     """Render ``bsdf`` (a ``sparsebtf``/``sparsebtf_dense`` plugin dict) in a built-in scene.
 
     ``size`` is (width, height). Returns a :class:`RenderResult`; non-finite pixels raise.
     A render expected to take more than a few seconds (the scalar variant) runs in passes
-    under a progress bar with ETA (``progress``: None = on a terminal).
+    under a progress bar with ETA (``progress``: None = on a terminal). ``lod`` ("auto",
+    "off"; None: the plugin dict's own, default auto) sets a ``sparsebtf`` plugin's level of
+    detail, with this scene's camera (:func:`.scenes.lod_camera`) unless the dict gives one.
     """
     if spp < 1:
         raise BTFInputError(f"spp must be >= 1, got {spp}")
@@ -86,6 +89,7 @@ def render_material(
     from .mitsuba import preload
     from .scenes import scene_dict
 
+    bsdf = with_lod(bsdf, lod, scene, w)
     preload(bsdf)  # input errors as sparsebtf errors, not wrapped by Mitsuba
     t0 = time.perf_counter()
     loaded = mi.load_dict(bsdf)
@@ -104,6 +108,21 @@ def render_material(
         variant=variant,
         plugin=str(loaded),
     )
+
+
+def with_lod(bsdf: dict[str, Any], lod: str | None, scene: str, width: int) -> dict[str, Any]:
+    """A copy of a ``sparsebtf`` plugin dict with ``lod`` (when given) and, for ``auto``,
+    the built-in scene's camera; other plugins unchanged."""
+    if bsdf.get("type") != "sparsebtf":
+        return bsdf
+    from .scenes import lod_camera
+
+    out = dict(bsdf)
+    if lod is not None:
+        out["lod"] = lod
+    if out.get("lod", "auto") == "auto" and "lod_camera" not in out:
+        out.update(lod_camera(scene, width))
+    return out
 
 
 def _render_passes(

@@ -32,7 +32,9 @@ from ..errors import BTFInputError
 __all__ = [
     "LIGHTS",
     "SCENES",
+    "camera",
     "cloth_mesh",
+    "lod_camera",
     "plane_mesh",
     "procedural_sky",
     "scene_dict",
@@ -216,12 +218,8 @@ def scene_dict(
         bsdf = mi.load_dict(bsdf)  # one instance shared by every shape
     grey = {"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.35, 0.35, 0.35]}}
     floor_bsdf = bsdf if floor == "material" else grey
-    if scene == "sphere":
-        obj = sphere_mesh()
-        origin, target, fov = [0.0, 2.3, 5.6], [0.0, 0.8, 0.0], 34.0
-    else:
-        obj = cloth_mesh()
-        origin, target, fov = [0.0, 3.7, 4.4], [0.0, 0.55, 0.0], 38.0
+    obj = sphere_mesh() if scene == "sphere" else cloth_mesh()
+    origin, target, fov = camera(scene)
     shapes = {
         "object": _mesh_dict(mi, "object", obj, bsdf),
         "floor": _mesh_dict(mi, "floor", plane_mesh(), floor_bsdf),
@@ -245,6 +243,24 @@ def scene_dict(
         "emitter": environment(mi, envmap, env_scale * (0.05 if light == "emitter" else 1.0)),
         **shapes,
         **({"lamp": _lamp()} if light == "emitter" else {}),
+    }
+
+
+def camera(scene: str) -> tuple[list[float], list[float], float]:
+    """(origin, target, horizontal field of view in degrees) of a built-in scene's camera."""
+    if scene == "sphere":
+        return [0.0, 2.3, 5.6], [0.0, 0.8, 0.0], 34.0
+    return [0.0, 3.7, 4.4], [0.0, 0.55, 0.0], 38.0
+
+
+def lod_camera(scene: str, width: int) -> dict[str, Any]:
+    """The ``sparsebtf`` plugin's level-of-detail camera parameters for a built-in scene
+    rendered ``width`` pixels wide: ``lod_camera`` (the camera's origin) and ``lod_pixel``
+    (the angle of one pixel, 2·tan(fov/2)/width radians at the image centre)."""
+    origin, _, fov = camera(scene)
+    return {
+        "lod_camera": ",".join(f"{v:.9g}" for v in origin),
+        "lod_pixel": 2.0 * math.tan(math.radians(fov) / 2) / int(width),
     }
 
 

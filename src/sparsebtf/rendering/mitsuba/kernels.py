@@ -245,13 +245,19 @@ def point_of(mi: Any, dr: Any, data: CodedArrays, uv: Any) -> tuple[Any, Any, An
 
 
 def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: Any,
-                 light_nb: tuple[list, list], view_nb: tuple[list, list], active: Any) -> Any:
+                 light_nb: tuple[list, list], view_nb: tuple[list, list], active: Any,
+                 tau: list | None = None, stats: tuple | None = None) -> Any:
     """Eq. 5/6 for a wavefront of queries: linear RGB (Color3f), Dr.Jit variants.
 
     ``uv`` (tiled, wraps); ``light_nb``/``view_nb``: the (indices, weights) of
     :func:`find_neighbours`; ``prm`` needs ``domain``. The decoder's floor (−eps) is kept: the
     plugin clamps to 0. The log-RGB values are clamped to the material's bound interpolated
     with the angular weights, as :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate` does.
+
+    ``tau``: None (every loaded coefficient), or per channel a Float of per-query levels τ'
+    (fractional: the first ⌊τ'⌋ coefficients count fully, the next with weight τ' − ⌊τ'⌋, as
+    :func:`sparsebtf.runtime.kernels.prefix_weights`). ``stats``: (UInt32 buffer, class index)
+    to count lookups and loop iterations per channel at ``4·class + (0, 1, 2, 3)``.
 
     Per coefficient the loop reads one packed (value, location) pair, U1·U2 from ``d12`` and
     the kl + kv angular factors: 2 + kl + kv gathers (4 + kl + kv before the packing and d12).
@@ -272,6 +278,13 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
         kk = dr.gather(mi.UInt32, ch["membership"], pt, active)
         s0 = dr.gather(mi.UInt32, ch["offsets"], pt, active)
         s1 = dr.select(active, dr.gather(mi.UInt32, ch["offsets"], pt + 1, active), s0)
+        t = None if tau is None else mi.Float(tau[c])
+        if t is not None:  # a last coefficient of weight < 1e-4 (float32 f·τ rounding) unread
+            s1 = dr.minimum(s1, s0 + mi.UInt32(dr.ceil(t - 1e-4)))
+        if stats is not None:
+            if c == 0:
+                dr.scatter_reduce(dr.ReduceOp.Add, stats[0], mi.UInt32(1), 4 * stats[1], active)
+            dr.scatter_reduce(dr.ReduceOp.Add, stats[0], s1 - s0, 4 * stats[1] + 1 + c, active)
         pp, cl, cv = ch["p"], ch["L"], ch["V"]
         b3 = [kk * (cl * cl) + li[a] * cl for a in range(kl)]
         b4 = [kk * (cv * cv) + vi[b] * cv for b in range(kv)]
@@ -279,9 +292,11 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
         b1, b2 = kk * (pp * pp) + i1 * pp, kk * (pp * pp) + i2 * pp
         n_acc = kl * kv if log_domain else 1
 
-        def body(s, *acc, ch=ch, pp=pp, b12=b12, b1=b1, b2=b2, b3=b3, b4=b4):
+        def body(s, *acc, ch=ch, pp=pp, b12=b12, b1=b1, b2=b2, b3=b3, b4=b4, s0=s0, t=t):
             vc = dr.gather(mi.Vector2u, ch["packed"], s)
             v, code = dr.reinterpret_array(mi.Float, vc.x), vc.y
+            if t is not None:  # the fractional level fades the last coefficient in
+                v = v * dr.minimum(t - mi.Float(s - s0), 1.0)
             l1, l2 = code & 0xFF, (code >> 8) & 0xFF
             l3, l4 = (code >> 16) & 0xFF, code >> 24
             if ch["d12"] is not None:

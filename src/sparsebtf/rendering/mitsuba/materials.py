@@ -254,7 +254,41 @@ def coded_params(props: Any) -> dict[str, Any]:
     if domain not in DOMAINS:
         raise BTFInputError(f"{PLUGIN}: domain must be standardized or log, got {domain!r}")
     prm["domain"] = domain
+    prm.update(lod_params(props))
     return prm
+
+
+def lod_params(props: Any) -> dict[str, Any]:
+    """``lod`` (auto | off), ``lod_camera`` ("x,y,z": where primary rays start, or None) and
+    ``lod_pixel`` (the angle of one pixel, radians), ``lod_later`` and ``lod_min`` (the
+    fractions of :mod:`sparsebtf.runtime.lod`), ``lod_stats`` (count τ per depth), checked.
+    ``auto`` without ``lod_camera`` cannot tell the first path vertex: it is off."""
+    from ...runtime.lod import LATER_FRACTION, LODS, MIN_FRACTION
+
+    lod = str(props.get("lod", "auto"))
+    if lod not in LODS:
+        raise BTFInputError(f"{PLUGIN}: lod must be one of {', '.join(LODS)}, got {lod!r}")
+    camera = None
+    if "lod_camera" in props:
+        text = str(props.get("lod_camera"))
+        try:
+            camera = [float(v) for v in text.split(",")]
+        except ValueError:
+            camera = []
+        if len(camera) != 3 or not all(math.isfinite(v) for v in camera):
+            raise BTFInputError(f"{PLUGIN}: lod_camera must be 'x,y,z' (3 numbers), got {text!r}")
+    pixel = float(props.get("lod_pixel", 0.0))
+    if not (math.isfinite(pixel) and pixel >= 0):
+        raise BTFInputError(f"{PLUGIN}: lod_pixel (radians per pixel) must be >= 0, got {pixel}")
+    fractions = {}
+    for name, default in (("lod_later", LATER_FRACTION), ("lod_min", MIN_FRACTION)):
+        f = float(props.get(name, default))
+        if not (math.isfinite(f) and 0.0 < f <= 1.0):
+            raise BTFInputError(f"{PLUGIN}: {name} (a fraction of tau) must be in (0, 1], got {f}")
+        fractions[name] = f
+    return {"lod": lod if camera is not None else "off", "lod_asked": lod,
+            "lod_camera": camera, "lod_pixel": pixel, **fractions,
+            "lod_stats": bool(props.get("lod_stats", False))}  # fmt: skip
 
 
 def coded_sampling(prm: dict[str, Any], source: tuple, tau: Any, rt: Any) -> Any:

@@ -21,6 +21,7 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
+from ...runtime.lod import COS_FLOOR
 from . import sampling as np_sampling
 from .kernels import (
     Candidates,
@@ -126,9 +127,10 @@ class _Base(mi.BSDF):
         """(known set, sampled set)."""
         return ("lights", "views") if mode == "importance" else ("views", "lights")
 
-    def _value(self, mode: str, uv: Any, known_nb: Any, w_nb: Any, active: Any) -> Any:
+    def _value(self, mode: str, uv: Any, known_nb: Any, w_nb: Any, active: Any,
+               level: Any = None) -> Any:
         light_nb, view_nb = (known_nb, w_nb) if mode == "importance" else (w_nb, known_nb)
-        rgb = self._jit_lookup(uv, light_nb, view_nb, active)
+        rgb = self._jit_lookup(uv, light_nb, view_nb, active, level)
         return dr.select(active, dr.maximum(rgb, 0.0), 0.0)
 
     def _density(self, mode: str, uv: Any, known_nb: Any, w: Any, active: Any) -> Any:
@@ -169,7 +171,8 @@ class _Base(mi.BSDF):
         known_nb, w_nb = find_neighbours(mi, dr, self.prm,
                                          [(self.cand[known_set], known),
                                           (self.cand[sampled_set], w)], active)  # fmt: skip
-        value = self._value(mode, uv, known_nb, w_nb, active & (w.z > 0))
+        value = self._value(mode, uv, known_nb, w_nb, active & (w.z > 0),
+                            self._level(si, known, active))
         pdf = self._density(mode, uv, known_nb, w, active) if want_pdf else mi.Float(0.0)
         return value, pdf
 
@@ -201,7 +204,7 @@ class _Base(mi.BSDF):
         bs.eta = 1.0
         bs.sampled_type = mi.UInt32(+_GLOSSY)
         bs.sampled_component = mi.UInt32(0)
-        value = self._value(mode, uv, known_nb, w_nb, active)
+        value = self._value(mode, uv, known_nb, w_nb, active, self._level(si, known, active))
         ok = active & (bs.pdf > 0)
         return bs, dr.select(ok, value / dr.select(ok, bs.pdf, 1.0), 0.0)
 
@@ -280,7 +283,12 @@ class _Base(mi.BSDF):
         return 0
 
     # -- subclass hooks -------------------------------------------------------------------------
-    def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any) -> Any:
+    def _level(self, si: Any, known: Any, active: Any) -> Any:
+        """What ``_jit_lookup`` needs to choose τ per query (None: no level of detail)."""
+        return None
+
+    def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any,
+                    level: Any = None) -> Any:
         raise NotImplementedError
 
     def _jit_row(self, uv: Any) -> Any:
@@ -316,13 +324,48 @@ class SparseBTFBSDF(_Base):
         self.np_dirs = {"lights": self.rt.coded.lights.xyz.astype(np.float32),
                         "views": self.rt.coded.views.xyz.astype(np.float32)}  # fmt: skip
         tables = coded_sampling(self.prm, source, tau, self.rt)
-        if not self._scalar:
+        self.tau = [float(self.rt.tau[ch]) for ch in ("Y", "U", "V")]
+        us = self.prm["uv_scale"]
+        self.texel_area = 1.0 / (self.meta["height"] * self.meta["width"] * us * us)
+        if self._scalar:
+            self.prm["lod"] = "off"  # one ray at a time in NumPy: at the loaded τ
+        else:
             self.data = cached(("jit", mi.variant(), source, str(tau)),
                                lambda: CodedArrays(mi, self.rt))  # fmt: skip
+            #: lookups and loop iterations (Y, U, V) at the first vertex [0:4] and later [4:8]
+            self.lod_counts = dr.zeros(mi.UInt32, 8)
         self._setup(source, (str(tau),), tables)
 
-    def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any) -> Any:
-        return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active)
+    def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any,
+                    level: Any = None) -> Any:
+        if level is None:
+            return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active)
+        fraction, later = level
+        tau = [dr.maximum(fraction * self.tau[c], min(1.0, self.tau[c])) for c in range(3)]
+        stats = (self.lod_counts, mi.UInt32(later)) if self.prm["lod_stats"] else None
+        return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active,
+                            tau, stats)  # fmt: skip
+
+    def _level(self, si: Any, known: Any, active: Any) -> Any:
+        """(τ fraction, is a later vertex) per query (:mod:`sparsebtf.runtime.lod`), or None
+        with ``lod = "off"``.
+
+        The first path vertex is the one whose ray starts at ``lod_camera`` (Mitsuba gives a
+        Python BSDF neither the path depth nor ray differentials: ``si.duv_dx`` is 0). Its
+        footprint is a ray cone (:func:`sparsebtf.runtime.lod.cone_texels_per_pixel`, the
+        reference of this Dr.Jit twin).
+        """
+        if self.prm["lod"] == "off":
+            return None
+        cam = mi.Point3f(*self.prm["lod_camera"])
+        origin = si.p + si.t * si.to_world(si.wi)
+        first = dr.squared_norm(origin - cam) <= dr.square(1e-3 * (1.0 + si.t))
+        texel = dr.safe_sqrt(dr.norm(si.dp_du) * dr.norm(si.dp_dv) * self.texel_area)
+        cos = dr.maximum(dr.abs(known.z), COS_FLOOR)
+        rho = si.t * self.prm["lod_pixel"] * dr.rsqrt(cos) / dr.maximum(texel, 1e-12)
+        rho = dr.maximum(rho, 1.0)
+        near = dr.clip(dr.rcp(rho * rho), self.prm["lod_min"], 1.0)
+        return dr.select(first, near, self.prm["lod_later"]), ~first
 
     def _jit_row(self, uv: Any) -> Any:
         if self.prm["sampling_tables"] != "patch":
@@ -346,8 +389,22 @@ class SparseBTFBSDF(_Base):
         return (
             f"SparseBTF[{m['name']}, {m['height']}x{m['width']}, tau={m['tau']}, "
             f"{self.prm['interpolation']}/{self.prm['domain']}, "
-            f"uv_scale={self.prm['uv_scale']}, sampling={self._sampling_text()}]"
+            f"uv_scale={self.prm['uv_scale']}, sampling={self._sampling_text()}, "
+            f"lod={self._lod_text()}]"
         )
+
+    def _lod_text(self) -> str:
+        if self.prm["lod"] == "off" and self.prm["lod_asked"] == "auto":
+            return "off (auto needs lod_camera)" if not self._scalar else "off (scalar)"
+        return self.prm["lod"]
+
+    def lod_stats(self) -> dict[str, Any]:
+        """With ``lod_stats``: per depth class ("first" vertex, "later" ones) the lookups and
+        the mean loop iterations per lookup for Y, U, V (the τ' the plugin used, counted)."""
+        c = np.array(self.lod_counts, dtype=np.float64).reshape(2, 4)
+        return {name: {"lookups": int(row[0]),
+                       "tau": (row[1:] / max(row[0], 1)).tolist()}
+                for name, row in zip(("first", "later"), c, strict=True)}  # fmt: skip
 
     def _sampling_text(self) -> str:
         if self.prm["sampling"] != "btf":
