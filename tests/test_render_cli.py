@@ -79,6 +79,21 @@ def test_render_sampling_option(files, capsys):
     assert exc.value.code == 2 and "--sampling" in capsys.readouterr().err
 
 
+def test_render_lod_option(files, capsys):
+    """--lod auto (default) gives the plugin the scene's camera; --lod off renders at --tau."""
+    images = {}
+    for lod in ("auto", "off"):
+        raw = files / f"lod-{lod}.npz"
+        rc = main(["render", str(files / "m.coded.h5"), "-o", str(files / f"lod-{lod}.png"),
+                   "--image-size", "16", "--spp", "2", "--lod", lod, "--uv-scale", "4",
+                   "--save-raw", str(raw), "--json"])  # fmt: skip
+        assert rc == 0
+        res = json.loads(capsys.readouterr().out)
+        assert res["lod"] == lod and f"lod={lod}]" in res["plugin"]
+        images[lod] = np.load(raw)["render"]
+    assert np.abs(images["auto"] - images["off"]).max() > 0
+
+
 def test_render_alone_cloth(files, capsys):
     out = files / "cloth.png"
     rc = main(["render", str(files / "m.coded.h5"), "-o", str(out), "--scene", "cloth",

@@ -92,6 +92,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         "type": "sparsebtf",
         "filename": str(args.coded),
         "domain": args.domain,
+        "lod": args.lod,
         **common,
     }
     if args.model:
@@ -143,6 +144,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         "size": list(size),
         "spp": args.spp,
         "tau": args.tau,
+        "lod": args.lod,
         "interpolation": args.interpolation,
         "domain": args.domain,
         "sampling": args.sampling,
@@ -224,6 +226,9 @@ def register(sub: Any) -> None:
     s.add_argument("--tau", default=None,
                    help="level of detail: 885,64,64, one integer, or a fraction such as 0.25 "
                    "(default: every stored coefficient)")
+    s.add_argument("--lod", choices=["auto", "off"], default="auto",
+                   help="level of detail: auto (tau per lookup from the path depth and the "
+                   "pixel footprint, capped by --tau; default) or off (every lookup at --tau)")
     s.add_argument("--interpolation", choices=SCHEMES,
                    default="linear", help="angular interpolation (default linear, the release's)")
     s.add_argument("--domain", choices=["standardized", "log"], default="standardized",
