@@ -282,6 +282,126 @@ def timing(render: Renderer, args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
+def bundled_material(cls: str = "carpet", size: int = 20) -> Any:
+    """A synthetic ``cls`` material coded on the bundled (trained) release model at its τ
+    (cached): the trained coded material of the level-of-detail benchmark."""
+    from sparsebtf.codec import encode
+    from sparsebtf.data.synth import resolve_cache_dir, synthesize
+    from sparsebtf.runtime import RuntimeBTF
+    from sparsebtf.storage import load_coded_with_model, save_coded
+    from sparsebtf.storage.bundled import load_bundled
+
+    path = resolve_cache_dir() / "bench_render" / f"{cls}{size}-bundled.coded.h5"
+    if not path.exists():
+        log(f"coding {cls} {size}x{size} on the bundled model (once, cached in {path})")
+        btf = synthesize(cls, size=size, directions="ubo2014", seed=7)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        save_coded(encode(btf, load_bundled(), tau=CODED_TAU, progress=False), path)
+    return RuntimeBTF(load_coded_with_model(path))
+
+
+def lod_bsdf(key: str, lod: str, size: int, **extra: Any) -> dict:
+    """The ``sparsebtf`` dict of the level-of-detail renders (sphere scene's camera)."""
+    from sparsebtf.rendering.render import with_lod
+
+    base = {"type": "sparsebtf", "key": key, "uv_scale": 2.0, "interpolation": "linear",
+            **extra}  # fmt: skip
+    return with_lod(base, lod, "sphere", size)
+
+
+def lod_counts(render: Renderer, key: str, size: int) -> dict:
+    """The τ' the plugin used per depth class in a 1-spp render (``lod_stats``)."""
+    from sparsebtf.rendering.scenes import scene_dict
+
+    mi, dr = render.mi, render.dr
+    bsdf = mi.load_dict(lod_bsdf(key, "auto", size, lod_stats=True))
+    img = mi.render(mi.load_dict(scene_dict(mi, bsdf, "sphere", size, size)), spp=1)
+    dr.eval(img)
+    dr.sync_thread()
+    return bsdf.lod_stats()
+
+
+def level_of_detail(render: Renderer, rts: dict[str, Any], args: argparse.Namespace
+                    ) -> tuple[dict, dict]:
+    """lod = off vs auto per material: time per sample, relative MSE against the high-spp
+    off (full τ) reference at equal spp and at equal time, and the bias ‖auto_ref − off_ref‖²
+    / ‖off_ref‖² of the two high-spp renders (same seed: the same directions are sampled,
+    only the lookups' τ differ, so this is nearly free of noise) against the noise."""
+    import sparsebtf.mitsuba as sbm
+
+    size, spp, ref_spp = args.lod_size, args.lod_spp, args.lod_ref_spp
+    out: dict[str, Any] = {}
+    images: dict[str, dict[str, np.ndarray]] = {}
+    for name, rt in rts.items():
+        key = sbm.add_material(rt, f"bench-lod-{name}")
+        t0 = time.perf_counter()
+        b = {lod: lod_bsdf(key, lod, size) for lod in ("off", "auto")}
+        for lod in b:
+            render(b[lod], "sky", size, 1, 0)  # compile the kernels
+        refs, ref_secs = {}, {}
+        for lod in b:  # one seed for both: correlated noise
+            refs[lod], ref_secs[lod] = render(b[lod], "sky", size, ref_spp, 100_000)
+        per = {lod: ref_secs[lod] / (size * size * ref_spp) * 1e6 for lod in b}
+        row: dict[str, Any] = {
+            "us_per_sample_per_pixel": per,
+            "speedup": per["off"] / per["auto"],
+            "bias_rel_mse": rel_mse(refs["auto"], refs["off"]),
+            "tau_used": lod_counts(render, key, size),
+        }
+        mses: dict[str, list] = {lod: [] for lod in b}
+        for seed in range(args.seeds):
+            for lod in b:
+                mses[lod].append(rel_mse(render(b[lod], "sky", size, spp, seed)[0], refs["off"]))
+        for lod in b:
+            row[f"rel_mse_{spp}spp"] = row.get(f"rel_mse_{spp}spp", {})
+            row[f"rel_mse_{spp}spp"][lod] = float(np.mean(mses[lod]))
+        row["noise_rel_mse"] = row[f"rel_mse_{spp}spp"]["off"]
+        spp_eq = max(1, round(spp * row["speedup"]))
+        eq = [rel_mse(render(b["auto"], "sky", size, spp_eq, seed)[0], refs["off"])
+              for seed in range(args.seeds)]  # fmt: skip
+        row["auto_equal_time"] = {"spp": spp_eq, "rel_mse": float(np.mean(eq))}
+        row["bias_below_noise"] = row["bias_rel_mse"] < row["noise_rel_mse"]
+        row["seconds_total"] = time.perf_counter() - t0
+        out[name] = row
+        images[name] = refs
+        log(f"  {name:9s} off {per['off']:.1f} us, auto {per['auto']:.1f} us per sample "
+            f"({row['speedup']:.2f}x); bias {row['bias_rel_mse']:.3g} vs {spp}-spp noise "
+            f"{row['noise_rel_mse']:.3g}; equal time ({spp_eq} spp) "
+            f"{row['auto_equal_time']['rel_mse']:.3g}  [{row['seconds_total']:.0f} s]")
+    return out, images
+
+
+def save_lod_images(images: dict, results: dict, path: Path, ref_spp: int) -> Path:
+    """One row per material: [off | auto | |auto − off| × 10], the high-spp renders."""
+    import matplotlib
+
+    matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    from sparsebtf.figures import save_figure
+    from sparsebtf.rendering.render import auto_exposure, tonemap_srgb
+
+    fig, axes = plt.subplots(len(images), 3, figsize=(6.6, 2.3 * len(images)), squeeze=False)
+    for r, (name, im) in enumerate(images.items()):
+        ex = auto_exposure(im["off"])
+        res = results[name]
+        diff = np.abs(im["auto"] - im["off"]) * 10
+        cols = [(im["off"], f"{name}: lod off, {ref_spp} spp\n"
+                            f"{res['us_per_sample_per_pixel']['off']:.1f} us/sample"),
+                (im["auto"], f"lod auto ({res['speedup']:.2f}x faster)\n"
+                             f"{res['us_per_sample_per_pixel']['auto']:.1f} us/sample"),
+                (diff, f"|auto - off| x 10\nbias {res['bias_rel_mse']:.2g} "
+                       f"(noise {res['noise_rel_mse']:.2g})")]  # fmt: skip
+        for c, (img, title) in enumerate(cols):
+            ax = axes[r, c]
+            ax.imshow(tonemap_srgb(img, ex), interpolation="nearest")
+            ax.set_title(title, fontsize=7)
+            ax.set_xticks([])
+            ax.set_yticks([])
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=100)
+
+
 def save_images(images: dict, results: dict, path: Path, spp: int, ref_spp: int) -> Path:
     """One row per (material, light): [cosine | BTF sampling | reference], same exposure."""
     import matplotlib
@@ -327,6 +447,15 @@ def main() -> None:
                     help="skip the analytic glossy material (a mirror lobe, sky only)")
     ap.add_argument("--integrator", default="path", choices=sorted(INTEGRATORS),
                     help="noise renders: path tracer (default) or BSDF samples only (direct)")
+    ap.add_argument("--lod", action="store_true",
+                    help="only the level-of-detail comparison (lod off vs auto)")
+    ap.add_argument("--lod-size", type=int, default=64,
+                    help="level of detail: image side (default 64; the issue's full size: "
+                    "--lod-size 1024)")
+    ap.add_argument("--lod-spp", type=int, default=16, help="level of detail: spp (16)")
+    ap.add_argument("--lod-ref-spp", type=int, default=1024,
+                    help="level of detail: spp of the full-tau reference and of the bias "
+                    "renders (1024)")
     ap.add_argument("--skip-noise", action="store_true")
     ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--out", default=None, help="folder for the side-by-side PNG")
@@ -343,6 +472,33 @@ def main() -> None:
             "integrator")
     data["settings"] = {k: getattr(args, k) for k in keys}
     rows = [("variant", f"{render.variant} ({render.why})")]
+    if args.lod:
+        log("level of detail: lod off vs auto")
+        base = coded_materials(args.glossy, lobe=False)
+        rts = {args.glossy: base[args.glossy], "felt": base["felt"],
+               "carpet/bundled": bundled_material()}  # fmt: skip
+        data["settings"].update(lod_size=args.lod_size, lod_spp=args.lod_spp,
+                                lod_ref_spp=args.lod_ref_spp)  # fmt: skip
+        data["lod"], images = level_of_detail(render, rts, args)
+        if args.out:
+            png = Path(args.out) / "lod.png"
+            data["lod_png"] = str(save_lod_images(images, data["lod"], png, args.lod_ref_spp))
+        for k, r in data["lod"].items():
+            us = r["us_per_sample_per_pixel"]
+            rows.append((f"{k}: us/sample/pixel off / auto",
+                         f"{us['off']:.2f} / {us['auto']:.2f} = {r['speedup']:.2f}x"))
+            rows.append((f"{k}: rel MSE {args.lod_spp} spp off / auto",
+                         " / ".join(f"{v:.4g}" for v in r[f"rel_mse_{args.lod_spp}spp"].values())))
+            rows.append((f"{k}: auto at equal time ({r['auto_equal_time']['spp']} spp)",
+                         f"{r['auto_equal_time']['rel_mse']:.4g}"))
+            rows.append((f"{k}: bias (auto vs off, {args.lod_ref_spp} spp) < noise",
+                         f"{r['bias_rel_mse']:.3g} < {r['noise_rel_mse']:.3g}: "
+                         f"{r['bias_below_noise']}"))
+            tu = r["tau_used"]
+            rows.append((f"{k}: mean tau used Y first / later vertices",
+                         f"{tu['first']['tau'][0]:.0f} / {tu['later']['tau'][0]:.0f} "
+                         f"({tu['first']['lookups']} / {tu['later']['lookups']} lookups)"))
+        args.skip_noise = args.skip_timing = True
     if not args.skip_noise:
         log("noise: relative MSE against the reference")
         rts = coded_materials(args.glossy, not args.no_lobe)

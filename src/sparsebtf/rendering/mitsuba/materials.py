@@ -259,7 +259,8 @@ def coded_params(props: Any) -> dict[str, Any]:
 
 
 def lod_params(props: Any) -> dict[str, Any]:
-    """``lod`` (auto | off), ``lod_camera`` ("x,y,z": where primary rays start, or None) and
+    """``lod`` (auto | off), ``lod_camera`` ("x,y,z": the camera's origin, or None),
+    ``lod_near`` (its near_clip, Mitsuba's default 0.01: primary rays start there) and
     ``lod_pixel`` (the angle of one pixel, radians), ``lod_later`` and ``lod_min`` (the
     fractions of :mod:`sparsebtf.runtime.lod`), ``lod_stats`` (count τ per depth), checked.
     ``auto`` without ``lod_camera`` cannot tell the first path vertex: it is off."""
@@ -277,6 +278,9 @@ def lod_params(props: Any) -> dict[str, Any]:
             camera = []
         if len(camera) != 3 or not all(math.isfinite(v) for v in camera):
             raise BTFInputError(f"{PLUGIN}: lod_camera must be 'x,y,z' (3 numbers), got {text!r}")
+    near = float(props.get("lod_near", 0.01))
+    if not (math.isfinite(near) and near >= 0):
+        raise BTFInputError(f"{PLUGIN}: lod_near (the camera's near_clip) must be >= 0, got {near}")
     pixel = float(props.get("lod_pixel", 0.0))
     if not (math.isfinite(pixel) and pixel >= 0):
         raise BTFInputError(f"{PLUGIN}: lod_pixel (radians per pixel) must be >= 0, got {pixel}")
@@ -287,7 +291,7 @@ def lod_params(props: Any) -> dict[str, Any]:
             raise BTFInputError(f"{PLUGIN}: {name} (a fraction of tau) must be in (0, 1], got {f}")
         fractions[name] = f
     return {"lod": lod if camera is not None else "off", "lod_asked": lod,
-            "lod_camera": camera, "lod_pixel": pixel, **fractions,
+            "lod_camera": camera, "lod_near": near, "lod_pixel": pixel, **fractions,
             "lod_stats": bool(props.get("lod_stats", False))}  # fmt: skip
 
 

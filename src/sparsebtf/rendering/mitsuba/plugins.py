@@ -359,7 +359,10 @@ class SparseBTFBSDF(_Base):
             return None
         cam = mi.Point3f(*self.prm["lod_camera"])
         origin = si.p + si.t * si.to_world(si.wi)
-        first = dr.squared_norm(origin - cam) <= dr.square(1e-3 * (1.0 + si.t))
+        # Mitsuba's perspective camera starts its rays on the near clip plane (near_clip
+        # 0.01 by default, ``lod_near``): within a few near_clip of the camera's origin.
+        reach = 2.0 * self.prm["lod_near"] + 1e-3 * (1.0 + si.t)
+        first = dr.squared_norm(origin - cam) <= dr.square(reach)
         texel = dr.safe_sqrt(dr.norm(si.dp_du) * dr.norm(si.dp_dv) * self.texel_area)
         cos = dr.maximum(dr.abs(known.z), COS_FLOOR)
         rho = si.t * self.prm["lod_pixel"] * dr.rsqrt(cos) / dr.maximum(texel, 1e-12)
