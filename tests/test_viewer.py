@@ -273,6 +273,36 @@ def test_tau_slider_changes_the_image(test_page, rt):
     assert "4, 1, 1" in test_page.locator("#tauText").inner_text()
 
 
+def test_per_fragment_tau_matches_runtime_decoder(test_page, rt):
+    """Fractional τ' per fragment (the ramp: f = (x + ½)/64 of the cap across the image) and
+    τ' by footprint (the texture zoomed: ρ = zoom·8/64 texels per pixel side) equal
+    RuntimeBTF.evaluate with the per-query τ of sparsebtf.runtime.lod."""
+    from sparsebtf.runtime.lod import footprint_fraction, lod_tau
+
+    j, i = np.meshgrid(np.arange(SIZE), np.arange(SIZE), indexing="ij")
+    frac = ((i + 0.5) / SIZE).ravel()
+    gl = read_image(test_page, interp="linear", domain="standardized", lod=1.0, ramp=True,
+                    zoom=1.0)  # fmt: skip
+    py = reference(rt, interpolation="linear", tau=lod_tau(rt.tau, frac))
+    assert_close(gl, py)
+    full = reference(rt, interpolation="linear")
+    assert np.abs(py - full)[:, : SIZE // 2].max() > 0.01 * np.abs(full).max()
+    for zoom in (17.0, 21.0, 41.0):  # rho = 2.125, 2.625, 5.125: no pixel centre on a texel edge
+        gl = read_image(test_page, ramp=False, zoom=zoom, footprint=True)
+        j, i = np.meshgrid(np.arange(SIZE), np.arange(SIZE), indexing="ij")
+        uv = np.stack([(i.ravel() + 0.5) / SIZE, (j.ravel() + 0.5) / SIZE], axis=1) * zoom
+        f = np.full(uv.shape[0], footprint_fraction(zoom * rt.meta["width"] / SIZE))
+        n = uv.shape[0]
+        py = rt.evaluate(np.tile(WI, (n, 1)), np.tile(WO, (n, 1)), uv=uv,
+                         tau=lod_tau(rt.tau, f)).reshape(SIZE, SIZE, 3)  # fmt: skip
+        assert_close(gl, py)
+    off = read_image(test_page, footprint=False)
+    n = uv.shape[0]
+    assert_close(off, rt.evaluate(np.tile(WI, (n, 1)), np.tile(WO, (n, 1)), uv=uv)
+                 .reshape(SIZE, SIZE, 3))  # fmt: skip
+    read_image(test_page, zoom=1.0, footprint=True)
+
+
 def test_sphere_view_and_benchmark_api(browser, rt):
     with serve(build_bundle(rt)) as srv:
         page = open_page(browser, f"{srv.url}?size=96&animate=0&repeat=1")

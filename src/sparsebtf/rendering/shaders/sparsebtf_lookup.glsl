@@ -11,10 +11,15 @@
 //            with the weights of runtime/angular.py (nearest, linear = release 2-NN,
 //            barycentric, gaussian)
 //   Eq. 6    X_c = sum_s v_s U1[i1,l1] U2[i2,l2] (sum_a wl_a U3[L_a,l3]) (sum_b wv_b U4[V_b,l4])
-//            over the first min(count, tau'_c) coefficients (stored by decreasing |v|), then
+//            over the first min(count, tau'_c) coefficients (stored by decreasing |v|; a
+//            fractional tau' weighs coefficient s by min(1, tau' - s), runtime/kernels.py
+//            prefix_weights), then
 //            log_c = X_c sd + mu with mu, sd blended by wl_a wv_b ("standardized" domain), or
 //            log_c = sum_ab wl_a wv_b (sd_ab X_c(L_a,V_b) + mu_ab) ("log" domain, release shader)
 //   colour   rgb = exp(min(YUV_TO_RGB [log_Y, log_U, log_V], bound)) - eps
+//   LOD      tau'_c = max(f tau_c, min(1, tau_c)) with f = clamp(1 / rho^2, sb_lodMin, 1), rho
+//            the texels per pixel side from the screen-space derivatives of uv
+//            (runtime/lod.py: lod_tau, footprint_fraction)
 //
 // Texture layout (built by sparsebtf.rendering.viewer.pack_textures): every 1D array of n
 // entries lies in a SB_TEX_WIDTH-wide 2D texture, entry i at texel (i % W, i / W).
@@ -56,6 +61,7 @@ uniform ivec4 sb_dictSize;    // K is per channel, so only m: (P, P, L, V) as st
 uniform int sb_stdBase;       // start of std in sb_stats
 uniform int sb_boundBase;     // start of the bound in sb_stats
 uniform ivec3 sb_tau;         // run-time level of detail tau' per channel (Y, U, V)
+uniform float sb_lodMin;      // least fraction of tau the footprint gives (runtime.lod)
 uniform vec3 sb_yuvToRgb[3];  // rows of the YUV -> RGB matrix
 uniform float sb_eps;         // log offset
 uniform int sb_interp;        // SB_NEAREST .. SB_GAUSSIAN
@@ -196,14 +202,15 @@ float sb_spatial_term(int i, int b1, int b2, out int l3, out int l4) {
     return sb_f(sb_values, i) * sb_f(sb_dicts, b1 + l1) * sb_f(sb_dicts, b2 + l2);
 }
 
-// Log-domain value of channel c at point/in-patch texel t (Eq. 5 summed with Eq. 6 weights).
-float sb_channel(int c, ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN], int nv,
-                 int iv[SB_MAX_NN], float wv[SB_MAX_NN]) {
+// Log-domain value of channel c at point/in-patch texel t (Eq. 5 summed with Eq. 6 weights)
+// at level of detail tau (fractional: the last coefficient weighted by tau - floor(tau)).
+float sb_channel(int c, ivec3 t, float tau, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN],
+                 int nv, int iv[SB_MAX_NN], float wv[SB_MAX_NN]) {
     int P = sb_size.z, L = sb_dictSize.z, V = sb_dictSize.w;
     int nL = sb_counts.y, nV = sb_counts.z;
     ivec4 pt = texelFetch(sb_points, sb_coord(c * sb_counts.x + t.x), 0);
     int start = pt.x;
-    int count = min(pt.y, sb_tau[c]);
+    int count = min(pt.y, int(ceil(tau - 1e-4)));
     int k = pt.z;
     ivec4 db = sb_dictBase[c];
     int b1 = db.x + (k * P + t.y) * P;
@@ -219,7 +226,7 @@ float sb_channel(int c, ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN],
         float acc = 0.0;
         for (int s = 0; s < count; ++s) {
             int l3, l4;
-            float a = sb_spatial_term(start + s, b1, b2, l3, l4);
+            float a = sb_spatial_term(start + s, b1, b2, l3, l4) * min(1.0, tau - float(s));
             float s3 = 0.0, s4 = 0.0;
             for (int j = 0; j < SB_MAX_NN; ++j) {
                 if (j >= nl) break;
@@ -249,7 +256,7 @@ float sb_channel(int c, ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN],
     for (int j = 0; j < SB_MAX_NN * SB_MAX_NN; ++j) x[j] = 0.0;
     for (int s = 0; s < count; ++s) {
         int l3, l4;
-        float a = sb_spatial_term(start + s, b1, b2, l3, l4);
+        float a = sb_spatial_term(start + s, b1, b2, l3, l4) * min(1.0, tau - float(s));
         float g4[SB_MAX_NN];
         for (int b = 0; b < SB_MAX_NN; ++b) {
             if (b >= nv) break;
@@ -277,18 +284,41 @@ float sb_channel(int c, ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN],
     return lg;
 }
 
+// Texels per pixel side from the screen-space derivatives dx = dFdx(uv), dy = dFdy(uv) (the
+// caller removes the jumps of its parametrisation's seams): sqrt(|det J|) of the Jacobian of
+// the texel coordinates, the side of a square of the pixel's footprint area.
+float sb_texels_per_pixel(vec2 dx, vec2 dy) {
+    vec2 size = vec2(float(sb_size.y), float(sb_size.x));  // (W, H): u along columns
+    dx *= size;
+    dy *= size;
+    return sqrt(abs(dx.x * dy.y - dx.y * dy.x));
+}
+
+// Fraction of tau for a footprint of rho texels per pixel side (runtime.lod.footprint_fraction).
+float sb_footprint_fraction(float rho) {
+    float r = max(rho, 1.0);
+    return clamp(1.0 / (r * r), sb_lodMin, 1.0);
+}
+
+// Per-channel tau' of a fraction f of the cap sb_tau (runtime.lod.lod_tau).
+vec3 sb_lod_tau(float f) {
+    vec3 t = vec3(sb_tau);
+    return max(f * t, min(vec3(1.0), t));
+}
+
 // Linear RGB of the BTF at texture coordinate uv for light wi and view wo, both in the local
-// frame (z = normal, x = +u / texture columns, y = +v / texture rows). Eq. 5 at sampled
-// directions, Eq. 6 between them. Masking below the horizon is the caller's business.
-vec3 sb_evaluate(vec2 uv, vec3 wi, vec3 wo) {
+// frame (z = normal, x = +u / texture columns, y = +v / texture rows), at level of detail tau
+// (Y, U, V; fractional). Eq. 5 at sampled directions, Eq. 6 between them. Masking below the
+// horizon is the caller's business.
+vec3 sb_evaluate_tau(vec2 uv, vec3 wi, vec3 wo, vec3 tau) {
     ivec3 t = sb_texel(uv);
     int il[SB_MAX_NN], iv[SB_MAX_NN];
     float wl[SB_MAX_NN], wv[SB_MAX_NN];
     int nl = sb_weights(wi, 0, sb_counts.y, 0, il, wl);
     int nv = sb_weights(wo, sb_counts.y, sb_counts.z, 1, iv, wv);
-    vec3 lg = vec3(sb_channel(0, t, nl, il, wl, nv, iv, wv),
-                   sb_channel(1, t, nl, il, wl, nv, iv, wv),
-                   sb_channel(2, t, nl, il, wl, nv, iv, wv));
+    vec3 lg = vec3(sb_channel(0, t, tau.x, nl, il, wl, nv, iv, wv),
+                   sb_channel(1, t, tau.y, nl, il, wl, nv, iv, wv),
+                   sb_channel(2, t, tau.z, nl, il, wl, nv, iv, wv));
     vec3 ln = vec3(dot(sb_yuvToRgb[0], lg), dot(sb_yuvToRgb[1], lg), dot(sb_yuvToRgb[2], lg));
     // The material's bound on ln(RGB + eps), interpolated like the statistics.
     float bound = 0.0;
@@ -300,4 +330,9 @@ vec3 sb_evaluate(vec2 uv, vec3 wi, vec3 wo) {
         }
     }
     return exp(min(ln, vec3(bound))) - sb_eps;
+}
+
+// The same at the cap sb_tau.
+vec3 sb_evaluate(vec2 uv, vec3 wi, vec3 wo) {
+    return sb_evaluate_tau(uv, wi, wo, vec3(sb_tau));
 }

@@ -5,7 +5,10 @@
 // tangent x = dp/du, bitangent y = n x t (= dp/dv direction), so the local frame is the BTF's
 // (z = normal, azimuth from +u toward +v). Plane: z = 0, |x|, |y| <= 1.5, x = +u, y = +v.
 // Test scene (u_scene == 2): the whole viewport is the texture, uv = gl_FragCoord.xy / size
-// (v grows upward: readPixels row j has v = (j + 0.5) / height), with fixed local wi and wo.
+// · u_testZoom (v grows upward: readPixels row j has v = (j + 0.5) / height · zoom), with fixed
+// local wi and wo; u_testRamp = 1 sets tau' per fragment to sb_lod_tau((x + 0.5) / width).
+// Level of detail (u_footprint = 1): tau' per fragment from its footprint (sb_lod_tau of
+// sb_footprint_fraction of sb_texels_per_pixel of the uv derivatives), else the cap sb_tau.
 
 uniform vec2 u_resolution;
 uniform int u_scene;          // 0 sphere, 1 plane, 2 test plane
@@ -20,19 +23,37 @@ uniform float u_exposure;
 uniform int u_linearOut;      // 1: raw linear RGB for a float framebuffer, 0: display sRGB
 uniform vec3 u_testWi;
 uniform vec3 u_testWo;
+uniform float u_testZoom;     // test scene: uv per viewport (1: the texture once)
+uniform int u_testRamp;       // test scene: 1 = tau' fraction (x + 0.5) / width per fragment
+uniform int u_footprint;      // 1: tau' per fragment by its screen-space footprint
 
 out vec4 fragColor;
 
 #ifdef SB_TRIVIAL
 // The benchmark's reference: same geometry and frames, a checker albedo instead of the lookup.
-vec3 shade(vec2 uv, vec3 wi, vec3 wo) {
+float footprint(vec2 uv, float period) {
+    return 0.0;
+}
+
+vec3 shade(vec2 uv, vec3 wi, vec3 wo, float rho) {
     vec2 c = floor(fract(uv) * 8.0);
     float a = mod(c.x + c.y, 2.0) < 0.5 ? 0.7 : 0.3;
     return vec3(a, 0.8 * a, 0.6 * a) * max(wi.z, 0.0) * (0.5 + 0.5 * wo.z);
 }
 #else
-vec3 shade(vec2 uv, vec3 wi, vec3 wo) {
-    return sb_evaluate(uv, wi, wo);
+// Texels per pixel side at uv (0 when the footprint is off); u jumps by `period` at a seam
+// (0: none), removed from the derivative. Call in uniform control flow (derivatives).
+float footprint(vec2 uv, float period) {
+    vec2 dx = dFdx(uv), dy = dFdy(uv);
+    if (period > 0.0) {
+        dx.x -= period * round(dx.x / period);
+        dy.x -= period * round(dy.x / period);
+    }
+    return u_footprint == 1 ? sb_texels_per_pixel(dx, dy) : 0.0;
+}
+
+vec3 shade(vec2 uv, vec3 wi, vec3 wo, float rho) {
+    return sb_evaluate_tau(uv, wi, wo, sb_lod_tau(sb_footprint_fraction(rho)));
 }
 #endif
 
@@ -67,21 +88,32 @@ bool hit(vec3 ro, vec3 rd, out vec2 uv, out mat3 frame) {
 
 void main() {
     if (u_scene == 2) {
-        vec2 uv = gl_FragCoord.xy / u_resolution;
-        fragColor = vec4(shade(uv, u_testWi, u_testWo), 1.0);
+        vec2 uv = gl_FragCoord.xy / u_resolution * u_testZoom;
+        float rho = footprint(uv, 0.0);
+#ifndef SB_TRIVIAL
+        if (u_testRamp == 1) {
+            vec3 tau = sb_lod_tau(gl_FragCoord.x / u_resolution.x);
+            fragColor = vec4(sb_evaluate_tau(uv, u_testWi, u_testWo, tau), 1.0);
+            return;
+        }
+#endif
+        fragColor = vec4(shade(uv, u_testWi, u_testWo, rho), 1.0);
         return;
     }
     vec2 ndc = (2.0 * gl_FragCoord.xy - u_resolution) / u_resolution.y;
     vec3 rd = normalize(u_camFwd + u_tanHalfFov * (ndc.x * u_camRight + ndc.y * u_camUp));
-    vec2 uv;
+    vec2 uv = vec2(0.0);
     mat3 frame;
     vec3 rgb = vec3(0.06, 0.065, 0.075);
-    if (hit(u_camPos, rd, uv, frame)) {
+    bool onObject = hit(u_camPos, rd, uv, frame);
+    // derivatives need uniform control flow: before the branch; the sphere's u wraps by 2·repeat
+    float rho = footprint(uv, u_scene == 0 ? 2.0 * u_uvRepeat : 0.0);
+    if (onObject) {
         mat3 toLocal = transpose(frame);
         vec3 wi = toLocal * u_lightDir;
         vec3 wo = toLocal * (-rd);
         if (wi.z > 0.0 && wo.z > 0.0) {
-            rgb = u_exposure * shade(uv, wi, wo);
+            rgb = u_exposure * shade(uv, wi, wo, rho);
         } else {
             rgb = vec3(0.0);
         }

@@ -38,6 +38,7 @@ from ..._atomic import remove_stale_parts, temporary_dir
 from ..._json import json_default
 from ...errors import BTFInputError, FileFormatError, SparseBTFError
 from ...runtime.decoder import NO_BOUND
+from ...runtime.lod import MIN_FRACTION
 
 if TYPE_CHECKING:
     from ...runtime import RuntimeBTF
@@ -240,6 +241,7 @@ def pack_textures(
         "sb_boundBase": int(2 * mean.size),
         "sb_yuvToRgb": arrays["yuv_to_rgb"].astype(np.float64).tolist(),
         "sb_eps": float(meta["eps"]),
+        "sb_lodMin": MIN_FRACTION,
     }
     part = {
         "textures": textures,

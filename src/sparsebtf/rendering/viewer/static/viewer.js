@@ -10,7 +10,8 @@
 // Query parameters (tests, benchmarks, bookmarks): scene=sphere|plane|test, size=N (square
 // canvas), tau=a,b,c or lod=f (fraction), interp=nearest|linear|barycentric|gaussian,
 // domain=standardized|log, wi=x,y,z and wo=x,y,z (local directions of the test scene),
-// animate=0|1, neigh=0|1 (candidate tables), exposure=e, repeat=r.
+// animate=0|1, neigh=0|1 (candidate tables), exposure=e, repeat=r, footprint=0|1 (tau' per
+// fragment by its screen-space footprint, default 1), zoom=z and ramp=0|1 (test scene).
 // Script API: window.sparsebtf = {ready, error, info, set(state), readFloat(), benchmark(opts)}.
 "use strict";
 
@@ -190,6 +191,9 @@
       animate: q.get("animate") !== "0" && q.get("scene") !== "test",
       neigh: q.has("neigh") ? q.get("neigh") === "1" : manifest.has_neighbours,
       trivial: false,
+      footprint: q.get("footprint") !== "0",
+      zoom: q.has("zoom") ? parseFloat(q.get("zoom")) : 1.0,
+      ramp: q.get("ramp") === "1",
     };
     if (!(state.scene in SCENE)) fail(`unknown scene ${state.scene}`);
     if (!(state.interp in INTERP)) fail(`unknown interpolation ${state.interp}`);
@@ -232,6 +236,8 @@
         u_exposure: state.exposure,
         u_linearOut: target ? 1 : 0,
         u_testWi: state.wi, u_testWo: state.wo,
+        u_testZoom: state.zoom, u_testRamp: state.ramp ? 1 : 0,
+        u_footprint: state.footprint ? 1 : 0,
         sb_tau: state.tau,
         sb_interp: INTERP[state.interp],
         sb_knn: 4,
@@ -325,6 +331,7 @@
       $("repeat").value = state.repeat;
       $("repeatText").textContent = String(state.repeat);
       $("animate").checked = state.animate;
+      $("footprint").checked = state.footprint;
     }
     $("tau").addEventListener("input", (e) => { setLod(e.target.value / 1000); syncControls(); dirty = true; });
     $("interp").addEventListener("change", (e) => { state.interp = e.target.value; dirty = true; });
@@ -339,6 +346,7 @@
     });
     $("repeat").addEventListener("input", (e) => { state.repeat = +e.target.value; syncControls(); dirty = true; });
     $("animate").addEventListener("change", (e) => { state.animate = e.target.checked; dirty = true; });
+    $("footprint").addEventListener("change", (e) => { state.footprint = e.target.checked; dirty = true; });
 
     let drag = null;
     canvas.addEventListener("contextmenu", (e) => e.preventDefault());
