@@ -535,7 +535,7 @@ def test_lod_tau_per_query_equals_the_runtime_and_is_counted(material):
     rt = material["rt"]
     bsdf = mi.load_dict({"type": "sparsebtf", "key": material["key"], "uv_scale": 2.0,
                          "lod_camera": ",".join(map(str, cam)), "lod_pixel": pixel,
-                         "lod_later": 0.3, "lod_stats": True})  # fmt: skip
+                         "lod_later": 0.3, "lod_sampled": 0.2, "lod_stats": True})  # fmt: skip
     got = _eval(bsdf, si, wo)
     h, w = rt.meta["height"], rt.meta["width"]
     rho = cone_texels_per_pixel(t, pixel, wi[:, 2], du, dv, 1.0 / (h * w * 4.0))
@@ -548,13 +548,20 @@ def test_lod_tau_per_query_equals_the_runtime_and_is_counted(material):
     full = rt.evaluate(wo, wi, uv=uv * 2.0)
     assert np.abs(full - ref).max() > 1e-2  # the level of detail changed the values
     stats = bsdf.lod_stats()
+    assert stats["first_sampled"]["lookups"] == 0
+    u1, u2 = rng.uniform(size=n).astype(np.float32), rng.uniform(size=(2, n)).astype(np.float32)
+    bsdf.sample(mi.BSDFContext(), si, mi.Float(u1), mi.Point2f(u2))
+    sampled = bsdf.lod_stats()
+    # sample(): the first vertex at min(footprint fraction, lod_sampled), later ones as eval
+    tau_s = lod_tau(rt.tau, np.where(first, np.minimum(frac, 0.2), 0.3))
     pts = rt._texels(uv * 2.0, None, n)[0]
-    for cls, sel in (("first", first), ("later", ~first)):
-        assert stats[cls]["lookups"] == sel.sum()
+    for cls, sel, st, t in (("first", first, stats, tau), ("later", ~first, stats, tau),
+                            ("first_sampled", first, sampled, tau_s)):  # fmt: skip
+        assert st[cls]["lookups"] == sel.sum()
         for c, ch in enumerate("YUV"):
             cnt = np.diff(rt.coded.codes[ch].offsets)[pts[sel]]
-            want = np.minimum(cnt, np.ceil(tau[sel, c] - 1e-4)).sum() / sel.sum()
-            assert stats[cls]["tau"][c] == pytest.approx(want, rel=2e-3), (cls, ch)
+            want = np.minimum(cnt, np.ceil(t[sel, c] - 1e-4)).sum() / sel.sum()
+            assert st[cls]["tau"][c] == pytest.approx(want, rel=2e-3), (cls, ch)
 
 
 def test_lod_off_is_the_full_tau_plugin(material):

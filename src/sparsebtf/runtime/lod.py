@@ -31,6 +31,7 @@ __all__ = [
     "LATER_FRACTION",
     "LODS",
     "MIN_FRACTION",
+    "SAMPLED_FRACTION",
     "cone_texels_per_pixel",
     "footprint_fraction",
     "lod_tau",
@@ -40,6 +41,10 @@ __all__ = [
 LODS = ("auto", "off")
 #: Fraction of τ on path vertices after the one the camera sees.
 LATER_FRACTION = 0.1
+#: Fraction of τ at most for the lookup of a path tracer's BSDF sample at the first vertex:
+#: its weight carries what the continued path finds (indirect light, and the BSDF-sampled
+#: share of direct light under multiple importance sampling).
+SAMPLED_FRACTION = 1.0
 #: The least fraction the footprint rule gives (a far-away surface).
 MIN_FRACTION = 0.1
 #: Grazing views count as this cos θ (the footprint's stretch stays bounded).

@@ -261,10 +261,11 @@ def coded_params(props: Any) -> dict[str, Any]:
 def lod_params(props: Any) -> dict[str, Any]:
     """``lod`` (auto | off), ``lod_camera`` ("x,y,z": the camera's origin, or None),
     ``lod_near`` (its near_clip, Mitsuba's default 0.01: primary rays start there) and
-    ``lod_pixel`` (the angle of one pixel, radians), ``lod_later`` and ``lod_min`` (the
-    fractions of :mod:`sparsebtf.runtime.lod`), ``lod_stats`` (count τ per depth), checked.
+    ``lod_pixel`` (the angle of one pixel, radians), ``lod_later``, ``lod_sampled`` and
+    ``lod_min`` (the fractions of :mod:`sparsebtf.runtime.lod`), ``lod_stats`` (count the τ
+    used per lookup class), checked.
     ``auto`` without ``lod_camera`` cannot tell the first path vertex: it is off."""
-    from ...runtime.lod import LATER_FRACTION, LODS, MIN_FRACTION
+    from ...runtime.lod import LATER_FRACTION, LODS, MIN_FRACTION, SAMPLED_FRACTION
 
     lod = str(props.get("lod", "auto"))
     if lod not in LODS:
@@ -285,7 +286,8 @@ def lod_params(props: Any) -> dict[str, Any]:
     if not (math.isfinite(pixel) and pixel >= 0):
         raise BTFInputError(f"{PLUGIN}: lod_pixel (radians per pixel) must be >= 0, got {pixel}")
     fractions = {}
-    for name, default in (("lod_later", LATER_FRACTION), ("lod_min", MIN_FRACTION)):
+    for name, default in (("lod_later", LATER_FRACTION), ("lod_min", MIN_FRACTION),
+                          ("lod_sampled", SAMPLED_FRACTION)):
         f = float(props.get(name, default))
         if not (math.isfinite(f) and 0.0 < f <= 1.0):
             raise BTFInputError(f"{PLUGIN}: {name} (a fraction of tau) must be in (0, 1], got {f}")

@@ -56,6 +56,9 @@ __all__ = ["VARIANT", "SparseBTFBSDF", "SparseBTFDenseBSDF"]
 #: The Mitsuba variant these classes were built for.
 VARIANT: str = mi.variant()
 _GLOSSY = mi.BSDFFlags.GlossyReflection
+#: Lookup classes of the level of detail: eval at the first path vertex, sample() there (its
+#: weight carries the continued path), any lookup at a later vertex.
+LOD_CLASSES = ("first", "first_sampled", "later")
 
 
 def _flip(v: Any, back: Any, flip: Any) -> Any:
@@ -172,7 +175,7 @@ class _Base(mi.BSDF):
                                          [(self.cand[known_set], known),
                                           (self.cand[sampled_set], w)], active)  # fmt: skip
         value = self._value(mode, uv, known_nb, w_nb, active & (w.z > 0),
-                            self._level(si, known, active))
+                            self._level(si, known, active, sampled=False))
         pdf = self._density(mode, uv, known_nb, w, active) if want_pdf else mi.Float(0.0)
         return value, pdf
 
@@ -204,7 +207,8 @@ class _Base(mi.BSDF):
         bs.eta = 1.0
         bs.sampled_type = mi.UInt32(+_GLOSSY)
         bs.sampled_component = mi.UInt32(0)
-        value = self._value(mode, uv, known_nb, w_nb, active, self._level(si, known, active))
+        value = self._value(mode, uv, known_nb, w_nb, active,
+                            self._level(si, known, active, sampled=True))
         ok = active & (bs.pdf > 0)
         return bs, dr.select(ok, value / dr.select(ok, bs.pdf, 1.0), 0.0)
 
@@ -283,8 +287,9 @@ class _Base(mi.BSDF):
         return 0
 
     # -- subclass hooks -------------------------------------------------------------------------
-    def _level(self, si: Any, known: Any, active: Any) -> Any:
-        """What ``_jit_lookup`` needs to choose τ per query (None: no level of detail)."""
+    def _level(self, si: Any, known: Any, active: Any, sampled: bool) -> Any:
+        """What ``_jit_lookup`` needs to choose τ per query (None: no level of detail);
+        ``sampled``: the lookup of :meth:`sample` (else of :meth:`eval_pdf`)."""
         return None
 
     def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any,
@@ -332,23 +337,23 @@ class SparseBTFBSDF(_Base):
         else:
             self.data = cached(("jit", mi.variant(), source, str(tau)),
                                lambda: CodedArrays(mi, self.rt))  # fmt: skip
-            #: lookups and loop iterations (Y, U, V) at the first vertex [0:4] and later [4:8]
-            self.lod_counts = dr.zeros(mi.UInt32, 8)
+            #: lookups and loop iterations (Y, U, V) per lookup class (:data:`LOD_CLASSES`)
+            self.lod_counts = dr.zeros(mi.UInt32, 4 * len(LOD_CLASSES))
         self._setup(source, (str(tau),), tables)
 
     def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any,
                     level: Any = None) -> Any:
         if level is None:
             return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active)
-        fraction, later = level
+        fraction, cls = level
         tau = [dr.maximum(fraction * self.tau[c], min(1.0, self.tau[c])) for c in range(3)]
-        stats = (self.lod_counts, mi.UInt32(later)) if self.prm["lod_stats"] else None
+        stats = (self.lod_counts, cls) if self.prm["lod_stats"] else None
         return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active,
                             tau, stats)  # fmt: skip
 
-    def _level(self, si: Any, known: Any, active: Any) -> Any:
-        """(τ fraction, is a later vertex) per query (:mod:`sparsebtf.runtime.lod`), or None
-        with ``lod = "off"``.
+    def _level(self, si: Any, known: Any, active: Any, sampled: bool) -> Any:
+        """(τ fraction, class index in :data:`LOD_CLASSES`) per query
+        (:mod:`sparsebtf.runtime.lod`), or None with ``lod = "off"``.
 
         The first path vertex is the one whose ray starts at ``lod_camera`` (Mitsuba gives a
         Python BSDF neither the path depth nor ray differentials: ``si.duv_dx`` is 0). Its
@@ -368,7 +373,11 @@ class SparseBTFBSDF(_Base):
         rho = si.t * self.prm["lod_pixel"] * dr.rsqrt(cos) / dr.maximum(texel, 1e-12)
         rho = dr.maximum(rho, 1.0)
         near = dr.clip(dr.rcp(rho * rho), self.prm["lod_min"], 1.0)
-        return dr.select(first, near, self.prm["lod_later"]), ~first
+        if sampled:  # sample()'s weight carries what the continued path finds
+            near = dr.minimum(near, self.prm["lod_sampled"])
+        cls = mi.UInt32(1 if sampled else 0)
+        return (dr.select(first, near, self.prm["lod_later"]),
+                dr.select(first, cls, mi.UInt32(2)))
 
     def _jit_row(self, uv: Any) -> Any:
         if self.prm["sampling_tables"] != "patch":
@@ -402,12 +411,12 @@ class SparseBTFBSDF(_Base):
         return self.prm["lod"]
 
     def lod_stats(self) -> dict[str, Any]:
-        """With ``lod_stats``: per depth class ("first" vertex, "later" ones) the lookups and
+        """With ``lod_stats``: per lookup class (:data:`LOD_CLASSES`) the lookups and
         the mean loop iterations per lookup for Y, U, V (the τ' the plugin used, counted)."""
-        c = np.array(self.lod_counts, dtype=np.float64).reshape(2, 4)
+        c = np.array(self.lod_counts, dtype=np.float64).reshape(len(LOD_CLASSES), 4)
         return {name: {"lookups": int(row[0]),
                        "tau": (row[1:] / max(row[0], 1)).tolist()}
-                for name, row in zip(("first", "later"), c, strict=True)}  # fmt: skip
+                for name, row in zip(LOD_CLASSES, c, strict=True)}  # fmt: skip
 
     def _sampling_text(self) -> str:
         if self.prm["sampling"] != "btf":
