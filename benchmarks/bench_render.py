@@ -42,7 +42,7 @@ from typing import Any
 
 import numpy as np
 
-from _common import TAU, machine, report, synthetic_coded
+from _common import TAU, cpu_seconds, machine, report, synthetic_coded
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.data.directions import ubo2014
 
@@ -119,7 +119,9 @@ class Renderer:
 
     def __call__(self, bsdf: dict, light: str, size: int, spp: int, seed: int,
                  max_pass: int = 256) -> tuple[np.ndarray, float]:
-        """(linear RGB image, render seconds); spp above ``max_pass`` in passes (new seeds)."""
+        """(linear RGB image, render seconds); spp above ``max_pass`` in passes (new seeds).
+        ``self.cpu_seconds``: the CPU time of this process's threads during the render (less
+        at the mercy of other processes' load than the wall time)."""
         from sparsebtf.rendering.mitsuba import preload
         from sparsebtf.rendering.scenes import scene_dict
 
@@ -130,13 +132,15 @@ class Renderer:
             desc["integrator"] = dict(self.integrator)
         scene = mi.load_dict(desc)
         acc, seconds, done, k = 0.0, 0.0, 0, 0
+        self.cpu_seconds = 0.0
         while done < spp:
             n = min(max_pass, spp - done)
-            t = time.perf_counter()
+            t, c = time.perf_counter(), cpu_seconds()
             img = mi.render(scene, spp=n, seed=seed + 7919 * k)
             dr.eval(img)
             dr.sync_thread()
             seconds += time.perf_counter() - t
+            self.cpu_seconds += cpu_seconds() - c
             acc = acc + np.array(img, dtype=np.float64)[..., :3] * n
             done, k = done + n, k + 1
         return acc / spp, seconds
@@ -338,12 +342,15 @@ def level_of_detail(render: Renderer, rts: dict[str, Any], args: argparse.Namesp
         b = {lod: lod_bsdf(key, lod, size) for lod in ("off", "auto")}
         for lod in b:
             render(b[lod], "sky", size, 1, 0)  # compile the kernels
-        refs, ref_secs = {}, {}
+        refs, ref_secs, ref_cpu = {}, {}, {}
         for lod in b:  # one seed for both: correlated noise
             refs[lod], ref_secs[lod] = render(b[lod], "sky", size, ref_spp, 100_000)
-        per = {lod: ref_secs[lod] / (size * size * ref_spp) * 1e6 for lod in b}
+            ref_cpu[lod] = render.cpu_seconds
+        n = size * size * ref_spp
+        per = {lod: ref_cpu[lod] / n * 1e6 for lod in b}
         row: dict[str, Any] = {
             "us_per_sample_per_pixel": per,
+            "wall_us_per_sample_per_pixel": {lod: ref_secs[lod] / n * 1e6 for lod in b},
             "speedup": per["off"] / per["auto"],
             "bias_rel_mse": rel_mse(refs["auto"], refs["off"]),
             "tau_used": lod_counts(render, key, size),
@@ -364,7 +371,7 @@ def level_of_detail(render: Renderer, rts: dict[str, Any], args: argparse.Namesp
         row["seconds_total"] = time.perf_counter() - t0
         out[name] = row
         images[name] = refs
-        log(f"  {name:9s} off {per['off']:.1f} us, auto {per['auto']:.1f} us per sample "
+        log(f"  {name:9s} off {per['off']:.1f} CPU us, auto {per['auto']:.1f} CPU us per sample "
             f"({row['speedup']:.2f}x); bias {row['bias_rel_mse']:.3g} vs {spp}-spp noise "
             f"{row['noise_rel_mse']:.3g}; equal time ({spp_eq} spp) "
             f"{row['auto_equal_time']['rel_mse']:.3g}  [{row['seconds_total']:.0f} s]")

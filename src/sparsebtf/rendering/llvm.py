@@ -3,10 +3,12 @@
 Dr.Jit 1.5 JIT-compiles its CPU kernels with the system's ``libLLVM``. Which one matters
 (``shared/specs/rendering-notes.md``):
 
-* LLVM 14 is refused cleanly ("too old"),
+* LLVM 14 is refused cleanly by Dr.Jit ("requires LLVM 15 or newer"),
 * LLVM 15 and 16 (what Mesa pulls in) **abort the whole process** on the first kernel that uses
-  ``dr.minimum`` — a SIGABRT, not a Python exception,
-* LLVM 17+ (Debian ``libllvm19``) works.
+  ``dr.minimum`` — a SIGABRT, not a Python exception — so this module needs 17 or newer,
+* LLVM 17+ works: Debian's ``libllvm19`` (root), or without root the PyPI wheel
+  ``karellen-llvm-core`` (LLVM 23, with the libc++ it links against; the ``render`` extra
+  installs it on Linux x86-64), found under the Python environment's ``lib/``.
 
 So a library is never tried in this process: :func:`probe_libllvm` runs a tiny Dr.Jit kernel in
 a **subprocess** with ``DRJIT_LIBLLVM_PATH`` pointing at the candidate, and only a candidate that
@@ -46,15 +48,31 @@ SEARCH_DIRS = (
     "/opt/homebrew/opt/llvm/lib",
     "/usr/local/opt/llvm/lib",
 )
-#: Major versions tried, best first. 15 and 16 are excluded on purpose: they abort the process.
-GOOD_MAJORS = (19, 18, 17, 20, 21)
+#: Major versions tried, best first (then any newer one). 15 and 16 are excluded on purpose:
+#: they abort the process.
+GOOD_MAJORS = (19, 18, 17, 20, 21, 22, 23)
+#: The oldest LLVM this module uses (Dr.Jit's own floor is 15, but 15 and 16 abort).
+MIN_MAJOR = 17
+#: Wheels on PyPI that ship a libLLVM with its dependencies (installed under ``<prefix>/lib``).
+PYPI_WHEELS = ("karellen-llvm-core",)
+
+
+def search_dirs() -> list[str]:
+    """Where libLLVM is looked for: the Python environment's ``lib/`` (a pip-installed wheel,
+    :data:`PYPI_WHEELS`; also the user base of ``pip install --user``), then the system's."""
+    import site
+
+    envs = [sys.prefix, sys.base_prefix, site.getuserbase()]
+    return list(dict.fromkeys([os.path.join(p, "lib") for p in envs] + list(SEARCH_DIRS)))
 
 _PROBE = r"""
 import drjit as dr
 from drjit.llvm import Float
 v = dr.detail.llvm_version()
+if v[0] < 0:
+    raise SystemExit("SPARSEBTF-LLVM-UNUSED")
 if v[0] < 17:
-    raise SystemExit(f"llvm {v} is too old")
+    raise SystemExit(f"SPARSEBTF-LLVM-OLD {v[0]}.{v[1]}.{v[2]}")
 x = dr.minimum(Float(1.0, 7.0, 3.0), 5.0)
 x = dr.clip(x * 2.0, 0.0, 9.0)
 assert x.numpy().tolist() == [2.0, 9.0, 6.0], x
@@ -77,11 +95,13 @@ class LLVMStatus:
     def message(self) -> str:
         if self.ok:
             return f"Dr.Jit LLVM backend: {self.path} (LLVM {self.version})"
-        lines = ["no usable libLLVM for Dr.Jit's LLVM backend (needs LLVM >= 17)"]
+        lines = [f"no usable libLLVM for Dr.Jit's LLVM backend (sparsebtf needs LLVM >= "
+                 f"{MIN_MAJOR})"]
         lines += [f"  {p}: {why}" for p, why in self.tried] or ["  no libLLVM found"]
         lines.append(
-            "  install one (Debian/Ubuntu: apt-get install libllvm19) or set "
-            "DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so.19"
+            "  install one without root: pip install karellen-llvm-core (or pip install "
+            "'sparsebtf[render]'); as root: apt-get install libllvm19; or set "
+            "DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so"
         )
         return "\n".join(lines)
 
@@ -95,16 +115,18 @@ def _major(path: str) -> int | None:
 
 
 def candidate_libraries() -> list[str]:
-    """libLLVM files of major version 17 or newer on this machine, best first."""
+    """libLLVM files of major version 17 or newer on this machine, best first
+    (:data:`GOOD_MAJORS` in order, then newer majors, newest first)."""
     found: dict[int, list[str]] = {}
-    for d in SEARCH_DIRS:
+    for d in search_dirs():
         for pat in ("libLLVM.so.*", "libLLVM-*.so*", "libLLVM.dylib"):
             for path in sorted(glob.glob(os.path.join(d, pat))):
                 major = _major(path)
-                if major is not None and major in GOOD_MAJORS:
+                if major is not None and major >= MIN_MAJOR:
                     found.setdefault(major, []).append(os.path.realpath(path))
+    newer = sorted((m for m in found if m not in GOOD_MAJORS), reverse=True)
     out: list[str] = []
-    for major in GOOD_MAJORS:
+    for major in (*GOOD_MAJORS, *newer):
         for p in found.get(major, []):
             if p not in out:
                 out.append(p)
@@ -139,13 +161,32 @@ def probe_libllvm(path: str, timeout: float = 120.0) -> tuple[bool, str]:
         if r.returncode == 0 and m:
             res = (True, m.group(1))
         else:
-            tail = (r.stderr or r.stdout).strip().splitlines()
-            why = tail[-1] if tail else ""
-            if r.returncode < 0:
-                why = f"process killed by signal {-r.returncode} {why}".strip()
-            res = (False, why or f"exit status {r.returncode}")
+            res = (False, _probe_failure(r.returncode, r.stdout, r.stderr))
     _probe_cache[path] = res
     return res
+
+
+def _probe_failure(code: int, out: str, err: str) -> str:
+    """One line on why a probe failed, in the terms of both Dr.Jit and this module."""
+    old = re.search(r"SPARSEBTF-LLVM-OLD (\S+)", err) or re.search(
+        r"located LLVM version \((\d+)\)", err
+    )
+    if old:
+        return (f"LLVM {old.group(1)} is too old: sparsebtf needs LLVM >= {MIN_MAJOR} (Dr.Jit "
+                "accepts 15, but 15 and 16 abort the process on some kernels)")  # fmt: skip
+    load = re.search(r'Unable to load "[^"]*": (.*?)!?$', err, re.M)
+    if load:
+        return f"Dr.Jit cannot load it: {load.group(1)}"
+    if "SPARSEBTF-LLVM-UNUSED" in err:
+        lines = [x for x in err.splitlines() if "jit" in x.lower() and "SPARSEBTF" not in x]
+        return "Dr.Jit did not start its LLVM backend with it" + (
+            f": {lines[0].strip()}" if lines else ""
+        )
+    tail = (err or out).strip().splitlines()
+    why = tail[-1] if tail else ""
+    if code < 0:
+        why = f"process killed by signal {-code} {why}".strip()
+    return why or f"exit status {code}"
 
 
 _status: LLVMStatus | None = None
