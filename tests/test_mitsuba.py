@@ -543,7 +543,12 @@ def test_lod_tau_per_query_equals_the_runtime_and_is_counted(material):
     """lod = auto: each lookup's τ' is the NumPy rule's (first vertex by footprint, later ones
     a fraction), the value equals RuntimeBTF.evaluate at that per-query τ', and the loop
     iterations the plugin counts per depth class are Σ min(count, ⌈τ'⌉)."""
-    from sparsebtf.runtime.lod import cone_texels_per_pixel, footprint_fraction, lod_tau
+    from sparsebtf.runtime.lod import (
+        MIN_FRACTION,
+        cone_texels_per_pixel,
+        footprint_fraction,
+        lod_tau,
+    )
 
     rng = np.random.default_rng(3)
     n, cam, pixel = 400, np.array([0.5, 2.0, 6.0]), 0.004
@@ -559,7 +564,8 @@ def test_lod_tau_per_query_equals_the_runtime_and_is_counted(material):
     rho = cone_texels_per_pixel(t, pixel, wi[:, 2], du, dv, 1.0 / (h * w * 4.0))
     frac = np.where(first, footprint_fraction(rho), 0.3)
     f1 = frac[first]
-    assert f1.min() == 0.1 and f1.max() == 1.0 and ((f1 > 0.15) & (f1 < 0.9)).sum() > 20
+    lo = MIN_FRACTION
+    assert f1.min() == lo and f1.max() == 1.0 and ((f1 > lo + 0.05) & (f1 < 0.95)).sum() > 20
     tau = lod_tau(rt.tau, frac)
     ref = rt.evaluate(wo, wi, uv=uv * 2.0, tau=tau)
     np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=5e-4, atol=2e-5)
@@ -588,7 +594,8 @@ def test_lod_off_is_the_full_tau_plugin(material):
     opts = {"scene": "sphere", "size": (16, 16), "spp": 2, "seed": 3}
     base = {"type": "sparsebtf", "key": material["key"], "uv_scale": 3.0}
     off = render_material(base, lod="off", **opts)
-    one = render_material({**base, "lod_later": 1.0, "lod_min": 1.0}, lod="auto", **opts)
+    one = render_material({**base, "lod_later": 1.0, "lod_min": 1.0, "lod_sampled": 1.0},
+                          lod="auto", **opts)
     low = render_material(base, lod="auto", **opts)
     assert "lod=off" in off["plugin"] and "lod=auto" in one["plugin"]
     np.testing.assert_array_equal(off.image, one.image)
