@@ -355,6 +355,7 @@ def level_of_detail(render: Renderer, rts: dict[str, Any], args: argparse.Namesp
             "bias_rel_mse": rel_mse(refs["auto"], refs["off"]),
             "tau_used": lod_counts(render, key, size),
         }
+        row["sweep"] = lod_sweep(render, key, refs["off"], ref_cpu["off"], args)
         mses: dict[str, list] = {lod: [] for lod in b}
         for seed in range(args.seeds):
             for lod in b:
@@ -378,6 +379,25 @@ def level_of_detail(render: Renderer, rts: dict[str, Any], args: argparse.Namesp
     return out, images
 
 
+def lod_sweep(render: Renderer, key: str, ref: np.ndarray, ref_cpu: float,
+              args: argparse.Namespace) -> list[dict]:
+    """``--lod-sweep later:min:sampled,...``: the CPU-time speed-up over lod = off and the bias
+    against the off reference of ``lod = auto`` with those fractions (``lod_later``,
+    ``lod_min``, ``lod_sampled``), at the reference's spp and seed."""
+    out = []
+    for spec in filter(None, (args.lod_sweep or "").split(",")):
+        later, low, sampled = (float(v) for v in spec.split(":"))
+        b = lod_bsdf(key, "auto", args.lod_size, lod_later=later, lod_min=low,
+                     lod_sampled=sampled)  # fmt: skip
+        render(b, "sky", args.lod_size, 1, 0)
+        img, _ = render(b, "sky", args.lod_size, args.lod_ref_spp, 100_000)
+        out.append({"later": later, "min": low, "sampled": sampled,
+                    "speedup": ref_cpu / render.cpu_seconds, "bias_rel_mse": rel_mse(img, ref)})
+        log(f"    sweep later {later:g} min {low:g} sampled {sampled:g}: "
+            f"{out[-1]['speedup']:.2f}x, bias {out[-1]['bias_rel_mse']:.3g}")
+    return out
+
+
 def save_lod_images(images: dict, results: dict, path: Path, ref_spp: int) -> Path:
     """One row per material: [off | auto | |auto − off| × 10], the high-spp renders."""
     import matplotlib
@@ -394,9 +414,9 @@ def save_lod_images(images: dict, results: dict, path: Path, ref_spp: int) -> Pa
         res = results[name]
         diff = np.abs(im["auto"] - im["off"]) * 10
         cols = [(im["off"], f"{name}: lod off, {ref_spp} spp\n"
-                            f"{res['us_per_sample_per_pixel']['off']:.1f} us/sample"),
+                            f"{res['us_per_sample_per_pixel']['off']:.1f} CPU us/sample"),
                 (im["auto"], f"lod auto ({res['speedup']:.2f}x faster)\n"
-                             f"{res['us_per_sample_per_pixel']['auto']:.1f} us/sample"),
+                             f"{res['us_per_sample_per_pixel']['auto']:.1f} CPU us/sample"),
                 (diff, f"|auto - off| x 10\nbias {res['bias_rel_mse']:.2g} "
                        f"(noise {res['noise_rel_mse']:.2g})")]  # fmt: skip
         for c, (img, title) in enumerate(cols):
@@ -463,6 +483,9 @@ def main() -> None:
     ap.add_argument("--lod-ref-spp", type=int, default=1024,
                     help="level of detail: spp of the full-tau reference and of the bias "
                     "renders (1024)")
+    ap.add_argument("--lod-sweep", default=None, metavar="LATER:MIN:SAMPLED,...",
+                    help="level of detail: also time and measure the bias of these fractions "
+                    "(lod_later, lod_min, lod_sampled), e.g. 0.1:1:1,0.1:0.5:0.3")
     ap.add_argument("--skip-noise", action="store_true")
     ap.add_argument("--skip-timing", action="store_true")
     ap.add_argument("--out", default=None, help="folder for the side-by-side PNG")
@@ -492,7 +515,7 @@ def main() -> None:
             data["lod_png"] = str(save_lod_images(images, data["lod"], png, args.lod_ref_spp))
         for k, r in data["lod"].items():
             us = r["us_per_sample_per_pixel"]
-            rows.append((f"{k}: us/sample/pixel off / auto",
+            rows.append((f"{k}: CPU us/sample/pixel off / auto",
                          f"{us['off']:.2f} / {us['auto']:.2f} = {r['speedup']:.2f}x"))
             rows.append((f"{k}: rel MSE {args.lod_spp} spp off / auto",
                          " / ".join(f"{v:.4g}" for v in r[f"rel_mse_{args.lod_spp}spp"].values())))
@@ -501,10 +524,15 @@ def main() -> None:
             rows.append((f"{k}: bias (auto vs off, {args.lod_ref_spp} spp) < noise",
                          f"{r['bias_rel_mse']:.3g} < {r['noise_rel_mse']:.3g}: "
                          f"{r['bias_below_noise']}"))
+            for sw in r["sweep"]:
+                rows.append((f"{k}: sweep later {sw['later']:g} min {sw['min']:g} sampled "
+                             f"{sw['sampled']:g}", f"{sw['speedup']:.2f}x, bias "
+                             f"{sw['bias_rel_mse']:.3g}"))  # fmt: skip
             tu = r["tau_used"]
-            rows.append((f"{k}: mean tau used Y first / later vertices",
-                         f"{tu['first']['tau'][0]:.0f} / {tu['later']['tau'][0]:.0f} "
-                         f"({tu['first']['lookups']} / {tu['later']['lookups']} lookups)"))
+            rows.append((f"{k}: mean tau Y used: first eval / first sample / later",
+                         " / ".join(f"{tu[c]['tau'][0]:.0f} ({tu[c]['lookups']})"
+                                    for c in ("first", "first_sampled", "later"))
+                         + " (lookups in a 1-spp render)"))  # fmt: skip
         args.skip_noise = args.skip_timing = True
     if not args.skip_noise:
         log("noise: relative MSE against the reference")
