@@ -447,7 +447,8 @@ class SparseBTFDenseBSDF(_Base):
                                lambda: DenseArrays(mi, self.np_data[0]))  # fmt: skip
         self._setup(source, (max_gib, ("key", skey)), tables)
 
-    def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any) -> Any:
+    def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any,
+                    level: Any = None) -> Any:
         return dense_lookup(mi, dr, self.data, uv, light_nb, view_nb, active)
 
     def _scalar_lookup(self, uv: np.ndarray, light: np.ndarray, view: np.ndarray) -> np.ndarray:
