@@ -309,3 +309,23 @@ def test_runtime_rejects_bad_input(coded):
         rt.evaluate(np.repeat(wi, 2, 0), np.repeat(wi, 2, 0), uv=np.zeros((1, 2)))
     with pytest.raises(BTFInputError, match="fractional tau"):
         RuntimeBTF(coded, tau=1.5)
+
+
+def test_lod_rule():
+    """footprint_fraction: full τ up to one texel per pixel, 1/ρ² beyond, floored; lod_tau keeps
+    at least one coefficient and never exceeds the cap; the ray cone grows with distance and
+    grazing angle and shrinks with larger texels."""
+    from sparsebtf.runtime.lod import (
+        MIN_FRACTION,
+        cone_texels_per_pixel,
+        footprint_fraction,
+        lod_tau,
+    )
+
+    f = footprint_fraction(np.array([0.2, 1.0, 1.2, 100.0]))
+    np.testing.assert_allclose(f, [1.0, 1.0, max(1 / 1.44, MIN_FRACTION), MIN_FRACTION])
+    t = lod_tau({"Y": 885, "U": 64, "V": 1}, np.array([1.0, 0.5, 0.001]))
+    np.testing.assert_allclose(t, [[885, 64, 1], [442.5, 32, 1], [1, 1, 1]])
+    rho = cone_texels_per_pixel(np.array([1.0, 2.0, 1.0, 1.0]), 0.01, np.array([1, 1, 0.25, 1]),
+                                np.array([1, 1, 1, 4.0]), 1.0, 1 / 100**2)  # fmt: skip
+    np.testing.assert_allclose(rho, [1.0, 2.0, 2.0, 0.5])
