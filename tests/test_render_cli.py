@@ -65,7 +65,7 @@ def test_render_sampling_option(files, capsys):
     for sampling in ("cosine", "btf"):
         rc = main(["render", str(files / "m.coded.h5"), "-o", str(files / f"{sampling}.png"),
                    "--image-size", "24", "--spp", "4", "--sampling", sampling, "--reference",
-                   str(files / "m.h5"), "--json"])  # fmt: skip
+                   str(files / "m.h5"), "--lod", "off", "--json"])  # fmt: skip
         assert rc == 0
         res = json.loads(capsys.readouterr().out)
         assert res["sampling"] == sampling and f"sampling={sampling}" in res["plugin"]
