@@ -24,10 +24,19 @@ a quarter of it, and the dense reference plugin on a 20×20-texel table, each wi
 samplers; best of ``--repeat`` interleaved rounds after one render each that compiles the
 kernels.
 
+**Level of detail** (``--lod``, alone): ``lod = off`` vs ``auto`` on the glossy class, felt
+(the noise part's trained codes) and a synthetic carpet coded on the bundled model:
+``--lod-size``² (64) images; CPU time per sample of a ``--lod-ref-spp`` (1024) render each, the
+off one being the reference; the bias (relative MSE of the two, same seed); the relative MSE
+at ``--lod-spp`` (16) and, for auto, at the spp that off's time buys; the τ' used per lookup
+class (``lod_stats``); ``--lod-sweep`` other fractions against the same reference;
+``--out``: ``lod.png`` [off | auto | |auto − off| × 10].
+
 ``--integrator bsdf`` renders the noise part with Mitsuba's ``direct`` integrator taking BSDF
 samples only (no emitter sampling, so no MIS): the image-level effect of the sampler alone.
 
     python benchmarks/bench_render.py [--json] [--out docs/rendering]
+    python benchmarks/bench_render.py --lod [--lod-sweep 0.1:1:1,...] [--out docs/rendering]
     python benchmarks/bench_render.py --backend cuda      # on a machine with an NVIDIA GPU
 """
 

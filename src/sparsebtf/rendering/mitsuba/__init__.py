@@ -79,6 +79,17 @@ sampling         string    btf (default) | cosine
 sampling_tables  string    material (default: one table) | patch (one per data point)
 sampling_grid    integer   cells per side of the equal-area grid (32; 16 for patch tables)
 sampling_mix     float     share of cosine sampling in the mixture (default 0.2)
+lod              string    auto (default: τ' per lookup from the path depth and the pixel
+                           footprint, :mod:`sparsebtf.runtime.lod`) | off (every lookup at
+                           ``tau``)
+lod_camera       string    "x,y,z": the camera's position (first-vertex test); without it
+                           ``auto`` is off. ``render_material`` passes its scene's camera
+lod_near         float     the camera's near clip (default 0.01, Mitsuba's)
+lod_pixel        float     one pixel's angle in radians (default 0: no footprint)
+lod_later        float     fraction of τ at later path vertices (default 0.1)
+lod_sampled      float     at most this fraction for sample() at the first vertex (0.3)
+lod_min          float     the least fraction the footprint gives (default 0.5)
+lod_stats        boolean   count lookups and loop iterations per class (``lod_stats()``)
 ================ ========= ==============================================================
 
 ``sparsebtf_dense`` — the uncompressed reference
