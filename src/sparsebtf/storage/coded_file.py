@@ -457,7 +457,7 @@ def _read_codes(
     errors = read_array(g, "errors", where, kinds="f", shape=(n_points,))
     total = int(counts.sum(dtype=np.int64))
     if schema >= 3:
-        values, locations = read_streams(g, where, sizes, counts, total)
+        values, locations = read_streams(g, where, sizes, membership, counts, total)
     else:
         values, locations = _read_packed(g, where, sizes, total)
     try:
