@@ -295,7 +295,7 @@ def test_damaged_tables_are_one_clear_error(levels, tmp_path):
     cases.append(("value_bytes", g["value_bytes"][:1], r"value_bytes: expected (shape|\(2, )"))
     nan = g["value_bytes"].copy()
     nan[:, 3] = (0x00, 0x7E)  # binary16 NaN
-    cases.append(("value_bytes", nan, r"codes/Y/value_bytes: value 3 is NaN"))
+    cases.append(("value_bytes", nan, r"Y/value_bytes: 1 NaN/Inf values \(first at value 3\)"))
     for i, (name, data, message) in enumerate(cases):
         path = tmp_path / f"bad{i}.h5"
         path.write_bytes(good.read_bytes())

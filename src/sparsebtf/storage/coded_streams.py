@@ -264,6 +264,11 @@ def _read_table(
     """The table layout → (point id, linear location, value) of every coefficient, in stored
     order. Errors name the dataset."""
     n_points = membership.size
+    held = checked_dataset(g, "value_bytes", where, kinds="u", shape=(None, None)).shape[1]
+    if held != total:
+        raise FileFormatError(
+            f"{where}: counts sum to {total} coefficients but 'value_bytes' holds {held}"
+        )
     table_sizes = read_array(g, "table_sizes", where, kinds="u", shape=(None,)).astype(np.int64)
     if n_points and table_sizes.size <= int(membership.max()):
         raise FileFormatError(
@@ -305,9 +310,12 @@ def _read_table(
             f"{planes.shape} {planes.dtype}"
         )
     values = np.ascontiguousarray(planes.T).view(f"<f{planes.shape[0]}")[:, 0]
-    if not np.all(np.isfinite(values)):
-        i = int(np.argmax(~np.isfinite(values)))
-        raise FileFormatError(f"{where}/value_bytes: value {i} is NaN/Inf; the file is damaged")
+    bad = ~np.isfinite(values)
+    if bad.any():
+        raise FileFormatError(
+            f"{where}/value_bytes: {int(bad.sum())} NaN/Inf values (first at value "
+            f"{int(np.argmax(bad))}); the file is damaged"
+        )
     return pid, table[(np.cumsum(table_sizes) - table_sizes)[k] + slot], values
 
 
