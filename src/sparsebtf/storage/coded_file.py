@@ -8,7 +8,8 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=3``; 2 and 1 are read too
                             n_dictionaries (K; only when known at write time)
     /codes/<CH>/membership  (P,) uint8 (K <= 255) or uint16     dictionary of each point (m)
     /codes/<CH>/counts      (P,) uint16 (or uint32 if a count > 65535)   coefficients per point (z)
-    /codes/<CH>/location_gaps, values [, rank]    schema 3: :mod:`.coded_streams`
+    /codes/<CH>/location_table, table_sizes, usage, value_bytes [, rank]   schema 3:
+                            :mod:`.coded_streams` (its first layout: location_gaps, values)
     /codes/<CH>/values      schema 1–2: (NNZ,) float16 (float32 only if a value overflows)
     /codes/<CH>/locations   schema 1–2: (NNZ, 3) uint8, or (NNZ, 4) when ∏m >= 2^24:
                             little-endian bytes of the column-major linear index
@@ -21,7 +22,8 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=3``; 2 and 1 are read too
     /lights, /views         direction tables, as in the dense file
 
 Points are in release order (``point = row_block + n_row_blocks·col_block``). Schema 3 stores
-each point's coefficients by increasing location (as gaps) and every dataset of ``codes/`` and
+each dictionary's locations once with a bit per point using them, the values as byte planes in
+that order, and every dataset of ``codes/`` and
 ``stats/`` with HDF5's built-in ``shuffle`` + ``deflate`` filters (lossless; no plugin needed);
 the reader gives them back, like schemas 1–2 store them, by decreasing magnitude (ties by
 increasing location), so truncating τ is a prefix read. Schema 2 added the fletcher32 checksum
