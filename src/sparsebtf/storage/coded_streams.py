@@ -95,12 +95,14 @@ def magnitude_order(counts: np.ndarray, values: np.ndarray, linear: np.ndarray) 
     return np.lexsort((linear, -mag, _point_ids(counts)))
 
 
-def _rule_order_of_sorted(counts: np.ndarray, values: np.ndarray) -> np.ndarray:
-    """:func:`magnitude_order` of coefficients already sorted by increasing location within
-    each point (the stored order): a stable sort on one integer key, point then decreasing
+def _rule_order_of_sorted(counts: np.ndarray, values: np.ndarray,
+                          pid: np.ndarray | None = None) -> np.ndarray:  # fmt: skip
+    """:func:`magnitude_order` of coefficients whose point's entries come by increasing
+    location (the stored orders; points may interleave: ``pid`` gives each one's point,
+    default point after point): a stable sort on one integer key, point then decreasing
     magnitude (the IEEE bits of |v| order like |v|), keeps the location order of ties."""
     v = np.abs(np.asarray(values))
-    pid = _point_ids(counts)
+    pid = _point_ids(counts) if pid is None else pid
     if v.dtype.itemsize == 2 and counts.size <= 1 << 16:
         # two stable 16-bit sorts (NumPy radix-sorts them): magnitude, then point
         by_mag = np.argsort(np.uint16(0xFFFF) - v.view(np.uint16), kind="stable")
@@ -136,20 +138,6 @@ def canonical_codes(codes: SparseCodes) -> SparseCodes:
         codes.mode_sizes, codes.membership, codes.counts, codes.values[order],
         codes.locations[order], codes.errors,
     )  # fmt: skip
-
-
-def _stable_by_point(pid: np.ndarray, n_points: int) -> np.ndarray:
-    """Stable argsort of point ids (NumPy radix-sorts 16-bit keys)."""
-    key = pid.astype(np.uint16) if n_points <= 1 << 16 else pid
-    return np.argsort(key, kind="stable")
-
-
-def _magnitude_order_of_stored(counts: np.ndarray, pid: np.ndarray, values: np.ndarray
-                               ) -> np.ndarray:  # fmt: skip
-    """Positions in stored (table) order, point by point in magnitude-rule order. Within a
-    point the stored order is increasing location, which a stable sort by point keeps."""
-    by_point = _stable_by_point(pid, counts.size)
-    return by_point[_rule_order_of_sorted(counts, values[by_point])]
 
 
 def _gaps(lin: np.ndarray, starts: np.ndarray) -> np.ndarray:
@@ -208,7 +196,7 @@ def write_streams(g: h5py.Group, c: SparseCodes, where: str) -> None:
     rows = {"chunks": (1, min(planes.shape[1], 1 << 20))} if planes.size else {}
     create_dataset(g, "value_bytes", data=planes, compress=True, **rows)  # planes apart
     # Stored order → the given magnitude order: the rule reproduces it, or a rank is kept.
-    rule = _magnitude_order_of_stored(np.asarray(c.counts), pid[stored], vals[stored])
+    rule = _rule_order_of_sorted(np.asarray(c.counts), vals[stored], pid[stored])
     wanted = np.empty_like(stored)
     wanted[stored] = np.arange(stored.size)  # stored position of the k-th given coefficient
     if not np.array_equal(rule, wanted):
@@ -250,11 +238,6 @@ def _ungap(g: h5py.Group, name: str, where: str, runs: np.ndarray, limit: int) -
     return lin
 
 
-def _set_bits(usage: np.ndarray) -> np.ndarray:
-    """Positions of the set bits of a packed bit string, increasing (memory: the set bits)."""
-    nz = np.flatnonzero(usage)
-    rows, bits = np.nonzero(np.unpackbits(usage[nz, None], axis=1))
-    return nz[rows].astype(np.int64) * 8 + bits
 
 
 def _read_table(
@@ -288,11 +271,11 @@ def _read_table(
     usage = read_array(g, "usage", where, kinds="u", shape=(n_bytes,))
     if usage.dtype.itemsize != 1:
         raise FileFormatError(f"{where}/usage: expected uint8 (packed bits), found {usage.dtype}")
-    bit = _set_bits(usage)
+    bit = np.flatnonzero(np.unpackbits(usage))
     if bit.size and int(bit[-1]) >= int(bit_start[-1]):
         raise FileFormatError(f"{where}/usage: bit {int(bit[-1])} is set beyond the "
                               f"{int(bit_start[-1])} bits of the usage matrices")  # fmt: skip
-    k = np.searchsorted(bit_start, bit, side="right") - 1
+    k = np.repeat(np.arange(n_k.size), np.diff(np.searchsorted(bit, bit_start)))  # dictionary
     slot, j = np.divmod(bit - bit_start[k], n_k[k])
     points_by_dict = np.argsort(membership, kind="stable")
     pid = points_by_dict[(np.cumsum(n_k) - n_k)[k] + j]
@@ -356,7 +339,7 @@ def read_streams(
         order = np.empty(total, dtype=np.int64)
         order[pos] = np.arange(total)
     else:
-        order = _magnitude_order_of_stored(counts, pid, values)
+        order = _rule_order_of_sorted(counts, values, pid)  # a point's locations increase
     return values[order].astype(np.float32), _unravel(lin[order], sizes)
 
 
