@@ -292,6 +292,18 @@ def test_damaged_tables_are_one_clear_error(levels, tmp_path):
     bad[0] ^= 0x80  # the first point on dictionary 0 gains or loses its first entry
     cases.append(("usage", bad, r"codes/Y/usage: point \d+ uses \d+ table entries but its count"))
     cases.append(("usage", g["usage"][:-1], r"codes/Y/usage: expected shape"))
+    for ch in ("Y", "U", "V"):  # a padding bit set, in a channel whose bits leave some
+        with h5py.File(good, "r") as f:
+            usage, tc = f[f"codes/{ch}/usage"][()], f[f"codes/{ch}/table_sizes"][()]
+            n_bits = int(np.sum(tc * np.bincount(f[f"codes/{ch}/membership"][()],
+                                                 minlength=tc.size)))  # fmt: skip
+        if n_bits % 8:
+            usage[-1] |= 1
+            cases.append((f"{ch}/usage", usage, rf"{ch}/usage: bit {8 * usage.size - 1} is "
+                          rf"set beyond the {n_bits} bits"))  # fmt: skip
+            break
+    else:
+        raise AssertionError("no channel has padding bits to damage")
     cases.append(("value_bytes", g["value_bytes"][:1], r"value_bytes: expected (shape|\(2, )"))
     nan = g["value_bytes"].copy()
     nan[:, 3] = (0x00, 0x7E)  # binary16 NaN
@@ -299,7 +311,7 @@ def test_damaged_tables_are_one_clear_error(levels, tmp_path):
     for i, (name, data, message) in enumerate(cases):
         path = tmp_path / f"bad{i}.h5"
         path.write_bytes(good.read_bytes())
-        _rewrite(path, f"codes/Y/{name}", data)
+        _rewrite(path, f"codes/{name}" if "/" in name else f"codes/Y/{name}", data)
         with pytest.raises(FileFormatError, match=message):
             load_coded(path)
 

@@ -197,7 +197,8 @@ def save_coded(
 
     Values are rounded to binary16 (round-to-nearest-even, as the release's ``.bin`` files);
     a channel with a finite value beyond ±65504 is kept in float32 instead, with a warning.
-    ``schema`` 3 (default) stores sorted locations as gaps and compresses every dataset of
+    ``schema`` 3 (default) stores each dictionary's locations once with a usage bit per point
+    and the values as byte planes (:mod:`.coded_streams`), and compresses every dataset of
     ``codes/`` and ``stats/`` losslessly; ``schema`` 2 packs locations to 3 bytes (4 when
     ∏m ≥ 2^24), uncompressed, as the paper's Table 4 counts them. Both decode to the same
     values in the same order. The file of the attached model (if it was saved or loaded from
