@@ -28,7 +28,7 @@ DOCS = Path(__file__).resolve().parents[1] / "docs" / "format.md"
 # codes (smooth_btf(5) on tiny_model() at τ = (16, 4, 4); V in an old tie order, with a rank).
 FIRST_LAYOUT = Path(__file__).resolve().parent / "data" / "coded_schema3_gaps.h5"
 SCHEMA2 = Path(__file__).resolve().parent / "data" / "coded_schema2.h5"
-STREAMS = ("location_table", "table_sizes", "usage", "value_bytes")
+STREAMS = ("location_table", "usage", "value_bytes")
 TAUS = [(16, 4, 4), (40, 8, 8), (120, 20, 20)]
 
 
@@ -276,7 +276,7 @@ def test_damaged_tables_are_one_clear_error(levels, tmp_path):
     with h5py.File(good, "r") as f:
         g = {n: f[f"codes/Y/{n}"][()] for n in STREAMS}
         m = f["codes/Y/membership"][()]
-    t = g["table_sizes"].astype(np.int64)
+        t = f["codes/Y"].attrs["table_sizes"].astype(np.int64)
     k = int(np.argmax(t > 1))  # a dictionary with two entries or more
     start = int(t[:k].sum())
     cases = []
@@ -286,15 +286,13 @@ def test_damaged_tables_are_one_clear_error(levels, tmp_path):
     bad = g["location_table"].copy()
     bad[start + 1] = 2**31
     cases.append(("location_table", bad, r"location_table: entry \d+ is 2147483648, beyond"))
-    cases.append(("table_sizes", g["table_sizes"][: int(m.max())],
-                  rf"table_sizes: {int(m.max())} dictionaries, but point \d+ is coded on"))
     bad = g["usage"].copy()
     bad[0] ^= 0x80  # the first point on dictionary 0 gains or loses its first entry
     cases.append(("usage", bad, r"codes/Y/usage: point \d+ uses \d+ table entries but its count"))
     cases.append(("usage", g["usage"][:-1], r"codes/Y/usage: expected shape"))
     for ch in ("Y", "U", "V"):  # a padding bit set, in a channel whose bits leave some
         with h5py.File(good, "r") as f:
-            usage, tc = f[f"codes/{ch}/usage"][()], f[f"codes/{ch}/table_sizes"][()]
+            usage, tc = f[f"codes/{ch}/usage"][()], f[f"codes/{ch}"].attrs["table_sizes"]
             n_bits = int(np.sum(tc * np.bincount(f[f"codes/{ch}/membership"][()],
                                                  minlength=tc.size)))  # fmt: skip
         if n_bits % 8:
@@ -313,6 +311,17 @@ def test_damaged_tables_are_one_clear_error(levels, tmp_path):
         path.write_bytes(good.read_bytes())
         _rewrite(path, f"codes/{name}" if "/" in name else f"codes/Y/{name}", data)
         with pytest.raises(FileFormatError, match=message):
+            load_coded(path)
+    attr_cases = [(t[: int(m.max())], rf"'table_sizes' lists {int(m.max())} dictionaries, "
+                   r"but point \d+ is coded on"),
+                  (t + 1, r"'table_sizes' sums to \d+ entries but 'location_table' holds"),
+                  (np.array([[1, 2]]), r"'table_sizes' must be a list of entry counts")]
+    for i, (data, message) in enumerate(attr_cases):
+        path = tmp_path / f"attr{i}.h5"
+        path.write_bytes(good.read_bytes())
+        with h5py.File(path, "a") as f:
+            f["codes/Y"].attrs["table_sizes"] = data
+        with pytest.raises(FileFormatError, match=r"codes/Y: attribute " + message):
             load_coded(path)
 
 

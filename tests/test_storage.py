@@ -221,7 +221,7 @@ def test_decode_one_value_with_h5py_only(files: tuple[Path, Path, CodedBTF], mod
         sizes = tuple(int(m) for m in g.attrs["mode_sizes"])
         # schema 3: the point's column of its dictionary's usage matrix (docs/format.md §3)
         m = g["membership"][()].astype(np.int64)
-        t = g["table_sizes"][()].astype(np.int64)
+        t = g.attrs["table_sizes"].astype(np.int64)
         k, j, n = int(m[point]), int(np.sum(m[:point] == m[point])), np.bincount(m)
         bits = np.unpackbits(g["usage"][()])
         first = int(np.sum(t[:k] * n[:k]))

@@ -96,7 +96,7 @@ def test_coded_counts_differ_from_values(corpus, tmp_path):
 
 def test_coded_membership_beyond_k(corpus, tmp_path):
     # schema 2 (in schema 3 the dictionary's missing location table is found first: a
-    # table_sizes error, tests/test_schema3.py)
+    # 'table_sizes' error, tests/test_schema3.py)
     p = _copy(corpus, "coded_v2.h5", tmp_path)
     _set(p, "codes/Y/membership", lambda m: np.array([0, 1, 2, 0], m.dtype))
     with pytest.raises(FileFormatError) as e:

@@ -9,8 +9,10 @@ locations, so per channel::
     location_table (T,) <u4     per dictionary k = 0, 1, … (those with points): the distinct
                                 locations its points use, increasing, as gaps (the first l,
                                 each next l − previous l > 0)
-    table_sizes    (D,) <u4     entries of location_table per dictionary 0 … D−1
-                                (D = largest membership + 1; 0 for a dictionary without points)
+    attr table_sizes (D,) <u4   entries of location_table per dictionary 0 … D−1
+                                (D = largest membership + 1; 0 for a dictionary without points;
+                                an attribute of the channel's group: a dataset costs ~400 bytes
+                                of header)
     usage          (⌈Σ T_k·n_k / 8⌉,) u1   per dictionary a T_k × n_k bit matrix, bit (t, j)
                                 set when the j-th point on k (by increasing point index) uses
                                 entry t; the matrices row-major, one after the other, packed by
@@ -164,8 +166,8 @@ def _bit_layout(membership: np.ndarray, table_sizes: np.ndarray
 
 
 def write_streams(g: h5py.Group, c: SparseCodes, where: str) -> None:
-    """Write ``location_table``, ``table_sizes``, ``usage``, ``value_bytes`` (and ``rank`` if
-    needed) of ``c`` into ``g``."""
+    """Write ``location_table``, ``usage``, ``value_bytes`` (and ``rank`` if needed) of ``c``
+    into ``g``, and its attribute ``table_sizes``."""
     sizes = tuple(int(m) for m in c.mode_sizes)
     vals = stored_values(c.values, where)
     lin = linear_locations(c.locations, sizes)
@@ -195,7 +197,7 @@ def write_streams(g: h5py.Group, c: SparseCodes, where: str) -> None:
     planes = np.ascontiguousarray(little.view(np.uint8).reshape(-1, vals.itemsize).T)
     create_dataset(g, "location_table", data=_gaps(table, table_start[table_sizes > 0])
                    .astype("<u4"), compress=True)  # fmt: skip
-    create_dataset(g, "table_sizes", data=table_sizes.astype("<u4"), compress=True)
+    g.attrs["table_sizes"] = table_sizes.astype("<u4")
     create_dataset(g, "usage", data=usage, compress=True)
     rows = {"chunks": (1, min(planes.shape[1], 1 << 20))} if planes.size else {}
     create_dataset(g, "value_bytes", data=planes, compress=True, **rows)  # planes apart
@@ -261,6 +263,19 @@ def _set_bits(
     return np.concatenate(points), np.concatenate(entries)
 
 
+def _table_sizes(g: h5py.Group, where: str) -> np.ndarray:
+    """The group's ``table_sizes`` attribute: (D,) non-negative integers → int64."""
+    if "table_sizes" not in g.attrs:
+        raise FileFormatError(f"{where}: missing attribute 'table_sizes'")
+    raw = np.asarray(g.attrs["table_sizes"])
+    if raw.ndim != 1 or raw.dtype.kind not in "iu" or (raw.size and int(raw.min()) < 0):
+        raise FileFormatError(
+            f"{where}: attribute 'table_sizes' must be a list of entry counts (>= 0), found "
+            f"{raw.dtype} {raw.shape}"
+        )
+    return raw.astype(np.int64)
+
+
 def _read_table(
     g: h5py.Group, where: str, sizes: tuple[int, ...], membership: np.ndarray,
     counts: np.ndarray, total: int,
@@ -273,17 +288,17 @@ def _read_table(
         raise FileFormatError(
             f"{where}: counts sum to {total} coefficients but 'value_bytes' holds {held}"
         )
-    table_sizes = read_array(g, "table_sizes", where, kinds="u", shape=(None,)).astype(np.int64)
+    table_sizes = _table_sizes(g, where)
     if n_points and table_sizes.size <= int(membership.max()):
         raise FileFormatError(
-            f"{where}/table_sizes: {table_sizes.size} dictionaries, but point "
+            f"{where}: attribute 'table_sizes' lists {table_sizes.size} dictionaries, but point "
             f"{int(np.argmax(membership >= table_sizes.size))} is coded on dictionary "
             f"{int(membership.max())}"
         )
     table_ds = checked_dataset(g, "location_table", where, kinds="u", shape=(None,))
     if table_ds.shape[0] != int(table_sizes.sum()):
         raise FileFormatError(
-            f"{where}: table_sizes sum to {int(table_sizes.sum())} entries but "
+            f"{where}: attribute 'table_sizes' sums to {int(table_sizes.sum())} entries but "
             f"'location_table' holds {table_ds.shape[0]}"
         )
     table = _ungap(g, "location_table", where, table_sizes, int(np.prod(sizes, dtype=np.int64)))
