@@ -165,6 +165,19 @@ def _bit_layout(membership: np.ndarray, table_sizes: np.ndarray
     return bit_start, n_k, col
 
 
+def _location_tables(lin: np.ndarray, mem: np.ndarray, n_dicts: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The distinct (dictionary, location) pairs of coefficients at ``lin`` on dictionaries
+    ``mem``: (T,) the locations, dictionary after dictionary, each increasing; (D,) how many
+    each dictionary has; (NNZ,) each coefficient's index into the first."""
+    by = np.lexsort((lin, mem))
+    new = np.ones(by.size, dtype=bool)
+    new[1:] = (mem[by][1:] != mem[by][:-1]) | (lin[by][1:] != lin[by][:-1])
+    entry = np.empty(by.size, dtype=np.int64)
+    entry[by] = np.cumsum(new) - 1
+    return lin[by][new], np.bincount(mem[by][new], minlength=n_dicts), entry
+
+
 def write_streams(g: h5py.Group, c: SparseCodes, where: str) -> None:
     """Write ``location_table``, ``usage``, ``value_bytes`` (and ``rank`` if needed) of ``c``
     into ``g``, and its attribute ``table_sizes``."""
@@ -174,16 +187,9 @@ def write_streams(g: h5py.Group, c: SparseCodes, where: str) -> None:
     pid = _point_ids(c.counts)
     membership = np.asarray(c.membership, dtype=np.int64)
     mem = membership[pid]
-    # the tables: distinct (dictionary, location) pairs, increasing
-    by = np.lexsort((lin, mem))
-    new = np.ones(by.size, dtype=bool)
-    new[1:] = (mem[by][1:] != mem[by][:-1]) | (lin[by][1:] != lin[by][:-1])
-    entry = np.empty(by.size, dtype=np.int64)
-    entry[by] = np.cumsum(new) - 1
-    n_dicts = int(membership.max()) + 1 if c.n_points else 0
-    table_sizes = np.bincount(mem[by][new], minlength=n_dicts)
+    table, table_sizes, entry = _location_tables(lin, mem, int(membership.max()) + 1
+                                                 if c.n_points else 0)  # fmt: skip
     table_start = np.cumsum(table_sizes) - table_sizes
-    table = lin[by][new]
     bit_start, n_k, col = _bit_layout(membership, table_sizes)
     bit = bit_start[mem] + (entry - table_start[mem]) * n_k[mem] + col[pid]
     stored = np.argsort(bit)
