@@ -48,8 +48,9 @@ def test_flipped_bit_in_every_dataset_of_a_coded_file_is_named(corpus: Path, tmp
     names = _datasets(coded)
     # Values, locations, membership, counts, errors of every channel, the statistics and
     # the direction tables.
-    assert {"codes/Y/values", "codes/V/location_gaps", "codes/U/membership", "codes/Y/counts",
-            "codes/U/errors", "stats/mean", "stats/std", "lights/xyz", "views/phi"} <= set(names)
+    assert {"codes/Y/value_bytes", "codes/V/location_table", "codes/V/usage",
+            "codes/U/membership", "codes/Y/counts", "codes/U/errors", "stats/mean",
+            "stats/std", "lights/xyz", "views/phi"} <= set(names)
     rng = np.random.default_rng(0)
     for i, name in enumerate(names):
         for trial in range(3):
@@ -119,10 +120,10 @@ def test_nan_values_written_by_another_tool_are_refused(corpus: Path, tmp_path: 
     bad = tmp_path / "nan_values.h5"
     bad.write_bytes((corpus / "coded.h5").read_bytes())
     with h5py.File(bad, "a") as f:
-        v = f["codes/U/values"][()]
-        v[1] = np.nan
-        f["codes/U/values"][...] = v
-    with pytest.raises(FileFormatError, match=r"codes/U/values: 1 NaN/Inf values"):
+        v = f["codes/U/value_bytes"][()]
+        v[:, 1] = np.array([np.nan], "<f2").view(np.uint8)
+        f["codes/U/value_bytes"][...] = v
+    with pytest.raises(FileFormatError, match=r"codes/U/value_bytes: 1 NaN/Inf values"):
         load_coded(bad)
 
 
@@ -165,6 +166,6 @@ def test_info_json_reports_integrity(corpus: Path, capsys) -> None:
 
 
 def test_legacy_copy_is_schema_1(corpus: Path, tmp_path: Path) -> None:
-    old = _legacy_copy(corpus / "coded.h5", tmp_path / "old.h5")
+    old = _legacy_copy(corpus / "coded_v2.h5", tmp_path / "old.h5")
     with h5py.File(old, "r") as f:
         assert int(f.attrs["schema_version"]) == 1 and not f["codes/Y/values"].fletcher32

@@ -132,9 +132,11 @@ def test_render_refuses_nonfinite_pixels(files, tmp_path, capsys):
     p.write_bytes((files / "m.coded.h5").read_bytes())
     with h5py.File(p, "r+") as f:
         del f["stats/bound"]
-        for ch in "YUV":
-            v = f[f"codes/{ch}/values"]
-            v[...] = np.sign(v[()]) * np.float16(60000)
+        for ch in "YUV":  # schema 3: the values' little-endian bytes, one row each
+            planes = f[f"codes/{ch}/value_bytes"]
+            v = np.ascontiguousarray(planes[()].T).view("<f2")[:, 0]
+            big = (np.sign(v) * np.float16(60000)).astype("<f2")
+            planes[...] = big.view(np.uint8).reshape(-1, 2).T
         s = f["stats/std"]
         s[...] = np.full(s.shape, STAT_BOUND, s.dtype)
     out = tmp_path / "bad.png"

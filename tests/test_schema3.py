@@ -24,6 +24,11 @@ from sparsebtf.storage.coded_streams import canonical_codes
 from .conftest import smooth_btf, tiny_model
 
 DOCS = Path(__file__).resolve().parents[1] / "docs" / "format.md"
+# Written by 02d1a95 (schema 3's first layout: per-point location gaps) and schema 2, the same
+# codes (smooth_btf(5) on tiny_model() at τ = (16, 4, 4); V in an old tie order, with a rank).
+FIRST_LAYOUT = Path(__file__).resolve().parent / "data" / "coded_schema3_gaps.h5"
+SCHEMA2 = Path(__file__).resolve().parent / "data" / "coded_schema2.h5"
+STREAMS = ("location_table", "usage", "value_bytes")
 TAUS = [(16, 4, 4), (40, 8, 8), (120, 20, 20)]
 
 
@@ -98,8 +103,7 @@ def test_files_are_smaller_and_every_dataset_compressed(levels, tmp_path):
     with h5py.File(p2, "r") as f2, h5py.File(p3, "r") as f3:
         for ch in coded.channels:
             old = sum(f2[f"codes/{ch}/{n}"].id.get_storage_size() for n in ("values", "locations"))
-            new = sum(f3[f"codes/{ch}/{n}"].id.get_storage_size()
-                      for n in ("values", "location_gaps"))  # fmt: skip
+            new = sum(f3[f"codes/{ch}/{n}"].id.get_storage_size() for n in STREAMS)
             assert new < old
         for group in ("codes/Y", "codes/U", "stats"):
             for name, ds in f3[group].items():
@@ -107,7 +111,10 @@ def test_files_are_smaller_and_every_dataset_compressed(levels, tmp_path):
                 want = ("gzip", True) if shrinks(ds[()]) else (None, False)
                 assert (ds.compression, ds.shuffle) == want, name
                 assert ds.fletcher32, name
-        assert f3["codes/Y/location_gaps"].compression == "gzip"
+        assert f3["codes/Y/location_table"].compression == "gzip"
+        vb = f3["codes/Y/value_bytes"]
+        assert vb.dtype == np.uint8 and vb.shape == (2, coded.codes["Y"].nnz)
+        assert vb.chunks == (1, vb.shape[1])  # each byte plane a deflate stream of its own
         assert f3["stats/mean"].compression == "gzip"
     assert p3.stat().st_size < p2.stat().st_size
 
@@ -170,6 +177,26 @@ def test_docs_reader_reproduces_the_codes_without_sparsebtf(levels, model, tmp_p
     if with_rank:
         coded.codes["V"] = _with_ties(coded.codes["V"], flip=True)
     path = save_coded(coded, tmp_path / "c.h5")
+    got = _run_docs_reader(path, tmp_path / "out.npz")
+    back = load_coded(path, model)
+    _same_as_docs_reader(got, back)
+    with h5py.File(path, "r") as f:
+        names: list[str] = []
+        f.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
+    assert {f"raw/{n}" for n in names} <= set(got.files)  # every dataset was read
+    assert {f"raw/codes/Y/{n}" for n in STREAMS} <= set(got.files)
+    assert np.array_equal(got["raw/stats/mean"], back.stats.mean.astype(np.float32))
+    assert ("raw/codes/V/rank" in got.files) == with_rank
+
+
+def test_docs_reader_reads_the_first_layout(tmp_path):
+    got = _run_docs_reader(FIRST_LAYOUT, tmp_path / "out.npz")
+    assert "raw/codes/Y/location_gaps" in got.files and "raw/codes/V/rank" in got.files
+    _same_as_docs_reader(got, load_coded(SCHEMA2))
+
+
+def _run_docs_reader(path: Path, out: Path):
+    """docs/format.md's reader run on ``path`` where sparsebtf cannot be imported → npz."""
     script = (
         "import sys\nsys.modules['sparsebtf'] = None  # any import of it fails\n"
         + _docs_reader()
@@ -178,35 +205,48 @@ def test_docs_reader_reproduces_the_codes_without_sparsebtf(levels, model, tmp_p
         "flat.update({f'raw/{k}': v for k, v in data.items()})\n"
         "np.savez(sys.argv[2], **flat)\n"
     )
-    out = tmp_path / "out.npz"
     r = subprocess.run([sys.executable, "-c", script, str(path), str(out)],
                        capture_output=True, text=True, timeout=120)  # fmt: skip
     assert r.returncode == 0, r.stderr
-    got = np.load(out)
-    back = load_coded(path, model)
-    for ch in coded.channels:
+    return np.load(out)
+
+
+def _same_as_docs_reader(got, back) -> None:
+    for ch in back.channels:
         c = back.codes[ch]
         assert np.array_equal(got[f"{ch}/values"].astype(np.float32).view(np.uint32),
                               c.values.view(np.uint32))  # fmt: skip
         for f in ("locations", "counts", "membership"):
             assert np.array_equal(got[f"{ch}/{f}"], getattr(c, f)), f
         assert np.array_equal(got[f"{ch}/errors"], c.errors.astype(np.float32))
-    with h5py.File(path, "r") as f:
-        names: list[str] = []
-        f.visititems(lambda n, o: names.append(n) if isinstance(o, h5py.Dataset) else None)
-    assert {f"raw/{n}" for n in names} <= set(got.files)  # every dataset was read
-    assert np.array_equal(got["raw/stats/mean"], back.stats.mean.astype(np.float32))
-    assert ("raw/codes/V/rank" in got.files) == with_rank
 
 
-def test_damaged_gaps_are_one_clear_error(levels, tmp_path):
-    path = save_coded(levels[0], tmp_path / "c.h5")
+def test_first_layout_reads_as_schema2_and_converts(tmp_path):
+    """A file of schema 3's first layout still loads to the codes of the same codes' schema-2
+    file, bit for bit (the V rank kept), and ``convert --schema 3`` rewrites it in tables."""
+    old, ref = load_coded(FIRST_LAYOUT), load_coded(SCHEMA2)
+    assert int(h5py.File(FIRST_LAYOUT, "r").attrs["schema_version"]) == 3
+    for ch in ref.channels:
+        _same_codes(old.codes[ch], ref.codes[ch])
+    assert main(["convert", str(FIRST_LAYOUT), "-o", str(tmp_path / "new.h5"),
+                 "--schema", "3"]) == 0  # fmt: skip
+    with h5py.File(tmp_path / "new.h5", "r") as f:
+        assert set(STREAMS) <= set(f["codes/Y"]) and "location_gaps" not in f["codes/Y"]
+        assert "rank" in f["codes/V"] and "rank" not in f["codes/Y"]
+    new = load_coded(tmp_path / "new.h5")
+    for ch in ref.channels:
+        _same_codes(new.codes[ch], ref.codes[ch])
+
+
+def test_damaged_gaps_are_one_clear_error(tmp_path):
+    path = tmp_path / "c.h5"
+    path.write_bytes(FIRST_LAYOUT.read_bytes())
     with h5py.File(path, "a") as f:
         g = f["codes/Y/location_gaps"]
         gaps = g[()]
         gaps[1] = 0
         g[...] = gaps
-    with pytest.raises(FileFormatError, match=r"codes/Y/location_gaps: entry 1 is 0"):
+    with pytest.raises(FileFormatError, match=r"codes/Y/location_gaps: entry 1 is 0 \(a rep"):
         load_coded(path)
     with h5py.File(path, "a") as f:
         gaps[1] = 2**31
@@ -223,6 +263,86 @@ def test_damaged_gaps_are_one_clear_error(levels, tmp_path):
         f.create_dataset("codes/Y/location_gaps", data=np.full(gaps.size, 2**63 + 5, "<u8"))
     with pytest.raises(FileFormatError, match=r"location_gaps: entry 0 is 9223372036854775813"):
         load_coded(path)
+
+
+def _rewrite(path: Path, name: str, data: np.ndarray) -> None:
+    with h5py.File(path, "a") as f:
+        del f[name]
+        f.create_dataset(name, data=data)
+
+
+def test_damaged_tables_are_one_clear_error(levels, tmp_path):
+    good = save_coded(levels[0], tmp_path / "good.h5")
+    with h5py.File(good, "r") as f:
+        g = {n: f[f"codes/Y/{n}"][()] for n in STREAMS}
+        m = f["codes/Y/membership"][()]
+        t = f["codes/Y"].attrs["table_sizes"].astype(np.int64)
+    k = int(np.argmax(t > 1))  # a dictionary with two entries or more
+    start = int(t[:k].sum())
+    cases = []
+    bad = g["location_table"].copy()
+    bad[start + 1] = 0
+    cases.append(("location_table", bad, rf"codes/Y/location_table: entry {start + 1} is 0"))
+    bad = g["location_table"].copy()
+    bad[start + 1] = 2**31
+    cases.append(("location_table", bad, r"location_table: entry \d+ is 2147483648, beyond"))
+    bad = g["usage"].copy()
+    bad[0] ^= 0x80  # the first point on dictionary 0 gains or loses its first entry
+    cases.append(("usage", bad, r"codes/Y/usage: point \d+ uses \d+ table entries but its count"))
+    cases.append(("usage", g["usage"][:-1], r"codes/Y/usage: expected shape"))
+    for ch in ("Y", "U", "V"):  # a padding bit set, in a channel whose bits leave some
+        with h5py.File(good, "r") as f:
+            usage, tc = f[f"codes/{ch}/usage"][()], f[f"codes/{ch}"].attrs["table_sizes"]
+            n_bits = int(np.sum(tc * np.bincount(f[f"codes/{ch}/membership"][()],
+                                                 minlength=tc.size)))  # fmt: skip
+        if n_bits % 8:
+            usage[-1] |= 1
+            cases.append((f"{ch}/usage", usage, rf"{ch}/usage: bit {8 * usage.size - 1} is "
+                          rf"set beyond the {n_bits} bits"))  # fmt: skip
+            break
+    else:
+        raise AssertionError("no channel has padding bits to damage")
+    cases.append(("value_bytes", g["value_bytes"][:1], r"value_bytes: expected (shape|\(2, )"))
+    nan = g["value_bytes"].copy()
+    nan[:, 3] = (0x00, 0x7E)  # binary16 NaN
+    cases.append(("value_bytes", nan, r"Y/value_bytes: 1 NaN/Inf values \(first at value 3\)"))
+    for i, (name, data, message) in enumerate(cases):
+        path = tmp_path / f"bad{i}.h5"
+        path.write_bytes(good.read_bytes())
+        _rewrite(path, f"codes/{name}" if "/" in name else f"codes/Y/{name}", data)
+        with pytest.raises(FileFormatError, match=message):
+            load_coded(path)
+    attr_cases = [(t[: int(m.max())], rf"'table_sizes' lists {int(m.max())} dictionaries, "
+                   r"but point \d+ is coded on"),
+                  (t + 1, r"'table_sizes' sums to \d+ entries but 'location_table' holds"),
+                  (np.array([[1, 2]]), r"'table_sizes' must be a list of entry counts")]
+    for i, (data, message) in enumerate(attr_cases):
+        path = tmp_path / f"attr{i}.h5"
+        path.write_bytes(good.read_bytes())
+        with h5py.File(path, "a") as f:
+            f["codes/Y"].attrs["table_sizes"] = data
+        with pytest.raises(FileFormatError, match=r"codes/Y: attribute " + message):
+            load_coded(path)
+
+
+def test_float32_values_are_four_byte_planes(levels, model, tmp_path):
+    coded = _copy(levels[0])
+    c = coded.codes["U"]
+    vals = c.values.copy()
+    vals[0] = np.float32(7e4)  # beyond binary16: the channel keeps float32
+    coded.codes["U"] = canonical_codes(SparseCodes(c.mode_sizes, c.membership, c.counts, vals,
+                                                   c.locations, c.errors))  # fmt: skip
+    with pytest.warns(UserWarning, match="overflow binary16"):
+        p3 = save_coded(coded, tmp_path / "f32.h5")
+    with pytest.warns(UserWarning, match="overflow binary16"):
+        p2 = save_coded(coded, tmp_path / "f32_v2.h5", schema=2)
+    with h5py.File(p3, "r") as f:
+        assert f["codes/U/value_bytes"].shape == (4, c.nnz)
+        assert f["codes/Y/value_bytes"].shape[0] == 2
+    a, b = load_coded(p2, model), load_coded(p3, model)
+    for ch in coded.channels:
+        _same_codes(a.codes[ch], b.codes[ch])
+    assert np.float32(7e4) in b.codes["U"].values
 
 
 def test_writer_refuses_repeated_locations(levels, tmp_path):

@@ -168,9 +168,9 @@ def test_coded_round_trip(files: tuple[Path, Path, CodedBTF], model: Model) -> N
         g = f["codes/Y"]
         assert g["membership"].dtype == np.uint8
         assert g["counts"].dtype == np.uint16
-        assert g["values"].dtype == np.float16
-        assert g["location_gaps"].dtype == np.uint32
-        assert g["location_gaps"].shape == (coded.codes["Y"].nnz,)
+        assert g["value_bytes"].dtype == np.uint8
+        assert g["value_bytes"].shape == (2, coded.codes["Y"].nnz)  # binary16
+        assert g["location_table"].dtype == np.uint32 and g["usage"].dtype == np.uint8
         assert g["errors"].dtype == np.float32
         assert f["stats/mean"].dtype == np.float32 and f["stats/mean"].shape == (7, 7, 1)
         assert json.loads(f.attrs["channels"]) == list(CH)
@@ -209,7 +209,7 @@ def test_fp16_overflow_falls_back_to_float32(tmp_path: Path, model: Model) -> No
     back = load_coded(path)
     assert back.codes["U"].values[0] == np.float32(1e6)
     with h5py.File(path, "r") as f:
-        assert f["codes/U/values"].dtype == np.float32 and f["codes/Y/values"].dtype == np.float16
+        assert f["codes/U/value_bytes"].shape[0] == 4 and f["codes/Y/value_bytes"].shape[0] == 2
 
 
 def test_decode_one_value_with_h5py_only(files: tuple[Path, Path, CodedBTF], model: Model) -> None:
@@ -219,13 +219,17 @@ def test_decode_one_value_with_h5py_only(files: tuple[Path, Path, CodedBTF], mod
     with h5py.File(mpath, "r") as fm, h5py.File(cpath, "r") as fc:
         g = fc["codes/U"]
         sizes = tuple(int(m) for m in g.attrs["mode_sizes"])
-        counts = g["counts"][()].astype(np.int64)
-        start = int(counts[:point].sum())
-        stop = start + int(counts[point])
-        lin = np.cumsum(g["location_gaps"][start:stop].astype(np.int64))  # schema 3
-        l1, l2, l3, l4 = np.unravel_index(lin, sizes, order="F")
-        v = g["values"][start:stop].astype(np.float64)
-        k = int(g["membership"][point])
+        # schema 3: the point's column of its dictionary's usage matrix (docs/format.md §3)
+        m = g["membership"][()].astype(np.int64)
+        t = g.attrs["table_sizes"].astype(np.int64)
+        k, j, n = int(m[point]), int(np.sum(m[:point] == m[point])), np.bincount(m)
+        bits = np.unpackbits(g["usage"][()])
+        first = int(np.sum(t[:k] * n[:k]))
+        rows = np.flatnonzero(bits[first : first + t[k] * n[k]].reshape(t[k], n[k])[:, j])
+        table = np.cumsum(g["location_table"][int(t[:k].sum()) :][: t[k]].astype(np.int64))
+        l1, l2, l3, l4 = np.unravel_index(table[rows], sizes, order="F")
+        nth = np.cumsum(bits)[first + rows * n[k] + j] - 1  # the values of those set bits
+        v = g["value_bytes"][()][:, nth].T.copy().view("<f2")[:, 0].astype(np.float64)
         u1, u2, u3, u4 = (fm[f"dictionaries/U/mode{n}"][k] for n in range(1, 5))
         x = np.sum(v * u1[i1, l1] * u2[i2, l2] * u3[light, l3] * u4[view, l4])
         mu = fc["stats/mean"][light, view, 0]
@@ -352,8 +356,8 @@ def test_wrong_model(files: tuple[Path, Path, CodedBTF], model: Model) -> None:
 def test_missing_dataset(files: tuple[Path, Path, CodedBTF]) -> None:
     mpath, cpath, _ = files
     with h5py.File(cpath, "a") as f:
-        del f["codes/U/values"]
-    with pytest.raises(FileFormatError, match=r"codes/U.*'values'"):
+        del f["codes/U/value_bytes"]
+    with pytest.raises(FileFormatError, match=r"codes/U.*'value_bytes'"):
         load_coded(cpath)
     with h5py.File(mpath, "a") as f:
         del f["lights"]

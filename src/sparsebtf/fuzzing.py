@@ -526,8 +526,8 @@ def _seed_file(corpus: dict[str, Any], kind: str, field: str) -> Path:
         return corpus["dir"] / "semantic_seed.btf"
     if kind == "coded":
         # schema 2: its fields are the codes themselves (schema 3 stores the same codes as
-        # location gaps; the semantic checks run on the codes after reading, whatever the
-        # schema, and tests/test_schema3.py covers damaged gaps)
+        # location tables; the semantic checks run on the codes after reading, whatever the
+        # schema, and tests/test_schema3.py covers damaged tables and gaps)
         return next(p for p in files["coded"] if p.name == "coded_v2.h5")
     return files[kind][0]
 

@@ -55,7 +55,7 @@ def register(sub: Any) -> None:
                    help="keep rows R0..R1-1 and columns C0..C1-1 (0-based, end excluded)")
     s.add_argument("--schema", type=int, choices=[2, 3], default=None,
                    help="rewrite a coded file (from 'sparsebtf encode') in this coded-file "
-                   "schema instead of decoding it: 3 (sorted locations as gaps, compressed; "
+                   "schema instead of decoding it: 3 (location tables, compressed; "
                    "what encode writes) or 2 (Table 4's uncompressed layout); the decoded "
                    "values do not change")
     s.add_argument("--dtype", choices=["float32", "float16"], default="float32",

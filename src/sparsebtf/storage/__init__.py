@@ -2,7 +2,7 @@
 
 * :func:`save_model` / :func:`load_model` — the trained dictionaries, float64, content-hashed.
 * :func:`save_coded` / :func:`load_coded` — one material's sparse codes (binary16 values;
-  schema 3: sorted locations as gaps, compressed losslessly; schema 2: 3-byte packed
+  schema 3: location tables and value byte planes, compressed losslessly; schema 2: 3-byte packed
   locations), statistics and directions; checked against its model's hash.
 * :func:`storage_report` / :func:`paper_storage` — bytes as counted by ``btf4Dcomp`` (Table 4)
   and, for coded BTFs, the bytes the file stores (:func:`stored_bytes`).

@@ -8,7 +8,8 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=3``; 2 and 1 are read too
                             n_dictionaries (K; only when known at write time)
     /codes/<CH>/membership  (P,) uint8 (K <= 255) or uint16     dictionary of each point (m)
     /codes/<CH>/counts      (P,) uint16 (or uint32 if a count > 65535)   coefficients per point (z)
-    /codes/<CH>/location_gaps, values [, rank]    schema 3: :mod:`.coded_streams`
+    /codes/<CH>/location_table, table_sizes, usage, value_bytes [, rank]   schema 3:
+                            :mod:`.coded_streams` (its first layout: location_gaps, values)
     /codes/<CH>/values      schema 1–2: (NNZ,) float16 (float32 only if a value overflows)
     /codes/<CH>/locations   schema 1–2: (NNZ, 3) uint8, or (NNZ, 4) when ∏m >= 2^24:
                             little-endian bytes of the column-major linear index
@@ -21,7 +22,8 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=3``; 2 and 1 are read too
     /lights, /views         direction tables, as in the dense file
 
 Points are in release order (``point = row_block + n_row_blocks·col_block``). Schema 3 stores
-each point's coefficients by increasing location (as gaps) and every dataset of ``codes/`` and
+each dictionary's locations once with a bit per point using them, the values as byte planes in
+that order, and every dataset of ``codes/`` and
 ``stats/`` with HDF5's built-in ``shuffle`` + ``deflate`` filters (lossless; no plugin needed);
 the reader gives them back, like schemas 1–2 store them, by decreasing magnitude (ties by
 increasing location), so truncating τ is a prefix read. Schema 2 added the fletcher32 checksum
@@ -195,7 +197,8 @@ def save_coded(
 
     Values are rounded to binary16 (round-to-nearest-even, as the release's ``.bin`` files);
     a channel with a finite value beyond ±65504 is kept in float32 instead, with a warning.
-    ``schema`` 3 (default) stores sorted locations as gaps and compresses every dataset of
+    ``schema`` 3 (default) stores each dictionary's locations once with a usage bit per point
+    and the values as byte planes (:mod:`.coded_streams`), and compresses every dataset of
     ``codes/`` and ``stats/`` losslessly; ``schema`` 2 packs locations to 3 bytes (4 when
     ∏m ≥ 2^24), uncompressed, as the paper's Table 4 counts them. Both decode to the same
     values in the same order. The file of the attached model (if it was saved or loaded from
@@ -457,7 +460,7 @@ def _read_codes(
     errors = read_array(g, "errors", where, kinds="f", shape=(n_points,))
     total = int(counts.sum(dtype=np.int64))
     if schema >= 3:
-        values, locations = read_streams(g, where, sizes, counts, total)
+        values, locations = read_streams(g, where, sizes, membership, counts, total)
     else:
         values, locations = _read_packed(g, where, sizes, total)
     try:
