@@ -202,3 +202,15 @@ def test_stored_target_below_the_fixed_part_is_one_clear_line(model, tmp_path):
         encode_to_size(btf, model, target_bytes=1000, per_material=True, budget="stored")
     with pytest.raises(BTFInputError, match="--budget paper"):
         encode_to_size(btf, model, target_bytes=10**6, budget="stored")
+
+
+def test_cli_unreachable_target_leaves_no_checkpoint(model, tmp_path, capsys):
+    """The codes of a target no file can meet serve no other run: the folder goes with them."""
+    src = write_dense(tmp_path / "m.h5", _big_smooth(), progress=False)
+    save_model(model, tmp_path / "model.h5")
+    out = tmp_path / "c.h5"
+    rc = main(["encode", str(src), "-m", str(tmp_path / "model.h5"), "-o", str(out),
+               "--target-size", "1000"])
+    assert rc != 0 and "below the smallest coded file" in capsys.readouterr().err
+    assert not out.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.h5", "model.h5"]

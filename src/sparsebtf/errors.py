@@ -11,6 +11,11 @@ class BTFInputError(SparseBTFError):
     """A BTF, an array or a parameter given by the user is unusable (shape, rank, values)."""
 
 
+class UnreachableTargetError(BTFInputError):
+    """A rate-control target that no coded file of the input meets, found once its points are
+    coded: the codes were made for that target alone."""
+
+
 class FileFormatError(SparseBTFError):
     """A file is not of the expected format, truncated, corrupted, or of an unsupported version."""
 

@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ..errors import SparseBTFError
+from ..errors import SparseBTFError, UnreachableTargetError
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
@@ -39,8 +39,12 @@ def run(args: argparse.Namespace) -> int:
     ck = checkpoint_dir(args)
     check_output_dir(str(ck), "--checkpoint-dir")
     check_resume(ck, args.resume, "points_*.npz", "encode")
-    with resumable(ck):
-        _encode(args, tau, offset, outputs, ck)
+    try:
+        with resumable(ck):
+            _encode(args, tau, offset, outputs, ck)
+    except UnreachableTargetError:
+        EncodeCheckpoint(ck).remove()  # ranges coded for this target serve no other run
+        raise
     EncodeCheckpoint(ck).remove()  # every output is written: the ranges have served
     return 0
 

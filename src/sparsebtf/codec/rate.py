@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..data.btf import BTF
-from ..errors import BTFInputError
+from ..errors import BTFInputError, UnreachableTargetError
 from ..learning.coding import topk_abs
 from ..learning.cost import DICTIONARY_ENTRY_BYTES, location_width, raw_bytes
 from ..learning.parallel import parallel_map, prefetch
@@ -361,7 +361,7 @@ def _search_stored(
 
     lo_s, best = size(lo_t)
     if lo_s > target:
-        raise BTFInputError(
+        raise UnreachableTargetError(
             f"{name}: a target of {target:,d} stored bytes is below the smallest coded file "
             f"({lo_s:,d} bytes with one coefficient per point and channel: statistics, "
             "directions and header need most of it); ask for a larger size or a lower ratio"
