@@ -266,11 +266,13 @@ class FunctionBTF(BTF):
         super().__init__(shape[0], shape[1], lights, views, name, attrs)
         self._fn = view_block_fn
         self._last: tuple[int, np.ndarray] | None = None
+        self.block_hint = (shape[0], 1)  # renders whole view blocks: scans read them whole
 
     def view_block(self, view: int) -> np.ndarray:
         (v,) = as_index([view], len(self.views), "view")
-        if self._last is not None and self._last[0] == v:
-            return self._last[1]
+        last = self._last  # read once: another thread may replace it meanwhile
+        if last is not None and last[0] == v:
+            return last[1]
         block = np.asarray(self._fn(int(v)), dtype=np.float32)
         expected = (self.height, self.width, len(self.lights), 3)
         if block.shape != expected:

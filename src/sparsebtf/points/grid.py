@@ -141,6 +141,9 @@ def iter_points(
         for j, p in enumerate(chunk):
             r0, c0 = grid.origin(int(p))
             rgb = btf.patch(r0, c0, patch)
+            if out.dtype == np.float32:
+                pre.forward_into(rgb, out[j], btf.name, (r0, c0))
+                continue
             check_finite(rgb, btf.name, offset=(r0, c0))
             np.maximum(rgb, 0, out=rgb)
             out[j] = pre.forward(rgb, dtype=dtype)
