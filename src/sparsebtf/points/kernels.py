@@ -201,8 +201,9 @@ def accumulate_sums(
     """Add texels ``logs`` (n, A, 3) float32 log-RGB to the sums of their angular samples.
 
     With y = M · l in float32 and d = y − shift (float32): ``s1 += Σd`` and ``s2 += Σd²``
-    (d² in float32, each sum in float64 texel after texel from zero), ``top = max(top, max over R, G, B of l)`` (A,) float64. ``first``:
-    ``shift`` (A, 3) float32 is set to the first texel's y (it keeps Σd² accurate).
+    (d² in float32, each sum in float64 texel after texel from zero);
+    ``top = max(top, max over R, G, B of l)`` (A,) float64. ``first``: ``shift`` (A, 3)
+    float32 is set to the first texel's y (it keeps Σd² accurate).
     """
     if _backend(backend) == "numba":
         _accumulate_nb(logs, m, shift, s1, s2, top, first)

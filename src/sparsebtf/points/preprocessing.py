@@ -440,7 +440,7 @@ def _group_sums(
     ``[a, b)``, read in bands of ``rows`` rows; each view's sums in band order."""
     from .kernels import accumulate_sums, log_offset
 
-    h, w, nl, _, _ = btf.shape
+    h, _, nl, _, _ = btf.shape
     a, b = views
     nvg = b - a
     shift = np.zeros((nl * nvg, 3), dtype=np.float32)
