@@ -346,12 +346,15 @@ class FactorBTF(BTF):
         pix = (r[:, None] * w + c[None, :]).ravel()
         ang = (li[:, None] * nv + vi[None, :]).ravel()
         dt = np.result_type(self.spatial.dtype, self.angular.dtype, np.float32)
+        # contiguous runs (a patch's all directions, a view's lights) as views, not copies
+        pix_at, ang_at = _span(pix) or pix, _span(ang) or ang
         out = np.empty((r.size, c.size, li.size, vi.size, 3), dtype=np.float32)
         for ch in range(3):
-            s = np.asarray(self.spatial[min(ch, self.spatial.shape[0] - 1)][pix], dtype=dt)
-            a = np.asarray(self.angular[min(ch, self.angular.shape[0] - 1)][ang], dtype=dt)
+            s = np.asarray(self.spatial[min(ch, self.spatial.shape[0] - 1)][pix_at], dtype=dt)
+            a = np.asarray(self.angular[min(ch, self.angular.shape[0] - 1)][ang_at], dtype=dt)
             val = s @ a.T
             if self.log_domain:
-                val = np.exp(val) - self.eps
+                np.exp(val, out=val)
+                val -= self.eps
             out[..., ch] = val.reshape(r.size, c.size, li.size, vi.size)
         return out
