@@ -97,6 +97,62 @@ def timed_statistics() -> dict[str, float]:
     return spent
 
 
+def parts(btf: FactorBTF, model: Model, taus: list[int], n: int = 4) -> list[tuple[str, str]]:
+    """Core-seconds of each step on ``n`` data points, one thread each (BLAS too): the
+    breakdown of a point's cost, robust to other jobs sharing the machine (CPU time)."""
+    from sparsebtf.learning.coding import sparse_code_levels
+    from sparsebtf.learning.parallel import single_threaded_blas
+    from sparsebtf.points import kernels
+    from sparsebtf.points.preprocessing import _RGB_TO_YUV_F32, Preprocessor, Standardization
+
+    nl, nv = len(btf.lights), len(btf.views)
+    stats = Standardization("shared", np.zeros((nl, nv, 1)), np.ones((nl, nv, 1)), eps=1e-3)
+    pre = Preprocessor(stats)
+    rows: list[tuple[str, float]] = []
+    old = os.environ.get("SPARSEBTF_THREADS")
+    os.environ["SPARSEBTF_THREADS"] = "1"
+    try:
+        with single_threaded_blas():
+            c = cpu_seconds()
+            rgb = [btf.patch(0, 10 * i, 10) for i in range(n)]
+            rows.append(("read a patch from the factors", cpu_seconds() - c))
+            out = np.empty((n, *rgb[0].shape), np.float32)
+            tiny = out[0, :1, :1].reshape(-1, nl * nv, 3)  # compile (or load) the kernels
+            kernels.clamp_offset(tiny, 1e-3, tiny)
+            kernels.standardise_log_rgb(tiny, _RGB_TO_YUV_F32, np.zeros((nl * nv, 3), np.float32),
+                                        np.ones((nl * nv, 3), np.float32))  # fmt: skip
+            c = cpu_seconds()
+            for j, x in enumerate(rgb):
+                kernels.clamp_offset(x, 1e-3, out[j])
+            rows.append(("  clamp + offset (compiled)", cpu_seconds() - c))
+            c = cpu_seconds()
+            np.log(out, out=out)
+            rows.append(("  log (NumPy)", cpu_seconds() - c))
+            mu, inv = np.zeros((nl * nv, 3), np.float32), np.ones((nl * nv, 3), np.float32)
+            c = cpu_seconds()
+            for j in range(n):
+                kernels.standardise_log_rgb(out[j].reshape(-1, nl * nv, 3), _RGB_TO_YUV_F32,
+                                            mu, inv)  # fmt: skip
+            rows.append(("  YUV + standardise (compiled)", cpu_seconds() - c))
+            c = cpu_seconds()
+            for x in rgb:
+                pre.forward(np.maximum(x, 0), dtype=np.float32)
+            rows.append(("  (the NumPy forward it replaces)", cpu_seconds() - c))
+            for ci, (ch, tau) in enumerate(zip(model.channels, taus, strict=True)):
+                xc = np.ascontiguousarray(out[..., ci])
+                c = cpu_seconds()
+                sparse_code_levels(xc, model.dictionaries[ch], [tau], 1e-5)
+                rows.append((f"code channel {ch} (K projections + selection)", cpu_seconds() - c))
+    finally:
+        if old is None:
+            del os.environ["SPARSEBTF_THREADS"]
+        else:
+            os.environ["SPARSEBTF_THREADS"] = old
+    values = rgb[0].size
+    return [(name, f"{sec / n * 1e3:7.1f} ms per point ({sec / n / values * 1e9:.2f} ns per value)")
+            for name, sec in rows]  # fmt: skip
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=400, help="texels per side (default 400)")
@@ -104,9 +160,14 @@ def main() -> None:
     ap.add_argument("--dicts", type=int, default=8)
     ap.add_argument("--tau", default="885,64,64")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--parts", action="store_true",
+                    help="only the core-seconds of each step on 4 data points, one thread")
     a = ap.parse_args()
     btf = lazy_source(a.size, a.rank)
     model = random_model(a.dicts)
+    if a.parts:
+        report(parts(btf, model, [int(t) for t in a.tau.split(",")]), {}, False)
+        return
     peak = gemm_gflops()
     rss0 = peak_rss_bytes()
     stats = timed_statistics()
