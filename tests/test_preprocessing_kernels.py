@@ -9,7 +9,7 @@ from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError
 from sparsebtf.learning import parallel
 from sparsebtf.points import kernels, preprocessing
-from sparsebtf.points.grid import extract, iter_points
+from sparsebtf.points.grid import extract, iter_points, stream_points
 from sparsebtf.points.preprocessing import (
     RGB_TO_YUV,
     Preprocessor,
@@ -167,3 +167,16 @@ def test_ordered_map_keeps_order_and_raises(monkeypatch):
         for v in parallel.ordered_map(fail, range(6)):
             got.append(v)
     assert got == [0, 1, 2]
+
+
+def test_stream_points_equal_iter_points_through_reused_arrays():
+    """Batches written into three arrays in turn (and read on the worker threads) hold the
+    values of fresh ones, also the short last batch."""
+    btf = smooth_btf(9, size=16)
+    pre = Preprocessor(gather_statistics(btf))
+    points = np.arange(16)
+    fresh = [(i.copy(), x.copy()) for i, x in iter_points(btf, pre, 4, points, batch=3)]
+    streamed = [(i.copy(), x.copy()) for i, x in stream_points(btf, pre, 4, points, batch=3)]
+    assert len(fresh) == len(streamed) == 6
+    for (i, x), (j, y) in zip(fresh, streamed, strict=True):
+        assert np.array_equal(i, j) and np.array_equal(x, y)
