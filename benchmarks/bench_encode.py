@@ -116,7 +116,7 @@ def parts(btf: FactorBTF, model: Model, taus: list[int], n: int = 4) -> list[tup
             c = cpu_seconds()
             rgb = [btf.patch(0, 10 * i, 10) for i in range(n)]
             rows.append(("read a patch from the factors", cpu_seconds() - c))
-            out = np.empty((n, *rgb[0].shape), np.float32)
+            out = np.zeros((n, *rgb[0].shape), np.float32)  # pages touched: reused, as encoding's
             tiny = out[0, :1, :1].reshape(-1, nl * nv, 3)  # compile (or load) the kernels
             kernels.clamp_offset(tiny, 1e-3, tiny)
             kernels.standardise_log_rgb(tiny, _RGB_TO_YUV_F32, np.zeros((nl * nv, 3), np.float32),
