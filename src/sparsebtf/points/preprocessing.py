@@ -368,8 +368,9 @@ class StatisticSums:
     negatives: int
 
 
-#: Bytes of BTF values one statistics read holds at most (a band of rows of a few views),
-#: per thread: the pass's memory does not grow with the BTF.
+#: Bytes of BTF values one statistics read holds (a band of rows of a few views), per thread,
+#: unless one row of the file's chunks is larger: the pass's memory does not grow with the
+#: number of views.
 STATS_READ_BYTES = 32 * 2**20
 
 
