@@ -131,6 +131,7 @@ def run_demo(
         max_iter=cfg.iters,
         seed=seed,
     )
+    del train_btfs  # their files (and chunk caches) close: memory for the next steps
     save_model(model, out / "model.h5")
     for ch, t in model.training.items():
         print(

@@ -18,9 +18,8 @@ import numpy as np
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.coding import SparseCodes, sparse_code_levels
-from ..learning.parallel import prefetch
 from ..model import CodedBTF, Model, TauSpec, parse_tau
-from ..points.grid import iter_points
+from ..points.grid import stream_points
 from ..points.preprocessing import LogOffset, Preprocessor, Standardization, StdMode
 from .jobs import Header, Source, run_plan
 
@@ -156,7 +155,7 @@ class FixedTau:
         parts: list[dict[str, list[SparseCodes]]] = [{ch: [] for ch in channels}
                                                      for _ in self.levels]  # fmt: skip
         points = np.arange(lo, hi)
-        for _, x in prefetch(iter_points(btf, pre, model.patch, points, batch_size)):
+        for _, x in stream_points(btf, pre, model.patch, points, batch_size):
             for c, ch in enumerate(channels):
                 xc = x if ch == "YUV" else np.ascontiguousarray(x[..., c])
                 coded = sparse_code_levels(

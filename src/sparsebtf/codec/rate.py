@@ -19,11 +19,11 @@ from ..data.btf import BTF
 from ..errors import BTFInputError, UnreachableTargetError
 from ..learning.coding import topk_abs
 from ..learning.cost import DICTIONARY_ENTRY_BYTES, location_width, raw_bytes
-from ..learning.parallel import parallel_map, prefetch
+from ..learning.parallel import parallel_map
 from ..learning.rate_control import PAPER_SPLIT, ChannelCandidates, allocate, reference_counts
 from ..learning.tensor import project
 from ..model import CodedBTF, Model
-from ..points.grid import PatchGrid, iter_points
+from ..points.grid import PatchGrid, stream_points
 from ..points.preprocessing import (
     YUV_TO_RGB,
     LogOffset,
@@ -235,7 +235,7 @@ class RateTargets:
             for ch in channels
         }  # fmt: skip
         points = np.arange(lo, hi)
-        for _, x in prefetch(iter_points(btf, pre, model.patch, points, batch_size)):
+        for _, x in stream_points(btf, pre, model.patch, points, batch_size):
             w = _point_weights(x, pre, stats, channels, self.weighting)
             for c, ch in enumerate(channels):
                 xc = np.ascontiguousarray(x[..., c], dtype=dt)

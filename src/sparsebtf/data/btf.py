@@ -266,11 +266,13 @@ class FunctionBTF(BTF):
         super().__init__(shape[0], shape[1], lights, views, name, attrs)
         self._fn = view_block_fn
         self._last: tuple[int, np.ndarray] | None = None
+        self.block_hint = (shape[0], 1)  # renders whole view blocks: scans read them whole
 
     def view_block(self, view: int) -> np.ndarray:
         (v,) = as_index([view], len(self.views), "view")
-        if self._last is not None and self._last[0] == v:
-            return self._last[1]
+        last = self._last  # read once: another thread may replace it meanwhile
+        if last is not None and last[0] == v:
+            return last[1]
         block = np.asarray(self._fn(int(v)), dtype=np.float32)
         expected = (self.height, self.width, len(self.lights), 3)
         if block.shape != expected:
@@ -344,12 +346,15 @@ class FactorBTF(BTF):
         pix = (r[:, None] * w + c[None, :]).ravel()
         ang = (li[:, None] * nv + vi[None, :]).ravel()
         dt = np.result_type(self.spatial.dtype, self.angular.dtype, np.float32)
+        # contiguous runs (a patch's all directions, a view's lights) as views, not copies
+        pix_at, ang_at = _span(pix) or pix, _span(ang) or ang
         out = np.empty((r.size, c.size, li.size, vi.size, 3), dtype=np.float32)
         for ch in range(3):
-            s = np.asarray(self.spatial[min(ch, self.spatial.shape[0] - 1)][pix], dtype=dt)
-            a = np.asarray(self.angular[min(ch, self.angular.shape[0] - 1)][ang], dtype=dt)
+            s = np.asarray(self.spatial[min(ch, self.spatial.shape[0] - 1)][pix_at], dtype=dt)
+            a = np.asarray(self.angular[min(ch, self.angular.shape[0] - 1)][ang_at], dtype=dt)
             val = s @ a.T
             if self.log_domain:
-                val = np.exp(val) - self.eps
+                np.exp(val, out=val)
+                val -= self.eps
             out[..., ch] = val.reshape(r.size, c.size, li.size, vi.size)
         return out

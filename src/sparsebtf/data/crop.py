@@ -21,6 +21,8 @@ class CroppedBTF(BTF):
         self.base = base
         self.source = base.source
         self._r0, self._c0 = r0, c0
+        hint_rows, hint_views = base.block_hint
+        self.block_hint = (min(hint_rows, self.height), hint_views)
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
         r = as_index(rows, self.height, "row") + self._r0

@@ -20,7 +20,7 @@ from threadpoolctl import ThreadpoolController
 T = TypeVar("T")
 R = TypeVar("R")
 
-__all__ = ["n_workers", "parallel_map", "prefetch", "single_threaded_blas"]
+__all__ = ["n_workers", "ordered_map", "parallel_map", "prefetch", "single_threaded_blas"]
 
 _POOL: ThreadPoolExecutor | None = None
 _BLAS: ThreadpoolController | None = None
@@ -61,6 +61,19 @@ def parallel_map(fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
             return iter([fn(x) for x in items])
     with single_threaded_blas():
         return iter(list(_pool(n).map(fn, items)))
+
+
+def ordered_map(fn: Callable[[T], R], items: Iterable[T]) -> Iterator[R]:
+    """``map(fn, items)`` over the worker threads with single-threaded BLAS, each result
+    yielded in order as soon as it is ready (a progress bar can follow; a failure is raised
+    when its turn comes). Call it from the main thread, not from a worker."""
+    items = list(items)
+    n = n_workers()
+    if n == 1 or len(items) <= 1:
+        yield from map(fn, items)
+        return
+    with single_threaded_blas():
+        yield from _pool(n).map(fn, items)
 
 
 def prefetch(iterable: Iterable[T], depth: int = 1) -> Iterator[T]:

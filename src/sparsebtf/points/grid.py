@@ -23,7 +23,7 @@ from ..data.validate import check_finite
 from ..errors import BTFInputError
 from .preprocessing import Preprocessor
 
-__all__ = ["PatchGrid", "assemble", "extract", "iter_points", "sample_points"]
+__all__ = ["PatchGrid", "assemble", "extract", "iter_points", "sample_points", "stream_points"]
 
 
 @dataclass(frozen=True)
@@ -114,6 +114,8 @@ def iter_points(
     points: Sequence[int] | np.ndarray | None = None,
     batch: int = 4,
     dtype: type = np.float32,
+    parallel: bool = False,
+    reuse: int = 0,
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Stream standardised log-YUV data points of ``btf`` in batches.
 
@@ -121,7 +123,14 @@ def iter_points(
     read one spatial patch at a time (a patch holds every direction), so memory stays at
     ``batch`` data points whatever the BTF size. NaN/Inf raise with their location; negative
     values are clamped to 0 (counted by :func:`~sparsebtf.points.preprocessing.gather_statistics`).
+    ``parallel``: the points of a batch are read on the worker threads
+    (:func:`~sparsebtf.learning.parallel.parallel_map`); the values are the same.
+    ``reuse = n``: the batches are written into ``n`` arrays in turn (batch k's array again
+    holds batch k + n), sparing the fresh pages the kernel zeroes for every new array (tens
+    of ms per UBO2014 data point); the caller must be done with a batch ``n`` batches later.
     """
+    from ..learning.parallel import parallel_map
+
     grid = PatchGrid.for_btf(btf, patch)
     if (pre.stats.n_lights, pre.stats.n_views) != btf.shape[2:4]:
         raise BTFInputError(
@@ -135,16 +144,51 @@ def iter_points(
     if batch < 1:
         raise BTFInputError(f"batch must be >= 1, got {batch}")
     _, _, nl, nv, _ = btf.shape
-    for start in range(0, idx.size, batch):
+    ring: list[np.ndarray] = []
+    for k, start in enumerate(range(0, idx.size, batch)):
         chunk = idx[start : start + batch]
-        out = np.empty((chunk.size, patch, patch, nl, nv, 3), dtype=dtype)
-        for j, p in enumerate(chunk):
-            r0, c0 = grid.origin(int(p))
+        if reuse and len(ring) < reuse:
+            ring.append(np.empty((batch, patch, patch, nl, nv, 3), dtype=dtype))
+        out = (ring[k % reuse][: chunk.size] if reuse
+               else np.empty((chunk.size, patch, patch, nl, nv, 3), dtype=dtype))  # fmt: skip
+
+        def fill(j: int, chunk: np.ndarray = chunk, out: np.ndarray = out) -> None:
+            r0, c0 = grid.origin(int(chunk[j]))
             rgb = btf.patch(r0, c0, patch)
+            if out.dtype == np.float32:
+                pre.forward_into(rgb, out[j], btf.name, (r0, c0))
+                return
             check_finite(rgb, btf.name, offset=(r0, c0))
             np.maximum(rgb, 0, out=rgb)
             out[j] = pre.forward(rgb, dtype=dtype)
+
+        run = parallel_map if parallel else map
+        for _ in run(fill, range(chunk.size)):
+            pass
         yield chunk, out
+
+
+def stream_points(
+    btf: BTF,
+    pre: Preprocessor,
+    patch: int,
+    points: Sequence[int] | np.ndarray,
+    batch: int = 4,
+) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """:func:`iter_points` for a coding loop, keeping every core busy: each batch is read
+    on the worker threads while the caller codes the one before (a background thread,
+    :func:`~sparsebtf.learning.parallel.prefetch`), BLAS single-threaded throughout (both
+    the reads and the caller's projections are one GEMM per thread). Memory: three batches
+    (coded, ready, being read), three arrays written in turn: use a batch before asking for
+    the one after next."""
+    from ..learning.parallel import prefetch, single_threaded_blas
+
+    # With prefetch one batch ahead, the reader fills batch k + 3 only after the caller has
+    # asked for batch k + 2, so after it finished with batch k: three arrays suffice.
+    with single_threaded_blas():
+        yield from prefetch(
+            iter_points(btf, pre, patch, points, batch, parallel=True, reuse=3), depth=1
+        )
 
 
 def sample_points(

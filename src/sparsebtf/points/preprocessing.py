@@ -58,6 +58,7 @@ __all__ = [
     "LOG_OFFSETS",
     "LOG_OFFSET_FRACTION",
     "RGB_TO_YUV",
+    "STATS_READ_BYTES",
     "STD_MODES",
     "TRANSFORMS",
     "YUV_TO_RGB",
@@ -76,6 +77,7 @@ __all__ = [
     "resolve_log_offset",
     "rgb_to_yuv",
     "round_up_bound",
+    "statistic_bands",
     "statistic_sums",
     "to_log_yuv",
     "warn_negatives",
@@ -99,6 +101,7 @@ RGB_TO_YUV = np.array(
         [0.615, -0.51499, -0.10001],
     ]
 )
+_RGB_TO_YUV_F32 = RGB_TO_YUV.astype(np.float32)
 #: Exact inverse of :data:`RGB_TO_YUV`.
 YUV_TO_RGB = np.linalg.inv(RGB_TO_YUV)
 #: The release shader's rounded inverse (|inv·fwd − I| ≤ 1.6e-5).
@@ -280,6 +283,35 @@ class Preprocessor:
 
     def __init__(self, stats: Standardization) -> None:
         self.stats = stats
+        self._full_f32: tuple[np.ndarray, np.ndarray] | None = None
+
+    def forward_into(
+        self, rgb: np.ndarray, out: np.ndarray, where: str = "btf", offset: tuple[int, ...] = ()
+    ) -> np.ndarray:
+        """(..., L, V, 3) linear RGB of every direction → standardised log-YUV in ``out``
+        (float32, rgb's shape), in three passes (:mod:`.kernels`): clamp and offset, log,
+        colour transform and standardisation. NaN/Inf raise with their count and first
+        location (``where``, ``offset`` as :func:`~sparsebtf.data.validate.check_finite`);
+        negative values count as 0. Equals :meth:`forward` to float32 rounding (the colour
+        transform is summed term by term here)."""
+        from .kernels import clamp_offset, standardise_log_rgb
+
+        x = np.ascontiguousarray(rgb, dtype=np.float32)
+        if out.dtype != np.float32 or not out.flags.c_contiguous or out.shape != x.shape:
+            raise BTFInputError(f"forward_into needs a C-contiguous float32 {x.shape} output")
+        identity = self.stats.transform == "identity"
+        bad, _ = clamp_offset(x, 0.0 if identity else self.stats.eps, out)
+        if bad:
+            check_finite(x, where, offset)
+        if identity:
+            return out
+        np.log(out, out=out)
+        if self._full_f32 is None:
+            mu, inv = self.stats._full(slice(None), slice(None), np.dtype(np.float32), True)
+            self._full_f32 = (mu.reshape(-1, 3), inv.reshape(-1, 3))
+        n_a = self._full_f32[0].shape[0]
+        standardise_log_rgb(out.reshape(-1, n_a, 3), _RGB_TO_YUV_F32, *self._full_f32)
+        return out
 
     def forward(
         self,
@@ -336,15 +368,39 @@ class StatisticSums:
     negatives: int
 
 
+#: Bytes of BTF values one statistics read holds (a band of rows of a few views), per thread,
+#: unless one row of the file's chunks is larger: the pass's memory does not grow with the
+#: number of views.
+STATS_READ_BYTES = 32 * 2**20
+
+
+def statistic_bands(btf: BTF) -> tuple[int, int]:
+    """(rows, views) of one read of the statistics pass: :attr:`BTF.block_hint` views
+    (a file's chunk) and as many whole rows (a multiple of the hint's) as fit
+    :data:`STATS_READ_BYTES`, at least the hint's. Fixed per BTF, so every view's sums are
+    added in the same bands whatever the view ranges of the tasks."""
+    h, w, nl, nv, _ = btf.shape
+    hint_rows, hint_views = (max(1, int(x)) for x in btf.block_hint)
+    views = min(hint_views, nv)
+    rows = max(1, STATS_READ_BYTES // max(1, 12 * w * nl * views))
+    rows = max(hint_rows, rows - rows % hint_rows) if rows >= hint_rows else hint_rows
+    return min(rows, h), views
+
+
 def statistic_sums(
     btf: BTF,
     views: tuple[int, int] | None = None,
     eps: float = EPS,
     tick: Callable[[int], object] | None = None,
 ) -> StatisticSums:
-    """The :class:`StatisticSums` of ``btf`` over ``views`` (default: all), one view block
-    at a time (memory: H·W·L·3 values); ``tick(1)`` after each view. NaN/Inf abort with
-    their count and first location."""
+    """The :class:`StatisticSums` of ``btf`` over ``views`` (default: all).
+
+    Read in bands of rows of a few views (:func:`statistic_bands`; memory: a band per
+    thread), the groups of views on the worker threads (:func:`~sparsebtf.learning.parallel.
+    ordered_map`), each value touched in three passes (:mod:`.kernels`); ``tick(n)`` after
+    each group of n views. NaN/Inf abort with their count and first location."""
+    from ..learning.parallel import ordered_map
+
     h, w, nl, nv, _ = btf.shape
     v0, v1 = views if views is not None else (0, nv)
     if not 0 <= v0 < v1 <= nv:
@@ -352,27 +408,64 @@ def statistic_sums(
     n = h * w
     if n < 2:
         raise BTFInputError(f"{btf.label}: standardisation needs at least 2 texels, got {n}")
+    rows, step = statistic_bands(btf)
+    # groups aligned on the storage's view blocks (absolute indices), cut at [v0, v1)
+    edges = sorted({v0, v1, *range(v0 - v0 % step + step, v1, step)})
+    groups = list(itertools.pairwise(edges))
     s1 = np.zeros((nl, v1 - v0, 3))
     s2 = np.zeros((nl, v1 - v0, 3))
     shift = np.zeros((nl, v1 - v0, 3))
     top = np.zeros((nl, v1 - v0))
     negatives = 0
-    for j, v in enumerate(range(v0, v1)):
-        block = btf.view_block(v)
-        check_finite(block[:, :, :, None, :], btf.label, offset=(0, 0, 0, v))
-        negatives += int((block < 0).sum())
+
+    def group_sums(vs: tuple[int, int]) -> tuple[np.ndarray, ...]:
+        return _group_sums(btf, vs, rows, eps)
+
+    for (a, b), (sh, g1, g2, gt, neg) in zip(
+        groups, ordered_map(group_sums, groups), strict=True
+    ):
+        shift[:, a - v0 : b - v0] = sh
+        s1[:, a - v0 : b - v0] = g1
+        s2[:, a - v0 : b - v0] = g2
+        top[:, a - v0 : b - v0] = gt
+        negatives += neg
+        if tick is not None:
+            tick(b - a)
+    return StatisticSums((v0, v1), shift, s1, s2, top, n, negatives)
+
+
+def _group_sums(
+    btf: BTF, views: tuple[int, int], rows: int, eps: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Shift, Σd, Σd², top ((L, v, 3) or (L, v)) and the negative count of views
+    ``[a, b)``, read in bands of ``rows`` rows; each view's sums in band order."""
+    from .kernels import accumulate_sums, log_offset
+
+    h, _, nl, _, _ = btf.shape
+    a, b = views
+    nvg = b - a
+    shift = np.zeros((nl * nvg, 3), dtype=np.float32)
+    s1 = np.zeros((nl * nvg, 3))
+    s2 = np.zeros((nl * nvg, 3))
+    top = np.full(nl * nvg, -np.inf)
+    negatives = 0
+    for r0 in range(0, h, rows):
+        block = btf.read(slice(r0, min(r0 + rows, h)), slice(None), slice(None), slice(a, b))
         # float32 transforms (the release computed its statistics in single precision),
         # float64 accumulators.
-        logs = log_transform(np.maximum(block, 0, dtype=np.float32), np.float32(eps))
-        top[:, j] = logs.reshape(n, nl, 3).max(axis=(0, 2))
-        x = rgb_to_yuv(logs).reshape(n, nl, 3)
-        shift[:, j] = x[0]
-        x -= x[0]
-        s1[:, j] = x.sum(axis=0, dtype=np.float64)
-        s2[:, j] = np.square(x).sum(axis=0, dtype=np.float64)
-        if tick is not None:
-            tick(1)
-    return StatisticSums((v0, v1), shift, s1, s2, top, n, negatives)
+        logs, bad, neg = log_offset(block, eps)
+        if bad:
+            check_finite(block, btf.label, offset=(r0, 0, 0, a))
+        negatives += neg
+        accumulate_sums(logs.reshape(-1, nl * nvg, 3), _RGB_TO_YUV_F32, shift, s1, s2, top,
+                        first=r0 == 0)  # fmt: skip
+    return (
+        shift.reshape(nl, nvg, 3).astype(np.float64),
+        s1.reshape(nl, nvg, 3),
+        s2.reshape(nl, nvg, 3),
+        top.reshape(nl, nvg),
+        negatives,
+    )
 
 
 def combine_statistics(
@@ -453,10 +546,18 @@ def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
     step = max(1, int(np.sqrt(h * w / _OFFSET_TEXELS)))
     n_bins = _HIST_DECADES * _HIST_PER_DECADE
     counts = np.zeros(n_bins, dtype=np.int64)
+    sub = slice(None, None, step)
     for v in views:
-        block = btf.view_block(int(v))
-        check_finite(block[:, :, :, None, :], btf.label, offset=(0, 0, 0, int(v)))
-        x = block[::step, ::step].ravel()
+        block = btf.read(sub, sub, slice(None), [int(v)])  # the subsample only
+        bad = ~np.isfinite(block)
+        if bad.any():  # located in the whole BTF: rows and cols of the subsample × step
+            r, c, li, _, ch = (int(i[0]) for i in np.nonzero(bad))
+            raise BTFInputError(
+                f"{btf.label}: {int(bad.sum())} NaN/Inf values; first at row {r * step}, "
+                f"col {c * step}, "
+                f"light {li}, view {int(v)}, channel {ch}"
+            )
+        x = block.ravel()
         x = x[x > 0].astype(np.float64)
         # bin = ⌊64·(log10 x + 12)⌋: one pass, no search over the edges
         b = np.floor((np.log10(x) - _HIST_LOW) * _HIST_PER_DECADE).astype(np.int64)
