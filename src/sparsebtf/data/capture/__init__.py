@@ -39,6 +39,16 @@ __all__ = [
 MAX_SIZE = 8192
 
 
+def _whole(name: str, value: object, lo: int, hi: int | None, unit: str) -> None:
+    """One line unless ``value`` is an integer in [lo, hi] (no upper end: hi None)."""
+    ok = not isinstance(value, bool) and isinstance(value, int | np.integer)
+    ok = ok and lo <= int(value) and (hi is None or int(value) <= hi)  # type: ignore[arg-type]
+    if not ok:
+        span = f"[{lo}, {hi}]" if hi is not None else f">= {lo}"
+        raise BTFInputError(f"{name} must be an integer {span}{' ' + unit if unit else ''}, "
+                            f"got {value!r}")  # fmt: skip
+
+
 def capture_spec(
     scene: str,
     size: int = 64,
@@ -55,15 +65,10 @@ def capture_spec(
     from .scene import resolve_source
 
     resolve_source(scene)
-    if isinstance(size, bool) or not isinstance(size, int | np.integer) or not 1 <= size <= MAX_SIZE:
-        raise BTFInputError(f"size must be whole texels in [1, {MAX_SIZE}], got {size!r}")
-    if isinstance(spp, bool) or not isinstance(spp, int | np.integer) or spp < 1:
-        raise BTFInputError(f"spp must be an integer >= 1, got {spp!r}")
-    if isinstance(max_depth, bool) or not isinstance(max_depth, int | np.integer) or max_depth < 2:
-        raise BTFInputError(f"max_depth must be an integer >= 2 (2: direct light only), got "
-                            f"{max_depth!r}")  # fmt: skip
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed < 2**32:
-        raise BTFInputError(f"seed must be an integer in [0, 2^32), got {seed!r}")
+    _whole("size", size, 1, MAX_SIZE, "texels per side")
+    _whole("spp", spp, 1, None, "paths per texel")
+    _whole("max_depth", max_depth, 2, None, "path segments (2: direct light only)")
+    _whole("seed", seed, 0, 2**32 - 1, "")
     dirs = resolve_directions(directions)
     if np.any(dirs.xyz[:, 2] <= 1e-6):
         raise BTFInputError(f"directions {dirs.name}: every direction must lie above the "

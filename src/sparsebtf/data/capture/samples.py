@@ -25,7 +25,6 @@ from typing import Any
 import numpy as np
 
 from ...rendering.scenes import _grid_faces, _mesh_dict, sphere_mesh
-from ..synth.textures import fbm, filtered_noise, smoothstep, worley
 
 __all__ = ["SAMPLES", "Sample", "heightfield_mesh"]
 
@@ -220,6 +219,8 @@ def _vertex_normals(pos: np.ndarray, faces: np.ndarray) -> np.ndarray:
 
 
 def _leather(seed: int) -> dict[str, Any]:
+    from ..synth.textures import fbm, smoothstep, worley
+
     rng = np.random.default_rng([seed, 4])
     n = 128
     f1, f2, _ = worley((n, n), rng, 40)
@@ -237,6 +238,8 @@ def _leather(seed: int) -> dict[str, Any]:
 
 
 def _metal(seed: int) -> dict[str, Any]:
+    from ..synth.textures import filtered_noise
+
     rng = np.random.default_rng([seed, 5])
     n = 128
     rows = np.arange(n) + 0.5

@@ -171,7 +171,8 @@ def _open_partial(path: Path, key: dict[str, Any], dtype: str) -> h5py.File:
     try:
         f = h5py.File(path, "r+")
     except OSError as e:
-        raise BTFInputError(f"--resume: cannot open {path} ({e}); delete it to start over") from None
+        raise BTFInputError(f"--resume: cannot open {path} ({e}); delete it to start "
+                            "over") from None  # fmt: skip
     try:
         raw = f.attrs.get("capture_json")
         found = json.loads(raw.decode() if isinstance(raw, bytes) else str(raw)) if raw else None
