@@ -73,7 +73,7 @@ class CaptureSpec:
         d["directions"] = _digest(np.asarray(self.directions, dtype=np.float64))
         d["scene_digest"] = scene_digest
         d["capture_version"] = CAPTURE_VERSION
-        return d
+        return json.loads(json.dumps(d))  # as a file gives it back: lists, not tuples
 
 
 def _digest(a: np.ndarray) -> str:
