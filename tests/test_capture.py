@@ -331,3 +331,15 @@ def test_bad_scenes_and_options_are_one_line(tmp_path, capsys):
     assert "give .h5" in err("plane", "-o", tmp_path / "x.btf")
     assert "unknown direction set" in err("plane", "-o", o, "--directions", "tiny5")
     assert not list(tmp_path.glob("x.h5*"))
+
+
+@pytest.mark.slow
+def test_readme_make_a_btf_from_geometry_runs(tmp_path):
+    from .test_first_hour import readme_block, shell
+
+    block = readme_block("Make a BTF from geometry")
+    shell(block, tmp_path)
+    for f in ("plane.h5", "woven.h5", "pebbles.h5", "leather.h5", "metal.h5", "bumps.h5",
+              "pebbles.png", "geo-model.h5", "leather.coded.h5", "leather-viewer/index.html"):
+        assert (tmp_path / f).exists(), f
+    assert not list(tmp_path.glob("*.partial"))
