@@ -343,3 +343,17 @@ def test_readme_make_a_btf_from_geometry_runs(tmp_path):
               "pebbles.png", "geo-model.h5", "leather.coded.h5", "leather-viewer/index.html"):
         assert (tmp_path / f).exists(), f
     assert not list(tmp_path.glob("*.partial"))
+
+
+def test_without_a_vectorised_backend_one_line(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    env = {**os.environ, "SPARSEBTF_NO_LLVM": "1", "SPARSEBTF_PROGRESS": "0"}
+    r = subprocess.run([sys.executable, "-m", "sparsebtf.cli.main", "capture", "plane", "-o",
+                        str(tmp_path / "p.h5"), "--size", "4", "--directions", "tiny7"],
+                       env=env, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "needs Mitsuba's LLVM or CUDA backend" in r.stderr and "libllvm19" in r.stderr
+    assert not list(tmp_path.iterdir())

@@ -21,6 +21,7 @@ __all__ = ["register"]
 
 def run(args: argparse.Namespace) -> int:
     from ..data.capture import capture, capture_spec
+    from ..data.capture.writer import check_scene
     from ..data.dense_file import dense_file_bytes
 
     if not args.output.lower().endswith((".h5", ".hdf5")):
@@ -29,6 +30,7 @@ def run(args: argparse.Namespace) -> int:
     spec = capture_spec(args.scene, args.size, args.directions, spp=args.spp, seed=args.seed,
                         max_depth=args.max_depth, crop=crop, backend=args.backend)  # fmt: skip
     check_output_file(args.output, [args.scene])
+    check_scene(spec)  # a bad scene or backend is one line before the size is announced
     say = Written(args.json)
     h, w, nl, nv, _ = spec.shape
     shape = f"{h}x{w} texels, {nl} lights x {nv} views"

@@ -101,7 +101,13 @@ def _sample(spec: CaptureSpec) -> Any:
     key = json.dumps([spec.scene, spec.seed, spec.backend, spec.directions_name,
                       _digest(np.asarray(spec.directions))])  # fmt: skip
     if key not in _loaded:
-        setup(spec.backend, quiet=True)
+        variant = setup(spec.backend, quiet=True)
+        if variant.startswith("scalar"):
+            from ...rendering.mitsuba.variant import variant_message
+
+            why = " ".join(variant_message.split())
+            raise BTFInputError(f"capture renders whole views at once and needs Mitsuba's LLVM "
+                                f"or CUDA backend, not {variant}: {why}")  # fmt: skip
         threads = os.environ.get("SPARSEBTF_THREADS")
         if threads:
             import drjit as dr
