@@ -88,18 +88,20 @@ def _render_band(
     lane = dr.arange(mi.UInt32, n)
     texel = lane // spp
     sampler = mi.load_dict({"type": "independent"})
-    sampler.seed(sampler_seed, n)
+    # View-dependent scalars are opaque: as literals they would make every view a new kernel
+    # (an LLVM compilation of seconds); as variables all views share the compiled kernels.
+    sampler.seed(dr.opaque(mi.UInt32, sampler_seed), n)
     step = PERIOD / size
     jitter = sampler.next_2d()
     x = dr.gather(mi.Float, mi.Float(x0.astype(np.float32)), texel % w) + jitter.x * step
     y = dr.gather(mi.Float, mi.Float(y0.astype(np.float32)), texel // w) - jitter.y * step
     wo = np.asarray(view, dtype=np.float64)
     wo = wo / np.linalg.norm(wo)
-    d = mi.Vector3f(*(float(c) for c in wo))
+    d = mi.Vector3f(*(dr.opaque(mi.Float, float(c)) for c in wo))
     # Start above the relief, then wrap the origin into the central tile (the sample repeats).
-    lift = float(z_top) / max(float(wo[2]), 1e-6)
-    ox = x + float(wo[0]) * lift
-    oy = y + float(wo[1]) * lift
+    lift = dr.opaque(mi.Float, float(z_top) / max(float(wo[2]), 1e-6))
+    ox = x + d.x * lift
+    oy = y + d.y * lift
     ox -= PERIOD * dr.round(ox / PERIOD)
     oy -= PERIOD * dr.round(oy / PERIOD)
     ray = mi.Ray3f(mi.Point3f(ox, oy, z_top), -d)
@@ -109,17 +111,16 @@ def _render_band(
     active = si.is_valid()
     beta = mi.Spectrum(1.0)
     acc = np.zeros((lights.shape[0], 3, h * w), dtype=np.float64)
-    light_vectors = [mi.Vector3f(*(dr.opaque(mi.Float, float(c)) for c in wl)) for wl in lights]
+    n_lights = lights.shape[0]
+    per_pass = max(1, min(n_lights, MAX_LANES // n))  # lights shaded together, one wide pass
+    light_table = mi.Vector3f(*(mi.Float(lights[:, k].astype(np.float32)) for k in range(3)))
     for depth in range(max_depth - 1):
         bsdf = si.bsdf(ray)
         dr.eval(si, bsdf, beta, active)
-        for li, wl in enumerate(light_vectors):
-            local = si.to_local(wl)
-            lit = active & (mi.Frame3f.cos_theta(local) > 0) & (dr.dot(si.n, wl) > 0)
-            value = beta * bsdf.eval(ctx, si, local, lit)
-            lit &= ~scene.ray_test(si.spawn_ray(wl), lit)
-            value = dr.select(lit, value, 0.0)
-            acc[li] += np.asarray(dr.block_sum(value, spp), dtype=np.float64).reshape(3, h * w)
+        for l0 in range(0, n_lights, per_pass):
+            k = min(per_pass, n_lights - l0)
+            acc[l0:l0 + k] += _next_event(scene, si, bsdf, beta, active, light_table, l0, k,
+                                          n, spp, ctx)  # fmt: skip
         if depth == max_depth - 2:
             break
         bs, weight = bsdf.sample(ctx, si, sampler.next_1d(active), sampler.next_2d(active),
@@ -131,3 +132,28 @@ def _render_band(
         active &= si.is_valid()
     values = acc * (math.pi / spp)  # (L, 3, h·w) → (h, w, L, 3)
     return np.ascontiguousarray(values.transpose(2, 0, 1).reshape(h, w, -1, 3), np.float32)
+
+
+def _next_event(scene: Any, si: Any, bsdf: Any, beta: Any, active: Any, light_table: Any,
+                l0: int, k: int, n: int, spp: int, ctx: Any) -> np.ndarray:  # fmt: skip
+    """Direct light of lights ``l0 … l0+k−1`` at the path vertices ``si`` (n lanes), as one
+    wavefront of k·n lanes (lane j: vertex j mod n, light l0 + j div n): summed over each
+    texel's ``spp`` paths, (k, 3, n/spp) float64."""
+    import drjit as dr
+    import mitsuba as mi
+
+    wide = dr.arange(mi.UInt32, k * n)
+    lane = wide % n
+    if k > 1:
+        si = dr.gather(type(si), si, lane)
+        bsdf = dr.gather(type(bsdf), bsdf, lane)
+        beta = dr.gather(type(beta), beta, lane)
+        active = dr.gather(type(active), active, lane)
+    wl = dr.gather(mi.Vector3f, light_table, wide // n + dr.opaque(mi.UInt32, l0))
+    local = si.to_local(wl)
+    lit = active & (mi.Frame3f.cos_theta(local) > 0) & (dr.dot(si.n, wl) > 0)
+    value = beta * bsdf.eval(ctx, si, local, lit)
+    lit &= ~scene.ray_test(si.spawn_ray(wl), lit)
+    value = dr.select(lit, value, 0.0)
+    summed = np.asarray(dr.block_sum(value, spp), dtype=np.float64)  # (3, k·n/spp)
+    return summed.reshape(3, k, n // spp).transpose(1, 0, 2)
