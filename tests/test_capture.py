@@ -357,3 +357,11 @@ def test_without_a_vectorised_backend_one_line(tmp_path):
     assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
     assert "needs Mitsuba's LLVM or CUDA backend" in r.stderr and "libllvm19" in r.stderr
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.slow
+def test_views_on_a_local_dask_cluster_equal_a_run_in_process(tmp_path):
+    here = read(capture("pebbles", tmp_path / "here.h5", size=4, directions="tiny7", spp=2))[0]
+    there = read(capture("pebbles", tmp_path / "dask.h5", size=4, directions="tiny7", spp=2,
+                         workers=2))[0]  # fmt: skip
+    assert np.array_equal(here, there)
