@@ -365,3 +365,21 @@ def test_views_on_a_local_dask_cluster_equal_a_run_in_process(tmp_path):
     there = read(capture("pebbles", tmp_path / "dask.h5", size=4, directions="tiny7", spp=2,
                          workers=2))[0]  # fmt: skip
     assert np.array_equal(here, there)
+
+
+@pytest.mark.slow
+def test_quality_benchmark_on_captured_materials(tmp_path, monkeypatch):
+    from sparsebtf.evaluation.benchmark_set import CAPTURE_CLASSES
+    from sparsebtf.evaluation.runner import run_quality
+
+    from .test_evaluation import tiny_config
+
+    monkeypatch.setenv("SPARSEBTF_CACHE", str(tmp_path / "cache"))
+    cfg = tiny_config().captured()
+    assert cfg.source == "capture" and cfg.classes == CAPTURE_CLASSES
+    result = run_quality(tmp_path / "run", cfg, log=lambda m: None)
+    captured = sorted(p.name for p in (tmp_path / "cache").glob("capture-*.h5"))
+    assert len(captured) == 7  # 2 training, 4 test, 1 Table-5 (true black: the test metal12)
+    rows = {r["material"] for r in result["rows"]}
+    assert {"woven12", "pebbles12", "leather12", "metal12", "metal12+black"} <= rows
+    assert (tmp_path / "run" / "results.md").exists()

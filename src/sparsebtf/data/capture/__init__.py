@@ -31,8 +31,8 @@ from .samples import SAMPLES, Sample
 from .writer import CAPTURE_VERSION, CaptureSpec, partial_path, write_capture
 
 __all__ = [
-    "CAPTURE_VERSION", "SAMPLES", "CaptureSpec", "Sample", "capture", "capture_spec",
-    "partial_path",
+    "CAPTURE_VERSION", "SAMPLES", "CaptureSpec", "Sample", "cached_capture", "capture",
+    "capture_spec", "partial_path",
 ]  # fmt: skip
 
 #: Largest capture side in texels.
@@ -122,3 +122,27 @@ def capture(
     with executor(workers=workers, scheduler=scheduler) as ex:
         return write_capture(output, spec, dtype=dtype, resume=resume, executor=ex,
                              progress=progress, name=name, attrs=attrs)  # fmt: skip
+
+
+def cached_capture(
+    scene: str,
+    size: int,
+    directions: str | DirectionSet = "ubo2014",
+    seed: int = 0,
+    spp: int = 4,
+    cache_dir: str | os.PathLike[str] | None = None,
+) -> Any:
+    """A captured built-in sample as a :class:`~sparsebtf.data.dense_file.DenseFileBTF`,
+    rendered once into the synthetic-material cache (``$SPARSEBTF_CACHE``) and reused; the
+    file name holds everything that decides its values (and :data:`CAPTURE_VERSION`)."""
+    from ..dense_file import DenseFileBTF
+    from ..synth.cache import resolve_cache_dir
+
+    spec = capture_spec(scene, size, directions, spp=spp, seed=seed)
+    key = spec.key(scene)
+    digest = __import__("hashlib").sha256(repr(sorted(key.items())).encode()).hexdigest()[:12]
+    path = resolve_cache_dir(cache_dir) / f"capture-{scene}-{size}-s{seed}-{digest}.h5"
+    if not path.exists():
+        path.parent.mkdir(parents=True, exist_ok=True)
+        capture(scene, path, size, directions, spp=spp, seed=seed)
+    return DenseFileBTF(path)
