@@ -7,8 +7,11 @@ irradiance (on a plane facing it) from ω_l: the vertex's BSDF value f·cos θ_l
 ``eval``) times the throughput, if a shadow ray towards ω_l leaves the sample. The path then
 continues by BSDF sampling (one path shared by all lights: next-event estimation to each
 light), up to ``max_depth`` segments as Mitsuba's path tracer counts them (2: direct light
-only; 3: one bounce of inter-reflection). Nothing else emits: light that bounces off the
-sample into the sky is lost, so a cavity that sees no lit surface is exactly black.
+only; 3: one bounce of inter-reflection). The lights are shaded in wide passes (vertices ×
+lights as one wavefront, up to :data:`MAX_LANES` lanes) and every view-dependent scalar is a
+Dr.Jit variable, so all views and lights reuse the same compiled kernels. Nothing else emits:
+light that bounces off the sample into the sky is lost, so a cavity that sees no lit surface
+is exactly black.
 
 The value stored is π · (mean radiance over the texel) for unit irradiance, i.e. π·f_r·cos θ_l
 for a flat sample: a Lambertian plane of albedo ρ gives ρ·cos θ_l in every view, the
