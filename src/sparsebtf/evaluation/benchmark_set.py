@@ -178,8 +178,9 @@ class BenchConfig:
             n_train=min(self.n_train, n * len(self.train_seeds)),
             table5_materials=tuple(("pebbles", s) for _, s in self.table5_materials[:1]),
             black_materials=tuple(("metal", s) for _, s in self.black_materials[:1]),
-            notes=(*self.notes, f"materials captured with Mitsuba 3 ({self.spp} spp): "
-                   f"{', '.join(CAPTURE_CLASSES)}"),
+            # the configuration's own notes count its synthetic materials: replaced
+            notes=(f"materials captured with Mitsuba 3 ({self.spp} spp): "
+                   f"{', '.join(CAPTURE_CLASSES)}",),
         )
 
     def material(self, cls: str, size: int, seed: int, black: bool = False) -> Any:
