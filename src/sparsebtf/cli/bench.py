@@ -27,6 +27,8 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
     check_output_dir(args.out, "--out")
     check_output_dir(args.docs, "--docs")
     cfg = getattr(args, "config", None) or (BenchConfig.quick() if args.quick else BenchConfig())
+    if args.source == "capture":
+        cfg = cfg.captured()
     if args.log_offset is not None:
         from dataclasses import replace
 
@@ -65,6 +67,10 @@ def register(sub: Any) -> None:
     q.add_argument("--materials", nargs="+", metavar="BTF",
                    help="extra test BTFs (.btf, dense .h5, synth:...) at the same directions")
     q.add_argument("--seed", type=int, default=0, help="shifts every material and training seed")
+    q.add_argument("--source", choices=["synth", "capture"], default="synth",
+                   help="materials: synth (height-field ray-marcher, default) or capture "
+                   "(Mitsuba 3 renders of the built-in samples of 'sparsebtf capture': true "
+                   "black, high dynamic range; rendered once into the cache)")
     q.add_argument("--log-offset", default=None, metavar="auto|release|EPS",
                    help="log offset of every SparseBTF encode (default auto; release = the "
                    "authors' 1e-5; see 'sparsebtf encode --help')")

@@ -24,6 +24,7 @@ from ..errors import SparseBTFError
 from . import (
     bench,
     blend,
+    capture,
     convert,
     decode,
     demo,
@@ -44,7 +45,7 @@ __all__ = ["build_parser", "main"]
 
 #: The commands in the order ``sparsebtf --help`` lists them: the pipeline first.
 COMMANDS = (
-    synth, info, models, train, encode, decode, evaluate, convert, import_release, lookup,
+    synth, capture, info, models, train, encode, decode, evaluate, convert, import_release, lookup,
     demo, blend, render, view, bench,
 )  # fmt: skip
 

@@ -19,6 +19,7 @@ point each level spends on one material; we keep that **per-material compression
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 from ..learning.cost import coefficient_budget
 from ..storage.accounting import paper_storage
@@ -33,6 +34,9 @@ __all__ = [
 ]
 
 CLASSES = ("carpet", "fabric", "felt", "leather", "stone", "wallpaper", "wood")
+#: The material classes of ``source="capture"``: built-in samples of ``sparsebtf capture``.
+CAPTURE_CLASSES = ("woven", "pebbles", "leather", "metal")
+SOURCES = ("synth", "capture")
 
 #: The floor of the true-black materials' comparison copy (every value at least this).
 FLOOR = 1e-3
@@ -128,6 +132,11 @@ class BenchConfig:
     #: :data:`FLOOR` (the "Never a firework" check)
     black_materials: tuple[tuple[str, int], ...] = (("metal", 12), ("carpet", 12))
     notes: tuple[str, ...] = field(default=())
+    #: where the materials come from: ``synth`` (our height-field ray-marcher, cached) or
+    #: ``capture`` (Mitsuba 3 renders of the built-in samples, :func:`captured`, cached)
+    source: str = "synth"
+    #: camera paths per texel of captured materials
+    spp: int = 4
 
     @classmethod
     def quick(cls) -> BenchConfig:
@@ -156,6 +165,34 @@ class BenchConfig:
                 "20x20; Table 5 on one 40x40 material",
             ),
         )
+
+    def captured(self) -> BenchConfig:
+        """The same benchmark on captured materials: the built-in samples of ``sparsebtf
+        capture`` (true black, high dynamic range) as training, test, Table-5 and
+        true-black materials, one seed fewer per set (a capture costs more than a synth)."""
+        n = len(CAPTURE_CLASSES)
+        return replace(
+            self,
+            source="capture",
+            classes=CAPTURE_CLASSES,
+            n_train=min(self.n_train, n * len(self.train_seeds)),
+            table5_materials=tuple(("pebbles", s) for _, s in self.table5_materials[:1]),
+            black_materials=tuple(("metal", s) for _, s in self.black_materials[:1]),
+            # the configuration's own notes count its synthetic materials: replaced
+            notes=(f"materials captured with Mitsuba 3 ({self.spp} spp): "
+                   f"{', '.join(CAPTURE_CLASSES)}",),
+        )
+
+    def material(self, cls: str, size: int, seed: int, black: bool = False) -> Any:
+        """The benchmark's material ``cls`` of ``size`` texels and ``seed`` from its source
+        (captured materials are true black already: ``black`` changes nothing there)."""
+        if self.source == "capture":
+            from ..data.capture import cached_capture
+
+            return cached_capture(cls, size, self.directions, seed, self.spp)
+        from ..data.synth import cached
+
+        return cached(cls, size, self.directions, seed, black=black)
 
     def ratios(self) -> dict[int, float]:
         """Per-material compression ratio of each level."""

@@ -532,6 +532,7 @@ def render_markdown(
         "",
         f"- Command: `sparsebtf bench quality{' --quick' if cfg['name'] == 'quick' else ''}"
         f"{' --seed ' + str(result['seed']) if result['seed'] else ''}"
+        f"{' --source capture' if cfg.get('source') == 'capture' else ''}"
         f"{''.join(' --materials ' + m for m in result.get('extra_materials', []))}"
         f"{_offset_flag(cfg)} "
         "--out DIR`.",
@@ -539,7 +540,8 @@ def render_markdown(
         f"{result['created']}, {result['seconds'] / 60:.1f} min on {mach['cpus']} CPUs "
         f"({mach['platform']}, Python {mach['python']}, NumPy {mach['numpy']}, sparsebtf "
         f"{mach['library']}).",
-        f"- Materials: synthetic, {cfg['directions']} directions; {cfg['n_train']} training "
+        f"- Materials: {_source_text(cfg)}, {cfg['directions']} directions; {cfg['n_train']} "
+        "training "
         f"materials of {cfg['train_size']}x{cfg['train_size']} texels (seeds "
         f"{cfg['train_seeds']}), {len(_materials(result, 'test'))} unseen test materials of "
         f"{cfg['test_size']}x{cfg['test_size']} (seeds {cfg['test_seeds']}), Table-5 "
@@ -678,6 +680,14 @@ def previous_record(path: str | os.PathLike[str]) -> dict[str, Any]:
         raise BTFInputError(
             f"--previous {path}: not a readable 'bench quality' results.json ({e})"
         ) from e
+
+
+def _source_text(cfg: dict[str, Any]) -> str:
+    """How results.md names the materials' source (runs before ``source`` existed: synth)."""
+    if cfg.get("source") == "capture":
+        return (f"captured with Mitsuba 3 (`sparsebtf capture`, {cfg.get('spp')} spp, true "
+                f"black, high dynamic range: {', '.join(cfg['classes'])})")  # fmt: skip
+    return "synthetic"
 
 
 def regenerate(

@@ -181,7 +181,6 @@ def _run_quality(
     previous: str | os.PathLike[str] | None,
     ex: Executor,
 ) -> dict[str, Any]:
-    from ..data.synth import cached
     from ..open import open_btf
     from .report import previous_record, write_report
 
@@ -199,10 +198,10 @@ def _run_quality(
     # 1. materials -----------------------------------------------------------------------
     t0 = time.perf_counter()
     say(f"materials: {cfg.n_train} training, {len(cfg.test_set())} test, "
-        f"{len(cfg.table5_materials)} Table-5 ({cfg.directions} directions; cached)")
-    train_btfs = [cached(c, cfg.train_size, cfg.directions, s) for c, s in cfg.train_set()]
+        f"{len(cfg.table5_materials)} Table-5 ({cfg.directions} directions, {cfg.source}; cached)")
+    train_btfs = [cfg.material(c, cfg.train_size, s) for c, s in cfg.train_set()]
     tests: list[tuple[str, str, int | None, BTF]] = [
-        (_label(c, s), c, s, cached(c, cfg.test_size, cfg.directions, s))
+        (_label(c, s), c, s, cfg.material(c, cfg.test_size, s))
         for c, s in cfg.test_set()
     ]
     for src in materials:
@@ -220,7 +219,7 @@ def _run_quality(
             )
         tests.append((Path(str(b.name)).stem or src, "extra", None, b))
     table5 = [
-        (_label(c, s), c, s, cached(c, cfg.table5_size, cfg.directions, s))
+        (_label(c, s), c, s, cfg.material(c, cfg.table5_size, s))
         for c, s in cfg.table5_materials
     ]
     stage("materials", t0)
@@ -415,7 +414,7 @@ def _run_quality(
 
     # 5. true black: exact zeros and high dynamic range ------------------------------------------
     for cls, mseed in cfg.black_materials:
-        btf = cached(cls, cfg.test_size, cfg.directions, mseed, black=True)
+        btf = cfg.material(cls, cfg.test_size, mseed, black=True)
         label = f"{_label(cls, mseed)}+black"
         base = {"material": label, "class": cls, "seed": mseed, "set": "black",
                 "size": [btf.height, btf.width]}
