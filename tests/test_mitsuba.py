@@ -29,6 +29,7 @@ import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
 import sparsebtf.mitsuba as sbm  # noqa: E402
+from sparsebtf.rendering.mitsuba.materials import BSDF_PER_BTF_VALUE  # noqa: E402
 from sparsebtf.rendering.render import compare_renders, render_material  # noqa: E402
 from sparsebtf.runtime import RuntimeBTF, angular_weights  # noqa: E402
 
@@ -80,8 +81,10 @@ def _si(wi, uv, flip=False):
 
 
 def _eval(bsdf, si, wo, ctx=None):
+    """The BTF value a plugin's eval stands for: eval / BSDF_PER_BTF_VALUE (eval is f·cos θ,
+    a BTF value π·f·cos θ_light; ``test_a_lambertian_btf_renders_as_mitsubas_diffuse``)."""
     out = np.array(bsdf.eval(ctx or mi.BSDFContext(), si, mi.Vector3f(wo.T)))
-    return out if out.shape[-1] == 3 else out.T
+    return (out if out.shape[-1] == 3 else out.T) / np.float32(BSDF_PER_BTF_VALUE)
 
 
 def _queries(seed=0, n=400):
@@ -212,7 +215,7 @@ def test_pdf_and_sample_weight_are_consistent(material, sampling, mode):
         np.testing.assert_array_equal(np.array(pdf2), pdf)
         if sampling == "cosine":
             np.testing.assert_allclose(pdf, np.abs(wo[:, 2]) / np.pi, rtol=1e-5)
-        val = _eval(bsdf, si, wo, ctx)
+        val = _eval(bsdf, si, wo, ctx) * np.float32(BSDF_PER_BTF_VALUE)  # eval's own value
         np.testing.assert_allclose(_np(value), val, rtol=1e-6, atol=1e-7)
         np.testing.assert_allclose(_np(weight), val / pdf[:, None], rtol=1e-4)
 
@@ -502,7 +505,7 @@ def test_scalar_variant_fallback(material):
             si.wi = mi.Vector3f(*wi[j])
             si.uv = mi.Point2f(*uv[j])
             np.testing.assert_allclose(np.array(b.eval(mi.BSDFContext(), si, mi.Vector3f(*wo[j]))),
-                                       ref[j], rtol=1e-5)  # fmt: skip
+                                       ref[j] * BSDF_PER_BTF_VALUE, rtol=1e-5)  # fmt: skip
             bs, w = b.sample(mi.BSDFContext(), si, float(u1[j]), mi.Point2f(*u2[j]))
             np.testing.assert_allclose(np.array(bs.wo), jit_wo[j], atol=1e-5)
             np.testing.assert_allclose(bs.pdf, jit_pdf[j], rtol=1e-4)
@@ -606,3 +609,26 @@ def test_lod_off_is_the_full_tau_plugin(material):
     assert "lod=off (auto needs lod_camera)" in str(bare)
     with pytest.raises(BTFInputError, match="lod must be one of auto, off"):
         render_material({**base, "lod": "fast"}, **opts)
+
+
+def test_a_lambertian_btf_renders_as_mitsubas_diffuse():
+    """The value convention (docs/format.md): a Lambertian plane of albedo ρ is the BTF
+    ρ·cos θ_light in every view; the plugin must return Mitsuba's ``diffuse`` eval, ρ/π·cos θ."""
+    from sparsebtf.data.btf import ArrayBTF
+    from sparsebtf.data.directions import by_name
+
+    dirs = by_name("tiny13")
+    rho = np.array([0.8, 0.5, 0.2])
+    cos_l = np.clip(dirs.xyz[:, 2], 0, None)
+    table = np.broadcast_to(rho * cos_l[None, None, :, None, None], (2, 2, 13, 13, 3))
+    key = sbm.add_material(ArrayBTF(np.ascontiguousarray(table), dirs, dirs), "test-lambert")
+    plane = mi.load_dict({"type": "sparsebtf_dense", "key": key, "interpolation": "nearest"})
+    diffuse = mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": rho}})
+    n = len(dirs)
+    light = np.repeat(dirs.xyz, n, axis=0).astype(np.float32)
+    view = np.tile(dirs.xyz, (n, 1)).astype(np.float32)
+    si = _si(view, np.full((n * n, 2), 0.3, np.float32))
+    got = np.array(plane.eval(mi.BSDFContext(), si, mi.Vector3f(light.T))).T
+    want = np.array(diffuse.eval(mi.BSDFContext(), si, mi.Vector3f(light.T))).T
+    np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
+    assert want.max() > 0.2  # not a comparison of zeros

@@ -33,13 +33,13 @@ the lookup calls :meth:`RuntimeBTF.evaluate` per ray (tiny renders only).
 
 Convention (what ``eval`` returns). Mitsuba calls ``eval(ctx, si, wo)`` with ``si.wi`` towards
 the camera (the previous path vertex) and ``wo`` towards the light, both in the local shading
-frame, and expects f·cos θ_o. A measured BTF value (UBO-style) is already the reflected
-radiance per unit incident radiance *including* the foreshortening of the light, i.e. f·cos θ_light.
+frame, and expects f·cos θ_o. A BTF value is reflected radiance times π per unit irradiance,
+π·f·cos θ_light (docs/format.md, Conventions): it *includes* the foreshortening of the light.
 So::
 
-    eval(ctx, si, wo) = BTF(uv, ω_light = wo, ω_view = si.wi)        (no extra cosine)
+    eval(ctx, si, wo) = BTF(uv, ω_light = wo, ω_view = si.wi) / π        (no extra cosine)
 
-i.e. :meth:`RuntimeBTF.evaluate(wi=wo, wo=si.wi, uv=si.uv·uv_scale)` (the runtime's ``wi`` is
+i.e. :meth:`RuntimeBTF.evaluate(wi=wo, wo=si.wi, uv=si.uv·uv_scale)` / π (the runtime's ``wi`` is
 the light). In ``TransportMode.Importance`` (light tracing) the roles swap. The decoder's floor
 of −1e-5 (exp(·) − 1e-5) is clamped to 0. Directions below the horizon give 0 unless
 ``two_sided`` is set, which mirrors both directions to the upper side on back-face hits.

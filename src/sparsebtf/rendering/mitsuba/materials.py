@@ -24,6 +24,11 @@ from ...errors import BTFInputError
 from ...points.preprocessing import EPS as LOG_EPS
 from ...runtime.angular import DEFAULT_K, SCHEMES
 
+#: Mitsuba's ``eval`` returns f_r·cos θ; a BTF value is π·f_r·cos θ_light (docs/format.md,
+#: Conventions: a white Lambertian plane reads cos θ_light), so a plugin returns value / π, and
+#: a Lambertian BTF of albedo ρ renders as Mitsuba's ``diffuse`` of reflectance ρ.
+BSDF_PER_BTF_VALUE = 1.0 / math.pi
+
 __all__ = [
     "DENSE_MAX_GIB",
     "DENSE_PLUGIN",

@@ -38,6 +38,7 @@ from .kernels import (
     scalar_dense,
 )
 from .materials import (
+    BSDF_PER_BTF_VALUE,
     DENSE_MAX_GIB,
     DENSE_PLUGIN,
     PLUGIN,
@@ -134,7 +135,7 @@ class _Base(mi.BSDF):
                level: Any = None) -> Any:
         light_nb, view_nb = (known_nb, w_nb) if mode == "importance" else (w_nb, known_nb)
         rgb = self._jit_lookup(uv, light_nb, view_nb, active, level)
-        return dr.select(active, dr.maximum(rgb, 0.0), 0.0)
+        return dr.select(active, dr.maximum(rgb, 0.0) * BSDF_PER_BTF_VALUE, 0.0)
 
     def _density(self, mode: str, uv: Any, known_nb: Any, w: Any, active: Any) -> Any:
         if self.tables is None:
@@ -143,7 +144,7 @@ class _Base(mi.BSDF):
 
     # -- the BSDF interface ---------------------------------------------------------------------
     def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
-        """BTF(uv, ω_light = ``wo``, ω_view = ``si.wi``), no extra cosine (roles swapped in
+        """BTF(uv, ω_light = ``wo``, ω_view = ``si.wi``) / π, no extra cosine (roles swapped in
         importance transport); 0 below the horizon unless ``two_sided``."""
         return self.eval_pdf(ctx, si, wo, active, want_pdf=False)[0]
 
@@ -248,7 +249,7 @@ class _Base(mi.BSDF):
             return mi.Color3f(0.0)
         light, view = (known, w) if mode == "importance" else (w, known)
         rgb = self._scalar_lookup(uv, light, view)
-        return mi.Color3f(*(max(float(v), 0.0) for v in rgb))
+        return mi.Color3f(*(max(float(v), 0.0) * BSDF_PER_BTF_VALUE for v in rgb))
 
     def _scalar_eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any,
                          want_value: bool = True):
