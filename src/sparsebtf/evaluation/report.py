@@ -561,6 +561,12 @@ def render_markdown(
         + (f"'{cfg['log_offset']}' (ln(x + eps), eps per material; release: 1e-5) and the "
            "bound on decoded values kept with the statistics." if "log_offset" in cfg else
            "1e-5 (the release's), no bound (runs before the log offset existed)."),
+        "- Dictionary rule of every SparseBTF encode: "
+        + ("exhaustive (every point projected on every dictionary, the paper's rule)."
+           if cfg.get("candidates") is None else
+           f"screened (the {cfg['candidates']} best dictionaries per point by a partial "
+           "projection coded exactly, the paper's rule among them; `--exhaustive` runs the "
+           "paper's)."),
     ]
     for n in cfg.get("notes", []):
         lines.append(f"- Note: {n}")
