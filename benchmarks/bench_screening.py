@@ -1,0 +1,162 @@
+"""Screened vs exhaustive dictionary choice of the encoder (issue 22 item 1), on the bundled
+``release`` model (K = 8, 10×10×151×151 data points, UBO2014 directions).
+
+**Speed** (default): one synthetic material (``synth:leather``, seed 12, ``--size`` texels,
+default 100×100: 100 data points), encoded at τ = (885, 64, 64), ε = 1e-5 with the
+exhaustive rule (every point projected on every dictionary, the paper's) and with the
+screening at each ``--candidates`` (the best N by a partial projection coded exactly, the
+paper's rule among them). Per run: wall time, the speed-up over exhaustive, the linear-RGB MSE
+against the material, and the data points (and point × channel pairs) whose dictionary
+changed. The exact projections' FLOPs are counted too.
+
+**Quality** (``--quality``): the quality benchmark's 14 unseen materials (seven classes, seeds
+12 and 13, 30×30) and its Table-5 materials (carpet 12, felt 5, stone 5; ``--table5-size``,
+default 100×100), coded at the storage levels 16/32/64/128 with the benchmark's fixed τ per
+level (ε = 0, as ``bench_storage.py``), exhaustive and screened (default candidates), on the
+bundled model (the benchmark's own trained model needs its hour of training). Per material and
+level: both MSEs and their relative difference; the target is within 0.5 %.
+
+    python benchmarks/bench_screening.py [--size 100] [--candidates 1 2 3] [--json]
+    python benchmarks/bench_screening.py --quality [--table5-size 100] [--json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from typing import Any
+
+import numpy as np
+
+from _common import machine, report
+from bench_storage import LEVELS, level_taus
+from sparsebtf.codec import encode_levels
+from sparsebtf.data.synth import cached
+from sparsebtf.evaluation.benchmark_set import BenchConfig
+from sparsebtf.learning.coding import DEFAULT_CANDIDATES, SCREEN_COLUMNS
+from sparsebtf.metrics import compare
+from sparsebtf.runtime import coded_btf_view
+from sparsebtf.storage.bundled import load_bundled
+
+
+def _mse(btf: Any, coded: Any) -> float:
+    return float(compare(btf, coded_btf_view(coded), ssim_images=0, progress=False)["mse_rgb"])
+
+
+def _timed_encode(btf: Any, model: Any, taus: list, eps: float, candidates: int | None
+                  ) -> tuple[list, float]:  # fmt: skip
+    t = time.perf_counter()
+    coded = encode_levels(btf, model, taus, eps=eps, allow_below_training=True,
+                          candidates=candidates, progress=False)  # fmt: skip
+    return coded, time.perf_counter() - t
+
+
+def _changed(a: Any, b: Any) -> tuple[int, int]:
+    """(data points whose dictionary differs in some channel, differing point × channel)."""
+    diff = np.stack([a.codes[ch].membership != b.codes[ch].membership for ch in a.channels])
+    return int(diff.any(axis=0).sum()), int(diff.sum())
+
+
+def _flops(model: Any, n_points: int, candidates: int | None) -> float:
+    """FLOPs of the exact projections (Eq. 3, 2·Σ_n m_n·∏m) and of the screening's partial
+    projections (:func:`~sparsebtf.learning.coding._partial_squares`) of one BTF."""
+    p1, p2, n_l, n_v = model.mode_sizes
+    size = p1 * p2 * n_l * n_v
+    exact = 2 * size * (p1 + p2 + n_l + n_v)
+    k = model.n_dictionaries(model.channels[0])
+    if candidates is None:
+        return float(n_points * len(model.channels) * k * exact)
+    r = SCREEN_COLUMNS
+    partial = (2 * (n_l * n_l * n_v + n_l * n_v * n_v) + 2 * p1 * p2 * n_l * n_v * r
+               + 2 * p1 * p2 * n_l * r * r + 2 * (p1 + p2) * p1 * p2 * r * r)  # fmt: skip
+    return float(n_points * len(model.channels) * (k * partial + candidates * exact))
+
+
+def speed(size: int, candidates: list[int]) -> dict[str, Any]:
+    model = load_bundled()
+    btf = cached("leather", size, "ubo2014", 12)
+    tau = (885, 64, 64)
+    (ref,), t_ref = _timed_encode(btf, model, [tau], 1e-5, None)
+    mse_ref = _mse(btf, ref)
+    runs = [{"rule": "exhaustive", "seconds": t_ref, "seconds_per_point": t_ref / ref.n_points,
+             "flops": _flops(model, ref.n_points, None), "mse_rgb": mse_ref}]  # fmt: skip
+    for c in candidates:
+        (got,), t = _timed_encode(btf, model, [tau], 1e-5, c)
+        mse = _mse(btf, got)
+        points, pairs = _changed(ref, got)
+        runs.append({
+            "rule": f"screened, {c} candidates", "candidates": c, "seconds": t,
+            "seconds_per_point": t / got.n_points, "speedup": t_ref / t,
+            "flops": _flops(model, got.n_points, c), "mse_rgb": mse,
+            "mse_vs_exhaustive": mse / mse_ref - 1,
+            "points_changed": points, "point_channels_changed": pairs,
+        })  # fmt: skip
+    return {"material": f"synth:leather:{size}:12:ubo2014", "n_points": ref.n_points,
+            "tau": list(tau), "eps": 1e-5, "runs": runs}  # fmt: skip
+
+
+def quality(table5_size: int, candidates: int) -> dict[str, Any]:
+    model = load_bundled()
+    cfg = BenchConfig()
+    tau_l = tuple(model.params["tau_train"][ch] for ch in model.channels)
+    taus = level_taus(LEVELS, tau_l)
+    mats = [(c, s, cfg.test_size, "unseen") for c, s in cfg.test_set()]
+    mats += [(c, s, table5_size, "table5") for c, s in cfg.table5_materials]
+    rows = []
+    for cls, seed, size, group in mats:
+        btf = cached(cls, size, "ubo2014", seed)
+        ex, t_ex = _timed_encode(btf, model, [taus[lv] for lv in LEVELS], 0.0, None)
+        sc, t_sc = _timed_encode(btf, model, [taus[lv] for lv in LEVELS], 0.0, candidates)
+        for lv, a, b in zip(LEVELS, ex, sc, strict=True):
+            m_ex, m_sc = _mse(btf, a), _mse(btf, b)
+            points, _ = _changed(a, b)
+            rows.append({
+                "material": f"{cls}{seed}", "size": size, "group": group, "level": lv,
+                "tau": list(taus[lv]), "mse_exhaustive": m_ex, "mse_screened": m_sc,
+                "relative": m_sc / m_ex - 1, "points_changed": points,
+                "n_points": a.n_points, "seconds_exhaustive": t_ex, "seconds_screened": t_sc,
+            })  # fmt: skip
+    worst = max(rows, key=lambda r: r["relative"])
+    return {"candidates": candidates, "model": "bundled release", "rows": rows,
+            "worst_relative": worst["relative"],
+            "worst": f"{worst['material']} level {worst['level']}",
+            "within_0_5_percent": all(r["relative"] <= 0.005 for r in rows)}  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--size", type=int, default=100, help="texels per side (speed mode)")
+    ap.add_argument("--candidates", type=int, nargs="+", default=[1, DEFAULT_CANDIDATES, 3])
+    ap.add_argument("--quality", action="store_true")
+    ap.add_argument("--table5-size", type=int, default=BenchConfig().table5_size)
+    ap.add_argument("--json", action="store_true")
+    a = ap.parse_args()
+    data: dict[str, Any] = {"machine": machine()}
+    rows: list[tuple[str, Any]] = []
+    if a.quality:
+        q = quality(a.table5_size, a.candidates[0] if len(a.candidates) == 1
+                    else DEFAULT_CANDIDATES)  # fmt: skip
+        data["quality"] = q
+        for r in q["rows"]:
+            rows.append((f"{r['material']} ({r['size']}²) L{r['level']}",
+                         f"MSE exhaustive {r['mse_exhaustive'] * 1e4:.4f}e-4, screened "
+                         f"{r['mse_screened'] * 1e4:.4f}e-4 ({r['relative']:+.3%}), "
+                         f"{r['points_changed']}/{r['n_points']} points changed"))  # fmt: skip
+        rows.append(("worst", f"{q['worst_relative']:+.3%} ({q['worst']}); within 0.5 %: "
+                     f"{q['within_0_5_percent']}"))  # fmt: skip
+    else:
+        s = speed(a.size, a.candidates)
+        data["speed"] = s
+        rows.append(("material", f"{s['material']} ({s['n_points']} points), tau 885,64,64"))
+        for r in s["runs"]:
+            extra = ("" if r["rule"] == "exhaustive" else
+                     f", speed-up {r['speedup']:.2f}x, MSE {r['mse_vs_exhaustive']:+.3%}, "
+                     f"{r['points_changed']} points ({r['point_channels_changed']} point x "
+                     "channel) changed dictionary")  # fmt: skip
+            rows.append((r["rule"], f"{r['seconds']:.1f} s ({r['seconds_per_point']:.3f} s/pt), "
+                         f"{r['flops'] / 1e12:.2f} TFLOP, MSE {r['mse_rgb']:.4g}{extra}"))
+    report(rows, data, a.json)
+
+
+if __name__ == "__main__":
+    main()
