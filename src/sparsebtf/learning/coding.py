@@ -247,8 +247,11 @@ def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: int) ->
     j4 = np.argsort(-a.sum(axis=1), axis=1, kind="stable")[:, :r4]
     w3 = np.take_along_axis(u3, j3[:, None, :], axis=2)  # (K, L, r3)
     w4 = np.take_along_axis(u4, j4[:, None, :], axis=2)  # (K, V, r4)
-    y = np.matmul(x.reshape(1, p1 * p2 * n_l, n_v), w4)  # ×_4: (K, p1·p2·L, r4)
-    y = np.matmul(w3.transpose(0, 2, 1)[:, None], y.reshape(k, p1 * p2, n_l, r4))  # ×_3
+    # ×_4 on every dictionary at once: one (p1·p2·L × V) @ (V × K·r4) GEMM, the bulk of the
+    # cost (K stacked GEMMs of r4 columns each ran 1.7x slower)
+    y = x.reshape(p1 * p2 * n_l, n_v) @ w4.transpose(1, 0, 2).reshape(n_v, k * r4)
+    y = np.ascontiguousarray(y.reshape(p1 * p2, n_l, k, r4).transpose(2, 0, 1, 3))
+    y = np.matmul(w3.transpose(0, 2, 1)[:, None], y)  # ×_3: (K, p1·p2, r3, r4)
     y = np.matmul(u1.transpose(0, 2, 1), y.reshape(k, p1, p2 * r3 * r4))  # ×_1
     y = np.matmul(u2.transpose(0, 2, 1)[:, None], y.reshape(k, p1, p2, r3 * r4))  # ×_2
     flat = y.reshape(k, -1).astype(np.float64)
