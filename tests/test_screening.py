@@ -210,3 +210,21 @@ def test_checkpoint_of_another_rule_refused(model_file, tmp_path, monkeypatch, c
     assert len(err) == 1 and "dictionary_rule" in err[0], err
     assert '"screened, 1 candidates" in the checkpoint, "exhaustive" now' in err[0]
     assert not out.exists()
+
+
+@pytest.mark.parametrize("flag, want", [([], coding.DEFAULT_CANDIDATES), (["--exhaustive"], None)])
+def test_bench_quality_runs_either_rule(tmp_path, monkeypatch, flag, want):
+    from sparsebtf.evaluation import report, runner
+
+    seen = {}
+
+    def fake_run(out, cfg, **kw):
+        seen["cfg"] = cfg
+        return {"summary": {}}
+
+    monkeypatch.setattr(runner, "run_quality", fake_run)
+    assert main(["bench", "quality", "--quick", "--out", str(tmp_path / "b"), *flag]) == 0
+    assert seen["cfg"].candidates == want
+    line = report.rule_line({"candidates": want})
+    assert ("exhaustive (every point" if want is None else "screened (the 2 best") in line
+    assert "exhaustive (every point" in report.rule_line({})  # runs before the screening
