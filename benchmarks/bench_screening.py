@@ -134,6 +134,7 @@ def quality(table5_size: int, candidates: list[int], groups: list[str] | None = 
     mats = [m for m in mats if groups is None or m[3] in groups]
     rows = []
     for cls, seed, size, group in mats:
+        print(f"quality: {cls}{seed} ({size}x{size})", file=sys.stderr, flush=True)
         btf = cached(cls, size, "ubo2014", seed)
         ex, t_ex, _ = _timed_encode(btf, model, [taus[lv] for lv in LEVELS], 0.0, None)
         m_ex = [_mse(btf, a) for a in ex]
