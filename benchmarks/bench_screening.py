@@ -36,7 +36,7 @@ from bench_storage import LEVELS, level_taus
 from sparsebtf.codec import encode_levels
 from sparsebtf.data.synth import cached
 from sparsebtf.evaluation.benchmark_set import BenchConfig
-from sparsebtf.learning.coding import DEFAULT_CANDIDATES, SCREEN_COLUMNS
+from sparsebtf.learning.coding import DEFAULT_CANDIDATES, screen_columns
 from sparsebtf.metrics import compare
 from sparsebtf.runtime import coded_btf_view
 from sparsebtf.storage.bundled import load_bundled
@@ -82,29 +82,35 @@ def _neighbour_agreement(coded: Any) -> float:
     return float(np.mean(same))
 
 
-def _flops(model: Any, n_points: int, candidates: int | None) -> float:
+def _flops(model: Any, n_points: int, candidates: int | None, tau: dict[str, int]) -> float:
     """FLOPs of the exact projections (Eq. 3, 2·Σ_n m_n·∏m) and of the screening's partial
-    projections (:func:`~sparsebtf.learning.coding._partial_squares`) of one BTF."""
+    projections (:func:`~sparsebtf.learning.coding._partial_squares`, r columns per angular
+    mode from :func:`~sparsebtf.learning.coding.screen_columns` of each channel's τ)."""
     p1, p2, n_l, n_v = model.mode_sizes
     size = p1 * p2 * n_l * n_v
     exact = 2 * size * (p1 + p2 + n_l + n_v)
-    k = model.n_dictionaries(model.channels[0])
-    if candidates is None:
-        return float(n_points * len(model.channels) * k * exact)
-    r = SCREEN_COLUMNS
-    partial = (2 * (n_l * n_l * n_v + n_l * n_v * n_v) + 2 * p1 * p2 * n_l * n_v * r
-               + 2 * p1 * p2 * n_l * r * r + 2 * (p1 + p2) * p1 * p2 * r * r)  # fmt: skip
-    return float(n_points * len(model.channels) * (k * partial + candidates * exact))
+    total = 0.0
+    for ch in model.channels:
+        k = model.n_dictionaries(ch)
+        if candidates is None:
+            total += k * exact
+            continue
+        r = min(screen_columns(tau[ch], p1 * p2), n_l, n_v)
+        partial = (2 * (n_l * n_l * n_v + n_l * n_v * n_v) + 2 * p1 * p2 * n_l * n_v * r
+                   + 2 * p1 * p2 * n_l * r * r + 2 * (p1 + p2) * p1 * p2 * r * r)  # fmt: skip
+        total += k * partial + candidates * exact
+    return n_points * total
 
 
 def speed(size: int, candidates: list[int]) -> dict[str, Any]:
     model = load_bundled()
     btf = cached("leather", size, "ubo2014", 12)
     tau = (885, 64, 64)
+    taus_c = dict(zip(model.channels, tau, strict=True))
     (ref,), t_ref, k_ref = _timed_encode(btf, model, [tau], 1e-5, None)
     mse_ref = _mse(btf, ref)
     runs = [{"rule": "exhaustive", "seconds": t_ref, "seconds_per_point": t_ref / ref.n_points,
-             "coding_seconds": k_ref, "flops": _flops(model, ref.n_points, None),
+             "coding_seconds": k_ref, "flops": _flops(model, ref.n_points, None, taus_c),
              "mse_rgb": mse_ref}]  # fmt: skip
     for c in candidates:
         (got,), t, k = _timed_encode(btf, model, [tau], 1e-5, c)
@@ -114,7 +120,7 @@ def speed(size: int, candidates: list[int]) -> dict[str, Any]:
             "rule": f"screened, {c} candidates", "candidates": c, "seconds": t,
             "seconds_per_point": t / got.n_points, "speedup": t_ref / t,
             "coding_seconds": k, "coding_speedup": k_ref / k,
-            "flops": _flops(model, got.n_points, c), "mse_rgb": mse,
+            "flops": _flops(model, got.n_points, c, taus_c), "mse_rgb": mse,
             "mse_vs_exhaustive": mse / mse_ref - 1,
             "points_changed": points, "point_channels_changed": pairs,
         })  # fmt: skip

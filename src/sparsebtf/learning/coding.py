@@ -14,9 +14,9 @@ membership is the least-error one, Eq. 2).
 **Screening** (``candidates``, beyond the paper): exact projections on all K dictionaries cost
 K × 1.47 GFLOP per point at 10×10×151×151, and most points use one or two dictionaries of
 their material. :func:`screen_dictionaries` ranks the K dictionaries of each point by the same
-rule applied to a *partial* projection — every spatial column, and the
-:data:`SCREEN_COLUMNS` angular columns of each angular mode that carry the most energy of the
-point's spatial mean — and only the best ``candidates`` are projected exactly; the paper's rule
+rule applied to a *partial* projection — every spatial column, and the angular columns of
+each angular mode that carry the most energy of the point's spatial mean, more for a larger τ
+(:func:`screen_columns`) — and only the best ``candidates`` are projected exactly; the paper's rule
 then chooses among them. With ``candidates`` >= K (or None) every dictionary is projected
 (the exhaustive rule, bit for bit).
 
@@ -27,6 +27,7 @@ can truncate τ by reading a prefix.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -39,9 +40,11 @@ from .tensor import project, reconstruct_sparse, sum_squares
 __all__ = [
     "DEFAULT_CANDIDATES",
     "SCREEN_COLUMNS",
+    "SCREEN_DEPTH",
     "SparseCodes",
     "coding_rule",
     "reconstruct_points",
+    "screen_columns",
     "screen_dictionaries",
     "sparse_code",
     "sparse_code_levels",
@@ -51,8 +54,12 @@ __all__ = [
 #: Dictionaries projected exactly per point and channel after screening, by default (measured
 #: in ``benchmarks/bench_screening.py``, docs/benchmarks.md).
 DEFAULT_CANDIDATES = 2
-#: Angular columns per angular mode in the screening's partial projection.
+#: Fewest angular columns per angular mode in the screening's partial projection.
 SCREEN_COLUMNS = 16
+#: The partial projection holds at least this many coefficients per coefficient kept (τ): with
+#: fewer (16 columns at τ = 885, 32 at τ = 4483) the ranking missed the exhaustive choice on
+#: the benchmark's felt and wood (docs/benchmarks.md §14).
+SCREEN_DEPTH = 64
 
 
 def topk_abs(c: np.ndarray, k: int) -> np.ndarray:
@@ -258,18 +265,26 @@ def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: int) ->
     return flat * flat
 
 
+def screen_columns(tau: int, spatial: int) -> int:
+    """Angular columns r per angular mode for a cap τ on points of ``spatial`` = p1·p2 texels:
+    the smallest r >= :data:`SCREEN_COLUMNS` with p1·p2·r² >= :data:`SCREEN_DEPTH` · τ
+    (10×10 patches: 16 up to τ = 400, 24 at τ = 885, 54 at τ = 4483)."""
+    return max(SCREEN_COLUMNS, math.ceil(math.sqrt(SCREEN_DEPTH * tau / spatial)))
+
+
 def screen_dictionaries(
     batch: np.ndarray,
     dictionaries: Sequence[np.ndarray],
     taus: Sequence[int],
     eps: float,
     candidates: int,
-    columns: int = SCREEN_COLUMNS,
+    columns: int | None = None,
     dtype: type = np.float32,
 ) -> np.ndarray:
     """(B, K) mask of the dictionaries each point is projected on exactly: at every level τ of
     ``taus``, the ``candidates`` best by the coding rule (sparsest, then least error, ties to
-    the lower k) applied to the partial projection of :func:`_partial_squares`.
+    the lower k) applied to the partial projection of :func:`_partial_squares` on ``columns``
+    angular columns (default :func:`screen_columns` of the largest τ).
 
     The partial coefficients are a subset of S_k's, so their count and residual bound the
     exact ones from above; the ranking they give is what matters. Only for 4D data points
@@ -286,6 +301,8 @@ def screen_dictionaries(
     levels = sorted({min(int(t), size) for t in taus})
     mats = [np.asarray(d, dtype=dtype) for d in dictionaries]
     energy = sum_squares(x.reshape(b, -1))
+    if columns is None:
+        columns = screen_columns(levels[-1], x.shape[1] * x.shape[2])
 
     def task(i: int) -> np.ndarray:
         sq = _partial_squares(x[i], mats, columns)
