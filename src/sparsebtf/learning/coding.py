@@ -54,8 +54,9 @@ __all__ = [
 #: Dictionaries projected exactly per point and channel after screening, by default (measured
 #: in ``benchmarks/bench_screening.py``, docs/benchmarks.md).
 DEFAULT_CANDIDATES = 2
-#: Fewest angular columns per angular mode in the screening's partial projection.
-SCREEN_COLUMNS = 16
+#: Fewest angular columns per angular mode in the screening's partial projection (16 missed
+#: the exhaustive choice of a felt point at τ = 308, docs/benchmarks.md §14).
+SCREEN_COLUMNS = 24
 #: The partial projection holds at least this many coefficients per coefficient kept (τ): with
 #: fewer (16 columns at τ = 885, 32 at τ = 4483) the ranking missed the exhaustive choice on
 #: the benchmark's felt and wood (docs/benchmarks.md §14).
@@ -239,9 +240,9 @@ def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: int) ->
     ``mats`` (four stacked (K, m, m)), restricted on each angular mode to the r = ``columns``
     columns with the most energy in A_k = U3ᵀ X̄ U4 (X̄: x averaged over its texels).
 
-    They are exact entries of S_k (Eq. 3). Cost per dictionary (p = 10, L = V = 151, r = 16):
-    2(L²V + LV²) for A_k, 2p²LVr + 2p²Lr² + 4p³r² for the partial projection: 95 MFLOP,
-    6.5 % of the exact 1.47 GFLOP.
+    They are exact entries of S_k (Eq. 3). Cost per dictionary (p = 10, L = V = 151, r = 24):
+    2(L²V + LV²) for A_k, 2p²LVr + 2p²Lr² + 4p³r² for the partial projection: 143 MFLOP,
+    9.7 % of the exact 1.47 GFLOP.
     """
     u1, u2, u3, u4 = mats
     p1, p2, n_l, n_v = x.shape
@@ -268,7 +269,7 @@ def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: int) ->
 def screen_columns(tau: int, spatial: int) -> int:
     """Angular columns r per angular mode for a cap τ on points of ``spatial`` = p1·p2 texels:
     the smallest r >= :data:`SCREEN_COLUMNS` with p1·p2·r² >= :data:`SCREEN_DEPTH` · τ
-    (10×10 patches: 16 up to τ = 400, 24 at τ = 885, 54 at τ = 4483)."""
+    (10×10 patches: 24 up to τ = 900, 36 at τ = 2003, 54 at τ = 4483)."""
     return max(SCREEN_COLUMNS, math.ceil(math.sqrt(SCREEN_DEPTH * tau / spatial)))
 
 
