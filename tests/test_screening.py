@@ -23,10 +23,23 @@ from sparsebtf.storage import load_coded, save_coded
 
 from .conftest import smooth_btf, tiny_model
 
-SHAPE = (4, 4, 20, 20)  # 20 > 16 angular columns: the screening's projection is partial
+SHAPE = (4, 4, 20, 20)
 K = 4
 LEVELS = [12, 40, 300]
 FIELDS = ("membership", "counts", "values", "locations", "errors")
+
+
+@pytest.fixture(autouse=True)
+def _partial(monkeypatch):
+    """8 of the 20 angular columns: the screening's projection is partial on these shapes."""
+    monkeypatch.setattr(coding, "SCREEN_COLUMNS", 8)
+    monkeypatch.setattr(coding, "SCREEN_DEPTH", 1)
+
+
+def test_screening_width_grows_with_tau(monkeypatch):
+    monkeypatch.undo()
+    assert coding.screen_columns(64, 100) == coding.SCREEN_COLUMNS == 24
+    assert [coding.screen_columns(t, 100) for t in (885, 2003, 4483)] == [24, 36, 54]
 
 
 def _ensemble(seed: int = 0) -> list[np.ndarray]:
