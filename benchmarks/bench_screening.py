@@ -18,7 +18,8 @@ level: both MSEs and their relative difference; the target is within 0.5 %.
 
     python benchmarks/bench_screening.py [--size 100] [--candidates 1 2 3] [--json]
     python benchmarks/bench_screening.py --quality [--candidates 1 2] [--table5-size 100]
-                                         [--only unseen|table5] [--json]
+                                         [--only unseen|table5] [--materials felt12 ...]
+                                         [--json]
 """
 
 from __future__ import annotations
@@ -129,15 +130,16 @@ def speed(size: int, candidates: list[int]) -> dict[str, Any]:
             "neighbour_agreement": _neighbour_agreement(ref)}  # fmt: skip
 
 
-def quality(table5_size: int, candidates: list[int], groups: list[str] | None = None
-            ) -> dict[str, Any]:  # fmt: skip
+def quality(table5_size: int, candidates: list[int], groups: list[str] | None = None,
+            names: list[str] | None = None) -> dict[str, Any]:  # fmt: skip
     model = load_bundled()
     cfg = BenchConfig()
     tau_l = tuple(model.params["tau_train"][ch] for ch in model.channels)
     taus = level_taus(LEVELS, tau_l)
     mats = [(c, s, cfg.test_size, "unseen") for c, s in cfg.test_set()]
     mats += [(c, s, table5_size, "table5") for c, s in cfg.table5_materials]
-    mats = [m for m in mats if groups is None or m[3] in groups]
+    mats = [m for m in mats if (groups is None or m[3] in groups)
+            and (names is None or f"{m[0]}{m[1]}" in names)]  # fmt: skip
     rows = []
     for cls, seed, size, group in mats:
         print(f"quality: {cls}{seed} ({size}x{size})", file=sys.stderr, flush=True)
@@ -180,6 +182,8 @@ def main() -> None:
     ap.add_argument("--table5-size", type=int, default=BenchConfig().table5_size)
     ap.add_argument("--only", nargs="+", choices=("unseen", "table5"), default=None,
                     help="--quality: only these material groups (default both)")
+    ap.add_argument("--materials", nargs="+", metavar="NAME", default=None,
+                    help="--quality: only these materials (class and seed, e.g. felt12)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     if a.candidates is None:
@@ -187,7 +191,7 @@ def main() -> None:
     data: dict[str, Any] = {"machine": machine()}
     rows: list[tuple[str, Any]] = []
     if a.quality:
-        q = quality(a.table5_size, a.candidates, a.only)
+        q = quality(a.table5_size, a.candidates, a.only, a.materials)
         data["quality"] = q
         for r in q["rows"]:
             rows.append((f"{r['material']} ({r['size']}²) L{r['level']} c={r['candidates']}",
