@@ -163,8 +163,8 @@ def register(sub: Any) -> None:
                       "screening by partial projections ranks all K (default "
                       f"{DEFAULT_CANDIDATES}; K or more: every dictionary)")
     rule.add_argument("--exhaustive", action="store_true",
-                      help="project every data point on every dictionary (the paper's rule, "
-                      "about 3x slower than the default screening)")
+                      help="project every data point on every dictionary (the paper's rule; "
+                      "the default screening projects it on --candidates of them)")
     s.add_argument("--batch", type=int, default=4,
                    help="data points read and coded at a time (memory bound; default 4)")
     s.add_argument("--crop", metavar="R0:R1,C0:C1",
