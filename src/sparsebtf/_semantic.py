@@ -12,6 +12,8 @@ statistics            μ, σ finite, \\|μ\\| ≤ :data:`STAT_BOUND`, 0 < σ ≤
 sparse codes          counts ≥ 0 summing to the number of values, memberships in [0, K), locations
                       inside the data point and distinct within a point, values finite and sorted
                       by decreasing \\|v\\| within a point, residuals ≥ 0 or NaN (unknown)
+dictionary rule       ``dictionary_rule`` (when present) "exhaustive" or "screened"; screened with
+                      an integer ``dictionary_candidates`` in [1, K) (K: the largest channel's)
 dictionaries          orthonormal: max \\|UᵀU − I\\| ≤ :data:`ORTHONORMAL_TOLERANCE` (binary16
                       storage: :data:`ORTHONORMAL_TOLERANCE_FP16`), one matmul per matrix
 UBO2014 colour        ``ColorMean`` and ``ColorTransform`` finite, entries ≤ :data:`COLOR_BOUND`
@@ -65,8 +67,12 @@ class CodedBTF(Protocol):
     @property
     def codes(self) -> Mapping[str, SparseCodes]: ...
 
+    @property
+    def params(self) -> Mapping[str, object]: ...
+
 __all__ = [
     "COLOR_BOUND",
+    "DICTIONARY_RULES",
     "EPS_RANGE",
     "MIN_CHORD",
     "ORTHONORMAL_TOLERANCE",
@@ -75,6 +81,7 @@ __all__ = [
     "UNIT_TOLERANCE",
     "check_codes",
     "check_color_header",
+    "check_dictionary_rule",
     "check_directions",
     "check_orthonormal",
     "check_same_directions",
@@ -322,6 +329,35 @@ def validate_coded(
     ks = n_dictionaries or {}
     for ch, c in coded.codes.items():
         check_codes(c, f"{where}/codes/{ch}", ks.get(ch))
+    check_dictionary_rule(coded.params, f"{where}: attribute 'params_json'", ks)
+
+
+#: The dictionary rules a coded file may record (``params["dictionary_rule"]``).
+DICTIONARY_RULES = ("exhaustive", "screened")
+
+
+def check_dictionary_rule(params: Mapping[str, object], where: str,
+                          n_dictionaries: Mapping[str, int]) -> None:  # fmt: skip
+    """``dictionary_rule`` absent (older files: exhaustive) or one of :data:`DICTIONARY_RULES`;
+    "screened" with an integer ``dictionary_candidates`` >= 1 and below the largest K known
+    (``n_dictionaries``, per channel), since K or more candidates is the exhaustive rule."""
+    rule = params.get("dictionary_rule")
+    cand = params.get("dictionary_candidates")
+    if rule is None and cand is None:
+        return
+    if rule not in DICTIONARY_RULES:
+        raise _fail(where, f"'dictionary_rule' must be one of {DICTIONARY_RULES}, found {rule!r}")
+    if rule == "exhaustive":
+        if cand is not None:
+            raise _fail(where, f"'dictionary_candidates' = {cand!r} with the exhaustive rule "
+                        "(every dictionary): expected none")  # fmt: skip
+        return
+    k_max = max(n_dictionaries.values(), default=None)
+    ok = isinstance(cand, int) and not isinstance(cand, bool) and cand >= 1
+    if not ok or (k_max is not None and cand >= k_max):  # type: ignore[operator]
+        want = "an integer >= 1" + (f" and < K = {k_max}" if k_max is not None else "")
+        raise _fail(where, f"'dictionary_candidates' of the screened rule must be {want}, "
+                    f"found {cand!r}")  # fmt: skip
 
 
 # --------------------------------------------------------------------------- dictionaries

@@ -343,6 +343,16 @@ class CodedBTF:
         """Path of the model file recorded at encoding (``params["model_file"]``), if any."""
         return self.params.get("model_file") or None
 
+    @property
+    def dictionary_rule(self) -> tuple[str, int | None]:
+        """How each point's dictionary was chosen: ("exhaustive", None), every dictionary
+        projected (the paper's rule; also files written before the record), or ("screened",
+        N), N candidates projected exactly after the screening (``params``
+        ``dictionary_rule`` / ``dictionary_candidates``, docs/format.md)."""
+        if self.params.get("dictionary_rule") == "screened":
+            return "screened", int(self.params["dictionary_candidates"])
+        return "exhaustive", None
+
     def dictionary_count(self, channel: str, model: Model | None = None) -> int | None:
         """K of a channel: from ``model`` or the attached one, else the coding parameters
         (``params["n_dictionaries"]``, an int or one per channel); None when unknown."""

@@ -35,6 +35,10 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
         from ._args import log_offset
 
         cfg = replace(cfg, log_offset=log_offset(args.log_offset))
+    if args.exhaustive:
+        from dataclasses import replace
+
+        cfg = replace(cfg, candidates=None)
     result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed,
                          previous=args.previous, **cluster_options(args))
     if args.docs:
@@ -74,6 +78,10 @@ def register(sub: Any) -> None:
     q.add_argument("--log-offset", default=None, metavar="auto|release|EPS",
                    help="log offset of every SparseBTF encode (default auto; release = the "
                    "authors' 1e-5; see 'sparsebtf encode --help')")
+    q.add_argument("--exhaustive", action="store_true",
+                   help="every SparseBTF encode projects each data point on every dictionary "
+                   "(the paper's rule; default: the encoder's screening, as 'sparsebtf "
+                   "encode' does)")
     q.add_argument("--docs", metavar="DIR",
                    help="also write DIR/results.md and DIR/results/*.png from this run")
     q.add_argument("--json", action="store_true", help="print the verdicts as JSON")

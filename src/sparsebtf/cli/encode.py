@@ -8,6 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError, UnreachableTargetError
+from ..learning.coding import DEFAULT_CANDIDATES
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
@@ -73,7 +74,8 @@ def _encode(args: argparse.Namespace, tau: str | None, offset: Any, outputs: lis
         target_ratio=args.target_ratio, per_material=per_material, budget=args.budget,
         std_mode=args.std_mode, log_offset=offset, batch_size=args.batch,
         allow_below_training=args.allow_below_training,
-        crop=parse_crop(args.crop), checkpoint_dir=ck, **cluster_options(args),
+        crop=parse_crop(args.crop), checkpoint_dir=ck,
+        candidates=None if args.exhaustive else args.candidates, **cluster_options(args),
     )  # fmt: skip
     reports = []
     for coded, output in zip(coded_all, outputs, strict=True):
@@ -159,6 +161,14 @@ def register(sub: Any) -> None:
                    "material's median positive value, at least 1e-5, so exact zeros (hard "
                    "shadows, masked texels) do not dominate the code; release = 1e-5, the "
                    "authors' preprocessing; or a number in [1e-5, 1e3]")
+    rule = s.add_mutually_exclusive_group()
+    rule.add_argument("--candidates", type=int, default=DEFAULT_CANDIDATES, metavar="N",
+                      help="dictionaries projected exactly per data point and channel, after a "
+                      "screening by partial projections ranks all K (default "
+                      f"{DEFAULT_CANDIDATES}; K or more: every dictionary)")
+    rule.add_argument("--exhaustive", action="store_true",
+                      help="project every data point on every dictionary (the paper's rule; "
+                      "the default screening projects it on --candidates of them)")
     s.add_argument("--batch", type=int, default=4,
                    help="data points read and coded at a time (memory bound; default 4)")
     s.add_argument("--crop", metavar="R0:R1,C0:C1",
@@ -180,4 +190,5 @@ def register(sub: Any) -> None:
         "target_ratio": number(1, unit="(raw bytes / coded bytes)"),
         "target_bytes": integer(1, unit="bytes"),
         "batch": integer(1, 4096, unit="data points per batch"),
+        "candidates": integer(1, unit="dictionaries per data point"),
     })  # fmt: skip

@@ -121,6 +121,7 @@ def describe(
                       (model.file or "given") if model is not None else
                       "not found (give -m MODEL.h5 for exact dictionary bytes)"),
             "params": coded.params,
+            "dictionary_rule": _rule_text(coded),
             "preprocessing": {
                 "standardisation": coded.stats.mode,
                 "log_offset": coded.stats.eps,
@@ -137,6 +138,15 @@ def describe(
             "integrity": _integrity(s),
         }
     return {"kind": "unknown", "format": fmt, "file_bytes": size}
+
+
+def _rule_text(coded: Any) -> str:
+    """How the file's points chose their dictionary, in words."""
+    rule, n = coded.dictionary_rule
+    if rule == "screened":
+        return (f"screened: the {n} best dictionaries by a partial projection coded exactly, "
+                "the paper's rule among them")  # fmt: skip
+    return "exhaustive: every dictionary coded exactly (the paper's rule)"
 
 
 def _schema(path: str) -> int:

@@ -7,7 +7,8 @@ A checkpoint folder holds one ``points_B_LO_HI.npz`` per finished range ``[LO, H
 * ``key``: a JSON fingerprint of everything that decides the range's codes (:func:`range_key`):
   the input (name, shape, directions, and its statistics as a content fingerprint: mean, σ,
   bound and log offset of every angular image), the model's content hash, the plan (τ, ε, rate
-  targets, dtype...), the standardisation, the batch size and the range layout;
+  targets, dtype, the dictionary rule: exhaustive or screened with its candidates...), the
+  standardisation, the batch size and the range layout;
 * the result's arrays (any nesting of lists, dicts, :class:`SparseCodes` and arrays, laid out
   by a JSON ``tree``), and ``sha256`` over all of them
   (:func:`~sparsebtf.learning.ensemble.checkpoint_digest`, as training's checkpoints).
@@ -80,11 +81,20 @@ def range_key(header: Any, model: Any, plan: Any, stats: Any, batch_size: int,
         **measured,
         "model": model.content_hash,
         "plan": type(plan).__name__,
+        "dictionary_rule": _rule(plan),
         "plan_parameters": json.loads(json.dumps(plan_params, default=str)),
         "batch_size": batch_size,
         "ranges": len(ranges),
         "range_points": ranges[0][1] - ranges[0][0] if ranges else 0,
     }
+
+
+def _rule(plan: Any) -> str:
+    """How the plan chooses each point's dictionary, named in a refusal: "exhaustive" or
+    "screened, N candidates" (also in the plan's parameters, but spelt out here so that a
+    screened checkpoint is never resumed by an exhaustive run unnoticed)."""
+    c = getattr(plan, "candidates", None)
+    return "exhaustive" if c is None else f"screened, {c} candidates"
 
 
 def _flatten(obj: Any, arrays: dict[str, np.ndarray]) -> Any:

@@ -17,13 +17,20 @@ import numpy as np
 
 from ..data.btf import BTF
 from ..errors import BTFInputError
-from ..learning.coding import SparseCodes, sparse_code_levels
+from ..learning.coding import DEFAULT_CANDIDATES, SparseCodes, sparse_code_levels
 from ..model import CodedBTF, Model, TauSpec, parse_tau
 from ..points.grid import stream_points
 from ..points.preprocessing import LogOffset, Preprocessor, Standardization, StdMode
 from .jobs import Header, Source, run_plan
 
-__all__ = ["FixedTau", "coded_btf", "encode", "encode_levels"]
+__all__ = [
+    "FixedTau",
+    "check_candidates",
+    "coded_btf",
+    "encode",
+    "encode_levels",
+    "rule_params",
+]
 
 
 def coded_btf(
@@ -67,6 +74,7 @@ def encode(
     client: Any = None,
     scheduler: str | None = None,
     workers: int | None = None,
+    candidates: int | None = DEFAULT_CANDIDATES,
 ) -> CodedBTF:
     """Sparse representation of one BTF on a trained model (paper §3.3, Eq. 3).
 
@@ -75,6 +83,9 @@ def encode(
     τ_t >= τ_l) unless ``allow_below_training``. ``client`` (a ``dask.distributed.Client``),
     ``scheduler`` (an address) or ``workers`` (a local cluster of that many processes) spread
     the data points over a Dask cluster (:mod:`sparsebtf.execution`); the codes are the same.
+    ``candidates``: dictionaries projected exactly per point and channel after the screening
+    (:func:`~sparsebtf.learning.coding.screen_dictionaries`); None: every dictionary, the
+    paper's exhaustive rule. The coded file records the rule (:func:`rule_params`).
     """
     return encode_levels(
         btf,
@@ -89,6 +100,7 @@ def encode(
         client=client,
         scheduler=scheduler,
         workers=workers,
+        candidates=candidates,
     )[0]
 
 
@@ -116,6 +128,31 @@ def _check_levels(levels: list[dict[str, int]], model: Model, allow_below: bool)
                 )
 
 
+def check_candidates(candidates: int | None, model: Model) -> int | None:
+    """``candidates`` as an encoding plan keeps it: None (exhaustive) when it is None or at
+    least every channel's K, or when the model's data points are not 4D (the screening's
+    partial projection needs two spatial and two angular modes); one line if below 1."""
+    if candidates is None:
+        return None
+    if isinstance(candidates, bool) or int(candidates) != candidates or candidates < 1:
+        raise BTFInputError(
+            f"candidates must be an integer >= 1 (or exhaustive), got {candidates!r}"
+        )
+    k_max = max(model.n_dictionaries(ch) for ch in model.channels)
+    if int(candidates) >= k_max or len(model.mode_sizes) != 4:
+        return None
+    return int(candidates)
+
+
+def rule_params(candidates: int | None) -> dict[str, Any]:
+    """The coded file's record of how each point's dictionary was chosen (docs/format.md):
+    ``dictionary_rule`` "exhaustive" (every dictionary projected, the paper's rule) or
+    "screened" with ``dictionary_candidates`` (how many were projected exactly)."""
+    if candidates is None:
+        return {"dictionary_rule": "exhaustive"}
+    return {"dictionary_rule": "screened", "dictionary_candidates": int(candidates)}
+
+
 @dataclass(frozen=True)
 class FixedTau:
     """Encoding at fixed sparsity levels (τ per channel, ε): one coded BTF per level.
@@ -128,18 +165,21 @@ class FixedTau:
     eps: float = 1e-5
     dtype: str = "float32"
     desc: str = "encode"
+    #: dictionaries projected exactly after screening; None: all (see :func:`check_candidates`)
+    candidates: int | None = None
 
     @classmethod
     def for_model(
         cls, model: Model, taus: Sequence[TauSpec], eps: float = 1e-5, dtype: str = "float32",
-        allow_below_training: bool = False,
+        allow_below_training: bool = False, candidates: int | None = DEFAULT_CANDIDATES,
     ) -> FixedTau:  # fmt: skip
         nominal = RELEASE_TAU if set(model.channels) <= set(RELEASE_TAU) else None
         levels = [parse_tau(t, model.channels, nominal=nominal) for t in taus]
         _check_levels(levels, model, allow_below_training)
         if eps < 0:
             raise BTFInputError(f"eps must be >= 0, got {eps}")
-        return cls(tuple(taus), tuple(levels), eps, dtype)
+        return cls(tuple(taus), tuple(levels), eps, dtype,
+                   candidates=check_candidates(candidates, model))  # fmt: skip
 
     def prepare(self, header: Header, model: Model) -> None:
         return None
@@ -158,8 +198,9 @@ class FixedTau:
         for _, x in stream_points(btf, pre, model.patch, points, batch_size):
             for c, ch in enumerate(channels):
                 xc = x if ch == "YUV" else np.ascontiguousarray(x[..., c])
+                taus_c = [lv[ch] for lv in self.levels]
                 coded = sparse_code_levels(
-                    xc, model.dictionaries[ch], [lv[ch] for lv in self.levels], self.eps, dt
+                    xc, model.dictionaries[ch], taus_c, self.eps, dt, self.candidates
                 )
                 for j, sc in enumerate(coded):
                     parts[j][ch].append(sc)
@@ -175,7 +216,8 @@ class FixedTau:
             coded_btf(
                 header, model,
                 {ch: SparseCodes.concatenate([p[j][ch] for p in parts]) for ch in model.channels},
-                stats, {"tau": taus_c, "eps": self.eps, "dtype": self.dtype},
+                stats, {"tau": taus_c, "eps": self.eps, "dtype": self.dtype,
+                        **rule_params(self.candidates)},
             )
             for j, taus_c in enumerate(self.levels)
         ]  # fmt: skip
@@ -196,9 +238,10 @@ def encode_levels(
     client: Any = None,
     scheduler: str | None = None,
     workers: int | None = None,
+    candidates: int | None = DEFAULT_CANDIDATES,
 ) -> list[CodedBTF]:
     """:func:`encode` at several sparsity levels from one pass (projections are shared)."""
-    plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training)
+    plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training, candidates)
     (coded,) = run_plan(
         [Source.of(btf)], model, plan, std_mode=std_mode,
         log_offset=log_offset,

@@ -17,6 +17,7 @@ from typing import Any
 
 from ..data.btf import BTF
 from ..errors import BTFInputError
+from ..learning.coding import DEFAULT_CANDIDATES
 from ..model import CodedBTF, Model, TauSpec
 from ..points.preprocessing import LogOffset, StdMode
 from .encode import FixedTau
@@ -51,6 +52,7 @@ def encode_many(
     scheduler: str | None = None,
     workers: int | None = None,
     checkpoint_dir: str | os.PathLike[str] | None = None,
+    candidates: int | None = DEFAULT_CANDIDATES,
 ) -> Iterator[CodedBTF]:
     """Encode every BTF of ``sources`` on ``model``; yield their coded BTFs in order.
 
@@ -64,6 +66,8 @@ def encode_many(
     Iterate to the end (or close the iterator) to release a cluster it started.
     ``checkpoint_dir`` saves each finished point range there and resumes from the ranges it
     already holds (:mod:`.checkpoint`; the coded BTFs are those of an uninterrupted run).
+    ``candidates``: dictionaries projected exactly per point after screening; None: every
+    dictionary (the paper's exhaustive rule; see :func:`~sparsebtf.codec.encode`).
     """
     if not sources:
         raise BTFInputError("nothing to encode: give at least one BTF")
@@ -72,11 +76,11 @@ def encode_many(
             raise BTFInputError("give a sparsity tau or a target size, not both")
         plan: FixedTau | RateTargets = RateTargets(
             target_bytes=target_bytes, target_ratio=target_ratio, per_material=per_material,
-            budget=budget, weighting=weighting, dtype=dtype,
+            budget=budget, weighting=weighting, dtype=dtype, candidates=candidates,
         ).check(model)  # fmt: skip
     else:
         taus = [tau if tau is not None else (885, 64, 64)]
-        plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training)
+        plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training, candidates)
     for levels in run_plan(
         [Source.of(s, crop) for s in sources], model, plan, std_mode=std_mode,
         log_offset=log_offset,

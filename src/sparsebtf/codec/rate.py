@@ -10,14 +10,14 @@ point's chosen dictionary and spends one coefficient budget over every point and
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
 from ..data.btf import BTF
 from ..errors import BTFInputError, UnreachableTargetError
-from ..learning.coding import topk_abs
+from ..learning.coding import DEFAULT_CANDIDATES, screen_dictionaries, topk_abs
 from ..learning.cost import DICTIONARY_ENTRY_BYTES, location_width, raw_bytes
 from ..learning.parallel import parallel_map
 from ..learning.rate_control import PAPER_SPLIT, ChannelCandidates, allocate, reference_counts
@@ -31,7 +31,7 @@ from ..points.preprocessing import (
     Standardization,
     StdMode,
 )
-from .encode import coded_btf
+from .encode import check_candidates, coded_btf, rule_params
 from .jobs import Header, Source, run_plan
 
 __all__ = [
@@ -162,6 +162,9 @@ class RateTargets:
     candidate_factor: float = 4.0
     dtype: str = "float32"
     desc: str = "rate-encode"
+    #: dictionaries projected exactly per point after screening (None: all); give it through
+    #: :meth:`check`, which keeps None where it changes nothing
+    candidates: int | None = None
 
     def check(self, model: Model) -> RateTargets:
         """Refuse bad parameters before any work; returns self."""
@@ -181,7 +184,8 @@ class RateTargets:
             raise BTFInputError(f"candidate_factor must be >= 1, got {self.candidate_factor}")
         if "YUV" in model.channels:
             raise BTFInputError("rate control supports the 4D (Y, U, V) models only")
-        return self
+        candidates = check_candidates(self.candidates, model)
+        return self if candidates == self.candidates else replace(self, candidates=candidates)
 
     def prepare(self, header: Header, model: Model) -> dict[str, Any]:
         """The BTF's targets, reference counts and candidate counts per level."""
@@ -242,7 +246,14 @@ class RateTargets:
                 flat = xc.reshape(xc.shape[0], -1)
                 energy = np.einsum("ij,ij->i", flat, flat, dtype=np.float64)
                 n_k = len(mats[ch])
-                pairs = [(i, k) for i in range(xc.shape[0]) for k in range(n_k)]
+                # the dictionary rule here is the least residual at each level's reference
+                # count: the coding rule with τ = that count and ε = 0
+                mask = (
+                    np.ones((xc.shape[0], n_k), dtype=bool) if self.candidates is None
+                    else screen_dictionaries(xc, model.dictionaries[ch],
+                                             [r[ch] for r in refs], 0.0, self.candidates, dtype=dt)
+                )  # fmt: skip
+                pairs = [(i, k) for i in range(xc.shape[0]) for k in range(n_k) if mask[i, k]]
 
                 def task(ik: tuple[int, int], xc=xc, ch=ch) -> tuple[np.ndarray, np.ndarray]:
                     i, k = ik
@@ -250,14 +261,15 @@ class RateTargets:
                     idx = topk_abs(s, nmax[ch])
                     return idx, s[idx]
 
-                res = list(parallel_map(task, pairs))
+                res = dict(zip(pairs, parallel_map(task, pairs), strict=True))
                 for i in range(xc.shape[0]):
-                    opts = res[i * n_k : (i + 1) * n_k]
-                    cums = [np.cumsum(v.astype(np.float64) ** 2) for _, v in opts]
+                    ks = [k for k in range(n_k) if mask[i, k]]
+                    opts = {k: res[i, k] for k in ks}
+                    cums = [np.cumsum(opts[k][1].astype(np.float64) ** 2) for k in ks]
                     for lv in range(n_lv):
                         r = refs[lv][ch]
                         # least residual at the reference count; ties: lowest k
-                        k = int(np.argmax([cs[min(r, cs.size) - 1] for cs in cums]))
+                        k = ks[int(np.argmax([cs[min(r, cs.size) - 1] for cs in cums]))]
                         n = ncand[lv][ch]
                         d = parts[lv][ch]
                         d["m"].append(k)
@@ -313,6 +325,7 @@ class RateTargets:
                     "eps": 0.0,
                     "dtype": self.dtype,
                     "rate_control": control,
+                    **rule_params(self.candidates),
                 }
                 return coded_btf(header, model, codes, stats, params)
 
@@ -398,6 +411,7 @@ def encode_rate_levels(
     client: Any = None,
     scheduler: str | None = None,
     workers: int | None = None,
+    candidates: int | None = DEFAULT_CANDIDATES,
 ) -> list[CodedBTF]:
     """Encode to per-material byte targets by rate control (one projection pass for all).
 
@@ -412,12 +426,14 @@ def encode_rate_levels(
     is one of :data:`WEIGHTINGS` (see :func:`_point_weights`). Results hit each target to
     within one coefficient (5 bytes) unless the candidate pool runs out (a warning).
     ``client`` / ``scheduler`` / ``workers``: run the candidate pass on a Dask cluster
-    (:mod:`sparsebtf.execution`), with the same result.
+    (:mod:`sparsebtf.execution`), with the same result. ``candidates``: dictionaries projected
+    exactly per point after screening, the others ranked by a partial projection
+    (:func:`~sparsebtf.learning.coding.screen_dictionaries`); None: every dictionary.
     """
     plan = RateTargets(
         tuple(int(t) for t in targets), weighting=weighting,
         split=None if split is None else tuple(split), candidate_factor=candidate_factor,
-        dtype=dtype,
+        dtype=dtype, candidates=candidates,
     ).check(model)  # fmt: skip
     (coded,) = run_plan(
         [Source.of(btf)], model, plan, std_mode=std_mode,
@@ -445,6 +461,7 @@ def encode_to_size(
     client: Any = None,
     scheduler: str | None = None,
     workers: int | None = None,
+    candidates: int | None = DEFAULT_CANDIDATES,
 ) -> CodedBTF:
     """Encode ``btf`` to a target size or compression ratio by rate control.
 
@@ -454,11 +471,11 @@ def encode_to_size(
     :func:`material_target_bytes`); the result lands within one coefficient (5 bytes) of the
     target. ``budget="stored"`` (needs ``per_material``): they are the coded file's size
     (``bytes_stored``, ``compression_ratio_per_material``), met to within
-    :data:`STORED_TOLERANCE` below. See :func:`encode_rate_levels`.
+    :data:`STORED_TOLERANCE` below. See :func:`encode_rate_levels` (and ``candidates``).
     """
     plan = RateTargets(
         target_bytes=target_bytes, target_ratio=target_ratio, per_material=per_material,
-        budget=budget, weighting=weighting, dtype=dtype,
+        budget=budget, weighting=weighting, dtype=dtype, candidates=candidates,
     ).check(model)  # fmt: skip
     ((coded,),) = run_plan(
         [Source.of(btf)], model, plan, std_mode=std_mode, log_offset=log_offset,

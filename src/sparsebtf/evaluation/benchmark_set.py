@@ -21,6 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from ..learning.coding import DEFAULT_CANDIDATES
 from ..learning.cost import coefficient_budget
 from ..storage.accounting import paper_storage
 
@@ -127,6 +128,10 @@ class BenchConfig:
     #: the log-offset rule of every SparseBTF encode ("auto", "release" or a number; see
     #: :func:`~sparsebtf.points.preprocessing.choose_log_offset`)
     log_offset: str = "auto"
+    #: the dictionary rule of every SparseBTF encode: the candidates projected exactly after
+    #: the screening (:func:`~sparsebtf.learning.coding.screen_dictionaries`), or None for
+    #: the paper's exhaustive rule (``bench quality --exhaustive``)
+    candidates: int | None = DEFAULT_CANDIDATES
     #: true-black, high-dynamic-range materials (class, seed) of ``test_size`` texels, coded at
     #: every level with ``log_offset``, with the release's 1e-5, and as a copy floored at
     #: :data:`FLOOR` (the "Never a firework" check)

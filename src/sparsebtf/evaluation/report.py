@@ -508,6 +508,17 @@ def _training_line(result: dict[str, Any]) -> str:
             f"{cfg['tol']:g} (at most {cfg['iters']}); iterations Y/U/V: {its}")
 
 
+def rule_line(cfg: dict[str, Any]) -> str:
+    """The report's line on the dictionary rule of a run's encodes (runs before the
+    screening existed, without ``candidates``, were exhaustive)."""
+    if cfg.get("candidates") is None:
+        return ("- Dictionary rule of every SparseBTF encode: exhaustive (every point projected "
+                "on every dictionary, the paper's rule).")  # fmt: skip
+    return (f"- Dictionary rule of every SparseBTF encode: screened (the {cfg['candidates']} "
+            "best dictionaries per point by a partial projection coded exactly, the paper's "
+            "rule among them; `--exhaustive` runs the paper's).")  # fmt: skip
+
+
 def _offset_flag(cfg: dict[str, Any]) -> str:
     """The ``--log-offset`` a run was made with, when not the default."""
     rule = cfg.get("log_offset", "auto")
@@ -534,7 +545,8 @@ def render_markdown(
         f"{' --seed ' + str(result['seed']) if result['seed'] else ''}"
         f"{' --source capture' if cfg.get('source') == 'capture' else ''}"
         f"{''.join(' --materials ' + m for m in result.get('extra_materials', []))}"
-        f"{_offset_flag(cfg)} "
+        f"{_offset_flag(cfg)}"
+        f"{' --exhaustive' if 'candidates' in cfg and cfg['candidates'] is None else ''} "
         "--out DIR`.",
         f"- Run: configuration **{cfg['name']}**, seed {result['seed']}, created "
         f"{result['created']}, {result['seconds'] / 60:.1f} min on {mach['cpus']} CPUs "
@@ -564,6 +576,7 @@ def render_markdown(
         + (f"'{cfg['log_offset']}' (ln(x + eps), eps per material; release: 1e-5) and the "
            "bound on decoded values kept with the statistics." if "log_offset" in cfg else
            "1e-5 (the release's), no bound (runs before the log offset existed)."),
+        rule_line(cfg),
     ]
     for n in cfg.get("notes", []):
         lines.append(f"- Note: {n}")

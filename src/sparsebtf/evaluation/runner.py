@@ -292,7 +292,7 @@ def _run_quality(
         allt = lv_taus + [t for t in cfg.curve_taus if tuple(t) not in lv_taus]
         coded = encode_levels(btf, models["sparsebtf"], allt, eps=0.0,
                               allow_below_training=True, log_offset=cfg.log_offset,
-                              progress=progress, client=ex)
+                              candidates=cfg.candidates, progress=progress, client=ex)
         stage("encode_sparsebtf", t0)
         fixed_bytes: dict[int, int] = {}
         for j, (tau, c) in enumerate(zip(allt, coded, strict=True)):
@@ -310,7 +310,8 @@ def _run_quality(
             targets = [fixed_bytes[lv] for lv in cfg.levels]
             say(f"{label}: rate control at the fixed-tau bytes {targets}")
             rc = encode_rate_levels(btf, models["sparsebtf"], targets, progress=progress,
-                                    log_offset=cfg.log_offset, client=ex)
+                                    log_offset=cfg.log_offset, candidates=cfg.candidates,
+                                    client=ex)
             stage("encode_rate", t0)
             for lv, c in zip(cfg.levels, rc, strict=True):
                 info = _coded_row(c, models["sparsebtf"])
@@ -332,7 +333,8 @@ def _run_quality(
                 taus = lv_taus
             say(f"{label}: {METHODS[key]} at tau {taus}")
             cs = encode_levels(btf, models[key], taus, eps=0.0, allow_below_training=True,
-                               log_offset=cfg.log_offset, progress=progress, client=ex)
+                               log_offset=cfg.log_offset, candidates=cfg.candidates,
+                               progress=progress, client=ex)
             stage(f"encode_{key}", t0)
             for lv, tau, c in zip(cfg.levels, taus, cs, strict=True):
                 view = coded_btf_view(c)
@@ -358,7 +360,7 @@ def _run_quality(
         t0 = time.perf_counter()
         coded = encode_levels(btf, models["sparsebtf"], lv_taus, eps=0.0,
                               allow_below_training=True, log_offset=cfg.log_offset,
-                              progress=progress, client=ex)
+                              candidates=cfg.candidates, progress=progress, client=ex)
         stage("encode_sparsebtf", t0)
         recs = {}
         pending = []
@@ -428,7 +430,7 @@ def _run_quality(
             t0 = time.perf_counter()
             cs = encode_levels(src, models["sparsebtf"], lv_taus, eps=0.0,
                                allow_below_training=True, log_offset=rule, progress=progress,
-                               client=ex)  # fmt: skip
+                               candidates=cfg.candidates, client=ex)  # fmt: skip
             stage("encode_black", t0)
             for lv, tau, c in zip(cfg.levels, lv_taus, cs, strict=True):
                 pending.append(({**base, "method": method, "level": lv, "tau": list(tau),

@@ -11,6 +11,15 @@ below ε keeps one coefficient, as in the release.
 The same function codes training batches (τ = τ_l, ε = 0: every dictionary is capped, so the
 membership is the least-error one, Eq. 2).
 
+**Screening** (``candidates``, beyond the paper): exact projections on all K dictionaries cost
+K × 1.47 GFLOP per point at 10×10×151×151, and most points use one or two dictionaries of
+their material. :func:`screen_dictionaries` ranks the K dictionaries of each point by the same
+rule applied to a *partial* projection — every spatial column, and the angular columns of
+each angular mode that carry the most energy of the point's spatial mean, more for a larger τ
+(:func:`screen_columns`) — and only the best ``candidates`` are projected exactly; the paper's rule
+then chooses among them. With ``candidates`` >= K (or None) every dictionary is projected
+(the exhaustive rule, bit for bit).
+
 :class:`SparseCodes` stores the result: per point its dictionary (membership m), its count
 (z), and its values and multi-index locations **sorted by decreasing magnitude**, so a renderer
 can truncate τ by reading a prefix.
@@ -18,6 +27,7 @@ can truncate τ by reading a prefix.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -27,7 +37,30 @@ from ..errors import BTFInputError
 from .parallel import parallel_map
 from .tensor import project, reconstruct_sparse, sum_squares
 
-__all__ = ["SparseCodes", "reconstruct_points", "sparse_code", "sparse_code_levels", "topk_abs"]
+__all__ = [
+    "DEFAULT_CANDIDATES",
+    "SCREEN_COLUMNS",
+    "SCREEN_DEPTH",
+    "SparseCodes",
+    "coding_rule",
+    "reconstruct_points",
+    "screen_columns",
+    "screen_dictionaries",
+    "sparse_code",
+    "sparse_code_levels",
+    "topk_abs",
+]
+
+#: Dictionaries projected exactly per point and channel after screening, by default (measured
+#: in ``benchmarks/bench_screening.py``, docs/benchmarks.md).
+DEFAULT_CANDIDATES = 2
+#: Fewest angular columns per angular mode in the screening's partial projection (16 missed
+#: the exhaustive choice of a felt point at τ = 308, docs/benchmarks.md §14).
+SCREEN_COLUMNS = 24
+#: The partial projection holds at least this many coefficients per coefficient kept (τ): with
+#: fewer (16 columns at τ = 885, 32 at τ = 4483) the ranking missed the exhaustive choice on
+#: the benchmark's felt and wood (docs/benchmarks.md §14).
+SCREEN_DEPTH = 64
 
 
 def topk_abs(c: np.ndarray, k: int) -> np.ndarray:
@@ -175,12 +208,126 @@ def _count_and_error(
     return n, float(max(resid[n - 1], 0.0))
 
 
+def coding_rule(candidates: int | None, n_dictionaries: int) -> tuple[str, int]:
+    """The dictionary rule ``candidates`` gives with K = ``n_dictionaries``: ("exhaustive", K)
+    for None or >= K, else ("screened", candidates)."""
+    if candidates is None or int(candidates) >= n_dictionaries:
+        return "exhaustive", int(n_dictionaries)
+    if int(candidates) < 1:
+        raise BTFInputError(
+            f"candidates must be >= 1 (or None: every dictionary), got {candidates}"
+        )
+    return "screened", int(candidates)
+
+
+def _rule_keys(
+    sq_desc: np.ndarray, energy: float, size: int, tau: int, eps: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_count_and_error` on the rows of ``sq_desc`` (K, n), squares by decreasing
+    magnitude: (counts (K,), errors (K,))."""
+    k = sq_desc.shape[0]
+    if energy / size < eps:
+        return np.ones(k, dtype=np.int64), np.full(k, eps)
+    resid = (energy - np.cumsum(sq_desc[:, :tau], axis=1)) / size
+    hit = resid <= eps
+    n = np.where(hit.any(axis=1), hit.argmax(axis=1) + 1, min(tau, sq_desc.shape[1]))
+    err = np.maximum(resid[np.arange(k), n - 1], 0.0)
+    return n.astype(np.int64), err
+
+
+def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: int) -> np.ndarray:
+    """(K, p1·p2·r·r) squared coefficients of one point x (p1, p2, L, V) on the K dictionaries
+    ``mats`` (four stacked (K, m, m)), restricted on each angular mode to the r = ``columns``
+    columns with the most energy in A_k = U3ᵀ X̄ U4 (X̄: x averaged over its texels).
+
+    They are exact entries of S_k (Eq. 3). Cost per dictionary (p = 10, L = V = 151, r = 24):
+    2(L²V + LV²) for A_k, 2p²LVr + 2p²Lr² + 4p³r² for the partial projection: 143 MFLOP,
+    9.7 % of the exact 1.47 GFLOP.
+    """
+    u1, u2, u3, u4 = mats
+    p1, p2, n_l, n_v = x.shape
+    k = u1.shape[0]
+    r3, r4 = min(columns, n_l), min(columns, n_v)
+    a = np.matmul(np.matmul(u3.transpose(0, 2, 1), x.mean(axis=(0, 1))), u4)  # (K, L, V)
+    a *= a
+    # stable: ties to the lower column, whatever the platform
+    j3 = np.argsort(-a.sum(axis=2), axis=1, kind="stable")[:, :r3]
+    j4 = np.argsort(-a.sum(axis=1), axis=1, kind="stable")[:, :r4]
+    w3 = np.take_along_axis(u3, j3[:, None, :], axis=2)  # (K, L, r3)
+    w4 = np.take_along_axis(u4, j4[:, None, :], axis=2)  # (K, V, r4)
+    # ×_4 on every dictionary at once: one (p1·p2·L × V) @ (V × K·r4) GEMM, the bulk of the
+    # cost (K stacked GEMMs of r4 columns each ran 1.7x slower)
+    y = x.reshape(p1 * p2 * n_l, n_v) @ w4.transpose(1, 0, 2).reshape(n_v, k * r4)
+    y = np.ascontiguousarray(y.reshape(p1 * p2, n_l, k, r4).transpose(2, 0, 1, 3))
+    y = np.matmul(w3.transpose(0, 2, 1)[:, None], y)  # ×_3: (K, p1·p2, r3, r4)
+    y = np.matmul(u1.transpose(0, 2, 1), y.reshape(k, p1, p2 * r3 * r4))  # ×_1
+    y = np.matmul(u2.transpose(0, 2, 1)[:, None], y.reshape(k, p1, p2, r3 * r4))  # ×_2
+    flat = y.reshape(k, -1).astype(np.float64)
+    return flat * flat
+
+
+def screen_columns(tau: int, spatial: int) -> int:
+    """Angular columns r per angular mode for a cap τ on points of ``spatial`` = p1·p2 texels:
+    the smallest r >= :data:`SCREEN_COLUMNS` with p1·p2·r² >= :data:`SCREEN_DEPTH` · τ
+    (10×10 patches: 24 up to τ = 900, 36 at τ = 2003, 54 at τ = 4483)."""
+    return max(SCREEN_COLUMNS, math.ceil(math.sqrt(SCREEN_DEPTH * tau / spatial)))
+
+
+def screen_dictionaries(
+    batch: np.ndarray,
+    dictionaries: Sequence[np.ndarray],
+    taus: Sequence[int],
+    eps: float,
+    candidates: int,
+    columns: int | None = None,
+    dtype: type = np.float32,
+) -> np.ndarray:
+    """(B, K) mask of the dictionaries each point is projected on exactly: at every level τ of
+    ``taus``, the ``candidates`` best by the coding rule (sparsest, then least error, ties to
+    the lower k) applied to the partial projection of :func:`_partial_squares` on ``columns``
+    angular columns (default :func:`screen_columns` of the largest τ).
+
+    The partial coefficients are a subset of S_k's, so their count and residual bound the
+    exact ones from above; the ranking they give is what matters. Only for 4D data points
+    (p, p, L, V); other shapes get every dictionary.
+    """
+    x = np.ascontiguousarray(batch, dtype=dtype)
+    b = x.shape[0]
+    n_dict = dictionaries[0].shape[0]
+    mask = np.zeros((b, n_dict), dtype=bool)
+    if x.ndim != 5 or candidates >= n_dict:
+        mask[:] = True
+        return mask
+    size = int(np.prod(x.shape[1:]))
+    levels = sorted({min(int(t), size) for t in taus})
+    mats = [np.asarray(d, dtype=dtype) for d in dictionaries]
+    energy = sum_squares(x.reshape(b, -1))
+    if columns is None:
+        columns = screen_columns(levels[-1], x.shape[1] * x.shape[2])
+
+    def task(i: int) -> np.ndarray:
+        sq = _partial_squares(x[i], mats, columns)
+        top = min(levels[-1], sq.shape[1])
+        # the largest ``top`` squares of each dictionary, by decreasing magnitude
+        sq = -np.sort(-np.partition(sq, sq.shape[1] - top, axis=1)[:, sq.shape[1] - top :])
+        keep = np.zeros(n_dict, dtype=bool)
+        for tau in levels:
+            n, err = _rule_keys(sq, float(energy[i]), size, tau, eps)
+            keep[np.lexsort((err, n))[:candidates]] = True
+        return keep
+
+    for i, keep in enumerate(parallel_map(task, range(b))):
+        mask[i] = keep
+    return mask
+
+
 def sparse_code(
     batch: np.ndarray,
     dictionaries: Sequence[np.ndarray],
     tau: int,
     eps: float = 0.0,
     dtype: type = np.float32,
+    candidates: int | None = None,
 ) -> SparseCodes:
     """Code a batch of data points on an ensemble (Eq. 3 + the §3.3 selection rule).
 
@@ -191,8 +338,10 @@ def sparse_code(
     tau : the sparsity cap τ (clipped to the tensor size).
     eps : error threshold ε on the mean squared residual per entry (0: always use τ).
     dtype : arithmetic of the projections (float32 is ~2× faster; energies stay float64).
+    candidates : dictionaries projected exactly per point after screening
+        (:func:`screen_dictionaries`); None or >= K: all of them (the exhaustive rule).
     """
-    return sparse_code_levels(batch, dictionaries, [tau], eps, dtype)[0]
+    return sparse_code_levels(batch, dictionaries, [tau], eps, dtype, candidates)[0]
 
 
 def sparse_code_levels(
@@ -201,11 +350,14 @@ def sparse_code_levels(
     taus: Sequence[int],
     eps: float = 0.0,
     dtype: type = np.float32,
+    candidates: int | None = None,
 ) -> list[SparseCodes]:
     """:func:`sparse_code` at several caps τ from one projection per (point, dictionary).
 
     The projections do not depend on τ, so a quality–storage curve costs one encoding.
-    Returns one :class:`SparseCodes` per τ, identical to separate :func:`sparse_code` calls.
+    Returns one :class:`SparseCodes` per τ, identical to separate :func:`sparse_code` calls
+    (with screening, a point's candidates are the union of every level's best ``candidates``,
+    so they may differ from a single level's).
     """
     x = np.asarray(batch)
     shape = tuple(int(s) for s in x.shape[1:])
@@ -227,8 +379,14 @@ def sparse_code_levels(
     xc = np.ascontiguousarray(x, dtype=dtype)
     energy = sum_squares(xc.reshape(b, -1))
 
-    counts = np.empty((nl, b, n_dict), dtype=np.int64)
-    errs = np.empty((nl, b, n_dict))
+    rule, n_cand = coding_rule(candidates, n_dict)
+    if rule == "exhaustive":
+        mask = np.ones((b, n_dict), dtype=bool)
+    else:
+        mask = screen_dictionaries(xc, dictionaries, levels, eps, n_cand, dtype=dtype)
+    # dictionaries left out by the screening lose every comparison of the rule
+    counts = np.full((nl, b, n_dict), np.iinfo(np.int64).max, dtype=np.int64)
+    errs = np.full((nl, b, n_dict), np.inf)
     best: list[list[tuple[tuple[int, float], np.ndarray, np.ndarray] | None]] = [
         [None] * b for _ in range(nl)
     ]
@@ -240,7 +398,7 @@ def sparse_code_levels(
         idx = topk_abs(s, tmax)
         return idx, s[idx]
 
-    pairs = [(i, k) for k in range(n_dict) for i in range(b)]
+    pairs = [(i, k) for k in range(n_dict) for i in range(b) if mask[i, k]]
     for (i, k), (idx, vals) in zip(pairs, parallel_map(task, pairs), strict=True):
         sq = vals.astype(np.float64) ** 2
         for j, tau in enumerate(levels):
