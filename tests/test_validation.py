@@ -18,6 +18,7 @@ from sparsebtf._semantic import (
     STAT_BOUND,
     orthonormality_error,
 )
+from sparsebtf.cli.info import describe
 from sparsebtf.cli.main import main
 from sparsebtf.data.dense_file import DenseFileBTF, write_dense
 from sparsebtf.errors import FileFormatError
@@ -144,6 +145,9 @@ def test_coded_directions_must_be_the_models(corpus, tmp_path):
     with pytest.raises(FileFormatError) as e:
         load_coded_with_model(p, corpus / "model.h5")
     _one_line(e, "lights/xyz", "row 0", "but the model's is", "same directions in the same order")
+    with pytest.raises(FileFormatError) as e:  # info reads it with the same checks
+        describe(str(p), model_path=str(corpus / "model.h5"))
+    _one_line(e, "lights/xyz", "row 0", "but the model's is")
 
 
 # --------------------------------------------------------------------------- direction tables

@@ -97,12 +97,13 @@ def describe(
         from ..storage import load_coded, storage_report
         from ..storage.accounting import storage_summary
         from ..storage.bundled import bundled_name, find_model
+        from ..storage.coded_file import attach_model
 
         coded = load_coded(s)
         model = None
         try:
             model = find_model(coded, model_path, s)
-            coded.attach(model)
+            attach_model(coded, model, s)  # the same checks as every reader, directions too
         except ModelMismatchError:
             if model_path:
                 raise

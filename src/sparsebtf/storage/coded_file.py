@@ -377,11 +377,13 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
     )
     validate_coded(coded, where, ks)
     if model is not None:
-        _attach(coded, model, where)
+        attach_model(coded, model, where)
     return coded
 
 
-def _attach(coded: CodedBTF, model: Model, where: str) -> None:
+def attach_model(coded: CodedBTF, model: Model, where: str) -> None:
+    """Attach ``model`` to ``coded`` after checking it is the one the codes index: content
+    hash, channels, mode sizes, K and the direction tables (``where`` names the file)."""
     if model.content_hash != coded.model_hash:
         raise ModelMismatchError(
             f"{where}: coded with {model_text(coded.model_hash, coded.model_file)}, but the "
@@ -542,5 +544,5 @@ def load_coded_with_model(
     from .bundled import find_model
 
     coded = load_coded(path)
-    _attach(coded, find_model(coded, model_path, str(path)), str(path))
+    attach_model(coded, find_model(coded, model_path, str(path)), str(path))
     return coded
