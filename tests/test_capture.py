@@ -25,8 +25,8 @@ import pytest
 from sparsebtf.cli.main import main
 from sparsebtf.data.directions import from_angles
 from sparsebtf.errors import SparseBTFError
+from sparsebtf.llvm import configure
 from sparsebtf.open import open_btf
-from sparsebtf.rendering.llvm import configure
 
 pytestmark = pytest.mark.skipif(
     not configure().ok, reason="capture renders with Mitsuba's LLVM backend: apt-get install "

@@ -68,7 +68,7 @@ def test_readme_command_line_runs_top_to_bottom(tmp_path):
 def test_readme_measured_btf_section_on_a_stand_in(tmp_path):
     from sparsebtf.data.directions import ubo2014
     from sparsebtf.formats.ubo2014_write import write_ubo2014
-    from sparsebtf.rendering.llvm import configure
+    from sparsebtf.llvm import configure
 
     if not configure().ok:
         pytest.skip("the section renders with Mitsuba's LLVM backend: apt-get install libllvm19")

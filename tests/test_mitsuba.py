@@ -12,9 +12,9 @@ import os
 import numpy as np
 import pytest
 
+from sparsebtf import llvm
 from sparsebtf.codec import encode
 from sparsebtf.errors import BTFInputError
-from sparsebtf.rendering import llvm
 from sparsebtf.runtime import coded_btf_view
 
 from .conftest import smooth_btf, tight_bound, tiny_model

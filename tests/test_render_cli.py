@@ -8,9 +8,9 @@ import json
 import numpy as np
 import pytest
 
+from sparsebtf import llvm
 from sparsebtf.cli.main import main
 from sparsebtf.codec import encode
-from sparsebtf.rendering import llvm
 
 from .conftest import smooth_btf, tiny_model
 

@@ -7,7 +7,7 @@
 
 On import, unless a Mitsuba variant is already set, this module finds a libLLVM that Dr.Jit can
 use (probed in a subprocess: LLVM 15/16 abort the whole process, see
-:mod:`sparsebtf.rendering.llvm`), selects ``llvm_ad_rgb`` — or ``scalar_rgb`` with a message on
+:mod:`sparsebtf.llvm`), selects ``llvm_ad_rgb`` — or ``scalar_rgb`` with a message on
 stderr when there is none — and registers two BSDF plugins for the active variant:
 
 * ``sparsebtf`` — a coded file evaluated with Eq. 5/6 in Dr.Jit,

@@ -47,7 +47,7 @@ def _refuse_slow_scalar(args: argparse.Namespace, size: tuple[int, int]) -> None
     over a minute, naming the one install command; ``--backend scalar`` runs it anyway."""
     if args.backend == "scalar":
         return
-    from ..rendering.llvm import choose_variant
+    from ..llvm import choose_variant
     from ..rendering.render import scalar_seconds
 
     variant, _ = choose_variant(args.backend)

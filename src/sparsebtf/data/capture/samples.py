@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from ...rendering.scenes import _grid_faces, _mesh_dict, sphere_mesh
+from ..meshes import grid_faces, mesh_object, sphere_mesh
 
 __all__ = ["SAMPLES", "Sample", "heightfield_mesh"]
 
@@ -75,7 +75,7 @@ def heightfield_mesh(height: np.ndarray, z_scale: float = 1.0) -> MeshArrays:
     pos = np.stack([x, y, z], -1).reshape(-1, 3)
     normals = nrm[rr % n_r, cc % n_c].reshape(-1, 3)
     uv = np.stack([(x + 1) / 2, (y + 1) / 2], -1).reshape(-1, 2)
-    faces = _orient(pos, normals, _grid_faces(n_c, n_r))
+    faces = _orient(pos, normals, grid_faces(n_c, n_r))
     return pos, normals, uv, faces
 
 
@@ -97,7 +97,7 @@ def _tube(centre: Callable[[np.ndarray], np.ndarray], across: np.ndarray, half_w
     nrm /= np.linalg.norm(nrm, axis=-1, keepdims=True)
     uv = np.stack(np.meshgrid(phi / (2 * np.pi), t)[::-1], -1)
     pos, nrm, uv = pos.reshape(-1, 3), nrm.reshape(-1, 3), uv.reshape(-1, 2)
-    faces = _orient(pos, nrm, _grid_faces(n_around, n_along))
+    faces = _orient(pos, nrm, grid_faces(n_around, n_along))
     return pos, nrm, uv, faces
 
 
@@ -117,7 +117,7 @@ def _rgb(value: Any) -> dict[str, Any]:
 def _mesh(name: str, arrays: MeshArrays, bsdf: dict[str, Any]) -> Any:
     import mitsuba as mi
 
-    return _mesh_dict(mi, name, arrays, bsdf)
+    return mesh_object(mi, name, arrays, bsdf)
 
 
 def _ground(z: float, colour: Any) -> dict[str, Any]:

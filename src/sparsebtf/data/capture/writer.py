@@ -95,17 +95,15 @@ _loaded: dict[str, Any] = {}
 
 def _sample(spec: CaptureSpec) -> Any:
     """The tiled scene of ``spec`` (loaded once per process; Dask workers keep theirs)."""
-    from ...rendering.mitsuba.variant import setup
+    from ...llvm import activate_variant
     from .scene import load_sample, resolve_source
 
     key = json.dumps([spec.scene, spec.seed, spec.backend, spec.directions_name,
                       _digest(np.asarray(spec.directions))])  # fmt: skip
     if key not in _loaded:
-        variant = setup(spec.backend, quiet=True)
+        variant, why = activate_variant(spec.backend, quiet=True)
         if variant.startswith("scalar"):
-            from ...rendering.mitsuba.variant import variant_message
-
-            why = " ".join(variant_message.split())
+            why = " ".join(why.split())
             raise BTFInputError(f"capture renders whole views at once and needs Mitsuba's LLVM "
                                 f"or CUDA backend, not {variant}: {why}")  # fmt: skip
         threads = os.environ.get("SPARSEBTF_THREADS")

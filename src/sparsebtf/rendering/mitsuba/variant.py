@@ -1,6 +1,6 @@
 """Choose the Mitsuba variant and register the plugins for it.
 
-:func:`setup` picks a variant with :func:`sparsebtf.rendering.llvm.choose_variant` (which
+:func:`setup` picks a variant with :func:`sparsebtf.llvm.choose_variant` (which
 probes libLLVM in a subprocess and sets ``DRJIT_LIBLLVM_PATH`` before Dr.Jit is loaded), sets it
 unless the caller already chose one, and calls :func:`register`. :data:`variant_message` says
 why the variant was chosen. ``mitsuba`` is imported only inside these functions, so importing
@@ -10,7 +10,6 @@ this module leaves the choice of libLLVM open.
 from __future__ import annotations
 
 import importlib
-import sys
 from types import ModuleType
 
 from ...errors import BTFInputError
@@ -20,8 +19,6 @@ __all__ = ["register", "setup", "variant_message"]
 
 #: Why the current variant was chosen (set by :func:`setup`).
 variant_message = ""
-# The scalar-fallback warning is printed once per process, not at every render.
-_warned: list[str] = []
 # Variants whose plugin registry already holds our classes.
 _registered: set[str] = set()
 
@@ -34,23 +31,9 @@ def setup(backend: str = "auto", quiet: bool = False) -> str:
     ``scalar_rgb`` when llvm was wanted prints why on stderr, once, unless ``quiet``.
     """
     global variant_message
-    from ..llvm import choose_variant
+    from ...llvm import activate_variant
 
-    variant, why = choose_variant(backend)
-    import mitsuba as mi
-
-    current = mi.variant()
-    if current is None or backend != "auto":
-        if current != variant:
-            mi.set_variant(variant)
-        variant_message = why
-        if variant == "scalar_rgb" and backend != "scalar" and not quiet and not _warned:
-            _warned.append(why)
-            print(f"sparsebtf.mitsuba: {why}", file=sys.stderr)
-    elif current != variant:
-        variant_message = f"keeping the active Mitsuba variant {current}"
-    else:
-        variant_message = why
+    variant_message = activate_variant(backend, quiet)[1]
     return register()
 
 

@@ -1,7 +1,7 @@
 """Find a libLLVM that Dr.Jit's LLVM backend can use, and pick the Mitsuba variant.
 
 Dr.Jit 1.5 JIT-compiles its CPU kernels with the system's ``libLLVM``. Which one matters
-(``shared/specs/rendering-notes.md``):
+(docs/rendering.md):
 
 * LLVM 14 is refused cleanly by Dr.Jit ("requires LLVM 15 or newer"),
 * LLVM 15 and 16 (what Mesa pulls in) **abort the whole process** on the first kernel that uses
@@ -18,7 +18,9 @@ overrides the search (it is still probed). Results are cached per process.
 
 :func:`choose_variant` returns ``"cuda_ad_rgb"`` (only when asked for and a GPU works),
 ``"llvm_ad_rgb"`` when a usable libLLVM was found, and otherwise ``"scalar_rgb"`` with a message
-saying why (the scalar variant runs the BSDF in Python per ray: tiny renders only).
+saying why (the scalar variant runs the BSDF in Python per ray: tiny renders only);
+:func:`activate_variant` sets it. This module sits below every user of Mitsuba (the render
+plugins, ``capture``), so that none of them imports another for it.
 """
 
 from __future__ import annotations
@@ -250,7 +252,7 @@ def choose_variant(prefer: str = "auto") -> tuple[str, str]:
     if prefer in _variant_cache:
         return _variant_cache[prefer]
     if prefer not in ("auto", "cuda", "llvm", "scalar"):
-        from ..errors import BTFInputError
+        from .errors import BTFInputError
 
         raise BTFInputError(f"unknown backend {prefer!r}; choose auto, cuda, llvm or scalar")
     if prefer == "scalar":
@@ -274,3 +276,29 @@ def choose_variant(prefer: str = "auto") -> tuple[str, str]:
         out = res
     _variant_cache[prefer] = out
     return out
+
+
+# The scalar-fallback warning is printed once per process, not at every render.
+_warned: list[str] = []
+
+
+def activate_variant(backend: str = "auto", quiet: bool = False) -> tuple[str, str]:
+    """Choose (:func:`choose_variant`) and set a Mitsuba variant: ``(variant, message)``.
+
+    With a variant already active and ``backend="auto"`` that variant is kept. Falling back to
+    ``scalar_rgb`` when llvm was wanted prints why on stderr, once, unless ``quiet``.
+    """
+    variant, why = choose_variant(backend)
+    import mitsuba as mi
+
+    current = mi.variant()
+    if current is None or backend != "auto":
+        if current != variant:
+            mi.set_variant(variant)
+        if variant == "scalar_rgb" and backend != "scalar" and not quiet and not _warned:
+            _warned.append(why)
+            print(f"sparsebtf.mitsuba: {why}", file=sys.stderr)
+        return variant, why
+    if current != variant:
+        return current, f"keeping the active Mitsuba variant {current}"
+    return current, why
