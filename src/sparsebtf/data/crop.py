@@ -12,8 +12,8 @@ class CroppedBTF(BTF):
     """Rows ``rows`` and columns ``cols`` (step 1) of ``base``; nothing is copied."""
 
     def __init__(self, base: BTF, rows: slice, cols: slice) -> None:
-        r0, r1 = _bounds(rows, base.height, "rows", base.label)
-        c0, c1 = _bounds(cols, base.width, "cols", base.label)
+        r0, r1 = crop_window(rows, base.height, "rows", base.label)
+        c0, c1 = crop_window(cols, base.width, "cols", base.label)
         super().__init__(
             r1 - r0, c1 - c0, base.lights, base.views, base.name,
             {**base.attrs, "crop": [r0, r1, c0, c1]},
@@ -30,7 +30,7 @@ class CroppedBTF(BTF):
         return self.base.read(r, c, lights, views)
 
 
-def _bounds(window: slice, n: int, axis: str, name: str) -> tuple[int, int]:
+def crop_window(window: slice, n: int, axis: str, name: str) -> tuple[int, int]:
     """[start, stop) of a crop window, which must lie inside [0, n): no clipping, no negative
     (count-from-the-end) indices, no steps."""
     start = 0 if window.start is None else int(window.start)

@@ -61,6 +61,7 @@ def capture_spec(
     backend: str = "auto",
 ) -> CaptureSpec:
     """A checked :class:`CaptureSpec` (errors are one line naming the option)."""
+    from ..crop import crop_window
     from ..synth.materials import resolve_directions
     from .scene import resolve_source
 
@@ -74,13 +75,8 @@ def capture_spec(
         raise BTFInputError(f"directions {dirs.name}: every direction must lie above the "
                             "horizon (z > 0) for a capture")  # fmt: skip
     rows, cols = crop if crop is not None else (slice(0, size), slice(0, size))
-    window = []
-    for axis, s in (("rows", rows), ("cols", cols)):
-        lo, hi = (s.start or 0), (size if s.stop is None else s.stop)
-        if not 0 <= lo < hi <= size:
-            raise BTFInputError(f"crop {axis} {lo}:{hi} must satisfy 0 <= start < stop <= "
-                                f"{size} (the capture is {size}x{size} texels)")  # fmt: skip
-        window.append((int(lo), int(hi)))
+    window = [crop_window(s, size, axis, f"capture of {scene} ({size}x{size} texels)")
+              for axis, s in (("rows", rows), ("cols", cols))]  # fmt: skip
     return CaptureSpec(
         scene=scene, size=int(size), rows=window[0], cols=window[1], spp=int(spp),
         max_depth=int(max_depth), seed=int(seed), directions_name=dirs.name,
