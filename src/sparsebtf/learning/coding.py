@@ -199,13 +199,10 @@ class SparseCodes:
 def _count_and_error(
     sq_sorted: np.ndarray, energy: float, size: int, tau: int, eps: float
 ) -> tuple[int, float]:
-    """The release's count rule on squared coefficients sorted by decreasing magnitude."""
-    if energy / size < eps:
-        return 1, eps
-    resid = (energy - np.cumsum(sq_sorted[:tau])) / size
-    hit = np.flatnonzero(resid <= eps)
-    n = int(hit[0]) + 1 if hit.size else min(tau, sq_sorted.size)
-    return n, float(max(resid[n - 1], 0.0))
+    """The release's count rule on squared coefficients sorted by decreasing magnitude: one
+    row of :func:`_rule_keys`."""
+    n, err = _rule_keys(sq_sorted[None, :], energy, size, tau, eps)
+    return int(n[0]), float(err[0])
 
 
 def coding_rule(candidates: int | None, n_dictionaries: int) -> tuple[str, int]:
@@ -223,8 +220,10 @@ def coding_rule(candidates: int | None, n_dictionaries: int) -> tuple[str, int]:
 def _rule_keys(
     sq_desc: np.ndarray, energy: float, size: int, tau: int, eps: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_count_and_error` on the rows of ``sq_desc`` (K, n), squares by decreasing
-    magnitude: (counts (K,), errors (K,))."""
+    """The release's count rule on each row of ``sq_desc`` (K, n), squared coefficients by
+    decreasing magnitude: (counts (K,), errors (K,)). The count is the first n whose mean
+    squared residual (energy − the n largest squares) / size is <= ε, else min(τ, n); a point
+    whose energy per entry is already below ε keeps one coefficient, error ε."""
     k = sq_desc.shape[0]
     if energy / size < eps:
         return np.ones(k, dtype=np.int64), np.full(k, eps)
