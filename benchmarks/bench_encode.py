@@ -159,6 +159,8 @@ def main() -> None:
     ap.add_argument("--rank", type=int, default=100)
     ap.add_argument("--dicts", type=int, default=8)
     ap.add_argument("--tau", default="885,64,64")
+    ap.add_argument("--batch", type=int, default=None,
+                    help="data points per coding batch (default: the encoder's)")
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--parts", action="store_true",
                     help="only the core-seconds of each step on 4 data points, one thread")
@@ -173,7 +175,8 @@ def main() -> None:
     stats = timed_statistics()
     cpu0 = cpu_seconds()
     t = time.perf_counter()
-    coded = encode(btf, model, tau=a.tau, eps=1e-5)
+    kw = {} if a.batch is None else {"batch_size": a.batch}
+    coded = encode(btf, model, tau=a.tau, eps=1e-5, **kw)
     wall = time.perf_counter() - t
     cpu = cpu_seconds() - cpu0
     n_points = coded.n_points

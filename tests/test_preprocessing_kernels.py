@@ -44,6 +44,10 @@ def test_compiled_passes_equal_the_numpy_twins_bit_for_bit():
     for be in ("numpy", "numba"):
         logs, bad, neg = kernels.log_offset(x, 1e-4, backend=be)
         z = kernels.standardise_log_rgb(logs.copy(), M32, mu, inv, backend=be)
+        planar = kernels.standardise_log_rgb(logs, M32, mu, inv, backend=be,
+                                             out=np.empty((3, *x.shape[:2]), np.float32))
+        # planar output: the in-place values, channel by channel
+        assert np.array_equal(planar, np.moveaxis(z, -1, 0))
         acc = (np.zeros((x.shape[1], 3), np.float32), np.zeros((x.shape[1], 3)),
                np.zeros((x.shape[1], 3)), np.full(x.shape[1], -np.inf))  # fmt: skip
         kernels.accumulate_sums(logs[:3], M32, *acc, first=True, backend=be)
@@ -180,3 +184,31 @@ def test_stream_points_equal_iter_points_through_reused_arrays():
     assert len(fresh) == len(streamed) == 6
     for (i, x), (j, y) in zip(fresh, streamed, strict=True):
         assert np.array_equal(i, j) and np.array_equal(x, y)
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_channels_first_batches_hold_the_interleaved_values(dtype):
+    """The encoder's planar batches (3, b, p, p, L, V): each channel contiguous, the values of
+    the interleaved (b, p, p, L, V, 3) ones, through reused arrays and the short last batch;
+    a Preprocessor with its threads' scratch arrays still pickles (Dask tasks)."""
+    import pickle
+
+    btf = smooth_btf(9, size=16)
+    pre = Preprocessor(gather_statistics(btf))
+    points = np.arange(16)
+    ref = [x.copy() for _, x in iter_points(btf, pre, 4, points, batch=3, dtype=dtype)]
+    if dtype == np.float32:
+        got = [x.copy() for _, x in stream_points(btf, pre, 4, points, 3, channels_first=True)]
+    else:
+        got = [x.copy() for _, x in iter_points(btf, pre, 4, points, batch=3, dtype=dtype,
+                                                channels_first=True)]  # fmt: skip
+    assert [x.shape for x in got] == [(3, *x.shape[:-1]) for x in ref]
+    for x, y in zip(ref, got, strict=True):
+        assert y.dtype == dtype and np.array_equal(np.moveaxis(x, -1, 0), y)
+    again = pickle.loads(pickle.dumps(pre))
+    out = np.empty((3, 4, 4, *btf.shape[2:4]), np.float32)
+    again.forward_into(btf.patch(0, 0, 4), out)
+    want = pre.forward_into(btf.patch(0, 0, 4), np.empty((4, 4, *btf.shape[2:4], 3), np.float32))
+    assert np.array_equal(out, np.moveaxis(want, -1, 0))
+    with pytest.raises(BTFInputError, match="three C-contiguous"):
+        pre.forward_into(btf.patch(0, 0, 4), np.empty((3, 4, 4, *btf.shape[2:4]))[:, ::1, ::2])

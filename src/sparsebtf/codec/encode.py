@@ -195,9 +195,12 @@ class FixedTau:
         parts: list[dict[str, list[SparseCodes]]] = [{ch: [] for ch in channels}
                                                      for _ in self.levels]  # fmt: skip
         points = np.arange(lo, hi)
-        for _, x in stream_points(btf, pre, model.patch, points, batch_size):
+        # Y, U, V apart: the reader writes each channel's batch contiguous (no copy per channel
+        # here on the main thread, where it held both cores back)
+        planar = "YUV" not in channels
+        for _, x in stream_points(btf, pre, model.patch, points, batch_size, planar):
             for c, ch in enumerate(channels):
-                xc = x if ch == "YUV" else np.ascontiguousarray(x[..., c])
+                xc = x[c] if planar else x
                 taus_c = [lv[ch] for lv in self.levels]
                 coded = sparse_code_levels(
                     xc, model.dictionaries[ch], taus_c, self.eps, dt, self.candidates
@@ -205,7 +208,7 @@ class FixedTau:
                 for j, sc in enumerate(coded):
                     parts[j][ch].append(sc)
             if tick is not None:
-                tick(x.shape[0])
+                tick(x.shape[1] if planar else x.shape[0])
         return [{ch: SparseCodes.concatenate(p[ch]) for ch in channels} for p in parts]
 
     def finish(

@@ -257,12 +257,13 @@ def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: int) ->
     # ×_4 on every dictionary at once: one (p1·p2·L × V) @ (V × K·r4) GEMM, the bulk of the
     # cost (K stacked GEMMs of r4 columns each ran 1.7x slower)
     y = x.reshape(p1 * p2 * n_l, n_v) @ w4.transpose(1, 0, 2).reshape(n_v, k * r4)
-    y = np.ascontiguousarray(y.reshape(p1 * p2, n_l, k, r4).transpose(2, 0, 1, 3))
-    y = np.matmul(w3.transpose(0, 2, 1)[:, None], y)  # ×_3: (K, p1·p2, r3, r4)
+    # ×_3 on the GEMM's output as it lies: each (L, r4) slice is a BLAS operand with leading
+    # dimension K·r4, so no transposed copy of it is made (a copy cost twice the ×_3 itself)
+    y = np.matmul(w3.transpose(0, 2, 1)[:, None],
+                  y.reshape(p1 * p2, n_l, k, r4).transpose(2, 0, 1, 3))  # (K, p1·p2, r3, r4)
     y = np.matmul(u1.transpose(0, 2, 1), y.reshape(k, p1, p2 * r3 * r4))  # ×_1
     y = np.matmul(u2.transpose(0, 2, 1)[:, None], y.reshape(k, p1, p2, r3 * r4))  # ×_2
-    flat = y.reshape(k, -1).astype(np.float64)
-    return flat * flat
+    return np.square(y.reshape(k, -1), dtype=np.float64)
 
 
 def screen_columns(tau: int, spatial: int) -> int:

@@ -116,10 +116,13 @@ def iter_points(
     dtype: type = np.float32,
     parallel: bool = False,
     reuse: int = 0,
+    channels_first: bool = False,
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """Stream standardised log-YUV data points of ``btf`` in batches.
 
-    Yields ``(indices, X)`` with X of shape (b, p, p, L, V, 3), b <= ``batch``. Points are
+    Yields ``(indices, X)`` with X of shape (b, p, p, L, V, 3), b <= ``batch``, or
+    (3, b, p, p, L, V) with ``channels_first`` (each channel's batch one contiguous array, as
+    the coding of a channel wants it; same values). Points are
     read one spatial patch at a time (a patch holds every direction), so memory stays at
     ``batch`` data points whatever the BTF size. NaN/Inf raise with their location; negative
     values are clamped to 0 (counted by :func:`~sparsebtf.points.preprocessing.gather_statistics`).
@@ -144,23 +147,32 @@ def iter_points(
     if batch < 1:
         raise BTFInputError(f"batch must be >= 1, got {batch}")
     _, _, nl, nv, _ = btf.shape
+
+    def shape(n: int) -> tuple[int, ...]:
+        return (3, n, patch, patch, nl, nv) if channels_first else (n, patch, patch, nl, nv, 3)
+
     ring: list[np.ndarray] = []
     for k, start in enumerate(range(0, idx.size, batch)):
         chunk = idx[start : start + batch]
         if reuse and len(ring) < reuse:
-            ring.append(np.empty((batch, patch, patch, nl, nv, 3), dtype=dtype))
-        out = (ring[k % reuse][: chunk.size] if reuse
-               else np.empty((chunk.size, patch, patch, nl, nv, 3), dtype=dtype))  # fmt: skip
+            ring.append(np.empty(shape(batch), dtype=dtype))
+        if reuse:
+            full = ring[k % reuse]
+            out = full[:, : chunk.size] if channels_first else full[: chunk.size]
+        else:
+            out = np.empty(shape(chunk.size), dtype=dtype)
 
         def fill(j: int, chunk: np.ndarray = chunk, out: np.ndarray = out) -> None:
             r0, c0 = grid.origin(int(chunk[j]))
             rgb = btf.patch(r0, c0, patch)
+            dest = out[:, j] if channels_first else out[j]
             if out.dtype == np.float32:
-                pre.forward_into(rgb, out[j], btf.name, (r0, c0))
+                pre.forward_into(rgb, dest, btf.name, (r0, c0))
                 return
             check_finite(rgb, btf.name, offset=(r0, c0))
             np.maximum(rgb, 0, out=rgb)
-            out[j] = pre.forward(rgb, dtype=dtype)
+            y = pre.forward(rgb, dtype=dtype)
+            dest[...] = np.moveaxis(y, -1, 0) if channels_first else y
 
         run = parallel_map if parallel else map
         for _ in run(fill, range(chunk.size)):
@@ -174,6 +186,7 @@ def stream_points(
     patch: int,
     points: Sequence[int] | np.ndarray,
     batch: int = 4,
+    channels_first: bool = False,
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """:func:`iter_points` for a coding loop, keeping every core busy: each batch is read
     on the worker threads while the caller codes the one before (a background thread,
@@ -187,7 +200,9 @@ def stream_points(
     # asked for batch k + 2, so after it finished with batch k: three arrays suffice.
     with single_threaded_blas():
         yield from prefetch(
-            iter_points(btf, pre, patch, points, batch, parallel=True, reuse=3), depth=1
+            iter_points(btf, pre, patch, points, batch, parallel=True, reuse=3,
+                        channels_first=channels_first),
+            depth=1,
         )
 
 

@@ -57,6 +57,19 @@ def _standardise_numpy(
         logs[..., c] = y
 
 
+def _standardise_planar_numpy(
+    logs: np.ndarray, m: np.ndarray, mu: np.ndarray, inv: np.ndarray, out: np.ndarray
+) -> None:
+    r, g, b = logs[..., 0], logs[..., 1], logs[..., 2]
+    for c in range(3):
+        y = m[c, 0] * r
+        y += m[c, 1] * g
+        y += m[c, 2] * b
+        y -= mu[:, c]
+        y *= inv[:, c]
+        out[c] = y
+
+
 def _yuv_numpy(logs: np.ndarray, m: np.ndarray) -> np.ndarray:
     r, g, b = logs[..., 0], logs[..., 1], logs[..., 2]
     out = np.empty_like(logs)
@@ -117,39 +130,54 @@ if HAVE_NUMBA:
                 logs[i, a, 2] = (m20 * r + m21 * g + m22 * b - mu[a, 2]) * inv[a, 2]
 
     @_nb.njit(cache=True, nogil=True)
+    def _standardise_planar_nb(logs, m, mu, inv, out):  # pragma: no cover - compiled
+        m00, m01, m02 = m[0, 0], m[0, 1], m[0, 2]
+        m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]
+        m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
+        for i in range(logs.shape[0]):
+            for a in range(logs.shape[1]):
+                r = logs[i, a, 0]
+                g = logs[i, a, 1]
+                b = logs[i, a, 2]
+                out[0, i, a] = (m00 * r + m01 * g + m02 * b - mu[a, 0]) * inv[a, 0]
+                out[1, i, a] = (m10 * r + m11 * g + m12 * b - mu[a, 1]) * inv[a, 1]
+                out[2, i, a] = (m20 * r + m21 * g + m22 * b - mu[a, 2]) * inv[a, 2]
+
+    @_nb.njit(cache=True, nogil=True)
     def _accumulate_nb(logs, m, shift, s1, s2, top, first):  # pragma: no cover - compiled
         m00, m01, m02 = m[0, 0], m[0, 1], m[0, 2]
         m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]
         m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
         n_a = logs.shape[1]
-        b1 = np.zeros((n_a, 3))
-        b2 = np.zeros((n_a, 3))
+        if first and logs.shape[0]:
+            for a in range(n_a):
+                r = logs[0, a, 0]
+                g = logs[0, a, 1]
+                b = logs[0, a, 2]
+                shift[a, 0] = m00 * r + m01 * g + m02 * b
+                shift[a, 1] = m10 * r + m11 * g + m12 * b
+                shift[a, 2] = m20 * r + m21 * g + m22 * b
+        b1 = np.zeros(3 * n_a)
+        b2 = np.zeros(3 * n_a)
+        d = np.empty(3 * n_a, dtype=np.float32)
+        sh = shift.reshape(-1)
         for i in range(logs.shape[0]):
             for a in range(n_a):
                 r = logs[i, a, 0]
                 g = logs[i, a, 1]
                 b = logs[i, a, 2]
-                t = max(r, g, b)
-                if t > top[a]:
-                    top[a] = t
-                y = m00 * r + m01 * g + m02 * b
-                u = m10 * r + m11 * g + m12 * b
-                v = m20 * r + m21 * g + m22 * b
-                if first and i == 0:
-                    shift[a, 0] = y
-                    shift[a, 1] = u
-                    shift[a, 2] = v
-                y -= shift[a, 0]
-                u -= shift[a, 1]
-                v -= shift[a, 2]
-                b1[a, 0] += y
-                b1[a, 1] += u
-                b1[a, 2] += v
-                b2[a, 0] += y * y
-                b2[a, 1] += u * u
-                b2[a, 2] += v * v
-        s1 += b1
-        s2 += b2
+                top[a] = max(top[a], max(r, max(g, b)))
+                d[3 * a] = m00 * r + m01 * g + m02 * b
+                d[3 * a + 1] = m10 * r + m11 * g + m12 * b
+                d[3 * a + 2] = m20 * r + m21 * g + m22 * b
+            # unit stride, no branch: vectorised over the angular samples and channels; each
+            # sum still runs texel after texel, as the NumPy twin's
+            for j in range(3 * n_a):
+                e = d[j] - sh[j]
+                b1[j] += e
+                b2[j] += e * e
+        s1 += b1.reshape(n_a, 3)
+        s2 += b2.reshape(n_a, 3)
 
 
 def _backend(backend: str | None) -> str:
@@ -182,14 +210,18 @@ def log_offset(
 
 
 def standardise_log_rgb(
-    logs: np.ndarray, m: np.ndarray, mu: np.ndarray, inv: np.ndarray, backend: str | None = None
-) -> np.ndarray:
-    """In place on (n, A, 3) float32 log-RGB: ``(M · l − μ) · (1/σ)`` per angular sample."""
-    if _backend(backend) == "numba":
-        _standardise_nb(logs, m, mu, inv)
-    else:
-        _standardise_numpy(logs, m, mu, inv)
-    return logs
+    logs: np.ndarray, m: np.ndarray, mu: np.ndarray, inv: np.ndarray, backend: str | None = None,
+    out: np.ndarray | None = None,
+) -> np.ndarray:  # fmt: skip
+    """``(M · l − μ) · (1/σ)`` per angular sample of (n, A, 3) float32 log-RGB: in place, or
+    with ``out`` (3, n, A) float32 channel by channel there (planar: a channel of a batch is
+    then one contiguous array, no copy of it per channel; same values)."""
+    numba = _backend(backend) == "numba"
+    if out is None:
+        (_standardise_nb if numba else _standardise_numpy)(logs, m, mu, inv)
+        return logs
+    (_standardise_planar_nb if numba else _standardise_planar_numpy)(logs, m, mu, inv, out)
+    return out
 
 
 def accumulate_sums(

@@ -39,6 +39,7 @@ the material's maximum. Two defences, both recorded with the statistics:
 from __future__ import annotations
 
 import itertools
+import threading
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -284,6 +285,7 @@ class Preprocessor:
     def __init__(self, stats: Standardization) -> None:
         self.stats = stats
         self._full_f32: tuple[np.ndarray, np.ndarray] | None = None
+        self._local = threading.local()
 
     def forward_into(
         self, rgb: np.ndarray, out: np.ndarray, where: str = "btf", offset: tuple[int, ...] = ()
@@ -297,21 +299,47 @@ class Preprocessor:
         from .kernels import clamp_offset, standardise_log_rgb
 
         x = np.ascontiguousarray(rgb, dtype=np.float32)
-        if out.dtype != np.float32 or not out.flags.c_contiguous or out.shape != x.shape:
-            raise BTFInputError(f"forward_into needs a C-contiguous float32 {x.shape} output")
+        planar = out.shape == (3, *x.shape[:-1])
+        if out.dtype != np.float32 or not (
+            (planar and out[0].flags.c_contiguous)
+            or (out.shape == x.shape and out.flags.c_contiguous)
+        ):
+            raise BTFInputError(
+                f"forward_into needs a C-contiguous float32 {x.shape} output or three "
+                f"C-contiguous {x.shape[:-1]} channels, got {out.dtype} {out.shape}"
+            )
+        # planar: the per-value passes run in a scratch array of this thread, reused
+        q = self._scratch(x.shape) if planar else out
         identity = self.stats.transform == "identity"
-        bad, _ = clamp_offset(x, 0.0 if identity else self.stats.eps, out)
+        bad, _ = clamp_offset(x, 0.0 if identity else self.stats.eps, q)
         if bad:
             check_finite(x, where, offset)
         if identity:
+            if planar:
+                out[...] = np.moveaxis(q, -1, 0)
             return out
-        np.log(out, out=out)
+        np.log(q, out=q)
         if self._full_f32 is None:
             mu, inv = self.stats._full(slice(None), slice(None), np.dtype(np.float32), True)
             self._full_f32 = (mu.reshape(-1, 3), inv.reshape(-1, 3))
         n_a = self._full_f32[0].shape[0]
-        standardise_log_rgb(out.reshape(-1, n_a, 3), _RGB_TO_YUV_F32, *self._full_f32)
+        standardise_log_rgb(q.reshape(-1, n_a, 3), _RGB_TO_YUV_F32, *self._full_f32,
+                            out=out.reshape(3, -1, n_a) if planar else None)  # fmt: skip
         return out
+
+    def __getstate__(self) -> dict[str, object]:
+        # the threads' scratch arrays stay behind (a thread-local does not pickle)
+        return {**self.__dict__, "_local": None}
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state, _local=threading.local())
+
+    def _scratch(self, shape: tuple[int, ...]) -> np.ndarray:
+        """A float32 array of ``shape`` owned by the calling thread, reused across calls."""
+        buf = getattr(self._local, "buf", None)
+        if buf is None or buf.shape != shape:
+            buf = self._local.buf = np.empty(shape, dtype=np.float32)
+        return buf
 
     def forward(
         self,
