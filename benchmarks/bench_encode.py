@@ -6,7 +6,7 @@ bands of rows, data points by patch. The model is K = 8 random orthonormal dicti
 channel (the encoder's cost does not depend on training). τ = (885, 64, 64), ε = 1e-5.
 Targets (issue 22): <= 330 s (aim 160 s) and <= 2 GB peak on 2 cores.
 
-    python benchmarks/bench_encode.py [--size 400] [--rank 100] [--json]
+    python benchmarks/bench_encode.py [--size 400] [--rank 100] [--ab] [--json]
 
 ``--size 100`` runs a 100×100 crop (100 data points); every run prints the time per point,
 the statistics pass apart, the peak resident memory, and the exhaustive projections' work at
@@ -162,6 +162,11 @@ def main() -> None:
     ap.add_argument("--batch", type=int, default=None,
                     help="data points per coding batch (default: the encoder's)")
     ap.add_argument("--json", action="store_true")
+    ap.add_argument("--ab", action="store_true",
+                    help="also the A/B of bench_screening.py in the same run: the exhaustive "
+                    "rule against the default screening on a 100x100 material of the "
+                    "benchmark (bundled model): speed-up, linear-RGB MSE of both, points "
+                    "whose dictionary changed")
     ap.add_argument("--parts", action="store_true",
                     help="only the core-seconds of each step on 4 data points, one thread")
     a = ap.parse_args()
@@ -259,10 +264,32 @@ def main() -> None:
                 f"{rss / 2**30:.2f} GiB (target <= 2 GB; {rss0 / 2**30:.2f} GiB before encoding)",
             ),
             ("nnz", coded.nnz()),
+            *ab_rows(data, a.ab),
         ],
         data,
         a.json,
     )
+
+
+def ab_rows(data: dict, run: bool) -> list[tuple[str, str]]:
+    """With ``run``: :func:`bench_screening.speed` at 100x100 (exhaustive vs the default
+    number of candidates) into ``data["ab"]`` and its report rows."""
+    if not run:
+        return []
+    from bench_screening import speed
+    from sparsebtf.learning.coding import DEFAULT_CANDIDATES
+
+    s = data["ab"] = speed(100, [DEFAULT_CANDIDATES])
+    ex, sc = s["runs"]
+    return [
+        ("A/B (100x100)", f"{s['material']}, {s['n_points']} points, tau 885,64,64"),
+        ("  exhaustive", f"{ex['seconds']:.1f} s, MSE {ex['mse_rgb']:.5g}"),
+        (f"  screened ({DEFAULT_CANDIDATES} candidates)",
+         f"{sc['seconds']:.1f} s: {sc['speedup']:.2f}x faster (coding "
+         f"{sc['coding_speedup']:.2f}x), MSE {sc['mse_rgb']:.5g} ({sc['mse_vs_exhaustive']:+.3%}),"
+         f" {sc['points_changed']} of {s['n_points']} points ({sc['point_channels_changed']} "
+         "point x channel) changed dictionary"),
+    ]  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -290,3 +290,47 @@ def test_report_notes_how_verdicts_moved(tiny_run, tmp_path):
     assert rc == 0
     assert main(["bench", "report", str(out), "--docs", str(docs), "--previous",
                  str(tmp_path / "missing.json")]) == 2
+
+
+def test_report_sets_captured_verdicts_beside_the_synthetic_ones(tiny_run, tmp_path):
+    """A captured run's verdicts go beside the synthetic run's in results.md (found in
+    DOCS/capture/results, or named by --captured), with what differs and Table 2's gain
+    against each material's dynamic range (largest / median, the medians the runner records)."""
+    from sparsebtf.evaluation.captured import range_trend
+
+    out, result = tiny_run
+    tests = sorted({r["material"] for r in result["rows"] if r["set"] == "test"})
+    values = result["material_values"]
+    assert set(tests) <= set(values) and all(values[m]["median"] > 0 for m in tests)
+    cap = json.loads((out / "results.json").read_text())
+    cap["config"].update(source="capture", classes=["woven", "metal"], spp=4)
+    cap["created"] = "2026-01-02T00:00:00Z"
+    cap["summary"]["table5_pca"]["verdict"] = "a captured verdict"
+    capdir = tmp_path / "docs" / "capture" / "results"
+    capdir.mkdir(parents=True)
+    (capdir / "results.json").write_text(json.dumps(cap))
+    (capdir.parent / "results.md").write_text("# captured\n")
+    text = regenerate(out, tmp_path / "docs").read_text()
+    assert "## On captured materials" in text and "(capture/results.md)" in text
+    t5 = next(line for line in text.splitlines()
+              if "twice its storage" in line and "captured verdict" in line)
+    assert t5.endswith("| **verdict differs** |")
+    t3 = next(line for line in text.splitlines()
+              if line.startswith("| the error falls") and "same verdict" in line)
+    assert t3.count("**") == 4
+    for m in tests:  # one dynamic-range row per material and source
+        assert sum(line.startswith(f"| {m} | ") for line in text.splitlines()) == 2
+    # the trend rule: Spearman's rho of the dynamic range against the Table-2 ratio
+    rows = [{"range": 10.0 ** k, "table2_ratio": 1 + k} for k in range(5)]
+    assert range_trend(rows)["verdict"] == "the gain grows with the dynamic range"
+    assert range_trend(rows[::-1][:1] + rows[1:3])["verdict"] == "too few materials to tell"
+    flipped = [{**r, "table2_ratio": 5 - r["table2_ratio"]} for r in rows]
+    assert range_trend(flipped)["verdict"] == "the gain falls as the dynamic range grows"
+    # --captured names a run; a synthetic run there is one clear error
+    assert main(["bench", "report", str(out), "--docs", str(tmp_path / "d2"),
+                 "--captured", str(capdir)]) == 0
+    assert "## On captured materials" in (tmp_path / "d2" / "results.md").read_text()
+    assert main(["bench", "report", str(out), "--docs", str(tmp_path / "d3"),
+                 "--captured", str(out)]) == 2
+    # a captured run's own results.md has no such section
+    assert "## On captured" not in regenerate(capdir, tmp_path / "d4").read_text()

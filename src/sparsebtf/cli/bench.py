@@ -53,7 +53,7 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
 def cmd_bench_report(args: argparse.Namespace) -> int:
     from ..evaluation.report import regenerate
 
-    print(f"wrote {regenerate(args.run, args.docs, args.previous)}")
+    print(f"wrote {regenerate(args.run, args.docs, args.previous, args.captured)}")
     return 0
 
 
@@ -94,4 +94,7 @@ def register(sub: Any) -> None:
     r.add_argument("run", help="folder of a 'bench quality' run (holds results.json)")
     r.add_argument("--docs", default="docs", help="docs folder (default docs)")
     r.add_argument("--previous", metavar="RESULTS_JSON", help=PREVIOUS_HELP)
+    r.add_argument("--captured", metavar="RUN",
+                   help="folder of a '--source capture' run whose verdicts go beside this "
+                   "run's (default: DOCS/capture/results when it holds a results.json)")
     r.set_defaults(func=cmd_bench_report)

@@ -33,6 +33,7 @@ from .._json import json_default
 from ..errors import BTFInputError
 from ..figures import save_figure
 from ..storage.accounting import paper_storage
+from .captured import captured_section
 from .history import describe, moved, record
 
 __all__ = [
@@ -530,9 +531,12 @@ def render_markdown(
     summary: dict[str, Any],
     img: str = "",
     previous: dict[str, Any] | None = None,
+    captured: tuple[dict[str, Any], dict[str, Any], str | None] | None = None,
 ) -> str:
     """results.md text; ``img`` is the prefix of image links (folder of the PNGs);
-    ``previous`` (a :func:`~.history.record`) adds how each verdict moved from that run."""
+    ``previous`` (a :func:`~.history.record`) adds how each verdict moved from that run;
+    ``captured`` (a captured run's results, its summary, a link to its results.md) adds its
+    verdicts beside these (:func:`~.captured.captured_section`)."""
     cfg = result["config"]
     mach = result["machine"]
     lines = [
@@ -626,6 +630,8 @@ def render_markdown(
                 "standardisation", "rate_control"):
         if key in summary:
             lines.append(f"- {key}: {summary[key]['rule']}")
+    if captured is not None:
+        lines += captured_section(result, summary, *captured)
     lines += [
         "", "## Table 2 shape: BTF-specific processing vs [MHU19], equal storage",
         "", "MSE x 1e-4, linear RGB. [MHU19] = the same ensemble training and coding on raw "
@@ -703,13 +709,44 @@ def _source_text(cfg: dict[str, Any]) -> str:
     return "synthetic"
 
 
+def _captured_run(
+    result: dict[str, Any], docs: Path, folder: str | os.PathLike[str] | None
+) -> tuple[dict[str, Any], dict[str, Any], str | None] | None:
+    """(results, summary, link to its results.md) of the captured run for ``result``'s
+    results.md, or None (see :func:`regenerate`)."""
+    if folder is None:
+        if result["config"].get("source") == "capture":
+            return None
+        folder = docs / "capture" / "results"
+        if not (folder / "results.json").exists():
+            return None
+    path = Path(folder) / "results.json"
+    try:
+        cap = json.loads(path.read_text())
+        if cap["config"].get("source") != "capture":
+            raise BTFInputError(f"--captured {folder}: {path} is not a '--source capture' run")
+        summary = cap.get("summary") or summarise(cap)
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise BTFInputError(f"--captured {folder}: not a readable 'bench quality' results.json "
+                            f"({e})") from e  # fmt: skip
+    page = next((p for p in (Path(folder) / "results.md", Path(folder).parent / "results.md")
+                 if p.exists()), None)  # fmt: skip
+    return cap, summary, None if page is None else os.path.relpath(page, docs)
+
+
 def regenerate(
     run_dir: str | os.PathLike[str],
     docs: str | os.PathLike[str],
     previous: str | os.PathLike[str] | None = None,
+    captured: str | os.PathLike[str] | None = None,
 ) -> Path:
     """``docs/results.md``, ``docs/results/*.png`` and ``docs/results/results.json`` from a
     finished run's ``results.json``.
+
+    ``captured``: the folder of a ``--source capture`` run (its ``results.json``), whose
+    verdicts go beside this run's; by default ``DOCS/capture/results`` when it holds one
+    (``sparsebtf bench report CAPTURE_RUN --docs DOCS/capture`` puts it there) and this run is
+    not a captured one itself.
 
     Beside each verdict goes how it moved from a previous run: the ``results.json`` at
     ``previous``; else the run's own ``previous`` record; else the run that ``docs`` held
@@ -748,7 +785,8 @@ def regenerate(
         kept = {k: v for k, v in result.items() if k != "storage"}
         tmp.write_text(json.dumps(kept, indent=2, default=json_default))
     target = docs / "results.md"
-    text = render_markdown(result, summary, img="results/", previous=result.get("previous"))
+    text = render_markdown(result, summary, img="results/", previous=result.get("previous"),
+                           captured=_captured_run(result, docs, captured))
     text = text.replace(
         "from `results.json`;",
         f"from `results.json` (regenerate: `sparsebtf bench report {img_dir} --docs {docs}`);",

@@ -50,6 +50,7 @@ from ..errors import BTFInputError
 from ..execution import Executor, executor
 from ..figures import comparison_grid
 from ..model import CodedBTF, Model
+from ..points.preprocessing import positive_median
 from ..runtime import coded_btf_view
 from ..storage.accounting import storage_report
 from .baselines import (
@@ -258,6 +259,13 @@ def _run_quality(
 
     ratios = cfg.ratios()
     rows: list[dict[str, Any]] = []
+    # each scored material's median positive value and share of values <= 0 (the sample of
+    # the auto log offset): with the rows' largest value, its dynamic range
+    values: dict[str, dict[str, Any]] = {}
+
+    def note_values(label: str, btf: BTF) -> None:
+        median, zeros = positive_median(btf)
+        values[label] = {"median": median, "nonpositive_share": zeros}
     grids: list[str] = []
 
     def level_budget(btf: BTF, level: int) -> float:
@@ -283,6 +291,7 @@ def _run_quality(
     for label, cls, mseed, btf in tests:
         base = {"material": label, "class": cls, "seed": mseed, "set": "test",
                 "size": [btf.height, btf.width]}
+        note_values(label, btf)
         recs: dict[str, BTF] = {}
         pending: list[tuple[dict[str, Any], BTF | None]] = []
         lv_taus = [level_tau(level_budget(btf, lv), minimum=tau_l) for lv in cfg.levels]
@@ -354,6 +363,7 @@ def _run_quality(
     for label, cls, mseed, btf in table5:
         base = {"material": label, "class": cls, "seed": mseed, "set": "table5",
                 "size": [btf.height, btf.width]}
+        note_values(label, btf)
         t5_levels = tuple(cfg.table5_levels) or tuple(cfg.levels)
         lv_taus = [level_tau(level_budget(btf, lv), minimum=tau_l) for lv in t5_levels]
         say(f"{label} ({btf.height}x{btf.width}): SparseBTF at tau {lv_taus}")
@@ -420,6 +430,7 @@ def _run_quality(
         label = f"{_label(cls, mseed)}+black"
         base = {"material": label, "class": cls, "seed": mseed, "set": "black",
                 "size": [btf.height, btf.width]}
+        note_values(label, btf)
         lv_taus = [level_tau(level_budget(btf, lv), minimum=tau_l) for lv in cfg.levels]
         variants = [("sparsebtf", btf, cfg.log_offset), ("floored", floored(btf, FLOOR), "release")]
         if cfg.log_offset != "release":
@@ -448,6 +459,7 @@ def _run_quality(
         "models": model_info,
         "methods": METHODS,
         "rows": rows,
+        "material_values": values,
         "grids": grids,
         "timings_seconds": timings,
         "seconds": time.perf_counter() - t_start,

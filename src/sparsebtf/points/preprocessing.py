@@ -569,12 +569,26 @@ def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
         return EPS
     if not isinstance(rule, str):
         return float(rule)
+    median, _ = positive_median(btf)
+    if median is None:
+        return EPS
+    # Round to 3 significant digits: the offset is a recorded parameter, not a measurement.
+    return float(f"{max(EPS, min(LOG_OFFSET_FRACTION * median, _MAX_LOG_OFFSET)):.3g}")
+
+
+def positive_median(btf: BTF) -> tuple[float | None, float]:
+    """(median of the positive values, share of values <= 0) of ``btf``, on the sample the
+    ``auto`` log offset uses (:func:`choose_log_offset`): up to :data:`_OFFSET_VIEWS` evenly
+    spaced view blocks, a regular subsample of about :data:`_OFFSET_TEXELS` texels of each;
+    the median is its log-spaced histogram bin's geometric centre (64 bins per decade), None
+    when no value is positive. NaN/Inf abort with their count and a location."""
     h, w, _, nv, _ = btf.shape
     views = np.unique(np.linspace(0, nv - 1, min(nv, _OFFSET_VIEWS)).round().astype(int))
     step = max(1, int(np.sqrt(h * w / _OFFSET_TEXELS)))
     n_bins = _HIST_DECADES * _HIST_PER_DECADE
     counts = np.zeros(n_bins, dtype=np.int64)
     sub = slice(None, None, step)
+    seen = 0
     for v in views:
         block = btf.read(sub, sub, slice(None), [int(v)])  # the subsample only
         bad = ~np.isfinite(block)
@@ -585,18 +599,18 @@ def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
                 f"col {c * step}, "
                 f"light {li}, view {int(v)}, channel {ch}"
             )
+        seen += block.size
         x = block.ravel()
         x = x[x > 0].astype(np.float64)
         # bin = ⌊64·(log10 x + 12)⌋: one pass, no search over the edges
         b = np.floor((np.log10(x) - _HIST_LOW) * _HIST_PER_DECADE).astype(np.int64)
         counts += np.bincount(np.clip(b, 0, n_bins - 1), minlength=n_bins)
     total = int(counts.sum())
+    zeros = 1.0 - total / seen if seen else 0.0
     if total == 0:
-        return EPS
+        return None, zeros
     k = int(np.searchsorted(np.cumsum(counts), (total + 1) // 2))
-    median = 10.0 ** (_HIST_LOW + (k + 0.5) / _HIST_PER_DECADE)  # the bin's geometric centre
-    # Round to 3 significant digits: the offset is a recorded parameter, not a measurement.
-    return float(f"{max(EPS, min(LOG_OFFSET_FRACTION * median, _MAX_LOG_OFFSET)):.3g}")
+    return float(10.0 ** (_HIST_LOW + (k + 0.5) / _HIST_PER_DECADE)), zeros  # bin centre
 
 
 def warn_negatives(name: str, parts: Sequence[StatisticSums]) -> None:
