@@ -266,6 +266,15 @@ def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: int) ->
     return np.square(y.reshape(k, -1), dtype=np.float64)
 
 
+def point_energies(batch: np.ndarray) -> np.ndarray:
+    """(B,) float64 ‖X_b‖² of a batch of data points, the points on the worker threads
+    (:func:`~sparsebtf.learning.tensor.sum_squares` row by row: the same values)."""
+    b = batch.shape[0]
+    rows = batch.reshape(b, -1)
+    return np.array(list(parallel_map(lambda i: sum_squares(rows[i : i + 1])[0], range(b))),
+                    dtype=np.float64).reshape(b)  # fmt: skip
+
+
 def screen_columns(tau: int, spatial: int) -> int:
     """Angular columns r per angular mode for a cap τ on points of ``spatial`` = p1·p2 texels:
     the smallest r >= :data:`SCREEN_COLUMNS` with p1·p2·r² >= :data:`SCREEN_DEPTH` · τ
@@ -281,6 +290,7 @@ def screen_dictionaries(
     candidates: int,
     columns: int | None = None,
     dtype: type = np.float32,
+    energy: np.ndarray | None = None,
 ) -> np.ndarray:
     """(B, K) mask of the dictionaries each point is projected on exactly: at every level τ of
     ``taus``, the ``candidates`` best by the coding rule (sparsest, then least error, ties to
@@ -301,7 +311,8 @@ def screen_dictionaries(
     size = int(np.prod(x.shape[1:]))
     levels = sorted({min(int(t), size) for t in taus})
     mats = [np.asarray(d, dtype=dtype) for d in dictionaries]
-    energy = sum_squares(x.reshape(b, -1))
+    if energy is None:
+        energy = point_energies(x)
     if columns is None:
         columns = screen_columns(levels[-1], x.shape[1] * x.shape[2])
 
@@ -377,13 +388,14 @@ def sparse_code_levels(
     b = x.shape[0]
     nl = len(levels)
     xc = np.ascontiguousarray(x, dtype=dtype)
-    energy = sum_squares(xc.reshape(b, -1))
+    energy = point_energies(xc)
 
     rule, n_cand = coding_rule(candidates, n_dict)
     if rule == "exhaustive":
         mask = np.ones((b, n_dict), dtype=bool)
     else:
-        mask = screen_dictionaries(xc, dictionaries, levels, eps, n_cand, dtype=dtype)
+        mask = screen_dictionaries(xc, dictionaries, levels, eps, n_cand, dtype=dtype,
+                                   energy=energy)
     # dictionaries left out by the screening lose every comparison of the rule
     counts = np.full((nl, b, n_dict), np.iinfo(np.int64).max, dtype=np.int64)
     errs = np.full((nl, b, n_dict), np.inf)
