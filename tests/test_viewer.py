@@ -210,7 +210,9 @@ def test_view_command_serves_until_ctrl_c(files):
         with urllib.request.urlopen(url + "sparsebtf_lookup.glsl", timeout=10) as r:
             assert b"vec3 sb_evaluate(vec2 uv, vec3 wi, vec3 wo)" in r.read()
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=20) == 0
+        # generous: on a 2-core CI machine shared with other jobs the interpreter's exit
+        # (closing the server, unloading numba/h5py) once took over 20 s
+        assert proc.wait(timeout=90) == 0
     finally:
         if proc.poll() is None:
             proc.kill()
