@@ -149,14 +149,6 @@ if HAVE_NUMBA:
         m10, m11, m12 = m[1, 0], m[1, 1], m[1, 2]
         m20, m21, m22 = m[2, 0], m[2, 1], m[2, 2]
         n_a = logs.shape[1]
-        if first and logs.shape[0]:
-            for a in range(n_a):
-                r = logs[0, a, 0]
-                g = logs[0, a, 1]
-                b = logs[0, a, 2]
-                shift[a, 0] = m00 * r + m01 * g + m02 * b
-                shift[a, 1] = m10 * r + m11 * g + m12 * b
-                shift[a, 2] = m20 * r + m21 * g + m22 * b
         b1 = np.zeros(3 * n_a)
         b2 = np.zeros(3 * n_a)
         d = np.empty(3 * n_a, dtype=np.float32)
@@ -170,6 +162,8 @@ if HAVE_NUMBA:
                 d[3 * a] = m00 * r + m01 * g + m02 * b
                 d[3 * a + 1] = m10 * r + m11 * g + m12 * b
                 d[3 * a + 2] = m20 * r + m21 * g + m22 * b
+            if first and i == 0:  # the first texel's Y, U, V are the shift
+                sh[:] = d
             # unit stride, no branch: vectorised over the angular samples and channels; each
             # sum still runs texel after texel, as the NumPy twin's
             for j in range(3 * n_a):
