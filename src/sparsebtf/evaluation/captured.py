@@ -31,11 +31,10 @@ TREND_RHO = 0.5
 
 
 def _test_materials(result: dict[str, Any]) -> list[str]:
-    seen: list[str] = []
-    for r in result["rows"]:
-        if r["set"] == "test" and r["material"] not in seen:
-            seen.append(r["material"])
-    return seen
+    # imported here: the report module imports this one to build its page
+    from .report import _materials
+
+    return _materials(result, "test")
 
 
 def dynamic_range_rows(result: dict[str, Any], summary: dict[str, Any]) -> list[dict[str, Any]]:
