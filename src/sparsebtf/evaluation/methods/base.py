@@ -132,6 +132,14 @@ class Method(abc.ABC):
     scope: ClassVar[str] = "per_material"
     matchings: ClassVar[tuple[str, ...]] = (PER_MATERIAL,)
 
+    @classmethod
+    def from_config(cls, config: Any) -> Method:
+        """The method as the benchmark configuration ``config`` (a
+        :class:`~sparsebtf.evaluation.benchmark_set.BenchConfig`) wants it; the runner builds
+        every method this way. Default: ``cls()``. A method whose cost must follow the run's
+        size (training iterations of a neural method in ``--quick``) overrides it."""
+        return cls()
+
     def fit(self, train: Sequence[BTF], context: FitContext) -> Method:
         """Learn the shared part from the training materials (default: nothing to learn)."""
         return self
