@@ -70,6 +70,20 @@ def test_render_methods_identical_and_perturbed(tmp_path):
     assert not any("sparsebtf-evaluation-renders" in str(k) for k in materials._materials)
 
 
+def test_dense_copy_of_a_coded_btf_is_its_decode():
+    """View block by view block (Eq. 4 per view) gives the whole-BTF decode."""
+    from sparsebtf.codec import encode
+    from sparsebtf.runtime import coded_btf_view
+
+    from .conftest import tiny_model
+
+    view = coded_btf_view(encode(smooth_btf(9), tiny_model(1), tau=(20, 4, 4), eps=0.0,
+                                 progress=False))  # fmt: skip
+    copy = dense_copy(view, "coded")
+    np.testing.assert_allclose(copy.data, view.to_array(), rtol=1e-6, atol=1e-7)
+    assert copy.lights.equals(view.lights) and copy.views.equals(view.views)
+
+
 def test_render_methods_refuses_bad_input(tmp_path):
     ref = smooth_btf(9)
     with pytest.raises(BTFInputError, match="shape"):
