@@ -72,6 +72,7 @@ def test_train_encode_decode_eval_info(files, capsys):
         "psnr_rgb",
         "ssim",
         "mse_log",
+        "mse_display",
         "nnz",
         "bytes_coefficients",
         "bytes_dictionaries",

@@ -356,6 +356,10 @@ def test_psnr_has_one_fixed_peak(coded_files, capsys):
     _code, out, _ = run(["eval", d / "c.h5", "--reference", d / "ref.h5", "--ssim-images", "2"],
                        capsys)  # fmt: skip
     assert f"{ev['psnr_rgb']:.2f} dB (peak 1)" in out
+    # the display-mapped MSE beside the linear and log ones, in the table and the JSON
+    assert ev["mse_display"] > 0
+    row = next(line for line in out.splitlines() if line.startswith("MSE, display-mapped"))
+    assert f"{ev['mse_display']:.4g}" in row
     # Renders: a noisy reference's largest pixel no longer sets the peak, so a lower MSE
     # always reads as a higher PSNR (the 0.0039 -> 31.6 dB, 0.0069 -> 36.8 dB).
     rng = np.random.default_rng(0)

@@ -227,9 +227,10 @@ def test_fast_scores_equal_compare():
     fast = score_many(btf, recs, ssim_images=3, tile=4, progress=False)
     for rec, st, f in zip(recs, stats, fast, strict=True):
         slow = compare(btf, rec, stats=st, ssim_images=3, tile=4, progress=False)
-        for key in ("mse_rgb", "mse_log", "psnr_rgb", "ssim", "peak", "reference_max",
-                    "max_decoded", "top_error_share"):
+        for key in ("mse_rgb", "mse_log", "mse_display", "psnr_rgb", "ssim", "peak",
+                    "reference_max", "max_decoded", "top_error_share"):
             assert f[key] == pytest.approx(slow[key], rel=1e-5), key
+        assert f["mse_display"] > 0
         if st is None:
             assert "mse_std" not in f
         else:
@@ -246,6 +247,33 @@ def test_fast_scores_equal_compare():
         np.mean([c.codes[ch].errors.mean() for ch in c.channels]), rel=1e-12)
     with pytest.raises(BTFInputError, match="cannot compare"):
         score_many(btf, [smooth_btf(1, size=4)])
+
+
+def test_mse_display_is_the_paper_display_mapping():
+    """mse_display of compare and score_many = a direct NumPy computation of
+    mean((clip(1.3·max(a, 0)^(1/1.8), 0, 1) − clip(1.3·max(b, 0)^(1/1.8), 0, 1))²), on a
+    reconstruction with negative values, values above white and one firework."""
+    from sparsebtf.data.btf import ArrayBTF
+    from sparsebtf.metrics import compare
+
+    ref = smooth_btf(4)
+    rng = np.random.default_rng(5)
+    rec = ref.data * rng.uniform(0.6, 1.4, ref.data.shape)
+    rec[0, 0, 0, 0] = -0.2
+    rec[3, 5, 7, 2] = 1e3  # a firework: the linear MSE is all its; on display it is white
+    rec = ArrayBTF(rec.astype(np.float32), ref.lights, ref.views, name="noisy")
+
+    def shown(x):
+        return np.clip(1.3 * np.maximum(x.astype(np.float64), 0) ** (1 / 1.8), 0, 1)
+
+    direct = float(np.mean((shown(ref.data) - shown(rec.data)) ** 2))
+    assert 1e-4 < direct < 0.1
+    slow = compare(ref, rec, ssim_images=0, tile=4, progress=False)
+    fast = score_many(ref, [rec], ssim_images=0, tile=4, progress=False)[0]
+    assert slow["mse_display"] == pytest.approx(direct, rel=1e-5)
+    assert fast["mse_display"] == pytest.approx(direct, rel=1e-5)
+    # the firework carries the linear error, not the displayed one
+    assert slow["top_error_share"] > 0.99 and slow["mse_rgb"] > 1e3 * slow["mse_display"]
 
 
 def test_bench_trains_to_convergence(tiny_run):

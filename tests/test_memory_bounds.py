@@ -41,5 +41,5 @@ def test_compare_tiles_bounded_and_same_metrics():
                      ref.lights, ref.views, name="noisy")  # fmt: skip
     whole = compare(ref, noisy, ssim_images=2, progress=False)
     tiled = compare(ref, noisy, tile=10, ssim_images=2, progress=False)
-    for key in ("mse_rgb", "mse_log", "psnr_rgb", "ssim"):
+    for key in ("mse_rgb", "mse_log", "mse_display", "psnr_rgb", "ssim"):
         assert np.isclose(whole[key], tiled[key], rtol=1e-12), key

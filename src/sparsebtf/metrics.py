@@ -2,6 +2,10 @@
 
 * ``mse_rgb`` — mean squared error on linear RGB over every value (the paper's tables).
 * ``mse_log`` — the same on ln(RGB + 1e-5).
+* ``mse_display`` — the same after the paper's display mapping of both BTFs,
+  clip(1.3·max(RGB, 0)^(1/1.8), 0, 1) (:func:`sparsebtf.display.tone_map`, the one rule):
+  the error a viewer sees. Linear-RGB MSE is dominated by the highlights of high-dynamic-range
+  materials; here every value counts within [0, 1] and a value above white is white.
 * ``mse_std`` — the same in the standardised log-YUV domain the codes live in (the release's
   ``btf4Drecon`` reports this one), using the reconstruction's statistics (and log offset) for
   both.
@@ -28,10 +32,19 @@ from skimage.metrics import structural_similarity
 
 from ._progress import bar
 from .data.btf import BTF
+from .display import tone_map
 from .errors import BTFInputError
 from .points.preprocessing import EPS, RGB_TO_YUV, Standardization
 
-__all__ = ["PSNR_PEAK", "TOP_SHARE", "compare", "psnr", "ssim_angular", "top_k_largest"]
+__all__ = [
+    "PSNR_PEAK",
+    "TOP_SHARE",
+    "compare",
+    "display_values",
+    "psnr",
+    "ssim_angular",
+    "top_k_largest",
+]
 
 #: The peak of every PSNR the project reports (eval, render, benchmarks): reflectance 1.
 PSNR_PEAK = 1.0
@@ -52,6 +65,12 @@ def top_k_largest(kept: np.ndarray, new: np.ndarray, k: int) -> np.ndarray:
 def _sumsq(x: np.ndarray) -> float:
     """Σx² of a float32 array with a float64 (pairwise) accumulator."""
     return float(np.sum(np.square(x), dtype=np.float64))
+
+
+def display_values(x: np.ndarray) -> np.ndarray:
+    """Linear RGB as displayed, float32: :func:`sparsebtf.display.tone_map` (the paper's
+    clip(1.3·max(x, 0)^(1/1.8), 0, 1)); ``mse_display`` is the MSE of these values."""
+    return tone_map(x, dtype=np.float32)
 
 
 def psnr(mse: float, peak: float = PSNR_PEAK) -> float:
@@ -128,7 +147,7 @@ def compare(
         )
     h, w = reference.height, reference.width
     tile = tile or compare_tile(len(reference.lights) * len(reference.views))
-    sums = {"rgb": 0.0, "log": 0.0, "std": 0.0}
+    sums = {"rgb": 0.0, "log": 0.0, "display": 0.0, "std": 0.0}
     ref_max = 0.0
     decoded_max = -np.inf
     n = 0
@@ -151,6 +170,7 @@ def compare(
             worst = top_k_largest(worst, d2, k_top)
             dl = np.log(a + np.float32(EPS)) - np.log(np.maximum(b, 0) + np.float32(EPS))
             sums["log"] += _sumsq(dl)
+            sums["display"] += _sumsq(display_values(a) - display_values(b))
             if inv_sd is not None:
                 # z_a − z_b = YUV(ln(a + ε) − ln(b + ε)) / σ with the material's own ε: the
                 # mean cancels.
@@ -168,6 +188,7 @@ def compare(
         "psnr_rgb": psnr(mse_rgb),
         "peak": PSNR_PEAK,
         "mse_log": sums["log"] / n,
+        "mse_display": sums["display"] / n,
         "ssim": ssim_angular(reference, reconstruction, pairs, ref_max) if ssim_images else None,
         "ssim_images": len(pairs) if ssim_images else 0,
         "ssim_data_range": ref_max,

@@ -51,6 +51,7 @@ LABELS = {
     "nonfinite": "non-finite values",
     "mse_rgb": "MSE, linear RGB",
     "mse_log": "MSE, log RGB",
+    "mse_display": "MSE, display-mapped",
     "mse_std": "MSE, standardised",
     "mse_std_codes": "MSE, standardised, from the codes",
     "psnr_rgb": "PSNR, linear RGB",

@@ -1,4 +1,5 @@
-"""``sparsebtf eval``: quality (MSE, PSNR, SSIM) and storage of a coded BTF vs its reference."""
+"""``sparsebtf eval``: quality (MSE of linear, log and display-mapped RGB, PSNR, SSIM) and
+storage of a coded BTF vs its reference."""
 
 from __future__ import annotations
 
@@ -82,6 +83,8 @@ def quality_table(out: dict[str, Any]) -> str:
         (label("max_decoded"), _largest(out)),
         (label("top_error_share"), f"{100 * out['top_error_share']:.1f} % of the squared error"),
         ("MSE, log RGB", f"{out['mse_log']:.4g}"),
+        ("MSE, display-mapped", f"{out['mse_display']:.4g} (clip(1.3 x^(1/1.8), 0, 1), as the "
+                                "paper displays images)"),
         ("MSE, standardised", f"{out['mse_std']:.4g} (the codes' residual: "
                               f"{out['mse_std_codes']:.4g})"),
         ("coefficients", format_value(out["nnz"])),
@@ -102,8 +105,8 @@ def quality_table(out: dict[str, Any]) -> str:
                                        f"material), ratio {out['compression_ratio']:.1f}"),
     ]  # fmt: skip
     shown = {"mse_rgb", "psnr_rgb", "peak", "ssim", "ssim_images", "ssim_data_range",
-             "max_decoded", "reference_max", "top_error_share", "mse_log", "mse_std",
-             "mse_std_codes", "nnz", *_STORAGE_KEYS}  # fmt: skip
+             "max_decoded", "reference_max", "top_error_share", "mse_log", "mse_display",
+             "mse_std", "mse_std_codes", "nnz", *_STORAGE_KEYS}  # fmt: skip
     rest = {k: v for k, v in out.items() if k not in shown}
     return table(rows + nested_rows(rest))
 

@@ -19,8 +19,11 @@ second time. The benchmark scores some twenty reconstructions per material, so
   value needs clamping (tests check both).
 
 Every metric keeps :func:`compare`'s definition (linear-RGB MSE over every value, log MSE on
-ln(RGB + 1e-5), PSNR with the fixed peak ``metrics.PSNR_PEAK``, mean SSIM over the same
-regular sample of angular images); ``tests/test_evaluation.py`` checks the two agree.
+ln(RGB + 1e-5), ``mse_display`` — the MSE after the paper's display mapping
+clip(1.3·max(RGB, 0)^(1/1.8), 0, 1), :func:`sparsebtf.display.tone_map`, of the same decoded
+tiles (the reference's mapped once per tile), PSNR with the fixed peak ``metrics.PSNR_PEAK``,
+mean SSIM over the same regular sample of angular images); ``tests/test_evaluation.py``
+checks the two agree.
 """
 
 from __future__ import annotations
@@ -35,7 +38,15 @@ from .._progress import bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.parallel import single_threaded_blas
-from ..metrics import PSNR_PEAK, TOP_SHARE, _angular_sample, _sumsq, psnr, top_k_largest
+from ..metrics import (
+    PSNR_PEAK,
+    TOP_SHARE,
+    _angular_sample,
+    _sumsq,
+    display_values,
+    psnr,
+    top_k_largest,
+)
 from ..model import CodedBTF
 from ..points.preprocessing import EPS, yuv_to_rgb
 from ..runtime.dense import DecodedBTF
@@ -85,8 +96,10 @@ def score_many(
     """:func:`~sparsebtf.metrics.compare` of every reconstruction against ``reference``, in
     one streamed pass over the reference (memory: one tile of each, plus the SSIM images).
 
-    Reconstructions that are decoded coded BTFs (:class:`DecodedBTF`) also get ``mse_std``
-    (:func:`coded_mse_std`) unless their model codes raw RGB.
+    Each result has ``mse_display``, the MSE of the display-mapped values (the paper's
+    clip(1.3·max(x, 0)^(1/1.8), 0, 1), :func:`~sparsebtf.metrics.display_values`), from the
+    same decoded tiles. Reconstructions that are decoded coded BTFs (:class:`DecodedBTF`) also
+    get ``mse_std`` (:func:`coded_mse_std`) unless their model codes raw RGB.
     """
     for rec in reconstructions:
         if rec.shape != reference.shape:
@@ -102,7 +115,7 @@ def score_many(
     li = np.array([p[0] for p in pairs])
     vi = np.array([p[1] for p in pairs])
     n_rec = len(reconstructions)
-    sums = np.zeros((n_rec, 2))  # linear RGB, log
+    sums = np.zeros((n_rec, 3))  # linear RGB, log, display-mapped
     ref_img = np.zeros((len(pairs), h, w, 3), dtype=np.float32)
     rec_img = np.zeros((n_rec, len(pairs), h, w, 3), dtype=np.float32)
     ref_max = 0.0  # SSIM's data range
@@ -116,6 +129,7 @@ def score_many(
             rows, cols = slice(r, min(r + tile, h)), slice(c, min(c + tile, w))
             a = np.maximum(reference.region(rows, cols).astype(np.float32), 0)
             la = np.log(a + np.float32(EPS))
+            da = display_values(a)
             ref_max = max(ref_max, float(a.max()))
             n += a.size
             if ssim_images:
@@ -128,6 +142,7 @@ def score_many(
                 worst[j] = top_k_largest(worst[j], d2, k_top)
                 top[j] = max(top[j], float(b.max()))
                 sums[j, 1] += _sumsq(la - lb)
+                sums[j, 2] += _sumsq(da - display_values(b))
                 if ssim_images:
                     rec_img[j, :, rows, cols] = np.moveaxis(b[:, :, li, vi], 2, 0)
                 pb.update(1)
@@ -142,6 +157,7 @@ def score_many(
             "psnr_rgb": psnr(mse_rgb),
             "peak": PSNR_PEAK,
             "mse_log": sums[j, 1] / n,
+            "mse_display": sums[j, 2] / n,
             "ssim": float(np.mean([
                 structural_similarity(ref_img[i].astype(np.float64),
                                       rec_img[j, i].astype(np.float64), data_range=ref_max,

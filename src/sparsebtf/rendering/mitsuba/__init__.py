@@ -108,7 +108,15 @@ default 2): larger tables are refused with an error (crop the BTF first,
 
 from __future__ import annotations
 
-from .materials import DENSE_PLUGIN, PLUGIN, add_material, dense_table, load_runtime, preload
+from .materials import (
+    DENSE_PLUGIN,
+    PLUGIN,
+    add_material,
+    dense_table,
+    load_runtime,
+    preload,
+    remove_material,
+)
 from .variant import register, setup
 
 __all__ = [
@@ -119,5 +127,6 @@ __all__ = [
     "load_runtime",
     "preload",
     "register",
+    "remove_material",
     "setup",
 ]

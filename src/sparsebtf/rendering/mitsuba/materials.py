@@ -43,6 +43,7 @@ __all__ = [
     "load_dense",
     "load_runtime",
     "preload",
+    "remove_material",
     "sampling_params",
     "sampling_tables",
     "source_id",
@@ -80,6 +81,15 @@ def add_material(obj: Any, key: str | None = None) -> str:
         for ck in [ck for ck in _cache if ("key", key) in ck]:  # replaced: drop stale data
             del _cache[ck]
     return key
+
+
+def remove_material(key: str) -> None:
+    """Forget the material added under ``key`` and everything loaded from it (its tables),
+    so their memory can be freed; an unknown key is ignored."""
+    with _lock:
+        _materials.pop(key, None)
+        for ck in [ck for ck in _cache if ("key", key) in ck]:
+            del _cache[ck]
 
 
 def source_id(props: Any, what: str) -> tuple:
