@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["get", "levels", "matching_of", "materials", "method_order", "rows"]
+__all__ = ["find", "get", "label", "levels", "matching_of", "materials", "method_order", "rows"]
 
 
 def rows(result: dict[str, Any], **match: Any) -> list[dict[str, Any]]:
@@ -50,3 +50,24 @@ def method_order(result: dict[str, Any], which: str | None = None) -> list[str]:
         if (which is None or r["set"] == which) and r["method"] not in seen:
             seen.append(r["method"])
     return seen
+
+
+def find(
+    result: dict[str, Any], matching: str | None = None, factor: float | None = None,
+    **match: Any,
+) -> dict[str, Any] | None:  # fmt: skip
+    """The first row matching ``match`` coded under ``matching`` at budget ``factor`` (None:
+    any). Rows without a ``matching`` (the reference's, and every row of runs before
+    matchings) stand under every matching."""
+    for r in rows(result, **match):
+        if matching is not None and r.get("matching", matching) != matching:
+            continue
+        if factor is not None and r.get("budget_factor", 1) != factor:
+            continue
+        return r
+    return None
+
+
+def label(result: dict[str, Any], method: str) -> str:
+    """How tables name ``method`` (its label in the run, else its key)."""
+    return result.get("methods", {}).get(method, method)
