@@ -15,8 +15,8 @@ from ..figures import save_figure
 from .rows import levels as _levels
 from .rows import materials as _materials
 from .rows import rows as _rows
+from .tables import gmean as _gmean
 from .tables import label_with_matching, method_matchings
-from .verdicts import gmean as _gmean
 
 __all__ = ["figure3", "quality_storage"]
 

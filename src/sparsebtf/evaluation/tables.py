@@ -11,6 +11,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -24,10 +25,9 @@ from .rows import matching_of as _matching_of
 from .rows import materials as _materials
 from .rows import method_order as _method_order
 from .rows import rows as _rows
-from .verdicts import gmean as _gmean
 
 __all__ = [
-    "STORAGE_JSON", "fmt", "label_with_matching", "markdown_table", "method_matchings",
+    "STORAGE_JSON", "fmt", "gmean", "label_with_matching", "markdown_table", "method_matchings",
     "stored_levels", "stored_section", "table2", "table3", "table5", "table_black",
     "table_storage", "table_stored",
 ]  # fmt: skip
@@ -35,6 +35,15 @@ __all__ = [
 #: ``benchmarks/bench_storage.py --json`` output beside a run's results.json (or in
 #: ``docs/results/``): its per-level figures go into results.md's "stored bytes vs Table 4".
 STORAGE_JSON = "storage.json"
+
+
+def gmean(values: Sequence[float | None]) -> float | None:
+    """Geometric mean of the positive finite values (None when there are none)."""
+    v = [x for x in values if x is not None and x > 0 and np.isfinite(x)]
+    return float(np.exp(np.mean(np.log(v)))) if v else None
+
+
+_gmean = gmean
 
 
 def fmt(x: float | None, scale: float = 1e4) -> str:

@@ -11,27 +11,19 @@ the rule used to reach it (every figure computed from ``results.json`` rows).
 from __future__ import annotations
 
 import itertools
-from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
-
 from ..storage.accounting import paper_storage
+from .claims3 import summarise_table3
 from .rows import get as _get
 from .rows import levels as _levels
 from .rows import materials as _materials
 from .rows import rows as _rows
+from .tables import gmean as _gmean
 
-__all__ = ["gmean", "summarise"]
-
-
-def gmean(values: Sequence[float | None]) -> float | None:
-    """Geometric mean of the positive finite values (None when there are none)."""
-    v = [x for x in values if x is not None and x > 0 and np.isfinite(x)]
-    return float(np.exp(np.mean(np.log(v)))) if v else None
+__all__ = ["summarise"]
 
 
-_gmean = gmean
 
 def _ratio_claim(result: dict[str, Any], num: str, den: str, level: int) -> dict[str, Any]:
     per = {}
@@ -215,5 +207,6 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
         "ours": ref["compression_ratio"],
         "verdict": "supported" if abs(ref["compression_ratio"] - 2122) < 1 else "not supported",
     }
+    out.update(summarise_table3(result, mid))
     return out
 
