@@ -60,19 +60,20 @@ def _methods(args: argparse.Namespace) -> list[str]:
     from ..evaluation.methods import method_class
     from ..evaluation.methods.selection import default_methods, parse_methods
 
-    if args.methods is not None:
-        names = parse_methods(args.methods)
-    else:
-        names = default_methods(note=lambda text: print(f"sparsebtf: note: {text}",
-                                                        file=sys.stderr))  # fmt: skip
-    for spec in args.method or ():
+    own = list(args.method or ())
+    for spec in own:  # checked first: a bad one is the only line
         if ":" not in spec:
             from ..errors import BTFInputError
 
             raise BTFInputError(f"--method {spec}: expected package.module:Class (a registered "
                                 "name goes in --methods)")
         method_class(spec)
-        names.append(spec)
+    if args.methods is not None:
+        names = parse_methods(args.methods)
+    else:
+        names = default_methods(note=lambda text: print(f"sparsebtf: note: {text}",
+                                                        file=sys.stderr))  # fmt: skip
+    names += own
     return names
 
 
