@@ -115,6 +115,14 @@ def test_resolve_puts_the_reference_first_and_config_flags_drop_methods():
         resolve_methods([FlatMethod, Clash], cfg)
 
 
+class FakeRGJW20(FlatMethod):
+    """Stands in for RGJW20 (the neural methods are another module's): its rows feed the
+    Table-3 verdicts and the Figure-5 image."""
+
+    name = "rgjw20"
+    label = "RGJW20 (test)"
+
+
 # -- a run with a user's method ------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def flat_run(tmp_path_factory):
@@ -129,7 +137,7 @@ def flat_run(tmp_path_factory):
     cfg = replace(tiny_config(), with_per_channel=False, with_raw=False,
                   with_rate_control=False, pca_domains=("log",))  # fmt: skip
     result = run_quality(out / "run", cfg, log=lambda m: None,
-                         methods=["sparsebtf", "flat_test"])  # fmt: skip
+                         methods=["sparsebtf", "flat_test", FakeRGJW20])  # fmt: skip
     return out / "run", result, cfg
 
 
@@ -137,8 +145,8 @@ def test_registered_method_has_rows_per_matching_and_appears_in_the_report(flat_
     out, _, _ = flat_run
     assert method_class("flat_test") is FlatMethod
     data = json.loads((out / "results.json").read_text())
-    assert {r["method"] for r in data["rows"]} == {"sparsebtf", "flat_test", "release",
-                                                   "floored"}  # fmt: skip
+    assert {r["method"] for r in data["rows"]} == {"sparsebtf", "flat_test", "rgjw20",
+                                                   "release", "floored"}  # fmt: skip
     flat = [r for r in data["rows"] if r["method"] == "flat_test"]
     assert {r["set"] for r in flat} == {"test"}  # sets = ("test",): not on Table 5
     ref = {(r["material"], r["level"]): r for r in data["rows"]
@@ -161,7 +169,13 @@ def test_registered_method_has_rows_per_matching_and_appears_in_the_report(flat_
     assert section.count("| Flat (test) (16) |") == 2  # once per matching
     assert "Flat (test)" in (out / "table2.md").read_text()
     s = data["summary"]
-    assert s["table3_vs_rgjw20"]["verdict"] == "not measured"
+    vs = s["table3_vs_rgjw20"]
+    assert vs["matching"] == PAPER and vs["cells_won"].endswith("/4")  # 2 levels x 2 materials
+    assert vs["verdict"] in ("supported", "not supported")
+    assert s["table3_rgjw20_stalls"]["verdict"] == "not measured"  # levels 16, 32 only
+    assert s["table3_rjgw19_lowest"]["verdict"] == "not measured"
+    assert data["figure5"] == ["figure5_carpet12.png"] and (out / "figure5_carpet12.png").exists()
+    assert "figure5_carpet12.png" in md and "| RGJW20 (test) (32) |" in section
     assert "table2_metrics" not in s  # no [MHU19] in this run
     assert {"table3_monotone", "table5_pca", "true_black"} <= set(s)
 

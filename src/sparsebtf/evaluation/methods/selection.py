@@ -36,8 +36,14 @@ NEURAL_NOTE = ("the neural methods ({}) were left out: PyTorch is not installed 
 
 
 def torch_available() -> bool:
-    """Whether PyTorch can be imported (without importing it)."""
-    return importlib.util.find_spec("torch") is not None
+    """Whether ``import torch`` works (a broken install counts as absent)."""
+    if importlib.util.find_spec("torch") is None:
+        return False
+    try:
+        import torch  # noqa: F401
+    except Exception:  # a broken install: the neural methods could not run either
+        return False
+    return True
 
 
 def default_methods(note: Callable[[str], None] | None = None) -> list[str]:
