@@ -134,7 +134,7 @@ def render_markdown(
         + ", ".join(f"{k}: {v:.0f}" for k, v in result["level_ratios_per_material"].items())
         + ". The shared dictionaries are not in any per-material figure; per model they are "
         + ", ".join(f"{k} {v['bytes_dictionaries']:,d} B"
-                    for k, v in result["models"].items()) + ".",
+                    for k, v in result["models"].items()) + "." + _shared_parts(result),
         "- Fixed-tau SparseBTF codes every point with exactly tau coefficients (eps = 0), as "
         "in the paper's tables; rate control gets exactly the fixed-tau bytes.",
         "- MSE is on linear RGB over every value (the paper's tables), shown x 1e-4.",
@@ -254,6 +254,18 @@ def render_markdown(
         [[k, f"{v:.0f}"] for k, v in sorted(result["timings_seconds"].items())]
         + [["total", f"{result['seconds']:.0f}"]])]
     return "\n".join(lines) + "\n"
+
+
+def _shared_parts(result: dict[str, Any]) -> str:
+    """The other methods' shared parts (a shared decoder), reported apart like the
+    dictionaries; '' when none (and for runs before methods were recorded). Rate control codes
+    with the reference's model: its dictionaries are the reference's."""
+    parts = [f"{v['label']} {v['shared_bytes']:,d} B"
+             for k, v in result.get("method_runs", {}).items()
+             if v.get("shared_bytes") and k not in result.get("models", {})
+             and not v.get("params", {}).get("uses_reference_model")]  # fmt: skip
+    return (" Other methods' shared parts, likewise apart: " + ", ".join(parts) + "."
+            if parts else "")
 
 
 _METRIC_NAMES = {"mse_rgb": "linear MSE (the paper's)", "mse_display": "display-mapped MSE",

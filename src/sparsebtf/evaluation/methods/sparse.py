@@ -255,6 +255,9 @@ class RateControlMethod(_Ensemble):
     def model_record(self) -> None:  # type: ignore[override]
         return None  # the reference's model, recorded there
 
+    def describe(self) -> dict[str, Any]:
+        return {**super().describe(), "uses_reference_model": True}
+
     def code(self, btf: BTF, budgets: Sequence[Budget]) -> list[Coding]:
         ctx = self.context_
         targets = [b.material_bytes for b in budgets]
