@@ -166,9 +166,14 @@ def test_bench_quality_passes_the_cluster_to_its_runs(monkeypatch, tmp_path):
     assert main(["bench", "quality", "--quick", "--out", str(tmp_path / "q"),
                  "--scheduler", "tcp://127.0.0.1:8786"]) == 0  # fmt: skip
     assert seen["scheduler"] == "tcp://127.0.0.1:8786" and seen["workers"] is None
-    # and the runner hands its executor to every training and encoding call
+    # and the runner hands its executor to the methods, which pass it to every training
+    # and encoding call
     import inspect
 
-    src = inspect.getsource(runner._run_quality)
-    calls = src.count("train(") + src.count("encode_levels(") + src.count("encode_rate_levels(")
-    assert src.count("client=ex") == calls
+    from sparsebtf.evaluation.methods import sparse
+
+    assert "executor=self.ex" in inspect.getsource(runner._QualityRun.fit)
+    src = inspect.getsource(sparse)
+    calls = src.count(" train(") + src.count("encode_levels(") + src.count("encode_rate_levels(")
+    assert calls == 3
+    assert src.count("client=context.executor") + src.count("client=ctx.executor") == calls

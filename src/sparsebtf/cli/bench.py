@@ -1,9 +1,10 @@
 """``sparsebtf bench``: reproduce the paper's comparative evaluation on our benchmark.
 
-``bench quality`` trains the models, codes the benchmark materials with SparseBTF, rate
-control, [MHU19] and PCA at equal storage and writes ``results.json``, Markdown tables,
-plots and ``results.md`` (see :mod:`sparsebtf.evaluation.runner`). ``bench report`` rewrites
-``docs/results.md`` from a finished run. Heavy modules are imported inside the commands.
+``bench quality`` fits the compared methods (``--methods``, ``--method``: SparseBTF, rate
+control, [MHU19], PCA, the neural encodings, your own), codes the benchmark materials at
+equal storage and writes ``results.json``, Markdown tables, plots and ``results.md`` (see
+:mod:`sparsebtf.evaluation.runner`). ``bench report`` rewrites ``docs/results.md`` from a
+finished run. Heavy modules are imported inside the commands.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
 
         cfg = replace(cfg, candidates=None)
     result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed,
-                         previous=args.previous, **cluster_options(args))
+                         previous=args.previous, methods=_methods(args), **cluster_options(args))
     if args.docs:
         from ..evaluation.report import regenerate
 
@@ -50,11 +51,43 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
     return 0
 
 
+def _methods(args: argparse.Namespace) -> list[str]:
+    """The methods of ``--methods`` (default: today's set, plus the neural ones when PyTorch
+    imports; a note says when they were left out) and of every ``--method``, each resolved
+    now so a bad name fails before any training."""
+    import sys
+
+    from ..evaluation.methods import method_class
+    from ..evaluation.methods.selection import default_methods, parse_methods
+
+    own = list(args.method or ())
+    for spec in own:  # checked first: a bad one is the only line
+        if ":" not in spec:
+            from ..errors import BTFInputError
+
+            raise BTFInputError(f"--method {spec}: expected package.module:Class (a registered "
+                                "name goes in --methods)")
+        method_class(spec)
+    if args.methods is not None:
+        names = parse_methods(args.methods)
+    else:
+        names = default_methods(note=lambda text: print(f"sparsebtf: note: {text}",
+                                                        file=sys.stderr))  # fmt: skip
+    names += own
+    return names
+
+
 def cmd_bench_report(args: argparse.Namespace) -> int:
     from ..evaluation.report import regenerate
 
     print(f"wrote {regenerate(args.run, args.docs, args.previous, args.captured)}")
     return 0
+
+
+def _method_names() -> list[str]:
+    from ..evaluation.methods import GROUPS, available_methods
+
+    return [*available_methods(), *GROUPS]
 
 
 def register(sub: Any) -> None:
@@ -63,8 +96,9 @@ def register(sub: Any) -> None:
     bs = b.add_subparsers(dest="bench_command", required=True, metavar="BENCH")
     q = bs.add_parser(
         "quality",
-        help="SparseBTF, rate control, [MHU19] and PCA at the paper's storage levels "
-        "(Tables 2, 3, 5, Figure 3; about an hour on 2 cores, --quick under 10 minutes)",
+        help="SparseBTF, rate control, [MHU19], PCA and the neural encodings at the paper's "
+        "storage levels (Tables 2, 3, 5, Figure 3; about an hour on 2 cores without the "
+        "neural methods, --quick under 10 minutes)",
     )
     q.add_argument("--out", default="bench-quality", help="output folder (default bench-quality)")
     q.add_argument("--quick", action="store_true", help="small configuration (< 10 minutes)")
@@ -82,6 +116,15 @@ def register(sub: Any) -> None:
                    help="every SparseBTF encode projects each data point on every dictionary "
                    "(the paper's rule; default: the encoder's screening, as 'sparsebtf "
                    "encode' does)")
+    q.add_argument("--methods", metavar="A,B,...",
+                   help="the compared methods, by name or group: "
+                   + ", ".join(_method_names()) + " (default: sparsebtf, rate, per_channel, "
+                   "raw, pca_log, pca_linear, and the neural rgjw20, rgjw20+ft, rjgw19, neumip "
+                   "when PyTorch is installed). The reference, sparsebtf, is always run: its "
+                   "per-material bytes set every other method's budgets")
+    q.add_argument("--method", action="append", metavar="PACKAGE.MODULE:CLASS",
+                   help="also compare your own sparsebtf.evaluation.methods.Method subclass "
+                   "(repeatable; see docs/benchmarks.md, 'Your own method')")
     q.add_argument("--docs", metavar="DIR",
                    help="also write DIR/results.md and DIR/results/*.png from this run")
     q.add_argument("--json", action="store_true", help="print the verdicts as JSON")

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from .history import FIGURES
+from .rows import materials
 
 __all__ = ["captured_section", "dynamic_range_rows", "range_trend"]
 
@@ -31,16 +32,13 @@ TREND_RHO = 0.5
 
 
 def _test_materials(result: dict[str, Any]) -> list[str]:
-    # imported here: the report module imports this one to build its page
-    from .report import _materials
-
-    return _materials(result, "test")
+    return materials(result, "test")
 
 
 def dynamic_range_rows(result: dict[str, Any], summary: dict[str, Any]) -> list[dict[str, Any]]:
     """Per test material with a recorded median: largest value, median positive value, their
     ratio, the share of values <= 0, and Table 2's MSE[MHU19] / MSE[SparseBTF] at the reference
-    level (:func:`~.report.summarise`'s ``per_material``)."""
+    level (:func:`~.verdicts.summarise`'s ``per_material``)."""
     per = summary.get("table2_processing", {}).get("per_material", {})
     values = result.get("material_values", {})
     out = []

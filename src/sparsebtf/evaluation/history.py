@@ -20,6 +20,9 @@ FIGURES: dict[str, tuple[str, str]] = {
     "standardisation": ("ratio_geomean", "{:.2f}x"),
     "rate_control": ("gain_geomean", "{:.2f}x"),
     "table4_check": ("ours", "{:.1f}"),
+    "table3_vs_rgjw20": ("cells_won", "{}"),
+    "table3_rgjw20_stalls": ("rgjw20_gain_geomean", "{:.2f}x"),
+    "table3_rjgw19_lowest": ("cells_lowest", "{}"),
 }
 
 

@@ -1,14 +1,10 @@
-"""Tables, plots and ``results.md`` from a ``bench quality`` results object.
+"""``results.md`` from a ``bench quality`` results object, and ``bench report``.
 
-Everything here is computed from ``results.json`` rows — no number is typed by hand — so
-``sparsebtf bench report DIR --docs docs`` regenerates ``docs/results.md`` from any run.
-
-* Table 2 shape: SparseBTF vs [MHU19] (and per-channel standardisation, rate control) at
-  equal storage, MSE × 1e-4 per test material.
-* Table 3 shape: SparseBTF(16/32/64/128) per test material, MSE × 1e-4.
-* Table 5 shape: SparseBTF(L) vs per-material PCA at equal and at twice the bytes.
-* Figure 3: log10 MSE vs coefficients per data point, one line per test material.
-* A verdict per paper claim, with the rule used to reach it.
+Everything is computed from ``results.json`` rows — no number is typed by hand — so
+``sparsebtf bench report DIR --docs docs`` regenerates ``docs/results.md`` from any run, old
+ones included. The parts live in their own modules: the row queries (:mod:`.rows`), the
+verdicts (:mod:`.verdicts`, :mod:`.claims3`), the tables (:mod:`.tables`), the plots
+(:mod:`.plots`); this module lays them out and writes the files.
 """
 
 from __future__ import annotations
@@ -16,470 +12,36 @@ from __future__ import annotations
 import json
 import os
 import shutil
-from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
-
-import matplotlib
-
-matplotlib.use("Agg")
-import itertools
-
-import matplotlib.pyplot as plt
-import numpy as np
 
 from .._atomic import atomic_output
 from .._json import json_default
 from ..errors import BTFInputError
-from ..figures import save_figure
-from ..storage.accounting import paper_storage
 from .captured import captured_section
+from .claims3 import table3_comparison
 from .history import describe, moved, record
+from .plots import figure3, quality_storage
+from .rows import materials as _materials
+from .tables import (
+    STORAGE_JSON,
+    stored_levels,
+    stored_section,
+    table2,
+    table3,
+    table5,
+    table_black,
+    table_storage,
+    table_stored,
+)
+from .tables import markdown_table as _table
+from .verdicts import summarise
 
 __all__ = [
-    "STORAGE_JSON", "previous_record", "regenerate", "stored_levels", "summarise", "write_report",
+    "STORAGE_JSON", "figure3", "previous_record", "quality_storage", "regenerate",
+    "render_markdown", "rule_line", "stored_levels", "summarise", "table2", "table3", "table5",
+    "table_black", "table_storage", "table_stored", "write_report",
 ]  # fmt: skip
-
-#: ``benchmarks/bench_storage.py --json`` output beside a run's results.json (or in
-#: ``docs/results/``): its per-level figures go into results.md's "stored bytes vs Table 4".
-STORAGE_JSON = "storage.json"
-
-_ORDER = ["sparsebtf", "rate", "per_channel", "raw", "pca_log", "pca_linear"]
-
-
-def _gmean(values: Sequence[float]) -> float | None:
-    v = [x for x in values if x is not None and x > 0 and np.isfinite(x)]
-    return float(np.exp(np.mean(np.log(v)))) if v else None
-
-
-def _fmt(x: float | None, scale: float = 1e4) -> str:
-    if x is None:
-        return "—"
-    v = x * scale
-    return f"{v:.3g}" if abs(v) < 1000 else f"{v:,.0f}"
-
-
-def _rows(result: dict[str, Any], **match: Any) -> list[dict[str, Any]]:
-    return [r for r in result["rows"] if all(r.get(k) == v for k, v in match.items())]
-
-
-def _get(result: dict[str, Any], **match: Any) -> dict[str, Any] | None:
-    rows = _rows(result, **match)
-    return rows[0] if rows else None
-
-
-def _materials(result: dict[str, Any], which: str) -> list[str]:
-    seen: list[str] = []
-    for r in result["rows"]:
-        if r["set"] == which and r["material"] not in seen:
-            seen.append(r["material"])
-    return seen
-
-
-def _levels(result: dict[str, Any]) -> list[int]:
-    return [int(v) for v in result["config"]["levels"]]
-
-
-def _ratio_claim(result: dict[str, Any], num: str, den: str, level: int) -> dict[str, Any]:
-    per = {}
-    for m in _materials(result, "test"):
-        a = _get(result, material=m, method=num, level=level, set="test")
-        b = _get(result, material=m, method=den, level=level, set="test")
-        if a and b and a["mse_rgb"] and b["mse_rgb"]:
-            per[m] = a["mse_rgb"] / b["mse_rgb"]
-    return {"per_material": per, "geomean": _gmean(list(per.values())),
-            "n_above_1": sum(v > 1 for v in per.values()), "n": len(per)}
-
-
-def summarise(result: dict[str, Any]) -> dict[str, Any]:
-    """Per-claim figures and verdicts (the rules are stated in each entry)."""
-    levels = _levels(result)
-    mid = 32 if 32 in levels else levels[len(levels) // 2]
-    methods = {r["method"] for r in result["rows"]}
-    out: dict[str, Any] = {"reference_level": mid}
-
-    # Claim 1 (Table 2): processing vs [MHU19] at equal storage, about 4x.
-    if "raw" in methods:
-        per_level = {lv: _ratio_claim(result, "raw", "sparsebtf", lv) for lv in levels}
-        g = per_level[mid]["geomean"]
-        if g is None:
-            verdict = "not measured"
-        elif g >= 3:
-            verdict = "supported"
-        elif g > 1:
-            verdict = "partly supported: the processing helps, by less than the paper's ~4x"
-        else:
-            verdict = "not supported: raw RGB coding is as good or better here"
-        out["table2_processing"] = {
-            "claim": "BTF-specific processing (log, YUV, standardisation) cuts the error about "
-                     "4x against the same ensemble on raw RGB ([MHU19]) at equal storage "
-                     "(Table 2)",
-            "rule": "geometric mean over test materials of MSE[MHU19] / MSE[SparseBTF] at "
-                    f"level {mid}: >= 3 supported, in (1, 3) partly, <= 1 not supported",
-            "ratio_geomean": g,
-            "per_level_geomean": {str(k): v["geomean"] for k, v in per_level.items()},
-            "materials_better": f"{per_level[mid]['n_above_1']}/{per_level[mid]['n']}",
-            "per_material": per_level[mid]["per_material"],
-            "verdict": verdict,
-        }
-
-    # Claim 2 (Table 3, Figure 3): error falls steadily with tau.
-    mono = {}
-    for m in _materials(result, "test"):
-        rs = sorted(_rows(result, material=m, method="sparsebtf", set="test"),
-                    key=lambda r: r["coefficients_per_point"])
-        errs = [r["mse_rgb"] for r in rs]
-        mono[m] = {
-            "coefficients": [r["coefficients_per_point"] for r in rs],
-            "mse": errs,
-            "monotone": all(b < a for a, b in itertools.pairwise(errs)),
-            "drop_first_to_last": errs[0] / errs[-1] if errs and errs[-1] else None,
-        }
-    n_mono = sum(v["monotone"] for v in mono.values())
-    out["table3_monotone"] = {
-        "claim": "the error falls steadily as tau_t grows (Table 3, Figure 3)",
-        "rule": "every test material's MSE strictly decreases along all its tau_t: all "
-                "supported, most (>= 80%) mostly supported, otherwise not supported",
-        "materials_monotone": f"{n_mono}/{len(mono)}",
-        "per_material": mono,
-        "verdict": ("supported" if mono and n_mono == len(mono) else
-                    "mostly supported" if mono and n_mono >= 0.8 * len(mono) else
-                    "not supported"),
-    }
-
-    # Claim 3 (Table 5): SparseBTF(32) beats PCA at twice the storage.
-    t5 = {}
-    for m in _materials(result, "table5"):
-        s = _get(result, material=m, method="sparsebtf", level=mid, set="table5")
-        pcas = [r for r in _rows(result, material=m, level=mid, budget_factor=2)
-                if r["method"].startswith("pca") and r["mse_rgb"] is not None]
-        pca_eq = [r for r in _rows(result, material=m, level=mid, budget_factor=1)
-                  if r["method"].startswith("pca") and r["mse_rgb"] is not None]
-        best = min(pcas, key=lambda r: r["mse_rgb"]) if pcas else None
-        best_eq = min(pca_eq, key=lambda r: r["mse_rgb"]) if pca_eq else None
-        t5[m] = {
-            "sparsebtf": s["mse_rgb"] if s else None,
-            "pca_2x_best": best["mse_rgb"] if best else None,
-            "pca_2x_method": best["method"] if best else None,
-            "pca_2x_ranks": best["ranks"] if best else None,
-            "pca_1x_best": best_eq["mse_rgb"] if best_eq else None,
-            "wins_vs_2x": bool(s and best and s["mse_rgb"] < best["mse_rgb"]),
-            "wins_vs_1x": bool(s and (best_eq is None or s["mse_rgb"] < best_eq["mse_rgb"])),
-        }
-    if t5:
-        wins = sum(v["wins_vs_2x"] for v in t5.values())
-        out["table5_pca"] = {
-            "claim": f"SparseBTF({mid}) has a lower error than per-material PCA with twice "
-                     "its storage (Table 5)",
-            "rule": "per Table-5 material, SparseBTF MSE < the better PCA (log or linear) "
-                    "at 2x bytes: all supported, none not supported, else mixed",
-            "materials_won": f"{wins}/{len(t5)}",
-            "per_material": t5,
-            "verdict": ("supported" if wins == len(t5) else
-                        "not supported" if wins == 0 else "mixed"),
-        }
-
-    # Standardisation (the release's shared vs per channel).
-    if "per_channel" in methods:
-        per_level = {lv: _ratio_claim(result, "per_channel", "sparsebtf", lv) for lv in levels}
-        g = per_level[mid]["geomean"]
-        out["standardisation"] = {
-            "question": "the release's shared standardisation vs per-channel statistics",
-            "rule": f"geometric mean of MSE[per-channel] / MSE[shared] at level {mid}: > 1 "
-                    "means the release's shared statistics are better",
-            "ratio_geomean": g,
-            "per_level_geomean": {str(k): v["geomean"] for k, v in per_level.items()},
-            "verdict": ("shared (release) better" if g and g > 1.02 else
-                        "per-channel better" if g and g < 0.98 else "no clear difference"),
-        }
-
-    # Rate control (beyond the paper).
-    if "rate" in methods:
-        per_level = {lv: _ratio_claim(result, "sparsebtf", "rate", lv) for lv in levels}
-        miss = []
-        for r in _rows(result, method="rate"):
-            miss.append(abs(r["material_bytes"] - r["target_bytes"]) / r["target_bytes"])
-        g = per_level[mid]["geomean"]
-        out["rate_control"] = {
-            "question": "rate control (one budget over all points and channels) vs fixed "
-                        "tau per point, at equal bytes",
-            "rule": "geometric mean of MSE[fixed tau] / MSE[rate control]: > 1 is a gain",
-            "gain_geomean": g,
-            "per_level_geomean": {str(k): v["geomean"] for k, v in per_level.items()},
-            "materials_better": f"{per_level[mid]['n_above_1']}/{per_level[mid]['n']}",
-            "max_bytes_deviation": max(miss) if miss else None,
-            "verdict": ("gain" if g and g > 1.02 else "loss" if g and g < 0.98 else
-                        "no clear difference"),
-        }
-
-    # True black (beyond the paper: the issue "Never a firework").
-    black = {}
-    for m in _materials(result, "black"):
-        per: dict[str, Any] = {}
-        for method in ("sparsebtf", "release", "floored"):
-            rs = sorted(_rows(result, material=m, method=method, set="black"),
-                        key=lambda r: r["level"])
-            if rs:
-                per[method] = {
-                    "mse": [r["mse_rgb"] for r in rs],
-                    "max_over_peak": max(r["max_decoded"] / r["reference_max"] for r in rs),
-                    "top_error_share": max(r["top_error_share"] for r in rs),
-                    "log_offset": rs[0].get("log_offset"),
-                }
-        ours = per.get("sparsebtf")
-        if not ours:
-            continue
-        lv_list = sorted({r["level"] for r in _rows(result, material=m, set="black")})
-        at = lv_list.index(mid) if mid in lv_list else len(lv_list) // 2
-        floor_ratio = (ours["mse"][at] / per["floored"]["mse"][at]
-                       if "floored" in per and per["floored"]["mse"][at] else None)
-        black[m] = {
-            **per,
-            "monotone": all(b < a for a, b in itertools.pairwise(ours["mse"])),
-            "vs_floored_at_reference_level": floor_ratio,
-            "ok": (all(b < a for a, b in itertools.pairwise(ours["mse"]))
-                   and ours["max_over_peak"] <= 2
-                   and (floor_ratio is None or floor_ratio <= 1.25)),
-        }
-    if black:
-        n_ok = sum(v["ok"] for v in black.values())
-        out["true_black"] = {
-            "claim": "(beyond the paper) on materials with exact zeros and a high dynamic range "
-                     "the error falls with tau, no value decodes above 2x the material's "
-                     f"maximum, and level {mid} is within 1.25x of a copy floored at 1e-3",
-            "rule": "per true-black material: MSE strictly decreasing over the levels, largest "
-                    "decoded value <= 2x the reference's, MSE at the reference level <= 1.25x "
-                    "the floored copy's: all supported, otherwise not supported",
-            "materials_ok": f"{n_ok}/{len(black)}",
-            "per_material": black,
-            "verdict": "supported" if n_ok == len(black) else "not supported",
-        }
-
-    # Table 4 accounting check (exact).
-    ref = paper_storage(400, 400, 151, 151, 10, (885, 64, 64), 8)
-    out["table4_check"] = {
-        "claim": "SparseBTF(32) = tau (885, 64, 64) at 400x400, K = 8: ratio 2122 (Table 4)",
-        "ours": ref["compression_ratio"],
-        "verdict": "supported" if abs(ref["compression_ratio"] - 2122) < 1 else "not supported",
-    }
-    return out
-
-
-# -- tables -----------------------------------------------------------------------------------
-def _table(header: list[str], body: list[list[str]]) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    lines += ["| " + " | ".join(row) + " |" for row in body]
-    return "\n".join(lines)
-
-
-def table2(result: dict[str, Any]) -> str:
-    """Table 2 shape: methods x test materials at equal storage, MSE x 1e-4."""
-    levels = _levels(result)
-    mats = _materials(result, "test")
-    methods = [m for m in _ORDER if _rows(result, method=m, set="test")]
-    names = result["methods"]
-    blocks = []
-    for lv in levels:
-        body = []
-        for m in methods:
-            vals = [(_get(result, material=x, method=m, level=lv, set="test") or {}).get(
-                "mse_rgb") for x in mats]
-            body.append([f"{names[m]}"] + [_fmt(v) for v in vals] + [_fmt(_gmean(vals))])
-        blocks.append(f"**Level {lv}** (SparseBTF({lv}) storage for every method)\n\n"
-                      + _table(["method", *mats, "geo. mean"], body))
-    return "\n\n".join(blocks)
-
-
-def table3(result: dict[str, Any]) -> str:
-    """Table 3 shape: SparseBTF(L) (and rate control) per test material, MSE x 1e-4."""
-    mats = _materials(result, "test")
-    body = []
-    for lv in _levels(result):
-        for m, name in (("sparsebtf", "SparseBTF"), ("rate", "SparseBTF+RC")):
-            vals = [(_get(result, material=x, method=m, level=lv, set="test") or {}).get(
-                "mse_rgb") for x in mats]
-            if any(v is not None for v in vals):
-                body.append([f"{name} ({lv})"] + [_fmt(v) for v in vals])
-    return _table(["method", *mats], body)
-
-
-def table5(result: dict[str, Any]) -> str:
-    """Table 5 shape: SparseBTF vs PCA at equal and 2x bytes on the Table-5 materials."""
-    mats = _materials(result, "table5")
-    if not mats:
-        return "_no Table-5 materials in this run_"
-    body = []
-    names = result["methods"]
-    for lv in _levels(result):
-        vals = [(_get(result, material=x, method="sparsebtf", level=lv, set="table5") or {})
-                .get("mse_rgb") for x in mats]
-        if all(v is None for v in vals):
-            continue
-        body.append([f"SparseBTF ({lv})"] + [_fmt(v) for v in vals])
-        for m in ("pca_log", "pca_linear"):
-            for f in (1, 2):
-                rs = [_get(result, material=x, method=m, level=lv, budget_factor=f) for x in mats]
-                if not any(rs):
-                    continue
-                cells = [
-                    "—" if r is None else
-                    f"{_fmt(r['mse_rgb'])} (r={'/'.join(map(str, r['ranks']))})"
-                    for r in rs
-                ]
-                body.append([f"{names[m]} {f}x bytes of ({lv})", *cells])
-    return _table(["method", *mats], body)
-
-
-def table_black(result: dict[str, Any]) -> str:
-    """True-black materials: MSE per level of each coding, largest value, error concentration."""
-    names = result.get("methods", {})
-    levels = sorted({r["level"] for r in _rows(result, set="black")})
-    body = []
-    for m in _materials(result, "black"):
-        for method in ("sparsebtf", "release", "floored"):
-            rs = {r["level"]: r for r in _rows(result, material=m, method=method, set="black")}
-            if not rs:
-                continue
-            first = next(iter(rs.values()))
-            body.append([m, names.get(method, method), f"{first.get('log_offset', 0):.3g}",
-                         *[_fmt(rs[lv]["mse_rgb"]) if lv in rs else "—" for lv in levels],
-                         f"{max(r['max_decoded'] / r['reference_max'] for r in rs.values()):.3g}x",
-                         f"{100 * max(r['top_error_share'] for r in rs.values()):.0f} %"])
-    return _table(["material", "coding", "log offset", *[f"L{lv}" for lv in levels],
-                   "largest / reference max", "worst 0.01 % share"], body)
-
-
-def table_storage(result: dict[str, Any]) -> str:
-    """Bytes per material and per-material compression ratio of every method and level."""
-    body = []
-    names = result["methods"]
-    for lv in _levels(result):
-        for m in _ORDER:
-            rs = [r for r in _rows(result, method=m, level=lv)
-                  if r.get("budget_factor", 1) == 1 and r.get("set") != "black"]
-            if not rs:
-                continue
-            b = [r["material_bytes"] / np.prod(r["size"]) for r in rs]
-            mse = [r["mse_rgb"] for r in rs]
-            stored = [r["stored_codes_bytes"] / r["material_bytes"] for r in rs
-                      if r.get("stored_codes_bytes") and r["material_bytes"]]
-            body.append([f"{lv}", names[m], f"{np.mean(b):.2f}",
-                         f"{np.mean([r['ratio_per_material'] or np.nan for r in rs]):.0f}",
-                         f"{np.mean(stored):.3f}" if stored else "—",
-                         _fmt(_gmean(mse)), str(len(rs))])
-    head = ["level", "method", "bytes / texel", "ratio (per material)",
-            "stored codes / Table 4", "geo. mean MSE x1e-4", "n"]
-    if all(row[4] == "—" for row in body):  # a run from before stored bytes were recorded
-        head.pop(4)
-        body = [row[:4] + row[5:] for row in body]
-    return _table(head, body)
-
-
-def stored_levels(storage: dict[str, Any]) -> list[dict[str, Any]]:
-    """Per level of a ``bench_storage.py`` result: Table 4's and the stored bytes per
-    material (means), stored codes / Table 4 (geometric mean and largest), ratios at
-    400×400 (Table 4's codes; the stored file)."""
-    out = []
-    for lv in storage["levels"]:
-        rs = [r for r in storage["rows"] if r["level"] == lv]
-        if not rs:
-            continue
-        out.append({
-            "level": lv, "tau": "/".join(map(str, rs[0]["tau"])), "n": len(rs),
-            "codes_vs_table4": float(np.exp(np.mean(np.log(
-                [r["stored_codes_vs_table4"] for r in rs])))),
-            "codes_vs_table4_max": max(r["stored_codes_vs_table4"] for r in rs),
-            "table4_bytes": float(np.mean([r["table4_material_bytes"] for r in rs])),
-            "stored_codes": float(np.mean([r["stored_codes_bytes"] for r in rs])),
-            "stored_total": float(np.mean([r["stored_bytes"] for r in rs])),
-            "ratio_table4_400": float(np.mean([r["ratio_table4_400"] for r in rs])),
-            "ratio_stored_400": float(np.mean([r["ratio_stored_400"] for r in rs])),
-        })  # fmt: skip
-    return out
-
-
-def table_stored(storage: dict[str, Any]) -> str:
-    """The "stored bytes vs Table 4" rows of results.md, from a bench_storage result."""
-    body = [[str(s["level"]), s["tau"], str(s["n"]), f"{s['table4_bytes']:,.0f}",
-             f"{s['stored_codes']:,.0f}",
-             f"{s['codes_vs_table4']:.3f} (max {s['codes_vs_table4_max']:.3f})",
-             f"{s['stored_total']:,.0f}", f"{s['ratio_table4_400']:.0f}",
-             f"{s['ratio_stored_400']:.0f}"]
-            for s in stored_levels(storage)]  # fmt: skip
-    return _table(["level", "tau Y/U/V", "n", "Table 4 bytes", "stored codes",
-                   "stored bytes vs Table 4", "stored file", "ratio 400x400, Table 4",
-                   "ratio 400x400, stored file"], body)  # fmt: skip
-
-
-def _stored_section(result: dict[str, Any]) -> list[str]:
-    storage = result.get("storage")
-    if not storage:
-        return []
-    quick = " --quick" if storage.get("quick") else ""
-    return [
-        "", "## Stored bytes vs Table 4", "",
-        f"From `python benchmarks/bench_storage.py{quick} --json` (stored as `{STORAGE_JSON}` "
-        "beside `results.json`), not from this quality run: the benchmark's unseen materials "
-        "and its 100x100 Table-5 carpet at the same levels, coded with the levels' fixed tau on "
-        "the bundled `release` model (this run codes on the models it trains, whose codes may "
-        "compress somewhat differently), written in coded-file schema 3 (each "
-        "dictionary's locations once with a usage bit per point, values as byte planes, "
-        "shuffle + deflate; docs/format.md §3). Per level: "
-        "Table 4's per-material bytes (5 B per coefficient + 2 B per point and channel), the "
-        "stored codes and their share of Table 4's, the whole file (codes, statistics, "
-        "directions, header: everything a material stores), and the per-material ratio at "
-        "400x400 (stored codes per point x 1600 + this file's statistics, directions, header).",
-        "", table_stored(storage),
-    ]
-
-
-# -- plots --------------------------------------------------------------------------------------
-def figure3(result: dict[str, Any], path: Path) -> Path:
-    """log10 MSE vs coefficients per data point, one line per test material (Figure 3)."""
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    mats = _materials(result, "test")
-    cmap = plt.get_cmap("tab20")
-    for i, m in enumerate(mats):
-        rs = sorted(_rows(result, material=m, method="sparsebtf", set="test"),
-                    key=lambda r: r["coefficients_per_point"])
-        ax.plot([r["coefficients_per_point"] for r in rs],
-                [np.log10(r["mse_rgb"]) for r in rs], marker="o", ms=3,
-                color=cmap(i % 20), label=m)
-    ax.set_xscale("log", base=2)
-    ax.set_xlabel("coefficients per data point (tau_Y + tau_U + tau_V)")
-    ax.set_ylabel("log10 MSE (linear RGB)")
-    ax.set_title(f"SparseBTF: error vs sparsity, {len(mats)} unseen materials (cf. Figure 3)")
-    ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=6, ncol=2, loc="upper right")
-    return save_figure(fig, path, dpi=110)
-
-
-def quality_storage(result: dict[str, Any], path: Path) -> Path:
-    """Geometric-mean MSE vs bytes per texel, one line per method and material set."""
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), squeeze=False)
-    names = result["methods"]
-    for ax, which, title in ((axes[0, 0], "test", "test materials"),
-                             (axes[0, 1], "table5", "Table-5 materials (vs PCA)")):
-        for m in _ORDER:
-            pts = []
-            for lv in _levels(result):
-                rs = [r for r in _rows(result, method=m, level=lv, set=which)
-                      if r.get("budget_factor", 1) in (1, 2) and r["mse_rgb"] is not None]
-                for f in sorted({r.get("budget_factor", 1) for r in rs}):
-                    sub = [r for r in rs if r.get("budget_factor", 1) == f]
-                    b = np.mean([r["material_bytes"] / np.prod(r["size"]) for r in sub])
-                    pts.append((b, _gmean([r["mse_rgb"] for r in sub])))
-            if pts:
-                pts.sort()
-                ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=names[m])
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("bytes per texel (per material, Table 4 accounting)")
-        ax.set_ylabel("MSE, linear RGB (geo. mean)")
-        ax.set_title(title)
-        ax.grid(True, which="both", alpha=0.3)
-        ax.legend(fontsize=7)
-    return save_figure(fig, path, dpi=110)
 
 
 # -- markdown ---------------------------------------------------------------------------------
@@ -572,7 +134,7 @@ def render_markdown(
         + ", ".join(f"{k}: {v:.0f}" for k, v in result["level_ratios_per_material"].items())
         + ". The shared dictionaries are not in any per-material figure; per model they are "
         + ", ".join(f"{k} {v['bytes_dictionaries']:,d} B"
-                    for k, v in result["models"].items()) + ".",
+                    for k, v in result["models"].items()) + "." + _shared_parts(result),
         "- Fixed-tau SparseBTF codes every point with exactly tau coefficients (eps = 0), as "
         "in the paper's tables; rate control gets exactly the fixed-tau bytes.",
         "- MSE is on linear RGB over every value (the paper's tables), shown x 1e-4.",
@@ -625,8 +187,30 @@ def render_markdown(
                     f"gain {_pct(s['gain_geomean'])} (per level "
                     f"{_per_level(s, 'per_level_geomean')}); better on "
                     f"{s['materials_better']}; bytes within {(dev or 0) * 100:.3f}% of target")
+    if "table2_metrics" in summary:
+        for metric, v in summary["table2_metrics"]["per_metric"].items():
+            lines.append(f"| Table 2's processing gain over [MHU19] in {_METRIC_NAMES[metric]} | "
+                         f"MSE ratio {_pct(v['ratio_geomean'])}; better on "
+                         f"{v['materials_better']} | **{v['verdict']}** |"
+                         + (" — |" if previous else ""))
+    for key, figure in (("table3_vs_rgjw20", "cells_won"),
+                        ("table3_rgjw20_stalls", "rgjw20_gain_geomean"),
+                        ("table3_rjgw19_lowest", "cells_lowest")):  # fmt: skip
+        if key in summary:
+            s = summary[key]
+            fig = s.get(figure)
+            text = (s.get("why", "—") if fig is None else _pct(fig) if isinstance(fig, float)
+                    else str(fig))  # fmt: skip
+            if key == "table3_rgjw20_stalls" and fig is not None:
+                text = (f"RGJW20 gain 32 → {s['top_level']}: {text}; SparseBTF "
+                        f"{_pct(s['sparsebtf_gain_geomean'])}, falls on "
+                        f"{s['sparsebtf_falls']} materials")
+            elif fig is not None:
+                text = f"{text} cells ({s['matching']} matching)"
+            verdict_row(key, s["claim"], text)
     lines += ["", "Rules behind the verdicts:", ""]
-    for key in ("table2_processing", "table3_monotone", "table5_pca", "true_black",
+    for key in ("table2_processing", "table2_metrics", "table3_monotone", "table3_vs_rgjw20",
+                "table3_rgjw20_stalls", "table3_rjgw19_lowest", "table5_pca", "true_black",
                 "standardisation", "rate_control"):
         if key in summary:
             lines.append(f"- {key}: {summary[key]['rule']}")
@@ -638,6 +222,7 @@ def render_markdown(
         "linear R, G, B (no log, no YUV, no standardisation), tau split equally over R, G, B.",
         "", table2(result),
         "", "## Table 3 shape: error vs storage level", "", "MSE x 1e-4.", "", table3(result),
+        *_table3_section(result, img),
         "", "## Table 5 shape: SparseBTF vs per-material PCA", "",
         "MSE x 1e-4; r = ranks of R/G/B. PCA (log) factorises ln(RGB + 1e-5) like UBO2014's "
         "own files, PCA (linear) the linear values; the ranks share one budget, allocated by "
@@ -654,7 +239,7 @@ def render_markdown(
         ]
     lines += [
         "", "## Storage of every method", "", table_storage(result),
-        *_stored_section(result),
+        *stored_section(result),
         "", "## Figure 3 shape", "", f"![Figure 3]({img}figure3.png)",
         "", "## Quality vs storage", "", f"![quality vs storage]({img}quality_storage.png)",
         "", "## Image grids (Figures 4 and 5 shape)", "",
@@ -669,6 +254,44 @@ def render_markdown(
         [[k, f"{v:.0f}"] for k, v in sorted(result["timings_seconds"].items())]
         + [["total", f"{result['seconds']:.0f}"]])]
     return "\n".join(lines) + "\n"
+
+
+def _shared_parts(result: dict[str, Any]) -> str:
+    """The other methods' shared parts (a shared decoder), reported apart like the
+    dictionaries; '' when none (and for runs before methods were recorded). Rate control codes
+    with the reference's model: its dictionaries are the reference's."""
+    parts = [f"{v['label']} {v['shared_bytes']:,d} B"
+             for k, v in result.get("method_runs", {}).items()
+             if v.get("shared_bytes") and k not in result.get("models", {})
+             and not v.get("params", {}).get("uses_reference_model")]  # fmt: skip
+    return (" Other methods' shared parts, likewise apart: " + ", ".join(parts) + "."
+            if parts else "")
+
+
+_METRIC_NAMES = {"mse_rgb": "linear MSE (the paper's)", "mse_display": "display-mapped MSE",
+                 "mse_log": "log MSE"}  # fmt: skip
+
+
+def _table3_section(result: dict[str, Any], img: str) -> list[str]:
+    """results.md's Table 3 comparison (SparseBTF against the neural encodings and any other
+    method), one table per storage matching, and the Figure 5 image."""
+    lines = ["", "## Table 3: SparseBTF against the neural encodings, equal storage", "",
+             "MSE x 1e-4, linear RGB, per unseen test material; one table per storage "
+             "matching. RGJW20 is one network for all materials (its decoder shared, reported "
+             "apart like SparseBTF's dictionaries), RJGW19 and NeuMIP one per material (their "
+             "weights in each material's bytes). The paper's Table 3 (its materials, 100x100): "
+             "SparseBTF lower than RGJW20 in 24 of 28 cells; RJGW19 lowest almost "
+             "everywhere."]  # fmt: skip
+    body = table3_comparison(result)
+    if body:
+        lines += ["", body]
+    else:
+        lines += ["", "_No method beyond SparseBTF's own variants in this run (the neural "
+                  "ones need PyTorch: `pip install -e \".[neural]\"`)._"]
+    for g in result.get("figure5", []):
+        lines += ["", "Figure 5 shape: reference, SparseBTF(32) and RGJW20(32), false-colour "
+                  "|error| x2.", "", f"![{g}]({img}{g})"]
+    return lines
 
 
 def write_report(result: dict[str, Any], out: str | os.PathLike[str]) -> dict[str, Any]:

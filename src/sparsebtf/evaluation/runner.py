@@ -1,31 +1,34 @@
 """``sparsebtf bench quality``: the paper's comparative evaluation on our benchmark.
 
 Pipeline (every number lands in ``results.json``; :mod:`.report` turns it into tables, plots
-and ``results.md``):
+and ``results.md``). The compared methods are :class:`~.methods.Method` objects
+(:mod:`.methods`; the defaults: SparseBTF, rate control, per-channel standardisation,
+[MHU19], per-material PCA in the log and linear domain, and the neural encodings when PyTorch
+is installed); the runner knows only their interface:
 
 1. materials of :class:`~.benchmark_set.BenchConfig` (synthetic, cached) plus ``--materials``;
-2. three models trained on the same training points:
-   SparseBTF (log, YUV, the release's shared standardisation), the same with per-channel
-   standardisation, and [MHU19] (raw linear RGB: no log, no YUV, no standardisation);
-3. every test material coded at the storage levels SparseBTF(16/32/64/128) with a fixed τ per
-   point (ε = 0, so every point holds exactly τ coefficients as in the paper's tables), by
-   rate control at exactly the fixed-τ bytes, and with the two other models at equal bytes;
-   plus the extra τ_t of the Figure 3 curves;
-4. the Table 5 materials (100 × 100 texels) coded by SparseBTF and by per-material PCA at
-   equal and at twice SparseBTF's bytes, in the log and in the linear domain;
+2. every method is fitted (:meth:`~.methods.Method.fit`): the reference, SparseBTF, first
+   (its model's per-material bytes define everyone's budgets), then the others;
+3. per test material the reference codes every storage level with a fixed τ per point
+   (ε = 0, so every point holds exactly τ coefficients as in the paper's tables) plus the
+   extra τ_t of the Figure 3 curves; every other method codes at :class:`~.methods.Budget`
+   built from the reference's bytes, once per matching it declares: ``per_material``
+   (SparseBTF(L)'s per-material bytes on this material) and ``paper`` (2·L·H·W: L binary16
+   values per texel); every row names its ``matching``;
+4. the Table 5 materials (100 × 100 texels) coded by the reference and by the methods that
+   code that set (per-material PCA at 1× and 2× SparseBTF's bytes);
 5. true-black materials (exact zeros, high dynamic range; ``BenchConfig.black_materials``)
-   coded at every level with the configured log offset, with the release's 1e-5, and as a
-   copy floored at 1e-3, all scored against the unfloored material;
-6. MSE (linear RGB, the paper's tables), log MSE, PSNR and SSIM for every reconstruction
-   (:func:`~.scoring.score_many`: one pass over each material for all its reconstructions,
-   each decoded once; the standardised-domain MSE of the coded ones by Parseval from their
-   coefficients), the largest decoded value and the worst 0.01 %'s share of the error,
-   image grids like Figures 4 and 5.
+   coded by the reference at every level with the configured log offset, with the release's
+   1e-5, and as a copy floored at 1e-3, all scored against the unfloored material;
+6. MSE (linear RGB, the paper's tables), display-mapped MSE, log MSE, PSNR and SSIM for every
+   reconstruction (:func:`~.scoring.score_many`: one pass over each material for all its
+   reconstructions, each decoded once; the standardised-domain MSE of the coded ones by
+   Parseval from their coefficients), the largest decoded value and the worst 0.01 %'s share
+   of the error, image grids like Figures 4 and 5.
 
-Bytes are the paper's Table 4 accounting per material: coefficients (2 B value + 3 B
-location) + membership and count (1 B each per point and channel) for the sparse methods;
-binary16 factors for PCA. The SparseBTF models' shared dictionaries are not in the
-per-material bytes (they serve every material); they are reported once per model.
+Bytes are the paper's Table 4 accounting per material (:mod:`.methods.sparse`,
+:mod:`.methods.pca`); shared parts (dictionaries, a shared decoder) are reported once per
+method, never in the per-material bytes.
 """
 
 from __future__ import annotations
@@ -35,7 +38,7 @@ import os
 import platform
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, replace
 from pathlib import Path
 from typing import Any
 
@@ -44,28 +47,24 @@ import numpy as np
 from .. import library_version
 from .._atomic import atomic_output
 from .._json import json_default
-from ..codec import encode_levels, encode_rate_levels, train
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..execution import Executor, executor
 from ..figures import comparison_grid
-from ..model import CodedBTF, Model
 from ..points.preprocessing import positive_median
-from ..runtime import coded_btf_view
-from ..storage.accounting import storage_report
-from .baselines import (
-    allocate_ranks,
-    fit_pca_domains,
-    pca_bytes,
-    pca_rank_for_budget,
-    pca_reconstruction,
-)
-from .benchmark_set import FLOOR, BenchConfig, level_tau
+from .benchmark_set import FLOOR, BenchConfig
+from .methods import PAPER, Budget, Coding, FitContext, Method
+from .methods.selection import resolve_methods
 from .scoring import score_many
 
-__all__ = ["METHODS", "run_quality"]
+__all__ = ["METHODS", "VARIANTS", "run_quality"]
 
-#: Method labels used in rows, tables and plots.
+#: the reference's true-black variants (rows of set "black"), by row method
+VARIANTS = {
+    "release": "SparseBTF, release log offset 1e-5",
+    "floored": "SparseBTF on the copy floored at 1e-3",
+}
+#: Method labels of the default non-neural methods and the true-black variants.
 METHODS = {
     "sparsebtf": "SparseBTF",
     "rate": "SparseBTF + rate control",
@@ -73,9 +72,13 @@ METHODS = {
     "raw": "[MHU19] (raw RGB)",
     "pca_log": "PCA (log)",
     "pca_linear": "PCA (linear)",
-    "release": "SparseBTF, release log offset 1e-5",
-    "floored": "SparseBTF on the copy floored at 1e-3",
+    **VARIANTS,
 }
+#: the methods of the Figure 5 image (reference, SparseBTF(32) and these at 32) when present
+FIGURE5 = ("rgjw20",)
+#: the metrics of every row (``mse_display`` is None where the scoring does not give it)
+METRICS = ("mse_rgb", "mse_display", "mse_log", "mse_std", "psnr_rgb", "ssim", "reference_max",
+           "max_decoded", "top_error_share")  # fmt: skip
 
 
 def _figure_pairs(btf: BTF) -> list[tuple[int, int]]:
@@ -94,32 +97,11 @@ def _figure_pairs(btf: BTF) -> list[tuple[int, int]]:
 
 def _metrics(ref: BTF, recs: Sequence[BTF], cfg: BenchConfig) -> list[dict[str, Any]]:
     """Every metric of every reconstruction of ``ref``, in one pass over it."""
-    keys = ("mse_rgb", "mse_log", "mse_std", "psnr_rgb", "ssim", "reference_max", "max_decoded",
-            "top_error_share")
     scores = score_many(
         ref, recs, ssim_images=cfg.ssim_images, tile=2 * cfg.patch, progress=False
     )
-    return [{k: (float(m[k]) if m.get(k) is not None else None) for k in keys} for m in scores]
-
-
-def _coded_row(coded: CodedBTF, model: Model) -> dict[str, Any]:
-    rep = storage_report(coded, model)
-    mat = rep["bytes_coefficients"] + rep["bytes_membership_counts"]
-    p = coded.n_points
-    nnz = rep["nnz"]
-    return {
-        "material_bytes": int(mat),
-        "bytes_raw": int(rep["bytes_raw"]),
-        "ratio_per_material": rep["bytes_raw"] / mat,
-        # stored bytes of the schema-3 file (None for codes no coded file holds)
-        "stored_codes_bytes": rep.get("bytes_stored_codes"),
-        "stored_bytes": rep.get("bytes_stored"),
-        "ratio_stored": rep.get("compression_ratio_per_material"),
-        "bytes_dictionaries_shared": int(rep["bytes_dictionaries"]),
-        "nnz": {k: int(v) for k, v in nnz.items()},
-        "coefficients_per_point": sum(nnz.values()) / p,
-        "n_points": p,
-    }
+    return [{k: (float(m[k]) if m.get(k) is not None else None) for k in METRICS}
+            for m in scores]  # fmt: skip
 
 
 class _Log:
@@ -146,6 +128,36 @@ def _label(cls: str, seed: int) -> str:
     return f"{cls}{seed:02d}"
 
 
+def budgets_for(
+    method: Method, btf: BTF, levels: Sequence[int], reference_bytes: dict[int, int]
+) -> list[Budget]:
+    """The budgets ``method`` codes ``btf`` at: per matching it declares, per level, per
+    factor: ``per_material`` = factor × the reference's per-material bytes on ``btf``,
+    ``paper`` = factor × 2·L·H·W (L binary16 values per texel)."""
+    texels = btf.height * btf.width
+    out = []
+    for matching in method.matchings:
+        for lv in levels:
+            base = 2 * lv * texels if matching == PAPER else reference_bytes[lv]
+            out += [Budget(lv, int(f * base), matching, f) for f in method.factors]
+    return out
+
+
+def method_row(base: dict[str, Any], method: str, level: int | None, budget: Budget | None,
+               coding: Coding) -> dict[str, Any]:  # fmt: skip
+    """A result row without its metrics: the material, the method, the budget it was coded
+    at (none for the reference), the coding's own fields and bytes."""
+    row = {**base, "method": method, "level": level}
+    if budget is not None:
+        row.update(matching=budget.matching, budget_factor=budget.factor,
+                   budget_bytes=budget.material_bytes)  # fmt: skip
+    row.update(coding.info)
+    row["material_bytes"] = int(coding.material_bytes)
+    if coding.note:
+        row["note"] = coding.note
+    return row
+
+
 def run_quality(
     out: str | os.PathLike[str],
     config: BenchConfig | None = None,
@@ -158,6 +170,7 @@ def run_quality(
     client: Any = None,
     scheduler: str | None = None,
     workers: int | None = None,
+    methods: Sequence[str | type[Method]] | None = None,
 ) -> dict[str, Any]:
     """Run the benchmark into folder ``out``; returns (and writes) the results object.
 
@@ -167,319 +180,297 @@ def run_quality(
     training seed. ``previous`` (an earlier run's ``results.json``) adds how each verdict
     moved from it. ``client`` / ``scheduler`` / ``workers`` run its training and encoding on a
     Dask cluster (:func:`sparsebtf.execution.executor`; the results do not change).
+    ``methods``: registry names, groups, ``"package.module:Class"`` or
+    :class:`~.methods.Method` subclasses (default: :func:`~.methods.selection.default_methods`);
+    the reference, SparseBTF, is always run.
     """
     with executor(client=client, scheduler=scheduler, workers=workers) as ex:
-        return _run_quality(out, config, materials, seed, log, progress, previous, ex)
-
-
-def _run_quality(
-    out: str | os.PathLike[str],
-    config: BenchConfig | None,
-    materials: Sequence[str],
-    seed: int,
-    log: Callable[[str], None],
-    progress: bool | None,
-    previous: str | os.PathLike[str] | None,
-    ex: Executor,
-) -> dict[str, Any]:
-    from ..open import open_btf
-    from .report import previous_record, write_report
-
-    cfg = (config or BenchConfig()).with_seed(seed)
-    prev = None if previous is None else previous_record(previous)  # fail before the hour
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    say = _Log(log)
-    t_start = time.perf_counter()
-    timings: dict[str, float] = {}
-
-    def stage(name: str, t0: float) -> None:
-        timings[name] = timings.get(name, 0.0) + time.perf_counter() - t0
-
-    # 1. materials -----------------------------------------------------------------------
-    t0 = time.perf_counter()
-    say(f"materials: {cfg.n_train} training, {len(cfg.test_set())} test, "
-        f"{len(cfg.table5_materials)} Table-5 ({cfg.directions} directions, {cfg.source}; cached)")
-    train_btfs = [cfg.material(c, cfg.train_size, s) for c, s in cfg.train_set()]
-    tests: list[tuple[str, str, int | None, BTF]] = [
-        (_label(c, s), c, s, cfg.material(c, cfg.test_size, s))
-        for c, s in cfg.test_set()
-    ]
-    for src in materials:
-        b = open_btf(src)
-        if not (b.lights.equals(train_btfs[0].lights) and b.views.equals(train_btfs[0].views)):
-            raise BTFInputError(
-                f"--materials {src}: {len(b.lights)} x {len(b.views)} directions, but the "
-                f"benchmark uses {cfg.directions} ({len(train_btfs[0].lights)} x "
-                f"{len(train_btfs[0].views)})"
-            )
-        if b.height % cfg.patch or b.width % cfg.patch:
-            raise BTFInputError(
-                f"--materials {src}: {b.height}x{b.width} texels is not a multiple of the "
-                f"patch {cfg.patch}; crop it first (sparsebtf convert --crop)"
-            )
-        tests.append((Path(str(b.name)).stem or src, "extra", None, b))
-    table5 = [
-        (_label(c, s), c, s, cfg.material(c, cfg.table5_size, s))
-        for c, s in cfg.table5_materials
-    ]
-    stage("materials", t0)
-
-    # 2. models ------------------------------------------------------------------------------
-    tau_l = tuple(cfg.tau_train)
-    raw_tau = max(1, round(sum(tau_l) / 3))
-    model_specs = {"sparsebtf": dict(std_mode="shared", tau_train=tau_l)}
-    if cfg.with_per_channel:
-        model_specs["per_channel"] = dict(std_mode="per_channel", tau_train=tau_l)
-    if cfg.with_raw:
-        model_specs["raw"] = dict(
-            std_mode="shared", tau_train=(raw_tau,) * 3, preprocessing="identity"
+        return _QualityRun(config, seed, log, progress, ex, methods).run(
+            out, materials, previous
         )
-    models: dict[str, Model] = {}
-    model_info: dict[str, Any] = {}
-    for key, spec in model_specs.items():
-        t0 = time.perf_counter()
-        say(f"training {METHODS[key]}: K={cfg.n_dictionaries}, tau_l={spec['tau_train']}, "
-            f"until the objective falls by less than {cfg.tol:g} per iteration (at most "
-            f"{cfg.iters}), sample {cfg.sample}")
-        models[key] = train(
-            train_btfs, n_dictionaries=cfg.n_dictionaries, patch=cfg.patch, sample=cfg.sample,
-            max_iter=cfg.iters, tol=cfg.tol, seed=seed, progress=progress, client=ex,
-            **spec,  # type: ignore[arg-type]
-        )
-        stage(f"train_{key}", t0)
-        m = models[key]
-        model_info[key] = {
-            "content_hash": m.content_hash,
-            "params": m.params,
-            "training": m.training,
-            "bytes_dictionaries": int(sum(2 * m.dictionary_entries(ch) for ch in m.channels)),
-            "seconds": time.perf_counter() - t0,
-        }
 
-    ratios = cfg.ratios()
-    rows: list[dict[str, Any]] = []
-    # each scored material's median positive value and share of values <= 0 (the sample of
-    # the auto log offset): with the rows' largest value, its dynamic range
-    values: dict[str, dict[str, Any]] = {}
 
-    def note_values(label: str, btf: BTF) -> None:
+class _QualityRun:
+    """One run's state: configuration, methods, rows, timings."""
+
+    def __init__(self, config: BenchConfig | None, seed: int, log: Callable[[str], None],
+                 progress: bool | None, ex: Executor,
+                 methods: Sequence[str | type[Method]] | None) -> None:  # fmt: skip
+        self.cfg = (config or BenchConfig()).with_seed(seed)
+        self.seed = seed
+        self.say = _Log(log)
+        self.progress = progress
+        self.ex = ex
+        classes = resolve_methods(methods, self.cfg, note=self.say)
+        self.methods = [cls.from_config(self.cfg) for cls in classes]
+        self.ref: Any = self.methods[0]
+        self.others = self.methods[1:]
+        self.rows: list[dict[str, Any]] = []
+        self.values: dict[str, dict[str, Any]] = {}
+        self.grids: list[str] = []
+        self.timings: dict[str, float] = {}
+        self.out = Path(".")
+
+    def stage(self, name: str, t0: float) -> None:
+        self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
+
+    # -- 1. materials -----------------------------------------------------------------------
+    def materials(self, extra: Sequence[str]) -> tuple[list[BTF], list, list]:
+        from ..open import open_btf
+
+        cfg = self.cfg
+        self.say(f"materials: {cfg.n_train} training, {len(cfg.test_set())} test, "
+                 f"{len(cfg.table5_materials)} Table-5 ({cfg.directions} directions, "
+                 f"{cfg.source}; cached)")  # fmt: skip
+        train = [cfg.material(c, cfg.train_size, s) for c, s in cfg.train_set()]
+        tests: list[tuple[str, str, int | None, BTF]] = [
+            (_label(c, s), c, s, cfg.material(c, cfg.test_size, s)) for c, s in cfg.test_set()
+        ]
+        for src in extra:
+            b = open_btf(src)
+            if not (b.lights.equals(train[0].lights) and b.views.equals(train[0].views)):
+                raise BTFInputError(
+                    f"--materials {src}: {len(b.lights)} x {len(b.views)} directions, but the "
+                    f"benchmark uses {cfg.directions} ({len(train[0].lights)} x "
+                    f"{len(train[0].views)})"
+                )
+            if b.height % cfg.patch or b.width % cfg.patch:
+                raise BTFInputError(
+                    f"--materials {src}: {b.height}x{b.width} texels is not a multiple of the "
+                    f"patch {cfg.patch}; crop it first (sparsebtf convert --crop)"
+                )
+            tests.append((Path(str(b.name)).stem or src, "extra", None, b))
+        table5 = [(_label(c, s), c, s, cfg.material(c, cfg.table5_size, s))
+                  for c, s in cfg.table5_materials]  # fmt: skip
+        return train, tests, table5
+
+    # -- 2. fitting -------------------------------------------------------------------------
+    def fit(self, train: list[BTF]) -> None:
+        cfg = self.cfg
+        ctx = FitContext(levels=tuple(cfg.levels), level_bytes_per_texel={}, patch=cfg.patch,
+                         seed=self.seed, progress=self.progress, executor=self.ex, config=cfg)
+        for m in self.methods:
+            t0 = time.perf_counter()
+            self.say(f"fitting {m.label} ({m.scope}) on {len(train)} training materials")
+            m.fit(train, ctx)
+            self.stage(f"train_{m.name}", t0)
+            if m is self.ref:
+                per_texel = 3 * len(train[0].lights) * len(train[0].views)
+                ctx = replace(ctx, reference=m,
+                              level_bytes_per_texel=m.level_bytes_per_texel(cfg.levels,
+                                                                            per_texel))
+        self.ctx = ctx
+
+    # -- 3./4. coding and scoring ------------------------------------------------------------
+    def note_values(self, label: str, btf: BTF) -> None:
+        # each scored material's median positive value and share of values <= 0 (the sample
+        # of the auto log offset): with the rows' largest value, its dynamic range
         median, zeros = positive_median(btf)
-        values[label] = {"median": median, "nonpositive_share": zeros}
-    grids: list[str] = []
+        self.values[label] = {"median": median, "nonpositive_share": zeros}
 
-    def level_budget(btf: BTF, level: int) -> float:
-        """Bytes per data point of one material at ``level``."""
-        n_pts = (btf.height // cfg.patch) * (btf.width // cfg.patch)
-        return 2 * btf.n_values / ratios[level] / n_pts
-
-    def add(base: dict[str, Any], **kw: Any) -> dict[str, Any]:
-        row = {**base, **kw}
-        rows.append(row)
-        return row
-
-    def score(btf: BTF, pending: list[tuple[dict[str, Any], BTF | None]]) -> None:
+    def score(self, btf: BTF, pending: list[tuple[dict[str, Any], BTF | None]]) -> None:
         """Metrics of every pending reconstruction of ``btf`` in one pass, then the rows in
-        order (a row without a reconstruction is added as it is)."""
+        order (a row without a reconstruction gets None metrics)."""
         t0 = time.perf_counter()
-        mets = iter(_metrics(btf, [v for _, v in pending if v is not None], cfg))
+        recs = [v for _, v in pending if v is not None]
+        mets = iter(_metrics(btf, recs, self.cfg) if recs else [])
+        empty = dict.fromkeys(METRICS)
         for row, view in pending:
-            add(row, **(next(mets) if view is not None else {}))
-        stage("evaluate", t0)
+            self.rows.append({**row, **(next(mets) if view is not None else empty)})
+        self.stage("evaluate", t0)
 
-    # 3. test materials ---------------------------------------------------------------------
-    for label, cls, mseed, btf in tests:
-        base = {"material": label, "class": cls, "seed": mseed, "set": "test",
+    def code_set(self, which: str, label: str, cls: str, mseed: int | None, btf: BTF,
+                 levels: Sequence[int]) -> tuple[list, dict[str, BTF], dict]:  # fmt: skip
+        """The reference and every method coding set ``which``, on one material: pending
+        rows, grid reconstructions, and per method name its views by (level, matching)."""
+        cfg = self.cfg
+        base = {"material": label, "class": cls, "seed": mseed, "set": which,
                 "size": [btf.height, btf.width]}
-        note_values(label, btf)
-        recs: dict[str, BTF] = {}
+        self.note_values(label, btf)
         pending: list[tuple[dict[str, Any], BTF | None]] = []
-        lv_taus = [level_tau(level_budget(btf, lv), minimum=tau_l) for lv in cfg.levels]
-        say(f"{label}: SparseBTF at levels {list(cfg.levels)} (tau {lv_taus}) and "
-            f"{len(cfg.curve_taus)} curve points")
+        recs: dict[str, BTF] = {}
+        views: dict[str, dict[tuple[int, str], BTF]] = {}
+        budgets = self.ref.level_budgets(btf, levels)
+        curve = which == "test"
+        self.say(f"{label}: {self.ref.label} at levels {list(levels)} (tau "
+                 f"{[list(self.ref.level_tau(btf, lv)) for lv in levels]})"
+                 + (f" and {len(self.ref.curve_taus)} curve points" if curve else ""))
         t0 = time.perf_counter()
-        allt = lv_taus + [t for t in cfg.curve_taus if tuple(t) not in lv_taus]
-        coded = encode_levels(btf, models["sparsebtf"], allt, eps=0.0,
-                              allow_below_training=True, log_offset=cfg.log_offset,
-                              candidates=cfg.candidates, progress=progress, client=ex)
-        stage("encode_sparsebtf", t0)
-        fixed_bytes: dict[int, int] = {}
-        for j, (tau, c) in enumerate(zip(allt, coded, strict=True)):
-            level = cfg.levels[j] if j < len(cfg.levels) else None
-            info = _coded_row(c, models["sparsebtf"])
-            view = coded_btf_view(c)
-            pending.append(({**base, "method": "sparsebtf", "level": level, "tau": list(tau),
-                             **info}, view))
-            if level is not None:
-                fixed_bytes[level] = info["material_bytes"]
-                if level in cfg.grid_levels:
-                    recs[f"SparseBTF({level})"] = view
-        if cfg.with_rate_control:
-            t0 = time.perf_counter()
-            targets = [fixed_bytes[lv] for lv in cfg.levels]
-            say(f"{label}: rate control at the fixed-tau bytes {targets}")
-            rc = encode_rate_levels(btf, models["sparsebtf"], targets, progress=progress,
-                                    log_offset=cfg.log_offset, candidates=cfg.candidates,
-                                    client=ex)
-            stage("encode_rate", t0)
-            for lv, c in zip(cfg.levels, rc, strict=True):
-                info = _coded_row(c, models["sparsebtf"])
-                view = coded_btf_view(c)
-                pending.append(({
-                    **base, "method": "rate", "level": lv, "tau": list(c.params["tau"].values()),
-                    "target_bytes": c.params["rate_control"]["target_material_bytes"], **info,
-                }, view))  # fmt: skip
+        codings = self.ref.code(btf, budgets, curve=curve)
+        self.stage(f"encode_{self.ref.name}", t0)
+        ref_bytes: dict[int, int] = {}
+        for j, c in enumerate(codings):
+            lv = budgets[j].level if j < len(budgets) else None
+            pending.append((method_row(base, self.ref.name, lv, None, c), c.reconstruction))
+            if lv is not None:
+                ref_bytes[lv] = c.material_bytes
+                views.setdefault(self.ref.name, {})[(lv, "")] = c.reconstruction
                 if lv in cfg.grid_levels:
-                    recs[f"+rate control({lv})"] = view
-        for key in ("per_channel", "raw"):
-            if key not in models:
+                    recs[f"{self.ref.label}({lv})"] = c.reconstruction
+        for m in self.others:
+            if which not in m.sets:
                 continue
+            bs = budgets_for(m, btf, levels, ref_bytes)
+            self.say(f"{label}: {m.label} at {len(bs)} budgets "
+                     f"({', '.join(m.matchings)}; bytes {[b.material_bytes for b in bs]})")
             t0 = time.perf_counter()
-            if key == "raw":
-                taus = [level_tau(level_budget(btf, lv), split=(1.0, 1.0, 1.0),
-                                  minimum=(raw_tau,) * 3) for lv in cfg.levels]
-            else:
-                taus = lv_taus
-            say(f"{label}: {METHODS[key]} at tau {taus}")
-            cs = encode_levels(btf, models[key], taus, eps=0.0, allow_below_training=True,
-                               log_offset=cfg.log_offset, candidates=cfg.candidates,
-                               progress=progress, client=ex)
-            stage(f"encode_{key}", t0)
-            for lv, tau, c in zip(cfg.levels, taus, cs, strict=True):
-                view = coded_btf_view(c)
-                pending.append(({**base, "method": key, "level": lv, "tau": list(tau),
-                                 **_coded_row(c, models[key])}, view))
-                if key == "raw" and lv in cfg.grid_levels:
-                    recs[f"[MHU19]({lv})"] = view
-        say(f"{label}: metrics of {len(pending)} reconstructions")
-        score(btf, pending)
-        if recs and len(grids) < 2:
-            t0 = time.perf_counter()
-            path = comparison_grid(btf, recs, _figure_pairs(btf), out / f"grid_{label}.png")
-            grids.append(path.name)
-            stage("figures", t0)
+            cs = m.code(btf, bs)
+            self.stage(f"encode_{m.name}", t0)
+            if len(cs) != len(bs):
+                raise BTFInputError(f"method {m.name!r}: code() returned {len(cs)} codings "
+                                    f"for {len(bs)} budgets (one per budget, in order)")
+            top = max(m.factors)
+            for b, c in zip(bs, cs, strict=True):
+                pending.append((method_row(base, m.name, b.level, b, c), c.reconstruction))
+                if c.reconstruction is None or b.factor != top:
+                    continue
+                views.setdefault(m.name, {})[(b.level, b.matching)] = c.reconstruction  # type: ignore
+                if m.grid and b.matching == m.matchings[0] and b.level in cfg.grid_levels:
+                    f = "" if b.factor == 1 else f" {b.factor:g}x"
+                    recs[f"{m.label}{f}({b.level})"] = c.reconstruction
+        return pending, recs, views
 
-    # 4. Table 5: SparseBTF vs per-material PCA -------------------------------------------------
-    for label, cls, mseed, btf in table5:
-        base = {"material": label, "class": cls, "seed": mseed, "set": "table5",
-                "size": [btf.height, btf.width]}
-        note_values(label, btf)
+    def grid(self, btf: BTF, recs: dict[str, BTF], name: str) -> None:
+        t0 = time.perf_counter()
+        path = comparison_grid(btf, recs, _figure_pairs(btf), self.out / name)
+        self.grids.append(path.name)
+        self.stage("figures", t0)
+
+    def figure5(self, label: str, btf: BTF, views: dict) -> str | None:
+        """Figure 5's image: the reference, SparseBTF(32) and RGJW20(32) (the paper's
+        matching where coded under it), when RGJW20 is in the run."""
+        lv = 32 if 32 in self.cfg.levels else self.cfg.levels[len(self.cfg.levels) // 2]
+        recs = {f"{self.ref.label}({lv})": views[self.ref.name][(lv, "")]}
+        for m in self.others:
+            if m.name in FIGURE5 and m.name in views:
+                got = views[m.name]
+                v = got.get((lv, PAPER)) or next(
+                    (x for (lv2, _), x in got.items() if lv2 == lv), None)
+                if v is not None:
+                    recs[f"{m.label}({lv})"] = v
+        if len(recs) < 2:
+            return None
+        self.grid(btf, recs, f"figure5_{label}.png")
+        return self.grids[-1]
+
+    # -- the run ------------------------------------------------------------------------------
+    def run(self, out: str | os.PathLike[str], extra: Sequence[str],
+            previous: str | os.PathLike[str] | None) -> dict[str, Any]:  # fmt: skip
+        from .report import previous_record, write_report
+
+        cfg = self.cfg
+        prev = None if previous is None else previous_record(previous)  # fail before the hour
+        self.out = out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        t_start = time.perf_counter()
+        t0 = time.perf_counter()
+        train, tests, table5 = self.materials(extra)
+        self.stage("materials", t0)
+        self.fit(train)
+
+        figure5: list[str] = []
+        for label, cls, mseed, btf in tests:
+            pending, recs, views = self.code_set("test", label, cls, mseed, btf, cfg.levels)
+            self.say(f"{label}: metrics of {sum(v is not None for _, v in pending)} "
+                     "reconstructions")
+            self.score(btf, pending)
+            if recs and len(self.grids) - len(figure5) < 2:
+                self.grid(btf, recs, f"grid_{label}.png")
+            if not figure5 and (name := self.figure5(label, btf, views)):
+                figure5.append(name)
+
         t5_levels = tuple(cfg.table5_levels) or tuple(cfg.levels)
-        lv_taus = [level_tau(level_budget(btf, lv), minimum=tau_l) for lv in t5_levels]
-        say(f"{label} ({btf.height}x{btf.width}): SparseBTF at tau {lv_taus}")
-        t0 = time.perf_counter()
-        coded = encode_levels(btf, models["sparsebtf"], lv_taus, eps=0.0,
-                              allow_below_training=True, log_offset=cfg.log_offset,
-                              candidates=cfg.candidates, progress=progress, client=ex)
-        stage("encode_sparsebtf", t0)
-        recs = {}
-        pending = []
-        budgets: dict[int, int] = {}
-        for lv, tau, c in zip(t5_levels, lv_taus, coded, strict=True):
-            info = _coded_row(c, models["sparsebtf"])
-            budgets[lv] = info["material_bytes"]
-            view = coded_btf_view(c)
-            pending.append(({**base, "method": "sparsebtf", "level": lv, "tau": list(tau),
-                             **info}, view))
-            if lv in cfg.grid_levels:
-                recs[f"SparseBTF({lv})"] = view
-        n_tex = btf.height * btf.width
-        n_ang = len(btf.lights) * len(btf.views)
-        max_rank = max(1, pca_rank_for_budget(2 * max(budgets.values()), n_tex, n_ang))
-        t0 = time.perf_counter()
-        say(f"{label}: PCA ({', '.join(cfg.pca_domains)}) up to total rank {max_rank}")
-        domains: Any = tuple(cfg.pca_domains)
-        fits = fit_pca_domains(btf, max_rank, domains=domains, power_iters=1, seed=seed,
-                               progress=progress)
-        stage("pca_fit", t0)
-        for domain, fit in zip(cfg.pca_domains, fits, strict=True):
-            for lv in t5_levels:
-                for factor in (1, 2):
-                    budget = factor * budgets[lv]
-                    total = pca_rank_for_budget(budget, n_tex, n_ang)
-                    ranks = allocate_ranks(fit, total)
-                    nbytes = pca_bytes(ranks, n_tex, n_ang)
-                    entry = {
-                        **base, "method": f"pca_{domain}",
-                        "level": lv, "budget_factor": factor, "budget_bytes": int(budget),
-                        "ranks": list(ranks), "material_bytes": nbytes,
-                        "bytes_raw": 2 * btf.n_values,
-                        "ratio_per_material": (2 * btf.n_values / nbytes) if nbytes else None,
-                        "bytes_dictionaries_shared": 0,
-                    }
-                    if sum(ranks) == 0:
-                        pending.append(({**entry, "mse_rgb": None, "mse_log": None,
-                                         "mse_std": None, "psnr_rgb": None, "ssim": None,
-                                         "note": "no component fits in the budget"}, None))
-                        continue
-                    rec = pca_reconstruction(fit, ranks, btf)
-                    pending.append((entry, rec))
-                    if lv in cfg.grid_levels and factor == 2 and domain == cfg.pca_domains[0]:
-                        recs[f"PCA {domain} 2x({lv})"] = rec
-        say(f"{label}: metrics of {sum(v is not None for _, v in pending)} reconstructions")
-        score(btf, pending)
-        if recs:
-            t0 = time.perf_counter()
-            path = comparison_grid(btf, recs, _figure_pairs(btf), out / f"grid_{label}_pca.png")
-            grids.append(path.name)
-            stage("figures", t0)
+        for label, cls, mseed, btf in table5:
+            pending, recs, _ = self.code_set("table5", label, cls, mseed, btf, t5_levels)
+            self.say(f"{label}: metrics of {sum(v is not None for _, v in pending)} "
+                     "reconstructions")
+            self.score(btf, pending)
+            if recs:
+                self.grid(btf, recs, f"grid_{label}_table5.png")
 
-    # 5. true black: exact zeros and high dynamic range ------------------------------------------
-    for cls, mseed in cfg.black_materials:
+        for cls, mseed in cfg.black_materials:
+            self.black(cls, mseed)
+
+        result = self.result(extra, t_start, figure5)
+        if prev is not None:
+            result["previous"] = prev
+        t0 = time.perf_counter()
+        write_report(result, out)
+        self.stage("report", t0)
+        result["timings_seconds"] = self.timings
+        with atomic_output(out / "results.json") as tmp:
+            tmp.write_text(json.dumps(result, indent=2, default=json_default))
+        self.say(f"wrote {out / 'results.json'} and {out / 'results.md'} "
+                 f"({result['seconds']:.0f} s)")
+        return result
+
+    # -- 5. true black ------------------------------------------------------------------------
+    def black(self, cls: str, mseed: int) -> None:
+        """A true-black material coded by the reference three ways (configured log offset,
+        the release's 1e-5, a copy floored at 1e-3), scored against the unfloored one."""
+        cfg = self.cfg
         btf = cfg.material(cls, cfg.test_size, mseed, black=True)
         label = f"{_label(cls, mseed)}+black"
         base = {"material": label, "class": cls, "seed": mseed, "set": "black",
                 "size": [btf.height, btf.width]}
-        note_values(label, btf)
-        lv_taus = [level_tau(level_budget(btf, lv), minimum=tau_l) for lv in cfg.levels]
-        variants = [("sparsebtf", btf, cfg.log_offset), ("floored", floored(btf, FLOOR), "release")]
+        self.note_values(label, btf)
+        budgets = self.ref.level_budgets(btf, cfg.levels)
+        variants = [(self.ref.name, btf, cfg.log_offset),
+                    ("floored", floored(btf, FLOOR), "release")]  # fmt: skip
         if cfg.log_offset != "release":
             variants.insert(1, ("release", btf, "release"))
-        pending = []
+        pending: list[tuple[dict[str, Any], BTF | None]] = []
         for method, src, rule in variants:
-            say(f"{label}: {METHODS[method]} at tau {lv_taus} (log offset {rule})")
+            self.say(f"{label}: {METHODS.get(method, self.ref.label)} at tau "
+                     f"{[list(self.ref.level_tau(btf, lv)) for lv in cfg.levels]} (log offset "
+                     f"{rule})")  # fmt: skip
             t0 = time.perf_counter()
-            cs = encode_levels(src, models["sparsebtf"], lv_taus, eps=0.0,
-                               allow_below_training=True, log_offset=rule, progress=progress,
-                               candidates=cfg.candidates, client=ex)  # fmt: skip
-            stage("encode_black", t0)
-            for lv, tau, c in zip(cfg.levels, lv_taus, cs, strict=True):
-                pending.append(({**base, "method": method, "level": lv, "tau": list(tau),
-                                 "log_offset": c.stats.eps, **_coded_row(c, models["sparsebtf"])},
-                                coded_btf_view(c)))  # fmt: skip
-        say(f"{label}: metrics of {len(pending)} reconstructions (against the unfloored BTF)")
-        score(btf, pending)
+            cs = self.ref.code(src, budgets, log_offset=rule)
+            self.stage("encode_black", t0)
+            for b, c in zip(budgets, cs, strict=True):
+                pending.append((method_row(base, method, b.level, None, c), c.reconstruction))
+        self.say(f"{label}: metrics of {len(pending)} reconstructions (against the unfloored "
+                 "BTF)")
+        self.score(btf, pending)
 
-    result: dict[str, Any] = {
-        "benchmark": "sparsebtf bench quality",
-        "config": asdict(cfg),
-        "seed": seed,
-        "extra_materials": list(materials),
-        "level_ratios_per_material": {str(k): v for k, v in ratios.items()},
-        "models": model_info,
-        "methods": METHODS,
-        "rows": rows,
-        "material_values": values,
-        "grids": grids,
-        "timings_seconds": timings,
-        "seconds": time.perf_counter() - t_start,
-        "machine": {
-            "cpus": os.cpu_count(),
-            "platform": platform.platform(),
-            "python": platform.python_version(),
-            "numpy": np.__version__,
-            "library": library_version(),
-        },
-        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-    }
-    if prev is not None:
-        result["previous"] = prev
-    t0 = time.perf_counter()
-    write_report(result, out)
-    stage("report", t0)
-    result["timings_seconds"] = timings
-    with atomic_output(out / "results.json") as tmp:
-        tmp.write_text(json.dumps(result, indent=2, default=json_default))
-    say(f"wrote {out / 'results.json'} and {out / 'results.md'} "
-        f"({result['seconds']:.0f} s)")
-    return result
+    def result(self, extra: Sequence[str], t_start: float, figure5: list[str]) -> dict[str, Any]:
+        cfg = self.cfg
+        models = {}
+        for m in self.methods:
+            rec = getattr(m, "model_record", None)
+            if callable(rec) and (entry := rec()) is not None:
+                models[m.name] = entry
+        runs = {
+            m.name: {
+                "label": m.label, "scope": m.scope, "matchings": list(m.matchings),
+                "sets": list(m.sets), "factors": list(m.factors),
+                "class": f"{type(m).__module__}:{type(m).__qualname__}",
+                "reference": m is self.ref, "shared_bytes": int(m.shared_bytes()),
+                "training_budget": m.training_budget(), "params": m.describe(),
+            }
+            for m in self.methods
+        }  # fmt: skip
+        return {
+            "benchmark": "sparsebtf bench quality",
+            "config": asdict(cfg),
+            "seed": self.seed,
+            "extra_materials": list(extra),
+            "level_ratios_per_material": {str(k): v for k, v in cfg.ratios().items()},
+            "models": models,
+            "methods": {**{m.name: m.label for m in self.methods}, **VARIANTS},
+            "method_runs": runs,
+            "rows": self.rows,
+            "material_values": self.values,
+            "grids": self.grids,
+            "figure5": figure5,
+            "timings_seconds": self.timings,
+            "seconds": time.perf_counter() - t_start,
+            "machine": {
+                "cpus": os.cpu_count(),
+                "platform": platform.platform(),
+                "python": platform.python_version(),
+                "numpy": np.__version__,
+                "library": library_version(),
+            },
+            "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        }

@@ -112,6 +112,9 @@ class FitContext:
     executor: Any = None
     #: the run's configuration (:class:`~sparsebtf.evaluation.benchmark_set.BenchConfig`)
     config: Any = None
+    #: the fitted reference method (SparseBTF) when fitting any other: a variant of it (rate
+    #: control) codes with its model instead of training its own
+    reference: Any = None
 
 
 class Method(abc.ABC):
@@ -121,7 +124,8 @@ class Method(abc.ABC):
     tables name it), ``scope`` (``"shared"``: learns from the training materials once;
     ``"per_material"``: everything is fitted per material), ``matchings`` (the storage
     matchings it is coded under: a method whose storage is continuous in the budget, like a
-    latent size, is coded under both; SparseBTF defines the budgets and is coded once).
+    latent size, is coded under both; SparseBTF defines the budgets and is coded once),
+    ``sets``, ``factors`` and ``grid`` (which materials, budget multiples and image grids).
 
     The estimator convention of scikit-learn: ``__init__`` stores parameters, :meth:`fit`
     learns and stores learned state in attributes ending in ``_``; :meth:`code` uses them.
@@ -131,6 +135,13 @@ class Method(abc.ABC):
     label: ClassVar[str] = ""
     scope: ClassVar[str] = "per_material"
     matchings: ClassVar[tuple[str, ...]] = (PER_MATERIAL,)
+    #: the material sets it codes: ``"test"`` (Tables 2 and 3) and/or ``"table5"`` (the
+    #: 100×100 materials of Table 5)
+    sets: ClassVar[tuple[str, ...]] = ("test",)
+    #: multiples of the reference budget it is coded at (Table 5 codes PCA at 1× and 2×)
+    factors: ClassVar[tuple[float, ...]] = (1.0,)
+    #: whether its reconstructions at the grid levels go into the image grids
+    grid: ClassVar[bool] = False
 
     @classmethod
     def from_config(cls, config: Any) -> Method:

@@ -1,0 +1,71 @@
+"""The plots of a ``bench quality`` run: Figure 3 and quality against storage."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from ..figures import save_figure
+from .rows import levels as _levels
+from .rows import materials as _materials
+from .rows import rows as _rows
+from .tables import gmean as _gmean
+from .tables import label_with_matching, method_matchings
+
+__all__ = ["figure3", "quality_storage"]
+
+
+def figure3(result: dict[str, Any], path: Path) -> Path:
+    """log10 MSE vs coefficients per data point, one line per test material (Figure 3)."""
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    mats = _materials(result, "test")
+    cmap = plt.get_cmap("tab20")
+    for i, m in enumerate(mats):
+        rs = sorted(_rows(result, material=m, method="sparsebtf", set="test"),
+                    key=lambda r: r["coefficients_per_point"])
+        ax.plot([r["coefficients_per_point"] for r in rs],
+                [np.log10(r["mse_rgb"]) for r in rs], marker="o", ms=3,
+                color=cmap(i % 20), label=m)
+    ax.set_xscale("log", base=2)
+    ax.set_xlabel("coefficients per data point (tau_Y + tau_U + tau_V)")
+    ax.set_ylabel("log10 MSE (linear RGB)")
+    ax.set_title(f"SparseBTF: error vs sparsity, {len(mats)} unseen materials (cf. Figure 3)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=6, ncol=2, loc="upper right")
+    return save_figure(fig, path, dpi=110)
+
+
+def quality_storage(result: dict[str, Any], path: Path) -> Path:
+    """Geometric-mean MSE vs bytes per texel, one line per method and material set."""
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), squeeze=False)
+    for ax, which, title in ((axes[0, 0], "test", "test materials"),
+                             (axes[0, 1], "table5", "Table-5 materials (vs PCA)")):
+        for m, matching in method_matchings(result, (which,)):
+            pts = []
+            for lv in _levels(result):
+                rs = [r for r in _rows(result, method=m, level=lv, set=which)
+                      if r.get("budget_factor", 1) in (1, 2) and r["mse_rgb"] is not None
+                      and r.get("matching", "") == matching]  # fmt: skip
+                for f in sorted({r.get("budget_factor", 1) for r in rs}):
+                    sub = [r for r in rs if r.get("budget_factor", 1) == f]
+                    b = np.mean([r["material_bytes"] / np.prod(r["size"]) for r in sub])
+                    pts.append((b, _gmean([r["mse_rgb"] for r in sub])))
+            if pts:
+                pts.sort()
+                ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o",
+                        label=label_with_matching(result, m, matching))
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("bytes per texel (per material, Table 4 accounting)")
+        ax.set_ylabel("MSE, linear RGB (geo. mean)")
+        ax.set_title(title)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend(fontsize=7)
+    return save_figure(fig, path, dpi=110)
+
