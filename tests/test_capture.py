@@ -372,12 +372,12 @@ def test_quality_benchmark_on_captured_materials(tmp_path, monkeypatch):
     from sparsebtf.evaluation.benchmark_set import CAPTURE_CLASSES
     from sparsebtf.evaluation.runner import run_quality
 
-    from .test_evaluation import tiny_config
+    from .test_evaluation import TINY_METHODS, tiny_config
 
     monkeypatch.setenv("SPARSEBTF_CACHE", str(tmp_path / "cache"))
     cfg = tiny_config().captured()
     assert cfg.source == "capture" and cfg.classes == CAPTURE_CLASSES
-    result = run_quality(tmp_path / "run", cfg, log=lambda m: None)
+    result = run_quality(tmp_path / "run", cfg, log=lambda m: None, methods=TINY_METHODS)
     captured = sorted(p.name for p in (tmp_path / "cache").glob("capture-*.h5"))
     assert len(captured) == 7  # 2 training, 4 test, 1 Table-5 (true black: the test metal12)
     rows = {r["material"] for r in result["rows"]}

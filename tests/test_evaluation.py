@@ -115,7 +115,15 @@ def tiny_config() -> BenchConfig:
         ssim_images=1,
         grid_levels=(32,),
         black_materials=(("metal", 12),),
+        render_spp=2,
+        render_size=16,
+        speed_seconds=0.05,
+        speed_batch=256,
     )
+
+
+#: the methods of the tiny run (the neural ones have tests of their own: tests/test_neural.py)
+TINY_METHODS = ("sparsebtf", "rate", "per_channel", "raw", "pca")
 
 
 @pytest.fixture(scope="module")
@@ -125,7 +133,7 @@ def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
     os.environ["SPARSEBTF_CACHE"] = str(out / "cache")
     os.environ["SPARSEBTF_PROGRESS"] = "0"
-    result = run_quality(out / "run", tiny_config(), log=lambda m: None)
+    result = run_quality(out / "run", tiny_config(), log=lambda m: None, methods=TINY_METHODS)
     return out / "run", result
 
 
@@ -145,6 +153,25 @@ def test_bench_writes_json_tables_and_figures(tiny_run):
         assert "verdict" in summary[key], key
     md = (out / "results.md").read_text()
     assert "## Verdicts" in md and "figure3.png" in md and "## True black" in md
+
+
+def test_bench_renders_figure8_and_measures_decode_speed(tiny_run):
+    """Figure 8 (each method's level-32 reconstruction rendered beside the reference) and
+    Table 1's decode speed land in results.json and results.md."""
+    out, result = tiny_run
+    f8 = result["figure8"]
+    assert f8["level"] == 32 and f8["material"] == result["rows"][0]["material"]
+    labels = set(f8["methods"])
+    assert {"SparseBTF(32)", "[MHU19] (raw RGB)(32)"} <= labels
+    for r in f8["methods"].values():
+        assert r["image_mse"] > 0 and r["flip"] > 0
+    assert (out / "figure8" / "figure8.png").stat().st_size > 0
+    speed = result["decode_speed"]["methods"]
+    assert set(speed) == labels
+    assert all(r["queries_per_second_1"] > 0 for r in speed.values())
+    md = (out / "results.md").read_text()
+    assert "## Figure 8 shape" in md and "figure8/figure8.png" in md
+    assert "## Decode speed" in md
 
 
 def test_bench_meets_true_black(tiny_run):
@@ -196,7 +223,7 @@ def test_cli_bench_quality_tiny(tmp_path, monkeypatch, capsys):
     monkeypatch.setattr(BenchConfig, "quick", classmethod(
         lambda cls: replace(tiny_config(), with_per_channel=False, pca_domains=("log",))))
     rc = main(["bench", "quality", "--quick", "--out", str(tmp_path / "q"), "--json",
-               "--docs", str(tmp_path / "docs")])
+               "--docs", str(tmp_path / "docs"), "--methods", ",".join(TINY_METHODS)])
     assert rc == 0
     out = capsys.readouterr().out
     assert "table3_monotone" in out

@@ -142,6 +142,14 @@ class BenchConfig:
     source: str = "synth"
     #: camera paths per texel of captured materials
     spp: int = 4
+    #: Figure 8: the first test material as each method decodes it at the reference level,
+    #: rendered with the dense Mitsuba plugin at equal spp (0 spp: no renders)
+    render_spp: int = 16
+    render_size: int = 128
+    #: Table 1's "fast local reconstruction": seconds of single-value lookups per method and
+    #: batch size (0: not measured); the large batch's size
+    speed_seconds: float = 1.0
+    speed_batch: int = 65536
 
     @classmethod
     def quick(cls) -> BenchConfig:
@@ -164,6 +172,9 @@ class BenchConfig:
             curve_taus=((256, 32, 32), (1280, 96, 96)),
             black_materials=(("metal", 12),),
             ssim_images=4,
+            render_spp=8,
+            render_size=96,
+            speed_seconds=0.5,
             notes=(
                 "quick configuration: K = 4 dictionaries trained on all 28 points of 7 "
                 "materials of 20x20 (at most 6 iterations, tolerance 1e-2); test materials "

@@ -249,6 +249,8 @@ def render_markdown(
     for g in result.get("grids", []):
         lines.append(f"![{g}]({img}{g})")
         lines.append("")
+    lines += _figure8_section(result, img)
+    lines += _speed_section(result)
     lines += ["## Run time", "", _table(
         ["stage", "seconds"],
         [[k, f"{v:.0f}"] for k, v in sorted(result["timings_seconds"].items())]
@@ -292,6 +294,52 @@ def _table3_section(result: dict[str, Any], img: str) -> list[str]:
         lines += ["", "Figure 5 shape: reference, SparseBTF(32) and RGJW20(32), false-colour "
                   "|error| x2.", "", f"![{g}]({img}{g})"]
     return lines
+
+
+def _figure8_section(result: dict[str, Any], img: str) -> list[str]:
+    """results.md's Figure 8: renders of each method beside the reference (image MSE, linear
+    and display-mapped, and mean HDR-ꟻLIP)."""
+    f8 = result.get("figure8") or {}
+    if not f8.get("methods"):
+        return []
+    body = [[label, f"{r['image_mse']:.3g}", f"{r['image_mse_display']:.3g}",
+             f"{r['flip']:.4f}"] for label, r in f8["methods"].items()]  # fmt: skip
+    # in a run's own folder the image lies in figure8/; regenerate copies it beside the others
+    png = f"{img}figure8.png" if img else "figure8/figure8.png"
+    return [
+        "## Figure 8 shape: renders", "",
+        f"{f8['material']} as each method decodes it at level {f8['level']}, decoded on the "
+        "measured grid and rendered with the dense Mitsuba plugin (sphere scene, cosine "
+        f"sampling, the same paths for every method) at {f8['spp']} spp, "
+        f"{f8['image_size']}x{f8['image_size']} pixels. Image MSE of the linear render and "
+        "after the paper's display mapping clip(1.3 x^(1/1.8), 0, 1); mean HDR-ꟻLIP "
+        "(0 = identical).", "",
+        _table(["method", "image MSE", "image MSE, display", "ꟻLIP"], body), "",
+        f"![Figure 8]({png})", "",
+    ]
+
+
+def _speed_section(result: dict[str, Any]) -> list[str]:
+    """results.md's decode speed (Table 1's "fast local reconstruction")."""
+    sp = result.get("decode_speed") or {}
+    if not sp.get("methods"):
+        return []
+
+    def rate(x: float | None) -> str:
+        return "—" if x is None else f"{x:,.0f}"
+
+    body = [[label, r.get("path", ""), str(r.get("backend", "")), rate(r["queries_per_second_1"]),
+             rate(r["queries_per_second_batch"]), str(r.get("threads", ""))]
+            for label, r in sp["methods"].items()]  # fmt: skip
+    batch = next(iter(sp["methods"].values())).get("batch")
+    return [
+        "## Decode speed: Table 1's fast local reconstruction", "",
+        f"Single-value decodes per second on this machine ({sp['material']}, level "
+        f"{sp['level']}): one query per call on one thread, and {batch:,d} queries per call. "
+        "SparseBTF is the runtime's Eq. 5 lookup; a neural method its decoder in PyTorch.", "",
+        _table(["method", "path", "backend", "batch 1 /s", f"batch {batch:,d} /s", "threads"],
+               body), "",
+    ]
 
 
 def write_report(result: dict[str, Any], out: str | os.PathLike[str]) -> dict[str, Any]:
@@ -400,8 +448,9 @@ def regenerate(
     result["summary"] = summary
     figure3(result, img_dir / "figure3.png")
     quality_storage(result, img_dir / "quality_storage.png")
-    for g in result.get("grids", []):
-        src, dst = run / g, img_dir / g
+    figure8 = ["figure8/figure8.png"] if (result.get("figure8") or {}).get("methods") else []
+    for g in [*result.get("grids", []), *figure8]:
+        src, dst = run / g, img_dir / Path(g).name
         if src.exists() and not (dst.exists() and src.samefile(dst)):
             shutil.copyfile(src, dst)
     with atomic_output(held) as tmp:  # the storage figures stay in their own file

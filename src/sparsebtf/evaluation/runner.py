@@ -353,6 +353,40 @@ class _QualityRun:
         self.grid(btf, recs, f"figure5_{label}.png")
         return self.grids[-1]
 
+    def renders_and_speed(self, label: str, btf: BTF, views: dict) -> None:
+        """Figure 8 (each method's reconstruction at the reference level rendered beside the
+        reference, :func:`~.renders.render_methods`) and Table 1's single-value decode speed
+        (:func:`~.speed.decode_speed`), on the first test material."""
+        cfg = self.cfg
+        lv = 32 if 32 in cfg.levels else cfg.levels[len(cfg.levels) // 2]
+        recs: dict[str, BTF] = {}
+        for m in self.methods:
+            got = views.get(m.name, {})
+            # the paper's matching where the method was coded under it
+            v = got.get((lv, "")) or got.get((lv, PAPER)) or next(
+                (x for (lv2, _), x in got.items() if lv2 == lv), None)
+            if v is not None:
+                recs[f"{m.label}({lv})"] = v
+        if cfg.speed_seconds > 0:
+            from .speed import decode_speed
+
+            t0 = time.perf_counter()
+            self.say(f"{label}: single-value decode speed of {len(recs)} methods")
+            self.speed = {"material": label, "level": lv, "methods": decode_speed(
+                recs, batch=cfg.speed_batch, seconds=cfg.speed_seconds, seed=self.seed)}
+            self.stage("decode_speed", t0)
+        if cfg.render_spp > 0:
+            from .renders import render_methods
+
+            t0 = time.perf_counter()
+            self.say(f"{label}: Figure 8, {len(recs)} methods rendered at {cfg.render_spp} spp")
+            res = render_methods(btf, recs, self.out / "figure8", spp=cfg.render_spp,
+                                 image_size=cfg.render_size, seed=self.seed,
+                                 progress=self.progress)
+            self.figure8 = {"material": label, "level": lv, "spp": cfg.render_spp,
+                            "image_size": cfg.render_size, "methods": res}
+            self.stage("figure8", t0)
+
     # -- the run ------------------------------------------------------------------------------
     def run(self, out: str | os.PathLike[str], extra: Sequence[str],
             previous: str | os.PathLike[str] | None) -> dict[str, Any]:  # fmt: skip
@@ -369,6 +403,8 @@ class _QualityRun:
         self.fit(train)
 
         figure5: list[str] = []
+        self.figure8: dict[str, Any] = {}
+        self.speed: dict[str, Any] = {}
         for label, cls, mseed, btf in tests:
             pending, recs, views = self.code_set("test", label, cls, mseed, btf, cfg.levels)
             self.say(f"{label}: metrics of {sum(v is not None for _, v in pending)} "
@@ -378,6 +414,8 @@ class _QualityRun:
                 self.grid(btf, recs, f"grid_{label}.png")
             if not figure5 and (name := self.figure5(label, btf, views)):
                 figure5.append(name)
+            if not self.speed and not self.figure8:
+                self.renders_and_speed(label, btf, views)
 
         t5_levels = tuple(cfg.table5_levels) or tuple(cfg.levels)
         for label, cls, mseed, btf in table5:
@@ -463,6 +501,8 @@ class _QualityRun:
             "material_values": self.values,
             "grids": self.grids,
             "figure5": figure5,
+            "figure8": self.figure8,
+            "decode_speed": self.speed,
             "timings_seconds": self.timings,
             "seconds": time.perf_counter() - t_start,
             "machine": {
