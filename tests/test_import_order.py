@@ -157,12 +157,18 @@ def scene_dir(tmp_path_factory) -> Path:
     return d
 
 
-def _run(d: Path, first: str, hook_on: bool, **env_extra: str) -> subprocess.CompletedProcess:
-    (d / "my_scene.png").unlink(missing_ok=True)
+def _child_env(**extra: str) -> dict[str, str]:
+    """This environment without a libLLVM choice, an installed hook off, this sparsebtf."""
     env = {k: v for k, v in os.environ.items() if k not in (hook.ENV, hook.MARK)}
-    env.update(SPARSEBTF_LLVM_HOOK="0", **env_extra)
+    env.update(SPARSEBTF_LLVM_HOOK="0", **extra)
     src = str(Path(sparsebtf.__file__).resolve().parents[1])
     env["PYTHONPATH"] = os.pathsep.join(p for p in (src, env.get("PYTHONPATH")) if p)
+    return env
+
+
+def _run(d: Path, first: str, hook_on: bool, **env_extra: str) -> subprocess.CompletedProcess:
+    (d / "my_scene.png").unlink(missing_ok=True)
+    env = _child_env(**env_extra)
     args = [str(d / "hook") if hook_on else "", f"{first}_first.py", "m.coded.h5", "16", "4"]
     return subprocess.run([sys.executable, "-c", HARNESS, *args], cwd=d, env=env,
                           capture_output=True, text=True, timeout=300)  # fmt: skip
@@ -198,8 +204,7 @@ def test_with_the_hook_either_order_renders(scene_dir, usable, first):
 
 def _default_llvm() -> int:
     """The major version Dr.Jit loads here when nothing points it anywhere (-1: none)."""
-    env = {k: v for k, v in os.environ.items() if k not in (hook.ENV, hook.MARK)}
-    env["SPARSEBTF_LLVM_HOOK"] = "0"
+    env = _child_env()
     code = "import drjit as dr; print(dr.detail.llvm_version()[0])"  # no kernel: no abort
     r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
                        timeout=120)  # fmt: skip
@@ -228,3 +233,15 @@ def test_without_the_hook_mitsuba_first_renders_or_stops_with_one_line(scene_dir
     assert not (scene_dir / "my_scene.png").exists()
     fixed = _run(scene_dir, "mitsuba", hook_on=False, DRJIT_LIBLLVM_PATH=m.group(3))
     assert _rendered(scene_dir, fixed) == m.group(3)
+
+
+@needs_mitsuba
+def test_a_variant_set_without_llvm_is_kept_whatever_dr_jit_loaded(usable):
+    """``scalar_rgb`` set before the import does not use the LLVM backend: no stop, even where
+    Dr.Jit loaded LLVM 15 (the check is for llvm variants only)."""
+    code = ("import mitsuba as mi\nmi.set_variant('scalar_rgb')\nimport sparsebtf.mitsuba as sbm\n"
+            "print(sbm.variant, '|', sbm.variant_message)\n")  # fmt: skip
+    r = subprocess.run([sys.executable, "-c", code], env=_child_env(), capture_output=True,
+                       text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert r.stdout.strip() == "scalar_rgb | keeping the active Mitsuba variant scalar_rgb"

@@ -392,6 +392,11 @@ def activate_variant(backend: str = "auto", quiet: bool = False) -> tuple[str, s
     variant, why = choose_variant(backend)
     import mitsuba as mi
 
+    if variant.startswith("llvm_"):
+        st = configure()  # drjit is imported now: name the library it actually loaded
+        if st.blocked:
+            raise LLVMImportOrderError(st.blocked)
+        why = st.message() if st.ok else why
     current = mi.variant()
     if current is None or backend != "auto":
         if current != variant:
