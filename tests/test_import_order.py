@@ -112,12 +112,10 @@ def test_the_hook_sets_the_path_only_when_unset(tmp_path, monkeypatch):
     # A real interpreter processing the .pth from a folder, as at start-up.
     (site_dir / "sparsebtf-drjit-llvm.pth").write_text(line, encoding="utf-8")
     (lib / "libLLVM.so.21.1").write_bytes(b"")
-    env = {k: v for k, v in os.environ.items() if k not in (hook.ENV, hook.MARK, hook.OFF)}
-    out = subprocess.run(
-        [sys.executable, "-c", f"import os, site; site.addsitedir({str(site_dir)!r}); "
-         f"print(os.environ.get({hook.ENV!r}))"],
-        env=env, capture_output=True, text=True, timeout=60, check=True,
-    ).stdout.strip()  # fmt: skip
+    code = (f"import os, site; os.environ.pop({hook.OFF!r}); site.addsitedir({str(site_dir)!r}); "
+            f"print(os.environ.get({hook.ENV!r}))")  # fmt: skip
+    out = subprocess.run([sys.executable, "-c", code], env=_child_env(), capture_output=True,
+                         text=True, timeout=60, check=True).stdout.strip()  # fmt: skip
     assert out == str(lib / "libLLVM.so.21.1")
 
 
