@@ -231,6 +231,12 @@ def test_without_the_hook_mitsuba_first_renders_or_stops_with_one_line(scene_dir
     assert not (scene_dir / "my_scene.png").exists()
     fixed = _run(scene_dir, "mitsuba", hook_on=False, DRJIT_LIBLLVM_PATH=m.group(3))
     assert _rendered(scene_dir, fixed) == m.group(3)
+    # The user's own DRJIT_LIBLLVM_PATH naming the old library: the line says to change it.
+    own = _run(scene_dir, "mitsuba", hook_on=False, DRJIT_LIBLLVM_PATH=m.group(2))
+    assert own.returncode == 1, own.stderr[-3000:]
+    assert own.stderr.strip().splitlines()[-1].endswith(
+        f"DRJIT_LIBLLVM_PATH is set to {m.group(2)}: set it to {m.group(3)} instead, before "
+        "Python starts")  # fmt: skip
 
 
 @needs_mitsuba

@@ -246,6 +246,10 @@ def _usable_elsewhere(loaded: str | None) -> str | None:
 
 
 def _fix(usable: str | None) -> str:
+    env = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if usable and env and env != os.environ.get(AUTO_MARK):  # the user's own choice loaded
+        return (f"DRJIT_LIBLLVM_PATH is set to {env}: set it to {usable} instead, before Python "
+                "starts")  # fmt: skip
     if usable:
         return (f"set DRJIT_LIBLLVM_PATH={usable} before Python starts (or before the first "
                 "import of mitsuba or drjit), or import sparsebtf.mitsuba first")  # fmt: skip
