@@ -56,6 +56,8 @@ print("MAPPED", *maps)
 
 
 def _pth_line() -> str:
+    if not SETUP.exists():
+        pytest.skip(f"{SETUP} missing: the hook's .pth line is built there (run from a checkout)")
     spec = importlib.util.spec_from_file_location("sparsebtf_setup", SETUP)
     setup = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(setup)  # setup() itself runs only as __main__
