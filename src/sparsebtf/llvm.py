@@ -13,8 +13,16 @@ Dr.Jit 1.5 JIT-compiles its CPU kernels with the system's ``libLLVM``. Which one
 So a library is never tried in this process: :func:`probe_libllvm` runs a tiny Dr.Jit kernel in
 a **subprocess** with ``DRJIT_LIBLLVM_PATH`` pointing at the candidate, and only a candidate that
 passes is exported to this process's environment (:func:`configure`) — before ``drjit`` is
-imported, because Dr.Jit reads the variable once. ``DRJIT_LIBLLVM_PATH`` set by the user
-overrides the search (it is still probed). Results are cached per process.
+imported, because Dr.Jit reads the variable once, while ``import drjit`` runs.
+``DRJIT_LIBLLVM_PATH`` set by the user overrides the search (it is still probed); one set by the
+installed start-up hook (:mod:`sparsebtf._llvm_startup`, marked by ``SPARSEBTF_DRJIT_LLVM_AUTO``)
+is the first candidate. Results are cached per process.
+
+Once ``drjit`` is imported (a script that began with ``import mitsuba``), its library is fixed:
+:func:`configure` then reports the libLLVM the process actually mapped (``/proc/self/maps``) and
+the version Dr.Jit reports, and when that is older than 17, :func:`choose_variant` raises
+:class:`LLVMImportOrderError`, one line naming the loaded library and a usable one to set in
+``DRJIT_LIBLLVM_PATH`` — before a kernel could abort the process.
 
 :func:`choose_variant` returns ``"cuda_ad_rgb"`` (only when asked for and a GPU works),
 ``"llvm_ad_rgb"`` when a usable libLLVM was found, and otherwise ``"scalar_rgb"`` with a message
@@ -33,10 +41,12 @@ import sys
 from dataclasses import dataclass, field
 
 __all__ = [
+    "LLVMImportOrderError",
     "LLVMStatus",
     "candidate_libraries",
     "choose_variant",
     "configure",
+    "loaded_libllvm",
     "probe_libllvm",
 ]
 
@@ -57,6 +67,9 @@ GOOD_MAJORS = (19, 18, 17, 20, 21, 22, 23)
 MIN_MAJOR = 17
 #: Wheels on PyPI that ship a libLLVM with its dependencies (installed under ``<prefix>/lib``).
 PYPI_WHEELS = ("karellen-llvm-core",)
+#: Holds the path when the start-up hook (:mod:`sparsebtf._llvm_startup`), not the user, set
+#: ``DRJIT_LIBLLVM_PATH``.
+AUTO_MARK = "SPARSEBTF_DRJIT_LLVM_AUTO"
 
 
 def search_dirs() -> list[str]:
@@ -89,6 +102,10 @@ class LLVMStatus:
     path: str | None
     version: str | None
     tried: list[tuple[str, str]] = field(default_factory=list)
+    #: True when read from a Dr.Jit already imported (the library it loaded), not a search.
+    loaded: bool = False
+    #: Set when Dr.Jit already loaded a libLLVM < MIN_MAJOR: the one-line error and its fix.
+    blocked: str | None = None
 
     @property
     def ok(self) -> bool:
@@ -106,6 +123,12 @@ class LLVMStatus:
             "DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so"
         )
         return "\n".join(lines)
+
+
+class LLVMImportOrderError(ImportError):
+    """Dr.Jit was imported (e.g. by ``import mitsuba``) before ``sparsebtf.mitsuba`` and loaded
+    a libLLVM that aborts the process on the plugins' kernels; the message (one line) names it
+    and the fix."""
 
 
 def _major(path: str) -> int | None:
@@ -191,28 +214,103 @@ def _probe_failure(code: int, out: str, err: str) -> str:
     return why or f"exit status {code}"
 
 
+def loaded_libllvm(major: int | None = None) -> str | None:
+    """The libLLVM file mapped into this process (``/proc/self/maps``), or None.
+
+    With ``major``, the mapped one of that major version (a process may map another libLLVM
+    for something else, e.g. Mesa's); None where ``/proc`` is missing (macOS).
+    """
+    try:
+        with open("/proc/self/maps", encoding="utf-8", errors="replace") as f:
+            lines = f.read().splitlines()
+    except OSError:
+        return None
+    paths = dict.fromkeys(
+        p for p in (line.split(maxsplit=5)[-1] for line in lines if "libLLVM" in line)
+        if os.path.basename(p).startswith("libLLVM")
+    )  # fmt: skip
+    for p in paths:
+        if major is None or _major(p) == major:
+            return p
+    return None
+
+
+def _usable_elsewhere(loaded: str | None) -> str | None:
+    """The first library of the search (:func:`candidate_libraries`) that passes the probe,
+    other than ``loaded``: what to set ``DRJIT_LIBLLVM_PATH`` to."""
+    skip = os.path.realpath(loaded) if loaded else None
+    for path in candidate_libraries():
+        if path != skip and probe_libllvm(path)[0]:
+            return path
+    return None
+
+
+def _fix(usable: str | None) -> str:
+    env = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if usable and env and env != os.environ.get(AUTO_MARK):  # the user's own choice loaded
+        return (f"DRJIT_LIBLLVM_PATH is set to {env}: set it to {usable} instead, before Python "
+                "starts")  # fmt: skip
+    if usable:
+        return (f"set DRJIT_LIBLLVM_PATH={usable} before Python starts (or before the first "
+                "import of mitsuba or drjit), or import sparsebtf.mitsuba first")  # fmt: skip
+    return ("install one (pip install 'sparsebtf[render]', no root; or apt-get install "
+            "libllvm19) and set DRJIT_LIBLLVM_PATH=/path/to/libLLVM.so before Python starts")
+
+
+def _loaded_status() -> LLVMStatus:
+    """What the already imported Dr.Jit loaded: its version and the mapped file."""
+    import drjit as dr
+
+    v = tuple(int(x) for x in dr.detail.llvm_version())
+    if v[0] < 0:
+        why = ("Dr.Jit was imported before sparsebtf and found no libLLVM, so its LLVM "
+               f"backend is off in this process; {_fix(_usable_elsewhere(None))}")  # fmt: skip
+        return LLVMStatus(None, None, [("(Dr.Jit)", why)], loaded=True)
+    version = ".".join(str(i) for i in v)
+    path = loaded_libllvm(v[0]) or loaded_libllvm() or "(path unknown)"
+    if v[0] >= MIN_MAJOR:
+        return LLVMStatus(path, version, [], loaded=True)
+    blocked = (
+        f"Dr.Jit was imported before sparsebtf.mitsuba and loaded LLVM {version} ({path}), which "
+        f"aborts the process on the first kernel of a scene (sparsebtf needs LLVM >= "
+        f"{MIN_MAJOR}): {_fix(_usable_elsewhere(path))}"
+    )
+    return LLVMStatus(None, None, [(path, f"LLVM {version} loaded by Dr.Jit is too old")],
+                      loaded=True, blocked=blocked)  # fmt: skip
+
+
 _status: LLVMStatus | None = None
 
 
 def configure(force: bool = False) -> LLVMStatus:
     """Find and probe a libLLVM; export ``DRJIT_LIBLLVM_PATH`` if one works (cached).
 
-    Call before ``import drjit``; once Dr.Jit is imported it keeps the library it loaded.
+    Call before ``import drjit``; once Dr.Jit is imported it keeps the library it loaded, and
+    this returns that library (``loaded``; ``blocked`` when it is older than 17).
     ``SPARSEBTF_NO_LLVM=1`` disables the LLVM backend (the scalar fallback is used).
     """
     global _status
-    if _status is not None and not force:
+    drjit_in = "drjit" in sys.modules
+    if _status is not None and not force and (_status.loaded or not drjit_in):
         return _status
     if os.environ.get("SPARSEBTF_NO_LLVM") == "1":
         _status = LLVMStatus(None, None, [("(all)", "disabled by SPARSEBTF_NO_LLVM=1")])
         return _status
+    if drjit_in:
+        _status = _loaded_status()
+        return _status
     tried: list[tuple[str, str]] = []
-    user = os.environ.get("DRJIT_LIBLLVM_PATH")
-    candidates = [user] if user else candidate_libraries()
+    env = os.environ.get("DRJIT_LIBLLVM_PATH")
+    # The start-up hook's choice is a first candidate, not the user's word.
+    user = env if env and env != os.environ.get(AUTO_MARK) else None
+    candidates = [user] if user else list(dict.fromkeys([*([env] if env else []),
+                                                         *candidate_libraries()]))  # fmt: skip
     for path in candidates:
         ok, info = probe_libllvm(path)
         if ok:
             os.environ["DRJIT_LIBLLVM_PATH"] = path
+            if not user:
+                os.environ[AUTO_MARK] = path
             _status = LLVMStatus(path, info, tried)
             return _status
         tried.append((path, info))
@@ -222,10 +320,12 @@ def configure(force: bool = False) -> LLVMStatus:
     return _status
 
 
-_variant_cache: dict[str, tuple[str, str]] = {}
+_cuda_cache: list[tuple[bool, str]] = []
 
 
 def _cuda_works() -> tuple[bool, str]:
+    if _cuda_cache:
+        return _cuda_cache[0]
     code = (
         "import drjit as dr\nfrom drjit.cuda import Float\n"
         "x = dr.minimum(Float(1.0, 7.0), 5.0)\nassert x.numpy().tolist() == [1.0, 5.0]\n"
@@ -236,46 +336,45 @@ def _cuda_works() -> tuple[bool, str]:
             [sys.executable, "-c", code], capture_output=True, text=True, timeout=180
         )
     except (subprocess.TimeoutExpired, OSError) as e:
-        return False, str(e)
-    if r.returncode == 0 and "SPARSEBTF-CUDA-OK" in r.stdout:
-        return True, "CUDA backend works"
-    tail = (r.stderr or r.stdout).strip().splitlines()
-    return False, tail[-1] if tail else f"exit status {r.returncode}"
+        res = (False, str(e))
+    else:
+        tail = (r.stderr or r.stdout).strip().splitlines()
+        res = ((True, "CUDA backend works") if r.returncode == 0 and "SPARSEBTF-CUDA-OK" in r.stdout
+               else (False, tail[-1] if tail else f"exit status {r.returncode}"))  # fmt: skip
+    _cuda_cache.append(res)
+    return res
 
 
 def choose_variant(prefer: str = "auto") -> tuple[str, str]:
     """The Mitsuba variant to use and a one-line reason: ``(variant, message)``.
 
     ``prefer``: ``"auto"`` (llvm, else scalar), ``"cuda"`` (GPU if it works, else as auto),
-    ``"llvm"`` (llvm or scalar with the reason), ``"scalar"``.
+    ``"llvm"`` (llvm or scalar with the reason), ``"scalar"``. The message names the libLLVM
+    Dr.Jit uses: the one it loaded once ``drjit`` is imported (:func:`configure`).
+
+    Raises :class:`LLVMImportOrderError` instead of choosing when llvm (or its scalar fallback)
+    would be chosen but Dr.Jit already loaded a libLLVM older than 17.
     """
-    if prefer in _variant_cache:
-        return _variant_cache[prefer]
     if prefer not in ("auto", "cuda", "llvm", "scalar"):
         from .errors import BTFInputError
 
         raise BTFInputError(f"unknown backend {prefer!r}; choose auto, cuda, llvm or scalar")
     if prefer == "scalar":
-        out = ("scalar_rgb", "scalar_rgb requested")
-    else:
-        res: tuple[str, str] | None = None
-        if prefer == "cuda":
-            ok, why = _cuda_works()
-            if ok:
-                res = ("cuda_ad_rgb", why)
-        if res is None:
-            st = configure()
-            if st.ok:
-                res = ("llvm_ad_rgb", st.message())
-            else:
-                res = (
-                    "scalar_rgb",
-                    st.message() + "\n  falling back to the scalar_rgb variant: the BSDF runs "
-                    "in Python per ray, so keep renders tiny (e.g. 32x32, 4 spp)",
-                )
-        out = res
-    _variant_cache[prefer] = out
-    return out
+        return "scalar_rgb", "scalar_rgb requested"
+    if prefer == "cuda":
+        ok, why = _cuda_works()
+        if ok:
+            return "cuda_ad_rgb", why
+    st = configure()
+    if st.blocked:
+        raise LLVMImportOrderError(st.blocked)
+    if st.ok:
+        return "llvm_ad_rgb", st.message()
+    return (
+        "scalar_rgb",
+        st.message() + "\n  falling back to the scalar_rgb variant: the BSDF runs "
+        "in Python per ray, so keep renders tiny (e.g. 32x32, 4 spp)",
+    )
 
 
 # The scalar-fallback warning is printed once per process, not at every render.
@@ -285,12 +384,23 @@ _warned: list[str] = []
 def activate_variant(backend: str = "auto", quiet: bool = False) -> tuple[str, str]:
     """Choose (:func:`choose_variant`) and set a Mitsuba variant: ``(variant, message)``.
 
-    With a variant already active and ``backend="auto"`` that variant is kept. Falling back to
-    ``scalar_rgb`` when llvm was wanted prints why on stderr, once, unless ``quiet``.
+    With a variant already active and ``backend="auto"`` that variant is kept; an active
+    ``llvm_*`` variant is checked against the libLLVM Dr.Jit loaded (:class:`LLVMImportOrderError`
+    when older than 17). Falling back to ``scalar_rgb`` when llvm was wanted prints why on
+    stderr, once, unless ``quiet``.
     """
+    mi = sys.modules.get("mitsuba")  # a variant can only be active once mitsuba is imported
+    current = mi.variant() if mi is not None else None
+    if current is not None and backend == "auto" and not current.startswith("llvm_"):
+        return current, f"keeping the active Mitsuba variant {current}"
     variant, why = choose_variant(backend)
     import mitsuba as mi
 
+    if variant.startswith("llvm_"):
+        st = configure()  # drjit is imported now: name the library it actually loaded
+        if st.blocked:
+            raise LLVMImportOrderError(st.blocked)
+        why = st.message() if st.ok else why
     current = mi.variant()
     if current is None or backend != "auto":
         if current != variant:

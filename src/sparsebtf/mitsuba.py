@@ -13,17 +13,24 @@ stderr when there is none — and registers two BSDF plugins for the active vari
 * ``sparsebtf`` — a coded file evaluated with Eq. 5/6 in Dr.Jit,
 * ``sparsebtf_dense`` — a dense BTF table, the uncompressed reference.
 
-Import this module **before** ``mitsuba``/``drjit`` are first used, so that
-``DRJIT_LIBLLVM_PATH`` is set in time. After switching variants call :func:`register` again.
+Dr.Jit picks its libLLVM while ``import drjit`` runs. Installed with the ``render`` extra, a
+start-up hook sets ``DRJIT_LIBLLVM_PATH`` to the wheel's LLVM 23, so the order of imports does
+not matter; without it, import this module **before** ``mitsuba``/``drjit``. If Dr.Jit already
+loaded a libLLVM older than 17 (it would abort the process on the first kernel), this import
+raises :class:`sparsebtf.llvm.LLVMImportOrderError`: one line naming the library loaded and
+the ``DRJIT_LIBLLVM_PATH`` to set (docs/rendering.md, "Import order"). After switching
+variants call :func:`register` again.
 Parameters and conventions: :mod:`sparsebtf.rendering.mitsuba` (where the plugins live) and
 ``docs/rendering.md``. ``variant`` is the variant chosen on import; ``variant_message`` says
-why the current one was chosen (kept up to date by :func:`setup`).
+why the current one was chosen, naming the libLLVM Dr.Jit actually loaded (kept up to date by
+:func:`setup`).
 """
 
 from __future__ import annotations
 
 from typing import Any
 
+from .llvm import LLVMImportOrderError
 from .rendering.mitsuba import DENSE_PLUGIN, PLUGIN, add_material, register, setup
 from .rendering.mitsuba import variant as _variant_state
 
@@ -47,6 +54,8 @@ def __dir__() -> list[str]:
 def _auto() -> Any:
     try:
         return setup()
+    except LLVMImportOrderError as e:
+        raise LLVMImportOrderError(str(e)) from None  # the one line, not the search's frames
     except ImportError as e:  # pragma: no cover - mitsuba missing
         raise ImportError(
             f"sparsebtf.mitsuba needs mitsuba>=3.9 and drjit>=1.5 ({e}); "
