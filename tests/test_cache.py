@@ -82,17 +82,24 @@ def test_list_size_and_clear(folder: Path, capsys) -> None:
 
 
 def test_cap_evicts_least_recently_used_never_the_new_one(folder, monkeypatch) -> None:
+    monkeypatch.setattr(cache_mod, "_IN_USE", set())
     old, mid = _make("felt", 0, age=300), _make("felt", 1, age=200)
     one = old.stat().st_size
     monkeypatch.setenv("SPARSEBTF_CACHE_MAX", str(2 * one + one // 2))  # room for two
-    cached("felt", seed=1, **TINY)  # reused: now the most recent of the two
+    cached("felt", seed=1, **TINY)  # reused: now the more recent of the two
     assert mid.stat().st_mtime > old.stat().st_mtime
+    cache_mod._IN_USE.clear()  # as if other processes had used them: only their age counts
     with pytest.warns(UserWarning, match=r"capped at .*removed 1 least recently used.*felt"):
         new = _make("felt", 2)
     assert not old.exists() and mid.exists() and new.exists()
-    # A cap below one entry keeps the one just written, alone.
+    # A cap below one entry: what this process uses stays, and a note says so ...
+    cached("felt", seed=1, **TINY)
     monkeypatch.setenv("SPARSEBTF_CACHE_MAX", "0")
-    with pytest.warns(UserWarning, match="capped at 0 B"):
+    with pytest.warns(UserWarning, match="in use by this process"):
+        assert enforce_cap(new) == []
+    # ... a later process keeps only the entry it has just written.
+    cache_mod._IN_USE.clear()
+    with pytest.warns(UserWarning, match="capped at 0 B.*removed 1"):
         assert [e.path for e in enforce_cap(new)] == [mid]
     assert [e.path for e in entries()] == [new]
 

@@ -20,7 +20,8 @@ how big   H x W x lights x views x 3 x 4 bytes per material: 424 MiB at 400x400 
           UBO2014's 151 x 151 directions, 952 MiB at 600x600; 'sparsebtf demo' leaves about
           4 GB, the quality benchmark more. A write of 64 MiB or more is announced first.
 cap       SPARSEBTF_CACHE_MAX=2GB (also 500MiB, 1.5G, or bytes): after each write the least
-          recently used entries are removed until the rest fit, never the one just written.
+          recently used entries are removed until the rest fit, never the one just written
+          nor one the writing process still uses (a later write removes those).
 clear     'sparsebtf cache clear' removes every entry, 'sparsebtf cache clear stone' those
           whose name contains 'stone' (or matches a wildcard such as 'synth-*-600x600-*').
           An entry removed is rendered again when next needed.

@@ -10,8 +10,9 @@ UBO2014's 151 × 151 directions, 952 MiB for 600×600; ``sparsebtf demo`` leaves
   ``sparsebtf: note:`` line in the CLI) with its size and folder.
 * ``$SPARSEBTF_CACHE_MAX`` (``2GB``, ``500MiB``, ``1.5G``, a number of bytes; ``0`` keeps
   only the newest) caps the folder: after each write the least recently used entries are
-  removed until the rest fit, never the one just written. Reusing an entry marks it used
-  (its modification time).
+  removed until the rest fit, never the one just written nor one this process has opened
+  (its readers, or Dask workers given the path, would fail; a note says when that keeps the
+  folder over the cap). Reusing an entry marks it used (its modification time).
 * ``sparsebtf cache`` lists the entries and their sizes and clears them (all, or by pattern).
 
 Only our own files count as entries (``synth-*.h5``, ``capture-*.h5`` and a capture's
@@ -57,6 +58,8 @@ ENTRY_PATTERNS = ("synth-*.h5", "capture-*.h5", "capture-*.h5.partial")
 _UNITS = {"": 1, "b": 1, "k": 2**10, "m": 2**20, "g": 2**30, "t": 2**40,
           "kb": 10**3, "mb": 10**6, "gb": 10**9, "tb": 10**12,
           "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40}  # fmt: skip
+#: Entries this process has written or reused: never evicted while it runs.
+_IN_USE: set[str] = set()
 _SIZE_RE = re.compile(r"^\s*(\d+(?:\.\d*)?|\.\d+)\s*([a-z]*)\s*$", re.I)
 
 
@@ -130,10 +133,13 @@ def clear(
     return removed
 
 
-def mark_used(path: str | os.PathLike[str]) -> None:
-    """Note that a cached file was reused (its mtime: the cap evicts the least recent)."""
-    with contextlib.suppress(OSError):  # a read-only, shared cache is used as it is
-        os.utime(path)
+def mark_used(path: str | os.PathLike[str], touch: bool = True) -> None:
+    """Note that a cached file is in use by this process (kept from eviction while it runs)
+    and, with ``touch``, that it was reused (its mtime: the cap evicts the least recent)."""
+    _IN_USE.add(os.path.abspath(path))
+    if touch:
+        with contextlib.suppress(OSError):  # a read-only, shared cache is used as it is
+            os.utime(path)
 
 
 def announce_write(path: str | os.PathLike[str], nbytes: int) -> None:
@@ -161,25 +167,35 @@ def enforce_cap(just_written: str | os.PathLike[str]) -> list[CacheEntry]:
     if cap is None:
         return []
     keep = Path(just_written)
+    mark_used(keep, touch=False)
     found = entries(keep.parent)
     total = sum(e.bytes for e in found)
     removed: list[CacheEntry] = []
+    kept = 0  # entries this process uses, besides the one just written, kept over the cap
     for e in found:
         if total <= cap:
             break
-        if e.path.name == keep.name:
+        if os.path.abspath(e.path) in _IN_USE:
+            kept += e.path.name != keep.name
             continue
         with contextlib.suppress(FileNotFoundError):
             e.path.unlink()
             removed.append(e)
         total -= e.bytes
+    where = f"the cache {keep.parent} is capped at {format_bytes(cap)} ({CACHE_MAX_VARIABLE})"
     if removed:
         freed = sum(e.bytes for e in removed)
         names = ", ".join(e.path.name for e in removed[:3])
         more = f" and {len(removed) - 3} more" if len(removed) > 3 else ""
         warnings.warn(
-            f"the cache {keep.parent} is capped at {format_bytes(cap)} ({CACHE_MAX_VARIABLE}): "
-            f"removed {len(removed)} least recently used ({format_bytes(freed)}: {names}{more})",
+            f"{where}: removed {len(removed)} least recently used ({format_bytes(freed)}: "
+            f"{names}{more})",
+            stacklevel=3,
+        )
+    if total > cap and kept:
+        warnings.warn(
+            f"{where} but holds {format_bytes(total)}: {kept} more entries are in use by this "
+            "process (a later write removes them once it ends)",
             stacklevel=3,
         )
     return removed
