@@ -51,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
         else:
             what = f" matching {', '.join(args.patterns)}" if args.patterns else ""
             print(
-                f"removed {len(removed)} entries{what} ({_size(summary['removed_bytes'])}) "
+                f"removed {_entries(len(removed))}{what} ({_size(summary['removed_bytes'])}) "
                 f"from {folder}; {len(left)} left ({_size(summary['total_bytes'])})"
             )
         return 0
@@ -66,12 +66,16 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print_json(summary)
         return 0
-    print(f"{folder}: {len(found)} entries, {_size(total)} ({cap_text})")
+    print(f"{folder}: {_entries(len(found))}, {_size(total)} ({cap_text})")
     if action == "list":
         for e in found:
             used = time.strftime("%Y-%m-%d %H:%M", time.localtime(e.last_used))
             print(f"  {_size(e.bytes):>10}  {used}  {e.path.name}")
     return 0
+
+
+def _entries(n: int) -> str:
+    return f"{n} {'entry' if n == 1 else 'entries'}"
 
 
 def _size(n: int | None) -> str:
