@@ -122,8 +122,8 @@ def test_render_errors_are_clear(files, capsys, extra, message):
 
 
 def test_render_refuses_nonfinite_pixels(files, tmp_path, capsys):
-    """A file without a bound (written before it existed) whose values overflow on decode:
-    one line and no image."""
+    """A file without a bound (one that says so: schema 3 requires the bound or
+    ``stats@clamp = "none"``) whose values overflow on decode: one line and no image."""
     import h5py
 
     from sparsebtf._semantic import STAT_BOUND
@@ -132,6 +132,7 @@ def test_render_refuses_nonfinite_pixels(files, tmp_path, capsys):
     p.write_bytes((files / "m.coded.h5").read_bytes())
     with h5py.File(p, "r+") as f:
         del f["stats/bound"]
+        f["stats"].attrs["clamp"] = np.bytes_(b"none")
         for ch in "YUV":  # schema 3: the values' little-endian bytes, one row each
             planes = f[f"codes/{ch}/value_bytes"]
             v = np.ascontiguousarray(planes[()].T).view("<f2")[:, 0]
@@ -149,5 +150,6 @@ def test_render_refuses_nonfinite_pixels(files, tmp_path, capsys):
     assert not out.exists()
     # The same values with the bound every new file has: a finite render.
     with h5py.File(p, "r+") as f:
+        del f["stats"].attrs["clamp"]
         f["stats"].create_dataset("bound", data=np.zeros((13, 13), np.float16))
     assert main(args) == 0 and out.exists()

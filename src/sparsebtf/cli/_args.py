@@ -1,7 +1,8 @@
 """Arguments several commands share: opening a BTF (with ``--crop``), checking ``--tau``, the
-numeric options (finite, in range, units in the message), output paths (a file, in a writable
-folder, not one of the inputs; one file per input in a folder) and where the work runs
-(``--workers`` / ``--scheduler``).
+numeric options (finite, in range, units in the message), output paths (a file named as its
+kind is written, :data:`OUTPUT_FORMATS`, in a folder that can be written, not one of the inputs;
+one file per input in a folder) and where the work runs (``--workers`` / ``--scheduler``).
+Every output is checked before any work starts.
 
 Numeric checks are declared beside each command's options, ``s.set_defaults(checks={...})``
 with :func:`number` / :func:`integer`, and run by :func:`check_args` before the command; every
@@ -15,6 +16,7 @@ import contextlib
 import math
 import os
 import sys
+import tempfile
 from collections.abc import Callable, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -22,6 +24,7 @@ from typing import Any
 from ..errors import SparseBTFError
 
 __all__ = [
+    "OUTPUT_FORMATS",
     "add_cluster_options",
     "add_deprecated_alias",
     "check_args",
@@ -33,6 +36,7 @@ __all__ = [
     "number",
     "open_source",
     "output_files",
+    "output_format",
     "parse_crop",
 ]
 
@@ -127,6 +131,36 @@ def check_args(args: argparse.Namespace) -> None:
 # --------------------------------------------------------------------------- output paths
 
 
+#: What each kind of output file is written as, by extension, and the names to give: one rule
+#: for every command that writes (a file under another kind's name would not read back).
+OUTPUT_FORMATS: dict[str, tuple[dict[str, str], str]] = {
+    "btf": ({".h5": "dense", ".hdf5": "dense", ".btf": "ubo2014"},
+            ".h5 (our dense file) or .btf (a UBO2014 file)"),
+    "dense": ({".h5": "dense", ".hdf5": "dense"}, ".h5 (our dense file)"),
+    "coded": ({".h5": "coded", ".hdf5": "coded"}, ".h5 (a coded file is HDF5)"),
+    "model": ({".h5": "model", ".hdf5": "model"}, ".h5 (a model file is HDF5)"),
+    "png": ({".png": "png"}, ".png (the image is written as PNG)"),
+    "npz": ({".npz": "npz"}, ".npz (NumPy arrays, np.load reads them)"),
+}  # fmt: skip
+
+
+def output_format(
+    path: str | os.PathLike[str] | None, kind: str, flag: str = "-o", alternative: str = ""
+) -> str | None:
+    """What ``path`` is written as for an output of ``kind`` (:data:`OUTPUT_FORMATS`: "dense",
+    "ubo2014", "coded" …), or a one-line refusal naming the extensions to give (and
+    ``alternative``, e.g. a folder). None passes through."""
+    if path is None:
+        return None
+    formats, names = OUTPUT_FORMATS[kind]
+    suffix = Path(path).suffix.lower()
+    if suffix not in formats:
+        raise SparseBTFError(
+            f"{flag} {path}: unknown extension {suffix or '(none)'!r}; give {names}{alternative}"
+        )
+    return formats[suffix]
+
+
 def _existing_ancestor(path: Path) -> Path:
     for parent in path.parents:
         if parent.exists():
@@ -141,10 +175,30 @@ def _same_file(a: Path, b: Path) -> bool:
         return False
 
 
+def _check_writable(base: Path, p: Path, flag: str) -> None:
+    """One line unless a folder can be made in ``base`` (the deepest existing folder of the
+    output ``p``). ``os.access`` says yes to root everywhere, also under ``/proc``; making
+    (and removing) an empty folder is the test that holds, and leaves nothing behind."""
+    if not os.access(base, os.W_OK | os.X_OK):
+        raise SparseBTFError(f"{flag} {p}: cannot write into {base} (permission denied or a "
+                             "read-only file system)")  # fmt: skip
+    try:
+        os.rmdir(tempfile.mkdtemp(prefix=".sparsebtf-probe-", dir=base))
+    except OSError as e:
+        raise SparseBTFError(
+            f"{flag} {p}: cannot write into {base}: making a folder there fails "
+            f"({e.strerror or e})"
+        ) from None
+
+
 def check_output_file(
-    path: str | os.PathLike[str] | None, inputs: Iterable[Any] = (), flag: str = "-o"
+    path: str | os.PathLike[str] | None,
+    inputs: Iterable[Any] = (),
+    flag: str = "-o",
+    kind: str | None = None,
 ) -> Path | None:
-    """Check an output file before any work is done: not a folder, its folder (made if
+    """Check an output file before any work is done: named as its ``kind`` is written
+    (:func:`output_format`, when given), not a folder, its folder (made when written, if
     missing) not under a file and writable, and not one of ``inputs`` (which would be
     destroyed). Returns the path (None passes through)."""
     if path is None:
@@ -154,12 +208,12 @@ def check_output_file(
         raise SparseBTFError(f"{flag}: the output path is empty")
     if p.is_dir():
         raise SparseBTFError(f"{flag} {p}: is a folder; give a file name")
+    if kind is not None:
+        output_format(path, kind, flag)
     base = _existing_ancestor(p)
     if not base.is_dir():
         raise SparseBTFError(f"{flag} {p}: {base} is a file, not a folder")
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise SparseBTFError(f"{flag} {p}: cannot write into {base} (permission denied or a "
-                             "read-only file system)")  # fmt: skip
+    _check_writable(base, p, flag)
     for item in inputs:
         if item is None or str(item).startswith("synth:"):
             continue
@@ -181,9 +235,7 @@ def check_output_dir(path: str | os.PathLike[str] | None, flag: str) -> Path | N
     base = p if p.exists() else _existing_ancestor(p)
     if not base.is_dir():
         raise SparseBTFError(f"{flag} {p}: {base} is a file, not a folder")
-    if not os.access(base, os.W_OK | os.X_OK):
-        raise SparseBTFError(f"{flag} {p}: cannot write into {base} (permission denied or a "
-                             "read-only file system)")  # fmt: skip
+    _check_writable(base, p, flag)
     return p
 
 
@@ -337,6 +389,8 @@ def output_files(
         folder = True
     if folder:
         check_output_dir(output, "-o")
+    else:
+        output_format(output, "coded", alternative=", or DIR/ for a folder of NAME.coded.h5")
     paths = [Path(output) / output_name(s) for s in sources] if folder else [Path(output)]
     seen: dict[Path, str] = {}
     for s, p in zip(sources, paths, strict=True):
@@ -345,7 +399,7 @@ def output_files(
             raise SparseBTFError(f"{seen[key]} and {s} would both be written to {p}")
         if not s.startswith("synth:") and Path(s).absolute() == key:
             raise SparseBTFError(f"{s}: its output {p} would overwrite the input")
-        check_output_file(p, [*sources, *inputs])
+        check_output_file(p, [*sources, *inputs], kind="coded")
         seen[key] = s
     return paths
 

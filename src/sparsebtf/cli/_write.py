@@ -4,28 +4,18 @@ said before it is written (:class:`._output.Written`)."""
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
-from ..errors import SparseBTFError
+from ._args import output_format
 from ._output import Written, dense_bytes
 
 __all__ = ["check_btf_output", "write_btf"]
 
-_KINDS = {".h5": "dense", ".hdf5": "dense", ".btf": "ubo2014"}
-
 
 def check_btf_output(path: str | None, flag: str = "-o") -> str | None:
-    """The kind of file ``path`` asks for ("dense" or "ubo2014"), or a one-line refusal."""
-    if path is None:
-        return None
-    suffix = Path(path).suffix.lower()
-    if suffix not in _KINDS:
-        raise SparseBTFError(
-            f"{flag} {path}: unknown extension {suffix or '(none)'!r}; give .h5 (our dense "
-            "file) or .btf (a UBO2014 file)"
-        )
-    return _KINDS[suffix]
+    """The kind of file ``path`` asks for ("dense" or "ubo2014"), or a one-line refusal
+    (:data:`._args.OUTPUT_FORMATS`, the rule every command's outputs follow)."""
+    return output_format(path, "btf", flag)
 
 
 def write_btf(path: str, btf: Any, dtype: str, say: Written, **dense: Any) -> None:

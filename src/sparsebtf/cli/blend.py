@@ -108,7 +108,7 @@ def cmd_blend(args: argparse.Namespace) -> int:
         raise BTFInputError("--sweep needs --png DIR for the strip of renders")
     if args.sweep and len(args.inputs) != 2:
         raise BTFInputError("--sweep runs α from 0 to 1 between two inputs")
-    check_output_file(args.output, [*args.inputs, args.model])
+    check_output_file(args.output, [*args.inputs, args.model], kind="coded")
     check_output_dir(args.png, "--png")
     coded = [load_coded_with_model(p, args.model) for p in args.inputs]
     report: dict[str, Any] = {"inputs": [str(p) for p in args.inputs]}

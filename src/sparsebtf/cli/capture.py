@@ -6,12 +6,12 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..errors import SparseBTFError
 from ._args import (
     add_cluster_options,
     check_output_file,
     cluster_options,
     integer,
+    output_format,
     parse_crop,
 )
 from ._output import Written
@@ -24,12 +24,11 @@ def run(args: argparse.Namespace) -> int:
     from ..data.capture.writer import check_scene
     from ..data.dense_file import dense_file_bytes
 
-    if not args.output.lower().endswith((".h5", ".hdf5")):
-        raise SparseBTFError(f"-o {args.output}: capture writes our dense file; give .h5")
+    output_format(args.output, "dense")  # capture writes our dense file
     crop = parse_crop(args.crop)
     spec = capture_spec(args.scene, args.size, args.directions, spp=args.spp, seed=args.seed,
                         max_depth=args.max_depth, crop=crop, backend=args.backend)  # fmt: skip
-    check_output_file(args.output, [args.scene])
+    check_output_file(args.output, [args.scene], kind="dense")
     check_scene(spec)  # a bad scene or backend is one line before the size is announced
     say = Written(args.json)
     h, w, nl, nv, _ = spec.shape

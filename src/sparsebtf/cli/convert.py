@@ -14,7 +14,8 @@ __all__ = ["register"]
 
 
 def run(args: argparse.Namespace) -> int:
-    check_output_file(args.output, [args.input])
+    # a coded file rewritten (--schema) is a coded file; anything else is written as a BTF
+    check_output_file(args.output, [args.input], kind="btf" if args.schema is None else "coded")
     if args.schema is not None:
         return rewrite_coded(args)
     check_btf_output(args.output)
@@ -34,8 +35,6 @@ def rewrite_coded(args: argparse.Namespace) -> int:
 
     if args.crop:
         raise BTFInputError("--schema rewrites a coded file as it is; --crop does not apply")
-    if Path(args.output).suffix.lower() != ".h5":
-        raise BTFInputError(f"-o {args.output}: a coded file is HDF5; give a .h5 name")
     coded = load_coded(args.input)
     save_coded(coded, args.output, schema=args.schema)
     before, after = Path(args.input).stat().st_size, Path(args.output).stat().st_size

@@ -86,11 +86,22 @@ def _encode(args: argparse.Namespace, tau: str | None, offset: Any, outputs: lis
         report["model"] = {"label": label, "content_hash": model.content_hash}
         reports.append({"input": coded.name, "output": str(output), **report})
         if not args.json:
-            print(f"wrote {output} with {label} ({model.content_hash[:12]}): coefficients "
-                  f"{format_value(coded.nnz())}, file {report['file_bytes']:,} bytes")  # fmt: skip
+            print(f"wrote {output} with {label} ({model.content_hash[:12]}): "
+                  f"{coefficients_text(coded)}, file {report['file_bytes']:,} bytes")  # fmt: skip
             print(f"  {ratio_line(report, args.target_ratio, args.budget, per_material)}")
     if args.json:
         print_json(reports[0] if len(args.btf) == 1 else {"files": reports})
+
+
+def coefficients_text(coded: Any) -> str:
+    """The coefficients kept, said as totals over the points, with τ and the mean per point
+    beside them (the totals of ``--tau 32,8,8`` on 4 points read "Y 128", not τ)."""
+    n = coded.n_points
+    tau = coded.params.get("tau")
+    mean = {ch: round(c.nnz / n, 1) if n else 0.0 for ch, c in coded.codes.items()}
+    per_point = f"τ {format_value(tau)}, " if isinstance(tau, dict) else ""
+    return (f"coefficients {format_value(coded.nnz())} over all {n:,} points (per point: "
+            f"{per_point}mean {format_value(mean)})")  # fmt: skip
 
 
 def ratio_line(

@@ -21,7 +21,7 @@ def run(args: argparse.Namespace) -> int:
     if args.output is None and args.model is None:
         raise SparseBTFError("give -o MODEL.h5 (the model file to write) or -m NAME (code the "
                              "coefficients against a bundled model, e.g. -m release)")
-    check_output_file(args.output)
+    check_output_file(args.output, kind="model")
     check_output_dir(args.coded_dir, "--coded-dir")
     against = open_model_arg(args.model) if args.model else None
     model, coded, notes = import_release(args.folder, prefer=args.prefer, model=against)

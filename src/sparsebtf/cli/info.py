@@ -109,6 +109,7 @@ def describe(
                 raise
             model = None  # storage figures from the file's own parameters
         report = storage_report(coded, model, s)
+        schema = _schema(s)
         return {
             "kind": "coded",
             "format": fmt,
@@ -127,13 +128,16 @@ def describe(
                 "standardisation": coded.stats.mode,
                 "log_offset": coded.stats.eps,
                 "bound": ("largest ln(RGB + eps) per angular image, every decoder clamps to it"
-                          if coded.stats.bound is not None else "none (older file: no clamp)"),
+                          if coded.stats.bound is not None else
+                          "none (older file: no clamp)" if schema < 3 else
+                          "none (the file says its statistics have none, e.g. imported from "
+                          "the release: no clamp)"),
             },
             "directions": {
                 "lights": {"name": coded.lights.name, "count": len(coded.lights)},
                 "views": {"name": coded.views.name, "count": len(coded.views)},
             },
-            "schema_version": _schema(s),
+            "schema_version": schema,
             "nnz": report["nnz"],
             "storage": storage_summary(report),
             "integrity": _integrity(s),

@@ -24,6 +24,7 @@ from ..errors import SparseBTFError
 from . import (
     bench,
     blend,
+    cache,
     capture,
     convert,
     decode,
@@ -46,7 +47,7 @@ __all__ = ["build_parser", "main"]
 #: The commands in the order ``sparsebtf --help`` lists them: the pipeline first.
 COMMANDS = (
     synth, capture, info, models, train, encode, decode, evaluate, convert, import_release, lookup,
-    demo, blend, render, view, bench,
+    demo, blend, render, view, bench, cache,
 )  # fmt: skip
 
 

@@ -76,8 +76,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     if not Path(args.coded).exists():
         raise SparseBTFError(f"{args.coded}: no such file")
     inputs = [args.coded, args.model, args.reference, args.envmap]
-    check_output_file(args.output, inputs)
-    check_output_file(args.save_raw, [*inputs, args.output], flag="--save-raw")
+    check_output_file(args.output, inputs, kind="png")
+    check_output_file(args.save_raw, [*inputs, args.output], flag="--save-raw", kind="npz")
     _refuse_slow_scalar(args, size)
     common: dict[str, Any] = {
         "uv_scale": float(args.uv_scale),

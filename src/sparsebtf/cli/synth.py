@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
         raise SparseBTFError("nothing to do: give -o OUT.h5 and/or --preview OUT.png")
     check_output_file(args.output, [args.source])
     check_btf_output(args.output)
-    check_output_file(args.preview, [args.source, args.output], flag="--preview")
+    check_output_file(args.preview, [args.source, args.output], flag="--preview", kind="png")
     say = Written(args.json)
     if args.output:
         write_btf(args.output, btf, args.dtype, say)

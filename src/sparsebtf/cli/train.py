@@ -37,7 +37,7 @@ __all__ = ["register"]
 def run(args: argparse.Namespace) -> int:
     from ..storage import save_model
 
-    check_output_file(args.output, args.btfs)
+    check_output_file(args.output, args.btfs, kind="model")
     from ..codec.train import checkpoint_path
 
     ck = checkpoint_dir(args)

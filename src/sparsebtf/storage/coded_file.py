@@ -17,8 +17,9 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=3``; 2 and 1 are read too
     /codes/<CH>/errors      (P,) float32    residual MSE per tensor entry (diagnostic)
     /stats/mean, /stats/std (L, V, C) float32; attrs mode ("shared" | "per_channel"), eps
     /stats/bound            (L, V) float16: largest ln(x + eps) over texels and R, G, B of each
-                            angular image, rounded up; decoders clamp to it (absent in files
-                            written before it existed: no clamp)
+                            angular image, rounded up; decoders clamp to it. Schema 3: always
+                            there, or ``stats@clamp = "none"`` says the statistics have none
+                            (release imports); schemas 1–2 without it: no clamp
     /lights, /views         direction tables, as in the dense file
 
 Points are in release order (``point = row_block + n_row_blocks·col_block``). Schema 3 stores
@@ -63,6 +64,7 @@ from ..learning.cost import location_width
 from ..model import CodedBTF, Model, model_text
 from ..points.preprocessing import EPS, STD_MODES, Standardization
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
+from .coded_schema import NO_CLAMP, check_required
 from .coded_streams import read_streams, stored_values, write_streams
 from .model_file import exact_dtype
 
@@ -270,6 +272,8 @@ def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> Non
     if coded.stats.bound is not None:
         # Exact: the bound is a multiple of 1/32 (round_up_bound), which binary16 holds.
         create_dataset(st, "bound", data=np.asarray(coded.stats.bound, dtype="<f2"))
+    elif schema >= 3:  # say so: a schema-3 file without a bound is otherwise a damaged one
+        write_str_attr(st, *NO_CLAMP)
     write_directions(f.create_group("lights"), coded.lights)
     write_directions(f.create_group("views"), coded.views)
 
@@ -324,6 +328,7 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
     where = str(p)
     with open_checked(p, CODED_FORMAT, _SUPPORTED) as f:
         schema = read_int_attr(f, "schema_version", where)
+        check_required(f, schema, where)  # no field of the schema it claims left to a default
         model_hash = read_str_attr(f, "model_hash", where)
         name = read_str_attr(f, "name", where) if "name" in f.attrs else p.stem
         height = read_int_attr(f, "height", where, 1, _MAX_SIDE)
@@ -515,6 +520,12 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
         )
     eps = read_float_attr(g, "eps", where, default=EPS, positive=True)
     bound = None
+    clamp = read_str_attr(g, NO_CLAMP[0], where) if NO_CLAMP[0] in g.attrs else None
+    if clamp is not None and (clamp != NO_CLAMP[1] or "bound" in g):
+        raise FileFormatError(
+            f"{where}: attribute {NO_CLAMP[0]!r} is {clamp!r}; the only value is "
+            f"{NO_CLAMP[1]!r}, in a file without a 'bound' dataset"
+        )
     if "bound" in g:
         bound = read_array(g, "bound", where, kinds="f", shape=mean.shape[:2], finite=True)
         bound = bound.astype(np.float32)  # its values are checked with the other statistics

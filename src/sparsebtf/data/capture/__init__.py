@@ -131,14 +131,18 @@ def cached_capture(
     """A captured built-in sample as a :class:`~sparsebtf.data.dense_file.DenseFileBTF`,
     rendered once into the synthetic-material cache (``$SPARSEBTF_CACHE``) and reused; the
     file name holds everything that decides its values (and :data:`CAPTURE_VERSION`)."""
-    from ..dense_file import DenseFileBTF
-    from ..synth.cache import resolve_cache_dir
+    from ..cache import announce_write, enforce_cap, mark_used, resolve_cache_dir
+    from ..dense_file import DenseFileBTF, dense_file_bytes
 
     spec = capture_spec(scene, size, directions, spp=spp, seed=seed)
     key = spec.key(scene)
     digest = __import__("hashlib").sha256(repr(sorted(key.items())).encode()).hexdigest()[:12]
     path = resolve_cache_dir(cache_dir) / f"capture-{scene}-{size}-s{seed}-{digest}.h5"
-    if not path.exists():
-        path.parent.mkdir(parents=True, exist_ok=True)
-        capture(scene, path, size, directions, spp=spp, seed=seed)
+    if path.exists():
+        mark_used(path)
+        return DenseFileBTF(path)
+    announce_write(path, dense_file_bytes(spec.shape, "float32"))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    capture(scene, path, size, directions, spp=spp, seed=seed)
+    enforce_cap(path)
     return DenseFileBTF(path)

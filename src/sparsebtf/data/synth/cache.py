@@ -15,7 +15,8 @@ from pathlib import Path
 import numpy as np
 
 from ..btf import BTF
-from ..dense_file import DenseFileBTF, write_dense
+from ..cache import announce_write, enforce_cap, mark_used, resolve_cache_dir
+from ..dense_file import DenseFileBTF, dense_file_bytes, write_dense
 from ..directions import DirectionSet
 from .materials import (
     GENERATOR_VERSION,
@@ -27,16 +28,6 @@ from .materials import (
 )
 
 __all__ = ["cache_key", "cache_path", "cached", "resolve_cache_dir"]
-
-
-def resolve_cache_dir(path: str | os.PathLike[str] | None = None) -> Path:
-    """The cache folder: ``path``, else ``$SPARSEBTF_CACHE``, else ``~/.cache/sparsebtf``."""
-    if path is not None:
-        return Path(path)
-    env = os.environ.get("SPARSEBTF_CACHE")
-    if env:
-        return Path(env)
-    return Path.home() / ".cache" / "sparsebtf"
 
 
 def cache_key(
@@ -88,10 +79,16 @@ def cached(
 
     The file (float32) is written atomically, so an interrupted render leaves no partial
     file behind and concurrent callers at worst render twice. ``black``: the true-black,
-    high-dynamic-range variant.
+    high-dynamic-range variant. A large write is announced first and the cache's cap applied
+    after (:mod:`sparsebtf.data.cache`).
     """
     path = cache_path(material, size, directions, seed, cache_dir, black)
-    if not path.exists():
-        btf = synthesize(material, size, directions, seed, black)
-        write_dense(path, btf, dtype="float32", attrs={"cache_key": path.stem}, progress=progress)
+    if path.exists():
+        mark_used(path)
+        return DenseFileBTF(path)
+    (h, w), n_dirs = check_size(size), len(resolve_directions(directions))
+    announce_write(path, dense_file_bytes((h, w, n_dirs, n_dirs, 3), "float32"))
+    btf = synthesize(material, size, directions, seed, black)
+    write_dense(path, btf, dtype="float32", attrs={"cache_key": path.stem}, progress=progress)
+    enforce_cap(path)  # (sparsebtf.data.cache: $SPARSEBTF_CACHE_MAX)
     return DenseFileBTF(path)

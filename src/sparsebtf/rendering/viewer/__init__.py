@@ -51,6 +51,8 @@ __all__ = [
     "ViewerServer",
     "build_bundle",
     "export",
+    "host_allowed",
+    "host_names",
     "pack_textures",
     "serve",
 ]
@@ -351,19 +353,83 @@ _CONTENT_TYPES = {
 }
 
 
+_LOOPBACK_NAMES = frozenset({"localhost", "127.0.0.1", "::1"})
+
+
+def host_names(host: str, bound: str) -> frozenset[str]:
+    """The names a request's ``Host`` may give for a server started with ``host`` and bound
+    to the address ``bound`` (lower case, IPv6 without brackets).
+
+    The address as given and as bound; ``localhost``, ``127.0.0.1`` and ``::1`` when bound to
+    loopback or to every interface; for every interface also this machine's name. Any IP
+    literal the connection actually arrived on is accepted besides (:func:`host_allowed`).
+    """
+    import ipaddress
+    import socket
+
+    names = {host.lower().strip("[]"), bound.lower()}
+    try:
+        ip = ipaddress.ip_address(bound)
+    except ValueError:
+        return frozenset(names)
+    if ip.is_loopback or ip.is_unspecified:
+        names |= _LOOPBACK_NAMES
+    if ip.is_unspecified:
+        names |= {socket.gethostname().lower(), socket.getfqdn().lower()}
+    return frozenset(names)
+
+
+def host_allowed(header: str | None, names: frozenset[str], port: int, local_ip: str) -> bool:
+    """Whether a request's ``Host`` header names this server: one of ``names`` (or the IP
+    ``local_ip`` the connection arrived on) and ``port`` (80 when the header gives none).
+
+    A page of another site that a DNS rebinding points at this machine sends its own name
+    here, so the viewer answers it 403 (the rebinding defence of every local web server).
+    """
+    if not header:
+        return False
+    h = header.strip().lower()
+    if h.startswith("["):  # [IPv6]:port
+        name, _, rest = h[1:].partition("]")
+        if rest and not rest.startswith(":"):
+            return False
+        given = rest[1:] if rest else "80"
+    else:
+        name, sep, given = h.rpartition(":")
+        if not sep:
+            name, given = h, "80"
+    if not given.isdigit() or int(given) != port:
+        return False
+    return name in names or name == local_ip.lower()
+
+
 class ViewerServer:
     """The page served from memory on 127.0.0.1 in a background thread.
 
     Use as a context manager, or call :meth:`close`. ``port=0`` picks a free port; the
-    address is :attr:`url`.
+    address is :attr:`url`. Only requests whose ``Host`` is the address served on are
+    answered (:func:`host_allowed`: ``localhost`` and ``127.0.0.1`` too on loopback); others
+    get 403 with a one-line body.
     """
 
     def __init__(self, bundle: ViewerBundle, host: str = "127.0.0.1", port: int = 0) -> None:
         files = {"/" + k: v for k, v in bundle.files().items()}
         files["/"] = files["/index.html"]
+        server = self
 
         class Handler(BaseHTTPRequestHandler):
             def do_GET(self) -> None:
+                local_ip = self.connection.getsockname()[0]
+                if not host_allowed(self.headers.get("Host"), server.names, server.port,
+                                    local_ip):  # fmt: skip
+                    body = f"403: this viewer answers requests for {server.url} only\n".encode()
+                    self.send_response(403)
+                    self.send_header("Content-Type", "text/plain; charset=utf-8")
+                    self.send_header("Content-Length", str(len(body)))
+                    self.end_headers()
+                    with contextlib.suppress(BrokenPipeError, ConnectionResetError):
+                        self.wfile.write(body)
+                    return
                 path = self.path.split("?", 1)[0]
                 body = files.get(path)
                 if body is None:
@@ -388,6 +454,7 @@ class ViewerServer:
         self._httpd.daemon_threads = True
         self.host, self.port = self._httpd.server_address[:2]
         self.url = f"http://{self.host}:{self.port}/"
+        self.names = host_names(host, str(self.host))
         self._thread = threading.Thread(target=self._httpd.serve_forever, daemon=True)
         self._thread.start()
 
