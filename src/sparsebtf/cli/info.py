@@ -123,6 +123,7 @@ def describe(
                       "not found (give -m MODEL.h5 for exact dictionary bytes)"),
             "params": coded.params,
             "dictionary_rule": _rule_text(coded),
+            "objective": _objective_text(coded.objective),
             "preprocessing": {
                 "standardisation": coded.stats.mode,
                 "log_offset": coded.stats.eps,
@@ -148,6 +149,18 @@ def _rule_text(coded: Any) -> str:
         return (f"screened: the {n} best dictionaries by a partial projection coded exactly, "
                 "the paper's rule among them")  # fmt: skip
     return "exhaustive: every dictionary coded exactly (the paper's rule)"
+
+
+_OBJECTIVE_TEXT = {
+    "log": "log: the standardised log-YUV error (the paper's rule)",
+    "linear": "linear: the log-YUV error weighted by its first-order effect on linear RGB",
+    "display": "display: the log-YUV error weighted through the display mapping a*I^(1/gamma)",
+}
+
+
+def _objective_text(objective: str) -> str:
+    """The error the file's codes minimise, in words."""
+    return _OBJECTIVE_TEXT.get(objective, objective)
 
 
 def _schema(path: str) -> int:

@@ -30,12 +30,16 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import BTFInputError
 from .parallel import parallel_map
 from .tensor import project, reconstruct_sparse, sum_squares
+
+if TYPE_CHECKING:
+    from .objective import ChannelError
 
 __all__ = [
     "DEFAULT_CANDIDATES",
@@ -339,6 +343,7 @@ def sparse_code(
     eps: float = 0.0,
     dtype: type = np.float32,
     candidates: int | None = None,
+    error: ChannelError | None = None,
 ) -> SparseCodes:
     """Code a batch of data points on an ensemble (Eq. 3 + the §3.3 selection rule).
 
@@ -351,8 +356,11 @@ def sparse_code(
     dtype : arithmetic of the projections (float32 is ~2× faster; energies stay float64).
     candidates : dictionaries projected exactly per point after screening
         (:func:`screen_dictionaries`); None or >= K: all of them (the exhaustive rule).
+    error : None (the paper's rule on the standardised values), or the batch's error in a
+        linear or display objective: the rule of :mod:`.objective` (ε in its units; the
+        screening still ranks by the log rule).
     """
-    return sparse_code_levels(batch, dictionaries, [tau], eps, dtype, candidates)[0]
+    return sparse_code_levels(batch, dictionaries, [tau], eps, dtype, candidates, error)[0]
 
 
 def sparse_code_levels(
@@ -362,13 +370,16 @@ def sparse_code_levels(
     eps: float = 0.0,
     dtype: type = np.float32,
     candidates: int | None = None,
+    error: ChannelError | None = None,
 ) -> list[SparseCodes]:
     """:func:`sparse_code` at several caps τ from one projection per (point, dictionary).
 
     The projections do not depend on τ, so a quality–storage curve costs one encoding.
     Returns one :class:`SparseCodes` per τ, identical to separate :func:`sparse_code` calls
     (with screening, a point's candidates are the union of every level's best ``candidates``,
-    so they may differ from a single level's).
+    so they may differ from a single level's). With ``error`` (:func:`sparse_code`) each
+    point's error in that objective at a larger τ is never above that at a smaller one
+    (:func:`~.objective.judged_code_levels`).
     """
     x = np.asarray(batch)
     shape = tuple(int(s) for s in x.shape[1:])
@@ -396,6 +407,8 @@ def sparse_code_levels(
     else:
         mask = screen_dictionaries(xc, dictionaries, levels, eps, n_cand, dtype=dtype,
                                    energy=energy)
+    if error is not None:
+        return _judged(xc, error, dictionaries, levels, eps, dtype, mask)
     # dictionaries left out by the screening lose every comparison of the rule
     counts = np.full((nl, b, n_dict), np.iinfo(np.int64).max, dtype=np.int64)
     errs = np.full((nl, b, n_dict), np.inf)
@@ -448,6 +461,25 @@ def sparse_code_levels(
                 errs[j, np.arange(b), member],
             )
         )
+    return out
+
+
+def _judged(x: np.ndarray, error: ChannelError, dictionaries: Sequence[np.ndarray],
+            levels: list[int], eps: float, dtype: type, mask: np.ndarray
+            ) -> list[SparseCodes]:  # fmt: skip
+    """:func:`sparse_code_levels` judged by a linear or display objective (:mod:`.objective`)."""
+    from .objective import judged_code_levels
+
+    if error.log_rgb.shape[:-1] != x.shape:
+        raise BTFInputError(f"the objective's values {error.log_rgb.shape} do not match the "
+                            f"batch {x.shape}")  # fmt: skip
+    shape = tuple(int(s) for s in x.shape[1:])
+    out = []
+    for member, counts, vals, idx, errs in judged_code_levels(
+        x, dictionaries, levels, eps, dtype, mask, error
+    ):
+        locs = np.stack(np.unravel_index(idx, shape), axis=1).astype(np.int32)
+        out.append(SparseCodes(shape, member, counts, vals, locs, errs))
     return out
 
 

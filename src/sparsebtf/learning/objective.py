@@ -1,0 +1,228 @@
+"""Coding objectives: which error the sparse coder minimises (beyond the paper's §3.3).
+
+``"log"`` (default, the paper's and the release's rule): the squared error of the
+standardised log-YUV data point, exact by Parseval (:func:`~.coding.sparse_code_levels`).
+
+``"linear"`` and ``"display"``: the error of what a renderer integrates, linear RGB, or of
+the paper's display mapping f(I) = min(a·I^(1/γ), 1) (a = 1.3, γ = 1.8). A standardised
+residual δ at entry e = (texel, light, view) of channel c (angular image j) moves
+ln(RGB_r + ε) by YUV_TO_RGB[r, c]·σ_{j,c}·δ; the decoder clamps that to the angular image's
+bound b_j (:meth:`~sparsebtf.points.preprocessing.Standardization.clamp_log_rgb`). The
+channel's error is computed **exactly** from the residual, the other two channels taken as
+exact (they are coded apart)::
+
+    E_c = 1/(3n) Σ_e Σ_r ( g(min(y_er + YUV_TO_RGB[r, c]·σ_{j,c}·δ_e, b_j)) − g(y_er) )²
+    y = ln(RGB + ε),  g(y) = exp(y) − ε (linear) or f(exp(y) − ε) (display)
+
+(:class:`ChannelError`; n entries per point: the mean over values, R, G, B apart).
+
+Why not a weighted Parseval rule. The first-order weight of δ², σ²·Σ_r YUV_TO_RGB[r, c]²·
+(RGB_r + ε)², ranks a glossy metal's coefficients badly: its log residuals reach several
+units (a shadowed texel next to a highlight), where e^δ is far from 1 + δ. Measured on a
+captured bumpy copper at τ = 885/64/64 (linear-RGB MSE of the decoded BTF; log rule 1.235):
+keeping the coefficients of largest weighted energy S_t²·Σ_e W_e u_t(e)², 1.236; by their
+first-order gain S_t(2⟨W X, u_t⟩ − S_t Σ W u_t²), 6.06; refitting the kept values by five
+conjugate-gradient steps of weighted least squares, 13.9 (docs/results.md, "Coding
+objectives").
+
+The rule (:func:`judged_code_levels`): each candidate dictionary's coefficients in the log
+rule's order (decreasing |S_t|, the order a level-of-detail prefix reads), evaluated by E_c
+at the prefix lengths 1, 2, 4, …, 2^m < τ_max and every level's τ (the grid). At each level
+τ the code is the (dictionary, prefix length n <= τ) of least E_c; with ε > 0 the smallest n
+with E_c <= ε (then least error) when one exists. At ε = 0 the log rule's own code at τ is
+among the candidates, so no point's E_c is above the log rule's (same dictionaries
+screened); the candidates at a larger τ include those at a smaller one: **more coefficients
+never give a larger error** in the objective, for every point, within one call and across
+calls with the same dictionary candidates (exhaustive, or the screening's union over the
+levels of one call). Level of detail truncates the stored (magnitude) order: the error of a
+prefix below the stored count is not guaranteed to fall; the stored count is where it is
+least on the grid.
+
+Cost per point and candidate dictionary (10×10 texels × 151 × 151, n = 2.28 M entries): the
+log rule's projection (1.47 GFLOP), one sparse reconstruction of τ_max coefficients split
+at the grid (at most a dense 1.47 GFLOP, a few percent of it at τ = 885), and per grid
+length one evaluation of E_c (~20 flops, one exp per value and R, G, B: ~140 M flops and 7 M
+exp; 11 lengths at τ = 885). Measured encode time per point: docs/results.md.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BTFInputError
+from .parallel import parallel_map
+from .tensor import project, reconstruct_sparse
+
+__all__ = [
+    "DISPLAY_A",
+    "DISPLAY_GAMMA",
+    "OBJECTIVES",
+    "ChannelError",
+    "check_objective",
+    "judged_code_levels",
+    "objective_params",
+    "prefix_grid",
+]
+
+#: The coding objectives: "log" (the paper's rule, default), "linear", "display".
+OBJECTIVES = ("log", "linear", "display")
+#: The paper's display mapping a·I^(1/γ) (:func:`sparsebtf.display.tone_map`).
+DISPLAY_A, DISPLAY_GAMMA = 1.3, 1.8
+
+
+def check_objective(objective: object) -> str:
+    """The objective's name, or one :class:`BTFInputError` naming the known ones."""
+    if not isinstance(objective, str) or objective not in OBJECTIVES:
+        raise BTFInputError(
+            f"unknown coding objective {objective!r}; choose one of {', '.join(OBJECTIVES)}"
+        )
+    return objective
+
+
+def objective_params(objective: str) -> dict[str, str]:
+    """The coded file's record of the objective (docs/format.md): ``{"objective": name}``
+    for "linear" or "display"; nothing for "log", so that its files stay as before (files
+    without the record read as "log")."""
+    return {} if objective == "log" else {"objective": objective}
+
+
+def _display(v: np.ndarray) -> np.ndarray:
+    """f(I) = min(a·max(I, 0)^(1/γ), 1), float32."""
+    out = np.power(np.maximum(v, 0, dtype=np.float32), np.float32(1 / DISPLAY_GAMMA))
+    out *= np.float32(DISPLAY_A)
+    return np.minimum(out, 1, out=out)
+
+
+@dataclass(frozen=True)
+class ChannelError:
+    """E_c of the module docstring for one channel of a batch of points.
+
+    ``log_rgb`` (B, p, p, L, V, 3) float32: ln(RGB + ε) of the points; ``scale`` (L, V, 3):
+    YUV_TO_RGB[r, c]·σ_{j,c}; ``bound`` (L, V) or None; ``eps`` the log offset.
+    """
+
+    objective: str
+    log_rgb: np.ndarray
+    scale: np.ndarray
+    bound: np.ndarray | None
+    eps: float
+
+    @classmethod
+    def for_batch(cls, objective: str, log_rgb: np.ndarray, std: np.ndarray,
+                  bound: np.ndarray | None, eps: float, channel: int) -> ChannelError:  # fmt: skip
+        """From the statistics: σ (L, V, 1 or 3) and the channel's index (0: Y, 1: U, 2: V)."""
+        from ..points.preprocessing import YUV_TO_RGB
+
+        sd = np.broadcast_to(std, (*std.shape[:2], 3))[..., channel]
+        scale = (sd[..., None] * YUV_TO_RGB[:, channel]).astype(np.float32)
+        b = None if bound is None else np.asarray(bound, dtype=np.float32)
+        return cls(objective, log_rgb, scale, b, float(eps))
+
+    def _value(self, y: np.ndarray) -> np.ndarray:
+        v = np.exp(y)
+        v -= np.float32(self.eps)
+        return _display(v) if self.objective == "display" else v
+
+    def reference(self, i: int) -> np.ndarray:
+        """g(y) of point ``i``: its true linear RGB (or display value)."""
+        return self._value(self.log_rgb[i])
+
+    def __call__(self, i: int, delta: np.ndarray, ref: np.ndarray | None = None) -> float:
+        """E_c of point ``i`` for the standardised residual ``delta`` (p, p, L, V) of the
+        decoded minus the true values; ``ref``: :meth:`reference` of the point, if at hand."""
+        y = np.multiply(np.asarray(delta, dtype=np.float32)[..., None], self.scale)
+        y += self.log_rgb[i]
+        if self.bound is not None:
+            np.minimum(y, self.bound[..., None], out=y)
+        d = self._value(y)
+        d -= self.reference(i) if ref is None else ref
+        flat = d.reshape(-1)
+        return float(np.dot(flat, flat)) / flat.size
+
+
+def prefix_grid(levels: Sequence[int]) -> list[int]:
+    """The prefix lengths E_c is evaluated at: 1, 2, 4, … below the largest level, and every
+    level (increasing, distinct)."""
+    top = max(levels)
+    powers = [1 << g for g in range(math.ceil(math.log2(top)) + 1) if 1 << g < top]
+    return sorted({*powers, *(int(t) for t in levels)})
+
+
+def judged_code_levels(
+    batch: np.ndarray, dictionaries: Sequence[np.ndarray], levels: Sequence[int], eps: float,
+    dtype: type, mask: np.ndarray, error: ChannelError,
+) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:  # fmt: skip
+    """The rule of the module docstring on a batch (B, m_1, …, m_N) at caps ``levels``
+    (clipped to the point size already), on the dictionaries of ``mask`` (B, K) only.
+
+    Returns per level (membership (B,), counts (B,), values (Σ counts,), flat indices
+    (Σ counts,), errors (B,) = E_c), each point's coefficients by decreasing |value|.
+    """
+    from .coding import topk_abs
+
+    x = np.ascontiguousarray(batch, dtype=dtype)
+    b = x.shape[0]
+    shape = x.shape[1:]
+    n_dict = dictionaries[0].shape[0]
+    grid = prefix_grid(levels)
+    tmax = grid[-1]
+    mats = [[np.asarray(d[k], dtype=dtype) for d in dictionaries] for k in range(n_dict)]
+    mats64 = [[np.asarray(d[k], dtype=np.float64) for d in dictionaries] for k in range(n_dict)]
+
+    def judge(ik: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(flat indices, values) of the tmax largest |S| and E_c at each grid length."""
+        i, k = ik
+        s = project(x[i : i + 1], mats[k]).reshape(-1)
+        idx = topk_abs(s, tmax)
+        vals = s[idx]
+        loc = np.stack(np.unravel_index(idx, shape), axis=1)
+        ref = error.reference(i)
+        delta = -x[i].astype(np.float64)  # decoded − true, decoded built up prefix by prefix
+        errs = np.full(len(grid), np.inf)
+        start = 0
+        for g, n in enumerate(grid):
+            n = min(n, idx.size)
+            if n > start:
+                delta += reconstruct_sparse(loc[start:n], vals[start:n].astype(np.float64),
+                                            mats64[k])  # fmt: skip
+                start = n
+            errs[g] = error(i, delta, ref)
+        return idx, vals, errs
+
+    pairs = [(i, k) for k in range(n_dict) for i in range(b) if mask[i, k]]
+    found = dict(zip(pairs, parallel_map(judge, pairs), strict=True))
+    grid_a = np.asarray(grid)
+    out = []
+    for tau in levels:
+        member = np.zeros(b, dtype=np.int64)
+        counts = np.zeros(b, dtype=np.int64)
+        errors = np.zeros(b)
+        vals_all, idx_all = [], []
+        for i in range(b):
+            best: tuple[tuple[int, float, float], tuple[int, int, float]] | None = None
+            for k in range(n_dict):
+                if not mask[i, k]:
+                    continue
+                idx, _, errs = found[i, k]
+                for g in np.flatnonzero(grid_a <= tau):
+                    n = min(int(grid_a[g]), idx.size)
+                    e = float(errs[g])
+                    # ε met: sparsest first; else (and at ε = 0) least error, then sparsest
+                    key = (0, n, e) if e <= eps else (1, e, n)
+                    if best is None or key < best[0]:
+                        best = (key, (k, n, e))
+            k, n, e = best[1]  # type: ignore[index]
+            member[i], counts[i], errors[i] = k, n, e
+            idx_all.append(found[i, k][0][:n])
+            vals_all.append(found[i, k][1][:n])
+        out.append((
+            member, counts,
+            np.concatenate(vals_all).astype(np.float32) if b else np.empty(0, np.float32),
+            np.concatenate(idx_all).astype(np.int64) if b else np.empty(0, np.int64),
+            errors,
+        ))  # fmt: skip
+    return out
