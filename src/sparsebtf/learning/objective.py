@@ -22,8 +22,8 @@ units (a shadowed texel next to a highlight), where e^δ is far from 1 + δ. Mea
 captured bumpy copper at τ = 885/64/64 (linear-RGB MSE of the decoded BTF; log rule 1.235):
 keeping the coefficients of largest weighted energy S_t²·Σ_e W_e u_t(e)², 1.236; by their
 first-order gain S_t(2⟨W X, u_t⟩ − S_t Σ W u_t²), 6.06; refitting the kept values by five
-conjugate-gradient steps of weighted least squares, 13.9 (docs/results.md, "Coding
-objectives").
+conjugate-gradient steps of weighted least squares, 13.9 ("Coding
+objectives", docs/benchmarks.md §15).
 
 The rule (:func:`judged_code_levels`): each candidate dictionary's coefficients in the log
 rule's order (decreasing |S_t|, the order a level-of-detail prefix reads), evaluated by E_c
@@ -42,7 +42,7 @@ Cost per point and candidate dictionary (10×10 texels × 151 × 151, n = 2.28 M
 log rule's projection (1.47 GFLOP), one sparse reconstruction of τ_max coefficients split
 at the grid (at most a dense 1.47 GFLOP, a few percent of it at τ = 885), and per grid
 length one evaluation of E_c (~20 flops, one exp per value and R, G, B: ~140 M flops and 7 M
-exp; 11 lengths at τ = 885). Measured encode time per point: docs/results.md.
+exp; 11 lengths at τ = 885). Measured encode time per point: docs/benchmarks.md §15.
 """
 
 from __future__ import annotations
