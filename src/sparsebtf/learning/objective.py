@@ -27,22 +27,22 @@ objectives", docs/benchmarks.md §15).
 
 The rule (:func:`judged_code_levels`): each candidate dictionary's coefficients in the log
 rule's order (decreasing |S_t|, the order a level-of-detail prefix reads), evaluated by E_c
-at the prefix lengths 1, 2, 4, …, 2^m < τ_max and every level's τ (the grid). At each level
-τ the code is the (dictionary, prefix length n <= τ) of least E_c; with ε > 0 the smallest n
-with E_c <= ε (then least error) when one exists. At ε = 0 the log rule's own code at τ is
-among the candidates, so no point's E_c is above the log rule's (same dictionaries
-screened); the candidates at a larger τ include those at a smaller one: **more coefficients
-never give a larger error** in the objective, for every point, within one call and across
-calls with the same dictionary candidates (exhaustive, or the screening's union over the
-levels of one call). Level of detail truncates the stored (magnitude) order: the error of a
-prefix below the stored count is not guaranteed to fall; the stored count is where it is
-least on the grid.
+at the prefix lengths τ and ⌈τ/2⌉ of every level, and with ε > 0 also 1, 2, 4, … (the grid,
+:func:`prefix_grid`). At each level τ the code is the (dictionary, prefix length n <= τ) of
+least E_c; with ε > 0 the smallest n with E_c <= ε (then least error) when one exists. At ε
+= 0 the log rule's own code at τ is among the candidates, so no point's E_c is above the log
+rule's (same dictionaries screened); the candidates at a larger τ include those at a smaller
+one: **more coefficients never give a larger error** in the objective, for every point,
+among the levels of one call (:func:`~sparsebtf.codec.encode_levels`; separate calls
+evaluate other prefix lengths). Level of detail truncates the stored
+(magnitude) order: the error of a prefix below the stored count is not guaranteed to fall;
+the stored count is where it is least on the grid.
 
 Cost per point and candidate dictionary (10×10 texels × 151 × 151, n = 2.28 M entries): the
-log rule's projection (1.47 GFLOP), one sparse reconstruction of τ_max coefficients split
-at the grid (at most a dense 1.47 GFLOP, a few percent of it at τ = 885), and per grid
-length one evaluation of E_c (~20 flops, one exp per value and R, G, B: ~140 M flops and 7 M
-exp; 11 lengths at τ = 885). Measured encode time per point: docs/benchmarks.md §15.
+log rule's projection (1.47 GFLOP), one sparse reconstruction of τ_max coefficients split at
+the grid (at most a dense 1.47 GFLOP, a few percent of it at τ = 885), and per grid length
+one evaluation of E_c (~20 flops, one exp per value and R, G, B: ~140 M flops and 7 M exp; 2
+lengths per level at ε = 0). Measured encode time per point: docs/benchmarks.md §15.
 """
 
 from __future__ import annotations
@@ -144,12 +144,15 @@ class ChannelError:
         return float(np.dot(flat, flat)) / flat.size
 
 
-def prefix_grid(levels: Sequence[int]) -> list[int]:
-    """The prefix lengths E_c is evaluated at: 1, 2, 4, … below the largest level, and every
-    level (increasing, distinct)."""
+def prefix_grid(levels: Sequence[int], eps: float = 0.0) -> list[int]:
+    """The prefix lengths E_c is evaluated at (increasing, distinct): every level τ and its
+    half ⌈τ/2⌉; with ε > 0 also 1, 2, 4, … below the largest level (the ε rule looks for the
+    fewest coefficients that meet ε)."""
     top = max(levels)
-    powers = [1 << g for g in range(math.ceil(math.log2(top)) + 1) if 1 << g < top]
-    return sorted({*powers, *(int(t) for t in levels)})
+    lengths = {int(t) for t in levels} | {-(-int(t) // 2) for t in levels}
+    if eps > 0:
+        lengths |= {1 << g for g in range(math.ceil(math.log2(top)) + 1) if 1 << g < top}
+    return sorted(lengths)
 
 
 def judged_code_levels(
@@ -168,7 +171,7 @@ def judged_code_levels(
     b = x.shape[0]
     shape = x.shape[1:]
     n_dict = dictionaries[0].shape[0]
-    grid = prefix_grid(levels)
+    grid = prefix_grid(levels, eps)
     tmax = grid[-1]
     mats = [[np.asarray(d[k], dtype=dtype) for d in dictionaries] for k in range(n_dict)]
     mats64 = [[np.asarray(d[k], dtype=np.float64) for d in dictionaries] for k in range(n_dict)]
