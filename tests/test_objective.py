@@ -156,8 +156,12 @@ def test_objective_round_trips_and_info_shows_it(model, tmp_path, capsys):
         np.testing.assert_allclose(a.errors, b.errors, rtol=1e-6)
     save_model(model, tmp_path / "m.h5")
     assert main(["info", str(tmp_path / "c.h5"), "-m", str(tmp_path / "m.h5")]) == 0
-    assert "display: the log-YUV error weighted through the display mapping" in \
+    assert "display: each point's code judged by its error after the display mapping" in \
         capsys.readouterr().out  # fmt: skip
+    # the CLI's encode records it too
+    assert main(["encode", "synth:stone:8:1:tiny13", "-m", str(tmp_path / "m.h5"), "-o",
+                 str(tmp_path / "s.h5"), "--tau", "16,4,4", "--objective", "linear"]) == 0
+    assert load_coded(tmp_path / "s.h5").objective == "linear"
     plain = encode(smooth_btf(8), model, tau=(16, 4, 4), progress=False)
     save_coded(plain, tmp_path / "p.h5")
     assert load_coded(tmp_path / "p.h5").objective == "log"

@@ -173,11 +173,11 @@ def register(sub: Any) -> None:
                       help="project every data point on every dictionary (the paper's rule; "
                       "the default screening projects it on --candidates of them)")
     s.add_argument("--objective", choices=OBJECTIVES, default="log",
-                   help="the error the coder minimises: log (default, the paper's rule: the "
-                   "standardised log-YUV error), linear (that error weighted by its "
-                   "first-order effect on linear RGB, the radiance a renderer integrates: "
-                   "for glossy highlights) or display (through the display mapping "
-                   "1.3*I^(1/1.8), clipped at 1); --eps is then in its units")
+                   help="the error each point's dictionary and count are chosen by: log "
+                   "(default, the paper's rule: the standardised log-YUV error), linear (the "
+                   "error of linear RGB, the radiance a renderer integrates: for glossy "
+                   "highlights) or display (after the display mapping 1.3*I^(1/1.8), clipped "
+                   "at 1); --eps is then in its units (mean squared error per value)")
     s.add_argument("--batch", type=int, default=4,
                    help="data points read and coded at a time (memory bound; default 4)")
     s.add_argument("--crop", metavar="R0:R1,C0:C1",

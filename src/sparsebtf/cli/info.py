@@ -153,8 +153,9 @@ def _rule_text(coded: Any) -> str:
 
 _OBJECTIVE_TEXT = {
     "log": "log: the standardised log-YUV error (the paper's rule)",
-    "linear": "linear: the log-YUV error weighted by its first-order effect on linear RGB",
-    "display": "display: the log-YUV error weighted through the display mapping a*I^(1/gamma)",
+    "linear": "linear: each point's code judged by its error in linear RGB",
+    "display": "display: each point's code judged by its error after the display mapping "
+               "1.3*I^(1/1.8), clipped at 1",
 }
 
 
