@@ -116,27 +116,35 @@ def _channel_linear_error(coded, ch, btf) -> np.ndarray:
     return per.T.ravel()  # release order: point = row_block + n_row_blocks * col_block
 
 
+def _point_mse(coded, btf) -> np.ndarray:
+    """(P,) linear-RGB MSE of each data point of the decoded BTF."""
+    from sparsebtf.runtime.dense import DecodedBTF
+
+    err = (DecodedBTF(coded).to_array().astype(np.float64) - btf.to_array()) ** 2
+    p = coded.patch
+    per = err.reshape(btf.height // p, p, btf.width // p, p, -1).mean(axis=(1, 3, 4))
+    return per.T.ravel()  # release order: point = row_block + n_row_blocks * col_block
+
+
 def test_linear_objective_never_worse_with_more_coefficients_on_a_highlight(model):
     btf = highlight_btf()
     lin = encode_levels(btf, model, LEVELS, eps=0.0, progress=False, objective="linear")
     log = encode_levels(btf, model, LEVELS, eps=0.0, progress=False)
+    mse_lin = np.array([_point_mse(c, btf) for c in lin])  # (levels, P)
+    mse_log = np.array([_point_mse(c, btf) for c in log])
+    # every point: no level worse than the one below, none worse than the log rule's code
+    assert (np.diff(mse_lin, axis=0) <= 1e-5 * mse_lin[1:]).all()
+    assert (mse_lin <= mse_log * (1 + 1e-5)).all()
     for ch in "YUV":
-        errs = np.array([c.codes[ch].errors for c in lin])  # (levels, P)
-        assert (np.diff(errs, axis=0) <= 0).all(), ch
-        for c_lin, c_log in zip(lin, log, strict=True):
-            # the stored error is the decoded BTF's, and never above the log rule's code
+        for c_lin, t in zip(lin, LEVELS, strict=True):
+            # each channel's stored error is its own error in the objective (the other two
+            # exact), recomputed from the decoded BTF; counts within the level's cap
             got = _channel_linear_error(c_lin, ch, btf)
             np.testing.assert_allclose(c_lin.codes[ch].errors, got, rtol=2e-3, atol=1e-9)
-            assert (got <= _channel_linear_error(c_log, ch, btf) * (1 + 2e-3) + 1e-9).all()
-        assert all(c.codes[ch].counts.max() <= t["YUV".index(ch)]
-                   for c, t in zip(lin, LEVELS, strict=True))  # fmt: skip
-    # the highlight point is where the objectives part: there the linear objective's code is
-    # clearly better than the log rule's in some channel and level (measured: U at τ = 8 keeps
-    # 4 coefficients, 0.0205 against the log rule's 8 at 0.0259)
-    hl = 0  # texel (1, 2) lies in point 0 (4x4 patches)
-    wins = [c_lin.codes[ch].errors[hl] < 0.95 * _channel_linear_error(c_log, ch, btf)[hl]
-            for ch in "UV" for c_lin, c_log in zip(lin, log, strict=True)]  # fmt: skip
-    assert any(wins)
+            assert c_lin.codes[ch].counts.max() <= t["YUV".index(ch)]
+    # and the objective makes a difference (measured: point 1 at level 32, 0.0165 against the
+    # log rule's 0.0194)
+    assert (mse_lin < 0.95 * mse_log).any()
 
 
 def test_objective_round_trips_and_info_shows_it(model, tmp_path, capsys):

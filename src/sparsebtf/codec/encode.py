@@ -17,8 +17,13 @@ import numpy as np
 
 from ..data.btf import BTF
 from ..errors import BTFInputError
-from ..learning.coding import DEFAULT_CANDIDATES, SparseCodes, sparse_code_levels
-from ..learning.objective import ChannelError, check_objective, objective_params
+from ..learning.coding import (
+    DEFAULT_CANDIDATES,
+    SparseCodes,
+    sparse_code_levels,
+    sparse_code_objective,
+)
+from ..learning.objective import ChannelError, check_objective, joint_choice, objective_params
 from ..model import CodedBTF, Model, TauSpec, parse_tau
 from ..points.grid import stream_points
 from ..points.preprocessing import LogOffset, Preprocessor, Standardization, StdMode
@@ -243,18 +248,42 @@ class FixedTau:
         planar = "YUV" not in channels
         for _, x in stream_points(btf, pre, model.patch, points, batch_size, planar):
             errors = batch_errors(x, pre, self.objective)
-            for c, ch in enumerate(channels):
+            if errors is not None:  # a linear or display objective: the channels judged jointly
+                self._code_objective(x, planar, model, errors, dt, parts)
+            for c, ch in enumerate(channels if errors is None else ()):
                 xc = x[c] if planar else x
                 taus_c = [lv[ch] for lv in self.levels]
                 coded = sparse_code_levels(
-                    xc, model.dictionaries[ch], taus_c, self.eps, dt, self.candidates,
-                    None if errors is None else errors[c],
+                    xc, model.dictionaries[ch], taus_c, self.eps, dt, self.candidates
                 )
                 for j, sc in enumerate(coded):
                     parts[j][ch].append(sc)
             if tick is not None:
                 tick(x.shape[1] if planar else x.shape[0])
         return [{ch: SparseCodes.concatenate(p[ch]) for ch in channels} for p in parts]
+
+    def _code_objective(
+        self, x: np.ndarray, planar: bool, model: Model, errors: list[ChannelError],
+        dt: type, parts: list[dict[str, list[SparseCodes]]],
+    ) -> None:  # fmt: skip
+        """One batch under a linear or display objective: each channel by its own error
+        (:func:`~sparsebtf.learning.coding.sparse_code_objective`), then the three judged
+        together against the paper's rule and the lower levels
+        (:func:`~sparsebtf.learning.objective.joint_choice`)."""
+        channels = model.channels
+        xs = [np.ascontiguousarray(x[c] if planar else x[..., c]) for c in range(3)]
+        taus = [[lv[ch] for lv in self.levels] for ch in channels]
+        judged, log = [], []
+        for c, ch in enumerate(channels):
+            j, g = sparse_code_objective(xs[c], model.dictionaries[ch], taus[c], self.eps, dt,
+                                         self.candidates, errors[c])  # fmt: skip
+            judged.append(j)
+            log.append(g)
+        chosen = joint_choice(xs, errors, judged, log,
+                              [model.dictionaries[ch] for ch in channels], taus)  # fmt: skip
+        for c, ch in enumerate(channels):
+            for j, sc in enumerate(chosen[c]):
+                parts[j][ch].append(sc)
 
     def finish(
         self, header: Header, model: Model, stats: Standardization,

@@ -52,6 +52,7 @@ __all__ = [
     "screen_dictionaries",
     "sparse_code",
     "sparse_code_levels",
+    "sparse_code_objective",
     "topk_abs",
 ]
 
@@ -363,6 +364,41 @@ def sparse_code(
     return sparse_code_levels(batch, dictionaries, [tau], eps, dtype, candidates, error)[0]
 
 
+def _prepare(
+    batch: np.ndarray, dictionaries: Sequence[np.ndarray], taus: Sequence[int], eps: float,
+    dtype: type, candidates: int | None,
+) -> tuple[np.ndarray, tuple[int, ...], list[int], np.ndarray, np.ndarray]:  # fmt: skip
+    """What every coding rule starts from: the batch checked against the ensemble and made
+    contiguous in ``dtype``, its point shape, the levels clipped to the point size, the
+    (B, K) mask of the dictionaries projected exactly (:func:`screen_dictionaries`) and the
+    points' energies ‖X‖²."""
+    x = np.asarray(batch)
+    shape = tuple(int(s) for s in x.shape[1:])
+    if len(dictionaries) != len(shape):
+        raise BTFInputError(
+            f"data points have {len(shape)} modes but the ensemble has {len(dictionaries)}"
+        )
+    for n, (d, m) in enumerate(zip(dictionaries, shape, strict=True)):
+        if d.ndim != 3 or d.shape[1:] != (m, m):
+            raise BTFInputError(f"mode {n + 1}: dictionaries {d.shape} do not fit mode size {m}")
+    if not taus or min(taus) < 1:
+        raise BTFInputError(f"sparsity tau must be >= 1, got {list(taus)}")
+    n_dict = dictionaries[0].shape[0]
+    size = int(np.prod(shape))
+    levels = [min(int(t), size) for t in taus]
+    b = x.shape[0]
+    xc = np.ascontiguousarray(x, dtype=dtype)
+    energy = point_energies(xc)
+
+    rule, n_cand = coding_rule(candidates, n_dict)
+    if rule == "exhaustive":
+        mask = np.ones((b, n_dict), dtype=bool)
+    else:
+        mask = screen_dictionaries(xc, dictionaries, levels, eps, n_cand, dtype=dtype,
+                                   energy=energy)
+    return xc, shape, levels, mask, energy
+
+
 def sparse_code_levels(
     batch: np.ndarray,
     dictionaries: Sequence[np.ndarray],
@@ -381,34 +417,15 @@ def sparse_code_levels(
     point's error in that objective at a larger τ is never above that at a smaller one
     (:func:`~.objective.judged_code_levels`).
     """
-    x = np.asarray(batch)
-    shape = tuple(int(s) for s in x.shape[1:])
-    if len(dictionaries) != len(shape):
-        raise BTFInputError(
-            f"data points have {len(shape)} modes but the ensemble has {len(dictionaries)}"
-        )
-    for n, (d, m) in enumerate(zip(dictionaries, shape, strict=True)):
-        if d.ndim != 3 or d.shape[1:] != (m, m):
-            raise BTFInputError(f"mode {n + 1}: dictionaries {d.shape} do not fit mode size {m}")
-    if not taus or min(taus) < 1:
-        raise BTFInputError(f"sparsity tau must be >= 1, got {list(taus)}")
+    xc, shape, levels, mask, energy = _prepare(batch, dictionaries, taus, eps, dtype,
+                                               candidates)
+    if error is not None:
+        return _judged(xc, error, dictionaries, levels, eps, dtype, mask, energy)[0]
     n_dict = dictionaries[0].shape[0]
     size = int(np.prod(shape))
-    levels = [min(int(t), size) for t in taus]
     tmax = max(levels)
-    b = x.shape[0]
+    b = xc.shape[0]
     nl = len(levels)
-    xc = np.ascontiguousarray(x, dtype=dtype)
-    energy = point_energies(xc)
-
-    rule, n_cand = coding_rule(candidates, n_dict)
-    if rule == "exhaustive":
-        mask = np.ones((b, n_dict), dtype=bool)
-    else:
-        mask = screen_dictionaries(xc, dictionaries, levels, eps, n_cand, dtype=dtype,
-                                   energy=energy)
-    if error is not None:
-        return _judged(xc, error, dictionaries, levels, eps, dtype, mask)
     # dictionaries left out by the screening lose every comparison of the rule
     counts = np.full((nl, b, n_dict), np.iinfo(np.int64).max, dtype=np.int64)
     errs = np.full((nl, b, n_dict), np.inf)
@@ -465,22 +482,35 @@ def sparse_code_levels(
 
 
 def _judged(x: np.ndarray, error: ChannelError, dictionaries: Sequence[np.ndarray],
-            levels: list[int], eps: float, dtype: type, mask: np.ndarray
-            ) -> list[SparseCodes]:  # fmt: skip
-    """:func:`sparse_code_levels` judged by a linear or display objective (:mod:`.objective`)."""
+            levels: list[int], eps: float, dtype: type, mask: np.ndarray, energy: np.ndarray
+            ) -> tuple[list[SparseCodes], list[SparseCodes]]:  # fmt: skip
+    """:func:`sparse_code_levels` judged by a linear or display objective (:mod:`.objective`),
+    and the log rule's codes from the same projections: (judged, log), one per level."""
     from .objective import judged_code_levels
 
     if error.log_rgb.shape[:-1] != x.shape:
         raise BTFInputError(f"the objective's values {error.log_rgb.shape} do not match the "
                             f"batch {x.shape}")  # fmt: skip
     shape = tuple(int(s) for s in x.shape[1:])
-    out = []
-    for member, counts, vals, idx, errs in judged_code_levels(
-        x, dictionaries, levels, eps, dtype, mask, error
-    ):
+    judged, log = judged_code_levels(x, dictionaries, levels, eps, dtype, mask, error, energy)
+
+    def codes(member, counts, vals, idx, errs) -> SparseCodes:  # type: ignore[no-untyped-def]
         locs = np.stack(np.unravel_index(idx, shape), axis=1).astype(np.int32)
-        out.append(SparseCodes(shape, member, counts, vals, locs, errs))
-    return out
+        return SparseCodes(shape, member, counts, vals, locs, errs)
+
+    return [codes(*j) for j in judged], [codes(*g) for g in log]
+
+
+def sparse_code_objective(
+    batch: np.ndarray, dictionaries: Sequence[np.ndarray], taus: Sequence[int], eps: float,
+    dtype: type, candidates: int | None, error: ChannelError,
+) -> tuple[list[SparseCodes], list[SparseCodes]]:  # fmt: skip
+    """:func:`sparse_code_levels` with ``error`` (a linear or display objective), together
+    with the paper's rule's codes of the same projections (the alternative a caller may
+    compare the three channels' joint error against, :func:`~.objective.joint_choice`):
+    (judged codes, log-rule codes), one per τ each."""
+    xc, _, levels, mask, energy = _prepare(batch, dictionaries, taus, eps, dtype, candidates)
+    return _judged(xc, error, dictionaries, levels, eps, dtype, mask, energy)
 
 
 def reconstruct_points(

@@ -50,6 +50,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -57,17 +58,23 @@ from ..errors import BTFInputError
 from .parallel import parallel_map
 from .tensor import project, reconstruct_sparse
 
+if TYPE_CHECKING:
+    from .coding import SparseCodes
+
 __all__ = [
     "DISPLAY_A",
     "DISPLAY_GAMMA",
     "OBJECTIVES",
     "ChannelError",
     "check_objective",
+    "joint_choice",
     "judged_code_levels",
     "objective_params",
     "prefix_grid",
 ]
 
+#: One level's codes: membership, counts, values, flat indices, errors.
+Codes = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 #: The coding objectives: "log" (the paper's rule, default), "linear", "display".
 OBJECTIVES = ("log", "linear", "display")
 #: The paper's display mapping a·I^(1/γ) (:func:`sparsebtf.display.tone_map`).
@@ -157,15 +164,18 @@ def prefix_grid(levels: Sequence[int], eps: float = 0.0) -> list[int]:
 
 def judged_code_levels(
     batch: np.ndarray, dictionaries: Sequence[np.ndarray], levels: Sequence[int], eps: float,
-    dtype: type, mask: np.ndarray, error: ChannelError,
-) -> list[tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]]:  # fmt: skip
+    dtype: type, mask: np.ndarray, error: ChannelError, energy: np.ndarray,
+) -> tuple[list[Codes], list[Codes]]:  # fmt: skip
     """The rule of the module docstring on a batch (B, m_1, …, m_N) at caps ``levels``
-    (clipped to the point size already), on the dictionaries of ``mask`` (B, K) only.
+    (clipped to the point size already), on the dictionaries of ``mask`` (B, K) only;
+    ``energy`` (B,) the points' ‖X‖².
 
-    Returns per level (membership (B,), counts (B,), values (Σ counts,), flat indices
-    (Σ counts,), errors (B,) = E_c), each point's coefficients by decreasing |value|.
+    Returns (judged, log): per level (membership (B,), counts (B,), values (Σ counts,), flat
+    indices (Σ counts,), errors (B,)), each point's coefficients by decreasing |value|; the
+    judged codes' errors are E_c, the log rule's (from the same projections, its codes bit
+    for bit) its mean squared standardised residual.
     """
-    from .coding import topk_abs
+    from .coding import _rule_keys, topk_abs
 
     x = np.ascontiguousarray(batch, dtype=dtype)
     b = x.shape[0]
@@ -199,12 +209,22 @@ def judged_code_levels(
     pairs = [(i, k) for k in range(n_dict) for i in range(b) if mask[i, k]]
     found = dict(zip(pairs, parallel_map(judge, pairs), strict=True))
     grid_a = np.asarray(grid)
+    size = int(np.prod(shape))
+    logs = []
+    for tau in levels:  # the paper's rule: sparsest, then least error; ties: lower k
+        best_log: list[tuple[tuple[int, float], int] | None] = [None] * b
+        for i, k in pairs:
+            vals = found[i, k][1]
+            n, e = _rule_keys((vals.astype(np.float64) ** 2)[None, :], float(energy[i]), size,
+                              tau, eps)  # fmt: skip
+            key = (int(n[0]), float(e[0]))
+            if best_log[i] is None or key < best_log[i][0]:  # type: ignore[index]
+                best_log[i] = (key, k)
+        chosen_log = [(c[1], c[0][0], c[0][1]) for c in best_log]  # type: ignore[index]
+        logs.append(_assemble(found, chosen_log))
     out = []
     for tau in levels:
-        member = np.zeros(b, dtype=np.int64)
-        counts = np.zeros(b, dtype=np.int64)
-        errors = np.zeros(b)
-        vals_all, idx_all = [], []
+        chosen: list[tuple[int, int, float]] = []
         for i in range(b):
             best: tuple[tuple[int, float, float], tuple[int, int, float]] | None = None
             for k in range(n_dict):
@@ -218,14 +238,113 @@ def judged_code_levels(
                     key = (0, n, e) if e <= eps else (1, e, n)
                     if best is None or key < best[0]:
                         best = (key, (k, n, e))
-            k, n, e = best[1]  # type: ignore[index]
-            member[i], counts[i], errors[i] = k, n, e
-            idx_all.append(found[i, k][0][:n])
-            vals_all.append(found[i, k][1][:n])
-        out.append((
-            member, counts,
-            np.concatenate(vals_all).astype(np.float32) if b else np.empty(0, np.float32),
-            np.concatenate(idx_all).astype(np.int64) if b else np.empty(0, np.int64),
-            errors,
-        ))  # fmt: skip
+            chosen.append(best[1])  # type: ignore[index]
+        out.append(_assemble(found, chosen))
+    return out, logs
+
+
+def _assemble(found: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]],
+              chosen: list[tuple[int, int, float]]) -> Codes:  # fmt: skip
+    """Codes of the points' chosen (dictionary, count, error), point i the i-th."""
+    b = len(chosen)
+    idx = [found[i, k][0][:n] for i, (k, n, _) in enumerate(chosen)]
+    vals = [found[i, k][1][:n] for i, (k, n, _) in enumerate(chosen)]
+    return (
+        np.array([c[0] for c in chosen], dtype=np.int64),
+        np.array([c[1] for c in chosen], dtype=np.int64),
+        np.concatenate(vals).astype(np.float32) if b else np.empty(0, np.float32),
+        np.concatenate(idx).astype(np.int64) if b else np.empty(0, np.int64),
+        np.array([c[2] for c in chosen], dtype=np.float64),
+    )
+
+
+def joint_choice(
+    x: Sequence[np.ndarray], errors: Sequence[ChannelError],
+    judged: Sequence[Sequence[SparseCodes]], log: Sequence[Sequence[SparseCodes]],
+    dictionaries: Sequence[Sequence[np.ndarray]], taus: Sequence[Sequence[int]],
+) -> list[list[SparseCodes]]:  # fmt: skip
+    """The three channels' codes of a batch judged together, level by level.
+
+    ``x[c]`` (B, p, p, L, V): channel c's standardised points; ``errors[c]`` its
+    :class:`ChannelError`; ``judged[c][j]``, ``log[c][j]`` its codes at level j by the
+    objective's rule and by the paper's (:func:`~.coding.sparse_code_objective`);
+    ``taus[c][j]`` its cap. Per point and level the joint error E (the objective's mean
+    squared error over values and R, G, B, with all three channels' residuals at once) of
+    the judged codes is compared with the log rule's, and the lower kept; then, in
+    increasing τ (levels whose every channel's τ is at least the other's), a level whose E
+    is above a lower level's keeps that level's codes. So no point's E is above the log
+    rule's at its level, nor above its E at a lower level. Returns ``[c][j]`` codes, each
+    point's ``errors`` its channel's E_c.
+    """
+    from .coding import SparseCodes
+
+    n_ch, n_lv = len(x), len(taus[0])
+    b = x[0].shape[0]
+    e0 = errors[0]
+    scale = np.stack([e.scale for e in errors])  # (C, L, V, rgb)
+
+    def residual(c: int, j: int, src: int, i: int) -> np.ndarray:
+        """Decoded minus true standardised values of point i, channel c (not kept: a batch
+        of them at every level would hold hundreds of MB)."""
+        codes = (judged if src == 0 else log)[c][j]
+        loc, val = codes.point(i)
+        k = int(codes.membership[i])
+        mats = [np.asarray(d[k], dtype=np.float64) for d in dictionaries[c]]
+        return (reconstruct_sparse(loc, val.astype(np.float64), mats)
+                - x[c][i].astype(np.float64)).astype(np.float32)  # fmt: skip
+
+    def joint(ji: tuple[int, int, int]) -> float:
+        j, src, i = ji
+        y = e0.log_rgb[i].copy()
+        for c in range(n_ch):
+            y += residual(c, j, src, i)[..., None] * scale[c]
+        if e0.bound is not None:
+            np.minimum(y, e0.bound[..., None], out=y)
+        d = e0._value(y)
+        d -= e0.reference(i)
+        flat = d.reshape(-1)
+        return float(np.dot(flat, flat)) / flat.size
+
+    jobs = [(j, src, i) for j in range(n_lv) for src in (0, 1) for i in range(b)]
+    err = np.array(list(parallel_map(joint, jobs))).reshape(n_lv, 2, b)
+    # (level, source) chosen per point: 0 judged, 1 log
+    pick = [[(j, int(err[j, 1, i] < err[j, 0, i])) for i in range(b)] for j in range(n_lv)]
+    best = np.minimum(err[:, 0], err[:, 1])
+    order = sorted(range(n_lv), key=lambda j: tuple(t[j] for t in taus))
+    for pos, hi in enumerate(order):
+        for lo in order[:pos]:
+            if not all(t[lo] <= t[hi] for t in taus):
+                continue
+            for i in np.flatnonzero(best[lo] < best[hi]):
+                pick[hi][i] = pick[lo][i]
+                best[hi, i] = best[lo, i]
+
+    out: list[list[SparseCodes]] = []
+    for c in range(n_ch):
+        per_level = []
+        for j in range(n_lv):
+            parts, errs = [], np.empty(b)
+            for i, (lv, src) in enumerate(pick[j]):
+                codes = (judged if src == 0 else log)[c][lv]
+                parts.append((codes, i))
+                errs[i] = (codes.errors[i] if src == 0
+                           else errors[c](i, residual(c, lv, src, i)))  # fmt: skip
+            per_level.append(_pick_points(parts, errs, SparseCodes))
+        out.append(per_level)
     return out
+
+
+def _pick_points(parts: list[tuple[SparseCodes, int]], errors: np.ndarray,
+                 cls: type[SparseCodes]) -> SparseCodes:  # fmt: skip
+    """Codes whose point i is point ``parts[i][1]`` of codes ``parts[i][0]``."""
+    shape = parts[0][0].mode_sizes
+    locs = [c.point(i)[0] for c, i in parts]
+    vals = [c.point(i)[1] for c, i in parts]
+    return cls(
+        shape,
+        np.array([c.membership[i] for c, i in parts], dtype=np.int64),
+        np.array([c.counts[i] for c, i in parts], dtype=np.int64),
+        np.concatenate(vals).astype(np.float32),
+        np.concatenate(locs).astype(np.int32).reshape(-1, len(shape)),
+        errors,
+    )
