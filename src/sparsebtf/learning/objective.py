@@ -25,24 +25,27 @@ first-order gain S_t(2⟨W X, u_t⟩ − S_t Σ W u_t²), 6.06; refitting the ke
 conjugate-gradient steps of weighted least squares, 13.9 ("Coding
 objectives", docs/benchmarks.md §15).
 
-The rule (:func:`judged_code_levels`): each candidate dictionary's coefficients in the log
-rule's order (decreasing |S_t|, the order a level-of-detail prefix reads), evaluated by E_c
-at the prefix lengths τ and ⌈τ/2⌉ of every level, and with ε > 0 also 1, 2, 4, … (the grid,
-:func:`prefix_grid`). At each level τ the code is the (dictionary, prefix length n <= τ) of
-least E_c; with ε > 0 the smallest n with E_c <= ε (then least error) when one exists. At ε
-= 0 the log rule's own code at τ is among the candidates, so no point's E_c is above the log
-rule's (same dictionaries screened); the candidates at a larger τ include those at a smaller
-one: **more coefficients never give a larger error** in the objective, for every point,
-among the levels of one call (:func:`~sparsebtf.codec.encode_levels`; separate calls
-evaluate other prefix lengths). Level of detail truncates the stored
-(magnitude) order: the error of a prefix below the stored count is not guaranteed to fall;
-the stored count is where it is least on the grid.
+The rule, in two steps. (1) Per channel (:func:`judged_code_levels`): each candidate
+dictionary's coefficients in the log rule's order (decreasing |S_t|, the order a
+level-of-detail prefix reads), evaluated by E_c at the prefix lengths τ and ⌈τ/2⌉ of every
+level, and with ε > 0 also 1, 2, 4, … (the grid, :func:`prefix_grid`). At each level τ the
+code is the (dictionary, prefix length n <= τ) of least E_c; with ε > 0 the smallest n with
+E_c <= ε (then least error) when one exists. The log rule's codes come from the same
+projections. (2) Per point and level (:func:`joint_choice`): the joint error E of the three
+channels' residuals at once (E_c with every channel's δ) of the judged codes against the log
+rule's; the lower is kept, and in increasing τ a level keeps a lower level's codes where those
+have the lower E. So **no point's error in the objective is above the log rule's** at its
+level, **nor above its error at a lower level** of the same call
+(:func:`~sparsebtf.codec.encode_levels`; separate calls judge other lengths). Level of detail
+truncates the stored (magnitude) order: the error of a prefix below the stored count is not
+guaranteed to fall.
 
 Cost per point and candidate dictionary (10×10 texels × 151 × 151, n = 2.28 M entries): the
 log rule's projection (1.47 GFLOP), one sparse reconstruction of τ_max coefficients split at
 the grid (at most a dense 1.47 GFLOP, a few percent of it at τ = 885), and per grid length
 one evaluation of E_c (~20 flops, one exp per value and R, G, B: ~140 M flops and 7 M exp; 2
-lengths per level at ε = 0). Measured encode time per point: docs/benchmarks.md §15.
+lengths per level at ε = 0); per point and level 2 × 3 sparse reconstructions and two joint
+evaluations. Measured: 5–8× the log rule's encode time per point (docs/benchmarks.md §15).
 """
 
 from __future__ import annotations
