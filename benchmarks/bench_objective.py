@@ -88,9 +88,9 @@ def main() -> None:
                      f"max {data['max']:.1f}; log offset {data['log_offset']}"),
     ]  # fmt: skip
     for obj, r in data["objectives"].items():
-        lin = ", ".join(f"{x['mse_linear']:.4f}" for x in r["levels"])
-        disp = ", ".join(f"{x['mse_display']:.5f}" for x in r["levels"])
-        log = ", ".join(f"{x['mse_log']:.3f}" for x in r["levels"])
+        lin = ", ".join(f"{x['mse_linear']:.4g}" for x in r["levels"])
+        disp = ", ".join(f"{x['mse_display']:.4g}" for x in r["levels"])
+        log = ", ".join(f"{x['mse_log']:.4g}" for x in r["levels"])
         rows.append((obj, f"linear MSE at {'/'.join(map(str, LEVELS))}: {lin}; display {disp}; "
                           f"log {log}; points worse than the level below {r['points_worse']}; "
                           f"{r['seconds_per_point']:.2f} s/point"))  # fmt: skip
