@@ -308,8 +308,16 @@ def joint_choice(
         flat = d.reshape(-1)
         return float(np.dot(flat, flat)) / flat.size
 
-    jobs = [(j, src, i) for j in range(n_lv) for src in (0, 1) for i in range(b)]
-    err = np.array(list(parallel_map(joint, jobs))).reshape(n_lv, 2, b)
+    # the log rule's code is the judged one where every channel has its dictionary and count
+    # (both are prefixes of the same order): judged once
+    same = np.array([[all(judged[c][j].membership[i] == log[c][j].membership[i]
+                          and judged[c][j].counts[i] == log[c][j].counts[i] for c in range(n_ch))
+                      for i in range(b)] for j in range(n_lv)])  # fmt: skip
+    jobs = [(j, src, i) for j in range(n_lv) for src in (0, 1) for i in range(b)
+            if src == 0 or not same[j, i]]  # fmt: skip
+    err = np.full((n_lv, 2, b), np.inf)
+    for (j, src, i), e in zip(jobs, parallel_map(joint, jobs), strict=True):
+        err[j, src, i] = e
     # (level, source) chosen per point: 0 judged, 1 log
     pick = [[(j, int(err[j, 1, i] < err[j, 0, i])) for i in range(b)] for j in range(n_lv)]
     best = np.minimum(err[:, 0], err[:, 1])
