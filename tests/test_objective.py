@@ -229,3 +229,14 @@ def test_rate_control_codes_for_the_objective(model):
     with pytest.raises(BTFInputError, match="weighting 'log' applies to the log objective"):
         encode_rate_levels(btf, model, [400], objective="linear", weighting="log",
                            progress=False)  # fmt: skip
+
+
+def test_linear_objective_on_a_dask_cluster_equals_one_process(model):
+    pytest.importorskip("distributed")
+    btf = highlight_btf()
+    want = encode_levels(btf, model, LEVELS[:2], eps=0.0, progress=False, objective="linear")
+    got = encode_levels(btf, model, LEVELS[:2], eps=0.0, progress=False, objective="linear",
+                        workers=1)  # fmt: skip
+    for w, g in zip(want, got, strict=True):
+        _same(_arrays(w), _arrays(g))
+        assert g.objective == "linear"
