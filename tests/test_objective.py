@@ -201,6 +201,16 @@ def test_unknown_objective_is_one_clear_error(model, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "--objective: invalid choice: 'lin'" in err and "Traceback" not in err
     assert not (tmp_path / "o.h5").exists()
+    # a file that names an unknown objective is refused in one line
+    from sparsebtf.errors import FileFormatError
+    from sparsebtf.storage import load_coded, save_coded
+
+    coded = encode(smooth_btf(8), model, tau=(16, 4, 4), progress=False)
+    coded.params["objective"] = "lin"
+    save_coded(coded, tmp_path / "bad.h5")
+    with pytest.raises(FileFormatError, match="'objective' must be one of") as e:
+        load_coded(tmp_path / "bad.h5")
+    assert "\n" not in str(e.value)
 
 
 def test_yuv_to_rgb_scale_of_the_linear_error():
