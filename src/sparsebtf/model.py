@@ -353,6 +353,13 @@ class CodedBTF:
             return "screened", int(self.params["dictionary_candidates"])
         return "exhaustive", None
 
+    @property
+    def objective(self) -> str:
+        """The error the codes minimise (``params["objective"]``, :mod:`sparsebtf.learning.
+        objective`): "log" (the paper's rule; also files written before the record),
+        "linear" or "display"."""
+        return str(self.params.get("objective") or "log")
+
     def dictionary_count(self, channel: str, model: Model | None = None) -> int | None:
         """K of a channel: from ``model`` or the attached one, else the coding parameters
         (``params["n_dictionaries"]``, an int or one per channel); None when unknown."""

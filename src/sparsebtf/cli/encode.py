@@ -9,6 +9,7 @@ from typing import Any
 
 from ..errors import SparseBTFError, UnreachableTargetError
 from ..learning.coding import DEFAULT_CANDIDATES
+from ..learning.objective import OBJECTIVES
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
@@ -75,7 +76,8 @@ def _encode(args: argparse.Namespace, tau: str | None, offset: Any, outputs: lis
         std_mode=args.std_mode, log_offset=offset, batch_size=args.batch,
         allow_below_training=args.allow_below_training,
         crop=parse_crop(args.crop), checkpoint_dir=ck,
-        candidates=None if args.exhaustive else args.candidates, **cluster_options(args),
+        candidates=None if args.exhaustive else args.candidates, objective=args.objective,
+        **cluster_options(args),
     )  # fmt: skip
     reports = []
     for coded, output in zip(coded_all, outputs, strict=True):
@@ -163,7 +165,8 @@ def register(sub: Any) -> None:
     s.add_argument("--per-material", action="store_true", help=argparse.SUPPRESS)
     s.add_argument("--eps", type=float, default=1e-5,
                    help="stop adding coefficients to a point once its mean squared residual "
-                   "(standardised log-YUV) is below this (default 1e-5)")
+                   "(standardised log-YUV; with --objective linear/display, that objective's "
+                   "first-order error) is below this (default 1e-5)")
     s.add_argument("--std-mode", choices=STD_MODES, default=None,
                    help="standardisation of the material: shared (one mean/std for Y, U, V, "
                    "the release's) or per_channel (default: the model's)")
@@ -180,6 +183,12 @@ def register(sub: Any) -> None:
     rule.add_argument("--exhaustive", action="store_true",
                       help="project every data point on every dictionary (the paper's rule; "
                       "the default screening projects it on --candidates of them)")
+    s.add_argument("--objective", choices=OBJECTIVES, default="log",
+                   help="the error each point's dictionary and count are chosen by: log "
+                   "(default, the paper's rule: the standardised log-YUV error), linear (the "
+                   "error of linear RGB, the radiance a renderer integrates: for glossy "
+                   "highlights) or display (after the display mapping 1.3*I^(1/1.8), clipped "
+                   "at 1); --eps is then in its units (mean squared error per value)")
     s.add_argument("--batch", type=int, default=4,
                    help="data points read and coded at a time (memory bound; default 4)")
     s.add_argument("--crop", metavar="R0:R1,C0:C1",

@@ -124,6 +124,7 @@ def describe(
                       "not found (give -m MODEL.h5 for exact dictionary bytes)"),
             "params": coded.params,
             "dictionary_rule": _rule_text(coded),
+            "objective": _objective_text(coded.objective),
             "preprocessing": {
                 "standardisation": coded.stats.mode,
                 "log_offset": coded.stats.eps,
@@ -152,6 +153,19 @@ def _rule_text(coded: Any) -> str:
         return (f"screened: the {n} best dictionaries by a partial projection coded exactly, "
                 "the paper's rule among them")  # fmt: skip
     return "exhaustive: every dictionary coded exactly (the paper's rule)"
+
+
+_OBJECTIVE_TEXT = {
+    "log": "log: the standardised log-YUV error (the paper's rule)",
+    "linear": "linear: each point's code judged by its error in linear RGB",
+    "display": "display: each point's code judged by its error after the display mapping "
+               "1.3*I^(1/1.8), clipped at 1",
+}
+
+
+def _objective_text(objective: str) -> str:
+    """The error the file's codes minimise, in words."""
+    return _OBJECTIVE_TEXT.get(objective, objective)
 
 
 def _schema(path: str) -> int:

@@ -17,7 +17,13 @@ import numpy as np
 
 from ..data.btf import BTF
 from ..errors import BTFInputError
-from ..learning.coding import DEFAULT_CANDIDATES, SparseCodes, sparse_code_levels
+from ..learning.coding import (
+    DEFAULT_CANDIDATES,
+    SparseCodes,
+    sparse_code_levels,
+    sparse_code_objective,
+)
+from ..learning.objective import ChannelError, check_objective, joint_choice, objective_params
 from ..model import CodedBTF, Model, TauSpec, parse_tau
 from ..points.grid import stream_points
 from ..points.preprocessing import LogOffset, Preprocessor, Standardization, StdMode
@@ -25,7 +31,9 @@ from .jobs import Header, Source, run_plan
 
 __all__ = [
     "FixedTau",
+    "batch_errors",
     "check_candidates",
+    "check_model_objective",
     "coded_btf",
     "encode",
     "encode_levels",
@@ -75,6 +83,7 @@ def encode(
     scheduler: str | None = None,
     workers: int | None = None,
     candidates: int | None = DEFAULT_CANDIDATES,
+    objective: str = "log",
 ) -> CodedBTF:
     """Sparse representation of one BTF on a trained model (paper §3.3, Eq. 3).
 
@@ -86,6 +95,10 @@ def encode(
     ``candidates``: dictionaries projected exactly per point and channel after the screening
     (:func:`~sparsebtf.learning.coding.screen_dictionaries`); None: every dictionary, the
     paper's exhaustive rule. The coded file records the rule (:func:`rule_params`).
+    ``objective``: the error the dictionary choice, the coefficients kept and the ε rule
+    minimise (:mod:`sparsebtf.learning.objective`): "log" (the paper's rule), "linear"
+    (first-order linear RGB) or "display" (the display mapping's); ``eps`` is in its units.
+    The coded file records it (``params["objective"]``, absent for "log").
     """
     return encode_levels(
         btf,
@@ -101,6 +114,7 @@ def encode(
         scheduler=scheduler,
         workers=workers,
         candidates=candidates,
+        objective=objective,
     )[0]
 
 
@@ -153,6 +167,36 @@ def rule_params(candidates: int | None) -> dict[str, Any]:
     return {"dictionary_rule": "screened", "dictionary_candidates": int(candidates)}
 
 
+def check_model_objective(objective: object, model: Model) -> str:
+    """``objective`` checked (:func:`~sparsebtf.learning.objective.check_objective`) against
+    the model: a weighted one needs a Y, U, V model of log-YUV data points."""
+    name = check_objective(objective)
+    if name != "log" and (model.transform != "log_yuv" or set(model.channels) != {"Y", "U", "V"}):
+        raise BTFInputError(
+            f"the {name} objective weighs log-YUV errors by their effect on RGB: it needs a "
+            f"model of Y, U, V log-YUV data points (this one: channels {model.channels}, "
+            f"preprocessing {model.transform}); use the log objective"
+        )
+    return name
+
+
+def batch_errors(x: np.ndarray, pre: Preprocessor, objective: str
+                 ) -> list[ChannelError] | None:  # fmt: skip
+    """The Y, U, V errors of a batch of standardised points in a linear or display objective
+    (:class:`~sparsebtf.learning.objective.ChannelError`), from the batch as
+    :func:`~sparsebtf.points.grid.stream_points` gives it ((B, …, 3) or planar (3, B, …));
+    None for the log objective."""
+    if objective == "log":
+        return None
+    from ..points.preprocessing import yuv_to_rgb
+
+    z = x if x.shape[-1] == 3 and x.ndim == 6 else np.moveaxis(x, 0, -1)
+    st = pre.stats
+    log_rgb = np.ascontiguousarray(yuv_to_rgb(st.invert(z)), dtype=np.float32)
+    return [ChannelError.for_batch(objective, log_rgb, st.std, st.bound, st.eps, c)
+            for c in range(3)]  # fmt: skip
+
+
 @dataclass(frozen=True)
 class FixedTau:
     """Encoding at fixed sparsity levels (τ per channel, ε): one coded BTF per level.
@@ -167,11 +211,14 @@ class FixedTau:
     desc: str = "encode"
     #: dictionaries projected exactly after screening; None: all (see :func:`check_candidates`)
     candidates: int | None = None
+    #: the coding objective (:mod:`sparsebtf.learning.objective`)
+    objective: str = "log"
 
     @classmethod
     def for_model(
         cls, model: Model, taus: Sequence[TauSpec], eps: float = 1e-5, dtype: str = "float32",
         allow_below_training: bool = False, candidates: int | None = DEFAULT_CANDIDATES,
+        objective: str = "log",
     ) -> FixedTau:  # fmt: skip
         nominal = RELEASE_TAU if set(model.channels) <= set(RELEASE_TAU) else None
         levels = [parse_tau(t, model.channels, nominal=nominal) for t in taus]
@@ -179,7 +226,8 @@ class FixedTau:
         if eps < 0:
             raise BTFInputError(f"eps must be >= 0, got {eps}")
         return cls(tuple(taus), tuple(levels), eps, dtype,
-                   candidates=check_candidates(candidates, model))  # fmt: skip
+                   candidates=check_candidates(candidates, model),
+                   objective=check_model_objective(objective, model))  # fmt: skip
 
     def prepare(self, header: Header, model: Model) -> None:
         return None
@@ -199,7 +247,10 @@ class FixedTau:
         # here on the main thread, where it held both cores back)
         planar = "YUV" not in channels
         for _, x in stream_points(btf, pre, model.patch, points, batch_size, planar):
-            for c, ch in enumerate(channels):
+            errors = batch_errors(x, pre, self.objective)
+            if errors is not None:  # a linear or display objective: the channels judged jointly
+                self._code_objective(x, planar, model, errors, dt, parts)
+            for c, ch in enumerate(channels if errors is None else ()):
                 xc = x[c] if planar else x
                 taus_c = [lv[ch] for lv in self.levels]
                 coded = sparse_code_levels(
@@ -211,6 +262,29 @@ class FixedTau:
                 tick(x.shape[1] if planar else x.shape[0])
         return [{ch: SparseCodes.concatenate(p[ch]) for ch in channels} for p in parts]
 
+    def _code_objective(
+        self, x: np.ndarray, planar: bool, model: Model, errors: list[ChannelError],
+        dt: type, parts: list[dict[str, list[SparseCodes]]],
+    ) -> None:  # fmt: skip
+        """One batch under a linear or display objective: each channel by its own error
+        (:func:`~sparsebtf.learning.coding.sparse_code_objective`), then the three judged
+        together against the paper's rule and the lower levels
+        (:func:`~sparsebtf.learning.objective.joint_choice`)."""
+        channels = model.channels
+        xs = [np.ascontiguousarray(x[c] if planar else x[..., c]) for c in range(3)]
+        taus = [[lv[ch] for lv in self.levels] for ch in channels]
+        judged, log = [], []
+        for c, ch in enumerate(channels):
+            j, g = sparse_code_objective(xs[c], model.dictionaries[ch], taus[c], self.eps, dt,
+                                         self.candidates, errors[c])  # fmt: skip
+            judged.append(j)
+            log.append(g)
+        chosen = joint_choice(xs, errors, judged, log,
+                              [model.dictionaries[ch] for ch in channels], taus)  # fmt: skip
+        for c, ch in enumerate(channels):
+            for j, sc in enumerate(chosen[c]):
+                parts[j][ch].append(sc)
+
     def finish(
         self, header: Header, model: Model, stats: Standardization,
         parts: list[list[dict[str, SparseCodes]]], extra: None,
@@ -220,7 +294,7 @@ class FixedTau:
                 header, model,
                 {ch: SparseCodes.concatenate([p[j][ch] for p in parts]) for ch in model.channels},
                 stats, {"tau": taus_c, "eps": self.eps, "dtype": self.dtype,
-                        **rule_params(self.candidates)},
+                        **rule_params(self.candidates), **objective_params(self.objective)},
             )
             for j, taus_c in enumerate(self.levels)
         ]  # fmt: skip
@@ -242,9 +316,14 @@ def encode_levels(
     scheduler: str | None = None,
     workers: int | None = None,
     candidates: int | None = DEFAULT_CANDIDATES,
+    objective: str = "log",
 ) -> list[CodedBTF]:
-    """:func:`encode` at several sparsity levels from one pass (projections are shared)."""
-    plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training, candidates)
+    """:func:`encode` at several sparsity levels from one pass (projections are shared).
+
+    Under a weighted ``objective`` each point's error in it never grows with the level's τ
+    (:func:`~sparsebtf.learning.objective.weighted_code_levels`)."""
+    plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training, candidates,
+                              objective)
     (coded,) = run_plan(
         [Source.of(btf)], model, plan, std_mode=std_mode,
         log_offset=log_offset,

@@ -53,6 +53,7 @@ def encode_many(
     workers: int | None = None,
     checkpoint_dir: str | os.PathLike[str] | None = None,
     candidates: int | None = DEFAULT_CANDIDATES,
+    objective: str = "log",
 ) -> Iterator[CodedBTF]:
     """Encode every BTF of ``sources`` on ``model``; yield their coded BTFs in order.
 
@@ -68,6 +69,8 @@ def encode_many(
     already holds (:mod:`.checkpoint`; the coded BTFs are those of an uninterrupted run).
     ``candidates``: dictionaries projected exactly per point after screening; None: every
     dictionary (the paper's exhaustive rule; see :func:`~sparsebtf.codec.encode`).
+    ``objective``: the error coded for, "log" (the paper's), "linear" or "display"
+    (:mod:`sparsebtf.learning.objective`), at fixed τ and in rate control alike.
     """
     if not sources:
         raise BTFInputError("nothing to encode: give at least one BTF")
@@ -77,10 +80,12 @@ def encode_many(
         plan: FixedTau | RateTargets = RateTargets(
             target_bytes=target_bytes, target_ratio=target_ratio, per_material=per_material,
             budget=budget, weighting=weighting, dtype=dtype, candidates=candidates,
+            objective=objective,
         ).check(model)  # fmt: skip
     else:
         taus = [tau if tau is not None else (885, 64, 64)]
-        plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training, candidates)
+        plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training, candidates,
+                                  objective)
     for levels in run_plan(
         [Source.of(s, crop) for s in sources], model, plan, std_mode=std_mode,
         log_offset=log_offset,

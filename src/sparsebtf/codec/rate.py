@@ -19,6 +19,7 @@ from ..data.btf import BTF
 from ..errors import BTFInputError, UnreachableTargetError
 from ..learning.coding import DEFAULT_CANDIDATES, screen_dictionaries, topk_abs
 from ..learning.cost import DICTIONARY_ENTRY_BYTES, location_width, raw_bytes
+from ..learning.objective import DISPLAY_A, DISPLAY_GAMMA, objective_params
 from ..learning.parallel import parallel_map
 from ..learning.rate_control import PAPER_SPLIT, ChannelCandidates, allocate, reference_counts
 from ..learning.tensor import project
@@ -31,7 +32,7 @@ from ..points.preprocessing import (
     Standardization,
     StdMode,
 )
-from .encode import check_candidates, coded_btf, rule_params
+from .encode import batch_errors, check_candidates, check_model_objective, coded_btf, rule_params
 from .jobs import Header, Source, run_plan
 
 __all__ = [
@@ -123,6 +124,8 @@ def _point_weights(
       unit standardised error in channel c (U errors cost 1.4x Y errors, V 0.55x).
     * ``rgb`` (default): the same to first order in linear RGB, where a log error δ at value
       x costs x²δ²: ``mean_j σ_{j,c}² Σ_r (YUV_TO_RGB[r, c])² · mean_texels x_{r,j}²``.
+    * ``display`` (the display objective's): the same with x replaced by the derivative of
+      the display mapping a·x^(1/γ) times x, (a/γ)·x^(1/γ), and 0 where it clips at 1.
     """
     b = x.shape[0]
     c = len(channels)
@@ -136,6 +139,9 @@ def _point_weights(
         w = m2.sum(axis=0) * sd2.mean(axis=0)
         return np.broadcast_to(w[:c], (b, c)).copy()
     rgb = np.maximum(pre.inverse(x), 0)
+    if weighting == "display":
+        d = np.power(rgb, 1 / DISPLAY_GAMMA)
+        rgb = np.where(DISPLAY_A * d < 1, (DISPLAY_A / DISPLAY_GAMMA) * d, 0.0)
     g = np.square(rgb, dtype=np.float64).mean(axis=(1, 2)).reshape(b, -1, 3)  # (b, J, rgb)
     return np.einsum("bjr,rc,jc->bc", g, m2, sd2)[:, :c] / sd2.shape[0]
 
@@ -165,6 +171,10 @@ class RateTargets:
     #: dictionaries projected exactly per point after screening (None: all); give it through
     #: :meth:`check`, which keeps None where it changes nothing
     candidates: int | None = None
+    #: the coding objective (:mod:`sparsebtf.learning.objective`): with "linear" or "display"
+    #: each point's dictionary is the one of least error in it at the reference count, and
+    #: the allocation weighs points by its first-order weights ("rgb", "display")
+    objective: str = "log"
 
     def check(self, model: Model) -> RateTargets:
         """Refuse bad parameters before any work; returns self."""
@@ -184,8 +194,20 @@ class RateTargets:
             raise BTFInputError(f"candidate_factor must be >= 1, got {self.candidate_factor}")
         if "YUV" in model.channels:
             raise BTFInputError("rate control supports the 4D (Y, U, V) models only")
+        check_model_objective(self.objective, model)
+        if self.objective != "log" and self.weighting != "rgb":
+            raise BTFInputError(
+                f"the {self.objective} objective weighs the allocation itself; the weighting "
+                f"{self.weighting!r} applies to the log objective only"
+            )
         candidates = check_candidates(self.candidates, model)
         return self if candidates == self.candidates else replace(self, candidates=candidates)
+
+    @property
+    def point_weighting(self) -> str:
+        """The allocation's weighting (:func:`_point_weights`): the objective's first-order
+        weights for "linear" ("rgb") and "display", else :attr:`weighting`."""
+        return "display" if self.objective == "display" else self.weighting
 
     def prepare(self, header: Header, model: Model) -> dict[str, Any]:
         """The BTF's targets, reference counts and candidate counts per level."""
@@ -240,7 +262,8 @@ class RateTargets:
         }  # fmt: skip
         points = np.arange(lo, hi)
         for _, x in stream_points(btf, pre, model.patch, points, batch_size):
-            w = _point_weights(x, pre, stats, channels, self.weighting)
+            w = _point_weights(x, pre, stats, channels, self.point_weighting)
+            judge = batch_errors(x, pre, self.objective)
             for c, ch in enumerate(channels):
                 xc = np.ascontiguousarray(x[..., c], dtype=dt)
                 flat = xc.reshape(xc.shape[0], -1)
@@ -262,14 +285,19 @@ class RateTargets:
                     return idx, s[idx]
 
                 res = dict(zip(pairs, parallel_map(task, pairs), strict=True))
+                losses = None if judge is None else _objective_losses(
+                    xc, res, pairs, [r[ch] for r in refs], mats[ch], judge[c])
                 for i in range(xc.shape[0]):
                     ks = [k for k in range(n_k) if mask[i, k]]
                     opts = {k: res[i, k] for k in ks}
                     cums = [np.cumsum(opts[k][1].astype(np.float64) ** 2) for k in ks]
                     for lv in range(n_lv):
                         r = refs[lv][ch]
-                        # least residual at the reference count; ties: lowest k
-                        k = ks[int(np.argmax([cs[min(r, cs.size) - 1] for cs in cums]))]
+                        # least residual at the reference count (in the objective); ties:
+                        # lowest k
+                        k = (ks[int(np.argmax([cs[min(r, cs.size) - 1] for cs in cums]))]
+                             if losses is None else
+                             ks[int(np.argmin([losses[i, k][lv] for k in ks]))])  # fmt: skip
                         n = ncand[lv][ch]
                         d = parts[lv][ch]
                         d["m"].append(k)
@@ -313,7 +341,7 @@ class RateTargets:
                     "budget": self.budget,
                     "target_material_bytes": int(t),
                     "material_bytes": summary["bytes"],
-                    "weighting": self.weighting,
+                    "weighting": self.point_weighting,
                     "reference_counts": extra["refs"][lv],
                     "candidates": extra["ncand"][lv],
                     "split": list(extra["split"]),
@@ -326,6 +354,7 @@ class RateTargets:
                     "dtype": self.dtype,
                     "rate_control": control,
                     **rule_params(self.candidates),
+                    **objective_params(self.objective),
                 }
                 return coded_btf(header, model, codes, stats, params)
 
@@ -335,6 +364,34 @@ class RateTargets:
             else:
                 out.append(build(int(target)))
         return out
+
+
+def _objective_losses(
+    xc: np.ndarray, res: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+    pairs: list[tuple[int, int]], counts: list[int], mats: list[list[np.ndarray]],
+    judge: Any,
+) -> dict[tuple[int, int], list[float]]:  # fmt: skip
+    """Per (point, dictionary) the objective's error (a
+    :class:`~sparsebtf.learning.objective.ChannelError`) of its top ``counts[lv]``
+    coefficients, per level: one sparse reconstruction per level."""
+    from ..learning.tensor import reconstruct_sparse
+
+    shape = xc.shape[1:]
+
+    def task(ik: tuple[int, int]) -> list[float]:
+        i, k = ik
+        idx, vals = res[i, k]
+        loc = np.stack(np.unravel_index(idx, shape), axis=1)
+        m64 = [m.astype(np.float64) for m in mats[k]]
+        ref = judge.reference(i)
+        out = []
+        for r in counts:
+            n = min(r, idx.size)
+            rec = reconstruct_sparse(loc[:n], vals[:n].astype(np.float64), m64)
+            out.append(judge(i, rec - xc[i], ref))
+        return out
+
+    return dict(zip(pairs, parallel_map(task, pairs), strict=True))
 
 
 def _table4_estimate(stored: int, header: Header | BTF, n_points: int, n_channels: int,
@@ -412,6 +469,7 @@ def encode_rate_levels(
     scheduler: str | None = None,
     workers: int | None = None,
     candidates: int | None = DEFAULT_CANDIDATES,
+    objective: str = "log",
 ) -> list[CodedBTF]:
     """Encode to per-material byte targets by rate control (one projection pass for all).
 
@@ -429,11 +487,15 @@ def encode_rate_levels(
     (:mod:`sparsebtf.execution`), with the same result. ``candidates``: dictionaries projected
     exactly per point after screening, the others ranked by a partial projection
     (:func:`~sparsebtf.learning.coding.screen_dictionaries`); None: every dictionary.
+    ``objective`` "linear" or "display" (:mod:`sparsebtf.learning.objective`): each point's
+    dictionary is the one of least error in that objective at its reference count, and the
+    allocation weighs the points by the objective's first-order weights
+    (:attr:`RateTargets.point_weighting`).
     """
     plan = RateTargets(
         tuple(int(t) for t in targets), weighting=weighting,
         split=None if split is None else tuple(split), candidate_factor=candidate_factor,
-        dtype=dtype, candidates=candidates,
+        dtype=dtype, candidates=candidates, objective=objective,
     ).check(model)  # fmt: skip
     (coded,) = run_plan(
         [Source.of(btf)], model, plan, std_mode=std_mode,
@@ -462,6 +524,7 @@ def encode_to_size(
     scheduler: str | None = None,
     workers: int | None = None,
     candidates: int | None = DEFAULT_CANDIDATES,
+    objective: str = "log",
 ) -> CodedBTF:
     """Encode ``btf`` to a target size or compression ratio by rate control.
 
@@ -471,11 +534,13 @@ def encode_to_size(
     :func:`material_target_bytes`); the result lands within one coefficient (5 bytes) of the
     target. ``budget="stored"`` (needs ``per_material``): they are the coded file's size
     (``bytes_stored``, ``compression_ratio_per_material``), met to within
-    :data:`STORED_TOLERANCE` below. See :func:`encode_rate_levels` (and ``candidates``).
+    :data:`STORED_TOLERANCE` below. See :func:`encode_rate_levels` (and ``candidates``,
+    ``objective``).
     """
     plan = RateTargets(
         target_bytes=target_bytes, target_ratio=target_ratio, per_material=per_material,
         budget=budget, weighting=weighting, dtype=dtype, candidates=candidates,
+        objective=objective,
     ).check(model)  # fmt: skip
     ((coded,),) = run_plan(
         [Source.of(btf)], model, plan, std_mode=std_mode, log_offset=log_offset,

@@ -30,12 +30,16 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from ..errors import BTFInputError
 from .parallel import parallel_map
 from .tensor import project, reconstruct_sparse, sum_squares
+
+if TYPE_CHECKING:
+    from .objective import ChannelError
 
 __all__ = [
     "DEFAULT_CANDIDATES",
@@ -48,6 +52,7 @@ __all__ = [
     "screen_dictionaries",
     "sparse_code",
     "sparse_code_levels",
+    "sparse_code_objective",
     "topk_abs",
 ]
 
@@ -339,6 +344,7 @@ def sparse_code(
     eps: float = 0.0,
     dtype: type = np.float32,
     candidates: int | None = None,
+    error: ChannelError | None = None,
 ) -> SparseCodes:
     """Code a batch of data points on an ensemble (Eq. 3 + the §3.3 selection rule).
 
@@ -351,25 +357,21 @@ def sparse_code(
     dtype : arithmetic of the projections (float32 is ~2× faster; energies stay float64).
     candidates : dictionaries projected exactly per point after screening
         (:func:`screen_dictionaries`); None or >= K: all of them (the exhaustive rule).
+    error : None (the paper's rule on the standardised values), or the batch's error in a
+        linear or display objective: the rule of :mod:`.objective` (ε in its units; the
+        screening still ranks by the log rule).
     """
-    return sparse_code_levels(batch, dictionaries, [tau], eps, dtype, candidates)[0]
+    return sparse_code_levels(batch, dictionaries, [tau], eps, dtype, candidates, error)[0]
 
 
-def sparse_code_levels(
-    batch: np.ndarray,
-    dictionaries: Sequence[np.ndarray],
-    taus: Sequence[int],
-    eps: float = 0.0,
-    dtype: type = np.float32,
-    candidates: int | None = None,
-) -> list[SparseCodes]:
-    """:func:`sparse_code` at several caps τ from one projection per (point, dictionary).
-
-    The projections do not depend on τ, so a quality–storage curve costs one encoding.
-    Returns one :class:`SparseCodes` per τ, identical to separate :func:`sparse_code` calls
-    (with screening, a point's candidates are the union of every level's best ``candidates``,
-    so they may differ from a single level's).
-    """
+def _prepare(
+    batch: np.ndarray, dictionaries: Sequence[np.ndarray], taus: Sequence[int], eps: float,
+    dtype: type, candidates: int | None,
+) -> tuple[np.ndarray, tuple[int, ...], list[int], np.ndarray, np.ndarray]:  # fmt: skip
+    """What every coding rule starts from: the batch checked against the ensemble and made
+    contiguous in ``dtype``, its point shape, the levels clipped to the point size, the
+    (B, K) mask of the dictionaries projected exactly (:func:`screen_dictionaries`) and the
+    points' energies ‖X‖²."""
     x = np.asarray(batch)
     shape = tuple(int(s) for s in x.shape[1:])
     if len(dictionaries) != len(shape):
@@ -384,9 +386,7 @@ def sparse_code_levels(
     n_dict = dictionaries[0].shape[0]
     size = int(np.prod(shape))
     levels = [min(int(t), size) for t in taus]
-    tmax = max(levels)
     b = x.shape[0]
-    nl = len(levels)
     xc = np.ascontiguousarray(x, dtype=dtype)
     energy = point_energies(xc)
 
@@ -396,6 +396,36 @@ def sparse_code_levels(
     else:
         mask = screen_dictionaries(xc, dictionaries, levels, eps, n_cand, dtype=dtype,
                                    energy=energy)
+    return xc, shape, levels, mask, energy
+
+
+def sparse_code_levels(
+    batch: np.ndarray,
+    dictionaries: Sequence[np.ndarray],
+    taus: Sequence[int],
+    eps: float = 0.0,
+    dtype: type = np.float32,
+    candidates: int | None = None,
+    error: ChannelError | None = None,
+) -> list[SparseCodes]:
+    """:func:`sparse_code` at several caps τ from one projection per (point, dictionary).
+
+    The projections do not depend on τ, so a quality–storage curve costs one encoding.
+    Returns one :class:`SparseCodes` per τ, identical to separate :func:`sparse_code` calls
+    (with screening, a point's candidates are the union of every level's best ``candidates``,
+    so they may differ from a single level's). With ``error`` (:func:`sparse_code`) each
+    point's error in that objective at a larger τ is never above that at a smaller one
+    (:func:`~.objective.judged_code_levels`).
+    """
+    xc, shape, levels, mask, energy = _prepare(batch, dictionaries, taus, eps, dtype,
+                                               candidates)
+    if error is not None:
+        return _judged(xc, error, dictionaries, levels, eps, dtype, mask, energy)[0]
+    n_dict = dictionaries[0].shape[0]
+    size = int(np.prod(shape))
+    tmax = max(levels)
+    b = xc.shape[0]
+    nl = len(levels)
     # dictionaries left out by the screening lose every comparison of the rule
     counts = np.full((nl, b, n_dict), np.iinfo(np.int64).max, dtype=np.int64)
     errs = np.full((nl, b, n_dict), np.inf)
@@ -449,6 +479,38 @@ def sparse_code_levels(
             )
         )
     return out
+
+
+def _judged(x: np.ndarray, error: ChannelError, dictionaries: Sequence[np.ndarray],
+            levels: list[int], eps: float, dtype: type, mask: np.ndarray, energy: np.ndarray
+            ) -> tuple[list[SparseCodes], list[SparseCodes]]:  # fmt: skip
+    """:func:`sparse_code_levels` judged by a linear or display objective (:mod:`.objective`),
+    and the log rule's codes from the same projections: (judged, log), one per level."""
+    from .objective import judged_code_levels
+
+    if error.log_rgb.shape[:-1] != x.shape:
+        raise BTFInputError(f"the objective's values {error.log_rgb.shape} do not match the "
+                            f"batch {x.shape}")  # fmt: skip
+    shape = tuple(int(s) for s in x.shape[1:])
+    judged, log = judged_code_levels(x, dictionaries, levels, eps, dtype, mask, error, energy)
+
+    def codes(member, counts, vals, idx, errs) -> SparseCodes:  # type: ignore[no-untyped-def]
+        locs = np.stack(np.unravel_index(idx, shape), axis=1).astype(np.int32)
+        return SparseCodes(shape, member, counts, vals, locs, errs)
+
+    return [codes(*j) for j in judged], [codes(*g) for g in log]
+
+
+def sparse_code_objective(
+    batch: np.ndarray, dictionaries: Sequence[np.ndarray], taus: Sequence[int], eps: float,
+    dtype: type, candidates: int | None, error: ChannelError,
+) -> tuple[list[SparseCodes], list[SparseCodes]]:  # fmt: skip
+    """:func:`sparse_code_levels` with ``error`` (a linear or display objective), together
+    with the paper's rule's codes of the same projections (the alternative a caller may
+    compare the three channels' joint error against, :func:`~.objective.joint_choice`):
+    (judged codes, log-rule codes), one per τ each."""
+    xc, _, levels, mask, energy = _prepare(batch, dictionaries, taus, eps, dtype, candidates)
+    return _judged(xc, error, dictionaries, levels, eps, dtype, mask, energy)
 
 
 def reconstruct_points(

@@ -22,16 +22,17 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=3``; 2 and 1 are read too
                             (release imports); schemas 1–2 without it: no clamp
     /lights, /views         direction tables, as in the dense file
 
-Points are in release order (``point = row_block + n_row_blocks·col_block``). Schema 3 stores
-each dictionary's locations once with a bit per point using them, the values as byte planes in
-that order, and every dataset of ``codes/`` and
-``stats/`` with HDF5's built-in ``shuffle`` + ``deflate`` filters (lossless; no plugin needed);
-the reader gives them back, like schemas 1–2 store them, by decreasing magnitude (ties by
-increasing location), so truncating τ is a prefix read. Schema 2 added the fletcher32 checksum
-to every dataset and HDF5 structures with metadata checksums (:mod:`sparsebtf._hdf5`): a
-flipped bit in any dataset is reported as corruption naming the dataset. The reader checks
-every attribute and dataset (dtype, shape, size against the file and the memory budget,
-finiteness) before using it.
+Points are in release order (``point = row_block + n_row_blocks·col_block``). Schema 3
+stores each dictionary's locations once with a bit per point using them, the values as byte
+planes in that order, and every dataset of ``codes/`` and ``stats/`` with HDF5's built-in
+``shuffle`` + ``deflate`` filters (lossless; no plugin needed); the reader gives them back,
+like schemas 1–2 store them, by decreasing magnitude (ties by increasing location), so
+truncating τ is a prefix read. ``params_json`` ``"objective"`` records a coding objective
+other than the paper's ("linear" or "display"; absent: "log"). Schema 2 added the fletcher32
+checksum to every dataset and HDF5 structures with metadata checksums
+(:mod:`sparsebtf._hdf5`): a flipped bit in any dataset is reported as corruption naming the
+dataset. The reader checks every attribute and dataset (dtype, shape, size against the file
+and the memory budget, finiteness) before using it.
 """
 
 from __future__ import annotations
@@ -61,6 +62,7 @@ from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes
 from ..learning.cost import location_width
+from ..learning.objective import OBJECTIVES
 from ..model import CodedBTF, Model, model_text
 from ..points.preprocessing import EPS, STD_MODES, Standardization
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
@@ -337,6 +339,7 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         params = read_json_attr(f, "params_json", where)
         check_tau_param(params, "tau", where)
         check_str_param(params, "model_file", where)
+        check_str_param(params, "objective", where, OBJECTIVES)
         attrs = read_json_attr(f, "attrs_json", where)
         root = require(f, "codes", where)
         channels = _channels(f, root, where)

@@ -14,6 +14,10 @@ continue in the neighbouring copy). Colours are linear RGB.
   creases), rough plastic with a darker crease texture.
 * ``metal`` — brushed metal with V grooves: a grooved mesh, anisotropic rough conductor
   brushed along x.
+* ``copper`` — glossy bumpy copper: a smooth periodic height field (four seeded sinusoids
+  of whole periods, heights ±0.3), an isotropic GGX conductor of roughness α = 0.15. Narrow
+  highlights next to hard shadows (at 20×20 texels, 1 spp: 21 % exact zeros, 7.9 % of the
+  values above 1, the largest 66): the case of a coding objective in linear RGB.
 """
 
 from __future__ import annotations
@@ -256,6 +260,27 @@ def _metal(seed: int) -> dict[str, Any]:
     return {"type": "scene", "metal": _mesh("metal", heightfield_mesh(height), bsdf)}
 
 
+def copper_height(seed: int, n: int = 128) -> np.ndarray:
+    """The ``copper`` sample's height map: (n, n), zero-mean, a sum of four seeded periodic
+    sinusoids of 1–3 whole periods per tile (smooth bumps, slopes up to ~0.5)."""
+    rng = np.random.default_rng([seed, 6])
+    t = (np.arange(n) + 0.5) / n
+    yy, xx = np.meshgrid(t, t, indexing="ij")
+    height = np.zeros((n, n))
+    for _ in range(4):
+        fx, fy = rng.integers(1, 4, 2) * rng.choice([-1, 1], 2)
+        phase = rng.uniform(0, 2 * np.pi)
+        height += rng.uniform(0.5, 1.0) * np.cos(2 * np.pi * (fx * xx + fy * yy) + phase)
+    height -= height.mean()
+    return height / np.abs(height).max()
+
+
+def _copper(seed: int) -> dict[str, Any]:
+    bsdf = {"type": "roughconductor", "distribution": "ggx", "material": "Cu", "alpha": 0.15}
+    return {"type": "scene",
+            "copper": _mesh("copper", heightfield_mesh(copper_height(seed), 0.3), bsdf)}
+
+
 SAMPLES: dict[str, Sample] = {
     s.name: s
     for s in (
@@ -267,5 +292,7 @@ SAMPLES: dict[str, Sample] = {
         Sample("leather", "embossed leather: displaced mesh from a cellular height map",
                _leather),
         Sample("metal", "brushed metal with V grooves: anisotropic rough conductor", _metal),
+        Sample("copper", "glossy bumpy copper: smooth height field, isotropic GGX conductor "
+               "(alpha 0.15)", _copper),
     )
 }
