@@ -117,9 +117,9 @@ class NeuMIPMethod(NeuralMethod):
 
     def __init__(
         self,
-        queries_per_texel: int = 8000,
+        queries_per_texel: int = 6000,
         queries_per_step: int = 16,
-        pool: int = 8000,
+        pool: int = 6000,
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
@@ -132,7 +132,7 @@ class NeuMIPMethod(NeuralMethod):
     @classmethod
     def from_config(cls, config: Any) -> NeuMIPMethod:
         if getattr(config, "name", "full") == "quick":
-            return cls(queries_per_texel=4000, pool=4000)
+            return cls(queries_per_texel=3000, pool=3000)
         return cls()
 
     def channels(self, budget_bytes: int, texels: int) -> int:

@@ -96,10 +96,10 @@ class RJGW19Method(NeuralMethod):
 
     def __init__(
         self,
-        queries_per_texel: int = 6000,
+        queries_per_texel: int = 5000,
         texels_per_step: int = 64,
         queries_per_step: int = 128,
-        pool: int = 6000,
+        pool: int = 5000,
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
