@@ -117,9 +117,9 @@ class NeuMIPMethod(NeuralMethod):
 
     def __init__(
         self,
-        queries_per_texel: int = 6000,
-        queries_per_step: int = 16,
-        pool: int = 6000,
+        queries_per_texel: int = 2500,
+        queries_per_step: int = 2,
+        pool: int = 4000,
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
@@ -132,7 +132,7 @@ class NeuMIPMethod(NeuralMethod):
     @classmethod
     def from_config(cls, config: Any) -> NeuMIPMethod:
         if getattr(config, "name", "full") == "quick":
-            return cls(queries_per_texel=3000, pool=3000)
+            return cls(queries_per_texel=1200, pool=3000)
         return cls()
 
     def channels(self, budget_bytes: int, texels: int) -> int:

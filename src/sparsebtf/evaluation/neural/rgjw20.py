@@ -146,10 +146,10 @@ class RGJW20Method(NeuralMethod):
 
     def __init__(
         self,
-        steps: int = 1500,
-        texels_per_step: int = 32,
-        encoder_samples: int = 256,
-        loss_samples: int = 256,
+        steps: int = 3000,
+        texels_per_step: int = 16,
+        encoder_samples: int = 128,
+        loss_samples: int = 128,
         train_texels: int = 400,
         pool: int = 1024,
         code_samples: int = 2048,
@@ -170,7 +170,7 @@ class RGJW20Method(NeuralMethod):
     @classmethod
     def from_config(cls, config: Any) -> RGJW20Method:
         if getattr(config, "name", "full") == "quick":
-            return cls(steps=400)
+            return cls(steps=800)
         return cls()
 
     # -- sizes ------------------------------------------------------------------------------
@@ -357,7 +357,7 @@ class RGJW20FineTunedMethod(RGJW20Method):
     @classmethod
     def from_config(cls, config: Any) -> RGJW20FineTunedMethod:
         if getattr(config, "name", "full") == "quick":
-            return cls(steps=400, finetune_steps=60)
+            return cls(steps=800, finetune_steps=60)
         return cls()
 
     def training_budget(self) -> dict[str, Any]:

@@ -96,10 +96,10 @@ class RJGW19Method(NeuralMethod):
 
     def __init__(
         self,
-        queries_per_texel: int = 5000,
-        texels_per_step: int = 64,
-        queries_per_step: int = 128,
-        pool: int = 5000,
+        queries_per_texel: int = 2000,
+        texels_per_step: int = 32,
+        queries_per_step: int = 32,
+        pool: int = 4000,
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
@@ -113,7 +113,7 @@ class RJGW19Method(NeuralMethod):
     @classmethod
     def from_config(cls, config: Any) -> RJGW19Method:
         if getattr(config, "name", "full") == "quick":
-            return cls(queries_per_texel=3000, pool=3000)
+            return cls(queries_per_texel=1200, pool=3000)
         return cls()
 
     def latent_size(self, budget_bytes: int, texels: int) -> int:
