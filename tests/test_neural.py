@@ -191,6 +191,13 @@ def test_budget_too_small_gives_no_reconstruction_and_a_note(name, test_btf):
     assert coding.note and "B" in coding.note
 
 
+def test_rgjw20_codes_only_after_fit(test_btf):
+    from sparsebtf.errors import BTFInputError
+
+    with pytest.raises(BTFInputError, match="fit"):
+        rgjw20.RGJW20Method(**TINY_RGJW20).code(test_btf, budgets("rgjw20"))
+
+
 def test_query_rejects_unequal_lengths(codings):
     from sparsebtf.errors import BTFInputError
 
