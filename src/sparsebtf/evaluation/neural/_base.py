@@ -1,0 +1,83 @@
+"""What the three neural methods share as :class:`~..methods.base.Method` subclasses: the
+seed, threads, progress and training-budget bookkeeping, the size search under a byte budget
+and the :class:`~..methods.base.Coding` they return."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+from ...data.btf import BTF
+from ..methods.base import Budget, Coding, FitContext, Method
+from ._torch import NeuralBTF, mlp_params
+
+__all__ = ["NeuralMethod", "largest_size"]
+
+
+def largest_size(budget_bytes: int, texels: int, sizes: Callable[[int], list[int]],
+                 stored_decoder: bool) -> int:  # fmt: skip
+    """The largest n with 2·texels·n + 2·(decoder parameters at n) <= ``budget_bytes``
+    (binary16 values; the decoder term only when ``stored_decoder``), or 0 if none.
+
+    ``sizes(n)`` gives the decoder's widths when each texel stores n values; its parameter
+    count is affine in n (n enters the first layer only), p(n) = p(0) + n·(p(1) − p(0)), so
+    n = ⌊(budget/2 − p(0)) / (texels + p(1) − p(0))⌋.
+    """
+    p0 = mlp_params(sizes(0)) if stored_decoder else 0
+    per_n = (mlp_params(sizes(1)) if stored_decoder else 0) - p0
+    n = math.floor((budget_bytes / 2 - p0) / (texels + per_n))
+    return max(n, 0)
+
+
+class NeuralMethod(Method):
+    """Base of the neural baselines: ``seed`` (None: the run's ``FitContext.seed``),
+    ``threads`` (torch intra-op threads; None: one per usable core), ``progress``; the training
+    cost accumulates in ``seconds_`` and ``trainings_``."""
+
+    def __init__(self, seed: int | None = None, threads: int | None = None,
+                 progress: bool | None = None) -> None:  # fmt: skip
+        self.seed = seed
+        self.threads = threads
+        self.progress = progress
+        self.seconds_ = 0.0
+        self.trainings_ = 0
+        self._run_seed = 0
+
+    def fit(self, train: Sequence[BTF], context: FitContext) -> NeuralMethod:
+        self._run_seed = int(context.seed)
+        if self.progress is None and context.progress is not None:
+            self.progress = context.progress
+        return self
+
+    @property
+    def seed_(self) -> int:
+        """The seed in use: the method's own, else the run's."""
+        return self._run_seed if self.seed is None else int(self.seed)
+
+    def describe(self) -> dict[str, Any]:
+        out = super().describe()
+        recipe = getattr(self, "recipe", None)
+        if recipe is not None:
+            out["recipe"] = {k: (list(v) if isinstance(v, tuple) else v)
+                             for k, v in vars(recipe).items()}  # fmt: skip
+        return out
+
+    @staticmethod
+    def coding(rec: NeuralBTF, budget: Budget, shared_decoder: bool,
+               info: dict[str, Any]) -> Coding:  # fmt: skip
+        """The coding of ``rec``: its bytes counted from its stored binary16 arrays (the code,
+        and the decoder too unless ``shared_decoder``)."""
+        code_bytes = 2 * rec.code.size
+        decoder_bytes = 2 * rec.decoder_values()
+        material = code_bytes + (0 if shared_decoder else decoder_bytes)
+        full = {"matching": budget.matching, "level": budget.level,
+                "budget_bytes": budget.material_bytes, "code_bytes": code_bytes,
+                "decoder_bytes": decoder_bytes, "decoder_shared": shared_decoder,
+                "decoder_params": rec.decoder_values(), **info}  # fmt: skip
+        return Coding(rec, material, decoder_bytes if shared_decoder else 0, full)
+
+    @staticmethod
+    def nothing_fits(budget: Budget, why: str) -> Coding:
+        return Coding(None, 0, 0, {"matching": budget.matching, "level": budget.level,
+                                   "budget_bytes": budget.material_bytes}, note=why)  # fmt: skip

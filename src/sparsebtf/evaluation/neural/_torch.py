@@ -1,0 +1,376 @@
+"""What the neural baselines share: features, the log1p domain, binary16 storage, seeding,
+sample pools, the training loop and the lazy reconstruction.
+
+Conventions (docs/neural-baselines.md):
+
+* a direction enters a network as the (x, y) of its unit vector (z implied), light then view;
+* targets are log1p(max(y, 0)) of linear RGB ``y``; a log1p network's output ``o`` decodes to
+  ``expm1(o)``, clamped at 0;
+* everything stored (latents, textures, weights) is rounded to binary16 before the
+  reconstruction is built, so what is scored is what would be stored;
+* every decoder's first layer is affine in [code, ω_i.xy, ω_o.xy], so its pre-activation splits
+  exactly into a per-texel, a per-light and a per-view term, each computed once:
+  ``W₀·[c, l, v] + b₀ = (W_c·c + b₀) + W_l·l + W_v·v``. A query then costs the layers after
+  the first only (training and decoding alike).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import math
+import os
+import zlib
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from ..._progress import bar
+from ...data.btf import BTF, Index, as_index
+from ...data.directions import DirectionSet
+from ...errors import BTFInputError
+
+__all__ = [
+    "BATCH",
+    "FP16_MAX",
+    "NeuralBTF",
+    "SamplePool",
+    "adam_steps",
+    "binary16",
+    "decode_latents",
+    "direction_terms",
+    "direction_xy",
+    "init_mlp",
+    "mlp_params",
+    "read_pool",
+    "seed_generator",
+    "tail",
+    "torch_threads",
+]
+
+#: The largest finite binary16 value: stored values are clamped to ±this before rounding.
+FP16_MAX = 65504.0
+#: Queries evaluated at once when decoding (a (BATCH, width) float32 activation at a time).
+BATCH = 1 << 16
+#: A pool read holds at most this many bytes of a material's float32 values at once.
+READ_BYTES = 64 * 2**20
+
+Layers = list[tuple[torch.Tensor, torch.Tensor]]
+
+
+# -- seeding and threads ---------------------------------------------------------------------
+def seed_generator(*keys: int | str) -> torch.Generator:
+    """A CPU :class:`torch.Generator` seeded from ``keys`` (ints, or strings hashed with
+    CRC-32): the same keys give the same stream on every machine."""
+    ints = [zlib.crc32(k.encode()) if isinstance(k, str) else abs(int(k)) for k in keys]
+    state = np.random.SeedSequence(ints).generate_state(1, np.uint64)[0]
+    gen = torch.Generator()
+    gen.manual_seed(int(state) & (2**63 - 1))
+    return gen
+
+
+def default_threads() -> int:
+    """One intra-op thread unless asked for more (``threads=``; ``$SPARSEBTF_TORCH_THREADS``).
+
+    These networks are small (widths 25–128) and their batches a few thousand queries: a
+    second thread gains little, and on a busy machine it loses badly (measured: 100 NeuMIP
+    iterations took 1.0 s on one thread and 10–18 s on two with the other core loaded), while
+    one thread leaves the other core to the benchmark's scoring.
+    """
+    env = os.environ.get("SPARSEBTF_TORCH_THREADS", "")
+    return max(1, int(env)) if env.strip().isdigit() else 1
+
+
+@contextlib.contextmanager
+def torch_threads(n: int | None) -> Iterator[None]:
+    """Run the block with ``n`` intra-op threads (None: :func:`default_threads`)."""
+    old = torch.get_num_threads()
+    torch.set_num_threads(max(1, int(n)) if n else default_threads())
+    try:
+        yield
+    finally:
+        torch.set_num_threads(old)
+
+
+# -- features, storage -----------------------------------------------------------------------
+def direction_xy(directions: DirectionSet) -> torch.Tensor:
+    """(n, 2) float32: the x, y of each unit direction (z implied)."""
+    return torch.from_numpy(np.ascontiguousarray(directions.xyz[:, :2], dtype=np.float32))
+
+
+def binary16(t: torch.Tensor) -> np.ndarray:
+    """``t`` as stored: clamped to ±:data:`FP16_MAX` and rounded to binary16 (numpy)."""
+    return t.detach().clamp(-FP16_MAX, FP16_MAX).to(torch.float16).numpy().copy()
+
+
+def as_f32(a: np.ndarray) -> torch.Tensor:
+    """A stored binary16 array as a float32 tensor (exact: every binary16 is a float32)."""
+    return torch.from_numpy(np.asarray(a, dtype=np.float32))
+
+
+# -- MLPs -------------------------------------------------------------------------------------
+def init_mlp(sizes: Sequence[int], gen: torch.Generator) -> Layers:
+    """Layers (W (out, in), b (out,)) for widths ``sizes``, drawn U(±1/√fan_in) like
+    ``torch.nn.Linear`` but from ``gen``; they require gradients."""
+    layers: Layers = []
+    for fan_in, fan_out in itertools.pairwise(sizes):
+        bound = 1.0 / math.sqrt(fan_in)
+        w = (torch.rand(fan_out, fan_in, generator=gen) * 2 - 1) * bound
+        b = (torch.rand(fan_out, generator=gen) * 2 - 1) * bound
+        layers.append((w.requires_grad_(), b.requires_grad_()))
+    return layers
+
+
+def mlp_params(sizes: Sequence[int]) -> int:
+    """Weights and biases of an MLP with widths ``sizes``: Σ (in + 1)·out."""
+    return sum((a + 1) * b for a, b in itertools.pairwise(sizes))
+
+
+def flat(layers: Layers) -> list[torch.Tensor]:
+    """The tensors of ``layers`` (for an optimiser)."""
+    return [t for wb in layers for t in wb]
+
+
+def activate(h: torch.Tensor, slope: float) -> torch.Tensor:
+    """LeakyReLU with ``slope`` (0: ReLU)."""
+    return F.leaky_relu(h, slope) if slope else F.relu(h)
+
+
+def tail(pre: torch.Tensor, layers: Layers, slope: float) -> torch.Tensor:
+    """The MLP after its first layer: ``pre`` is the first layer's pre-activation (…, width₀);
+    every later layer but the last is followed by the activation."""
+    h = pre
+    for w, b in layers[1:]:
+        h = F.linear(activate(h, slope), w, b)
+    return h
+
+
+def direction_terms(
+    w0: torch.Tensor, n_code: int, lights: torch.Tensor, views: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """The per-light (nL, width) and per-view (nV, width) terms of a first layer whose input
+    is [code (n_code), light.xy, view.xy]."""
+    return lights @ w0[:, n_code:n_code + 2].T, views @ w0[:, n_code + 2:n_code + 4].T
+
+
+def decode_latents(
+    layers: Layers, z: torch.Tensor, li: torch.Tensor, vi: torch.Tensor,
+    lights: torch.Tensor, views: torch.Tensor, slope: float,
+) -> torch.Tensor:
+    """A decoder [z, ω_i.xy, ω_o.xy] → … at queries (B, Q): texel b's latents ``z[b]`` (B, n)
+    with the light and view indices ``li``, ``vi`` (B, Q) into the tables ``lights``,
+    ``views`` (n_dirs, 2). Returns the raw output (B, Q, k)."""
+    w0, b0 = layers[0]
+    n = z.shape[-1]
+    a_l, a_v = direction_terms(w0, n, lights, views)
+    pre = (z @ w0[:, :n].T + b0)[:, None] + a_l[li] + a_v[vi]
+    return tail(pre, layers, slope)
+
+
+def output(o: torch.Tensor, head: str) -> torch.Tensor:
+    """Linear RGB from a network's output (…, k), before the final clamp at 0.
+
+    ``"log1p"``: expm1(o) (k = 3). ``"neumip"``: channels 0–2 are log-YUV, mapped to log-RGB
+    (R = Y + 1.13983 V, G = Y − 0.39465 U − 0.58060 V, B = Y + 2.03211 U) and by expm1, times
+    the shadow term 0.1 + sigmoid(channels 3–5) (k = 6), as NeuMIP's code does.
+    """
+    if head == "log1p":
+        return torch.expm1(o)
+    if head == "neumip":
+        y, u, v = o[..., 0], o[..., 1], o[..., 2]
+        log_rgb = torch.stack(
+            (y + 1.13983 * v, y - 0.39465 * u - 0.58060 * v, y + 2.03211 * u), dim=-1
+        )
+        return torch.expm1(log_rgb) * (0.1 + torch.sigmoid(o[..., 3:6]))
+    raise ValueError(f"unknown output head {head!r}")
+
+
+# -- training ---------------------------------------------------------------------------------
+def adam_steps(
+    params: Sequence[torch.Tensor],
+    steps: int,
+    loss_at: Callable[[int], torch.Tensor],
+    lr: tuple[float, float],
+    desc: str,
+    progress: bool | None,
+) -> dict[str, float]:
+    """``steps`` Adam steps on ``loss_at(step)``, the learning rate decaying geometrically
+    from ``lr[0]`` to ``lr[1]``. Returns the mean loss of the first and of the last tenth."""
+    opt = torch.optim.Adam(list(params), lr=lr[0])
+    losses = np.zeros(max(steps, 0))
+    with bar(steps, desc, "step", progress) as pb:
+        for t in range(steps):
+            for group in opt.param_groups:
+                group["lr"] = lr[0] * (lr[1] / lr[0]) ** (t / max(steps - 1, 1))
+            opt.zero_grad(set_to_none=True)
+            loss = loss_at(t)
+            loss.backward()
+            opt.step()
+            losses[t] = float(loss.detach())
+            pb.update(1)
+    k = max(1, steps // 10)
+    return {"loss_first": float(losses[:k].mean()) if steps else float("nan"),
+            "loss_last": float(losses[-k:].mean()) if steps else float("nan")}  # fmt: skip
+
+
+# -- sample pools -----------------------------------------------------------------------------
+@dataclass
+class SamplePool:
+    """Random (light, view) samples of some texels of one material, held for training.
+
+    ``values`` (n, S, 3) float32 log1p(max(y, 0)); ``lights``, ``views`` (n, S) int16
+    direction indices (drawn uniformly, with replacement, per texel); ``texels`` (n,) int64
+    flat texel indices row·W + col; ``shared`` (n, P, 3) log1p values at the P pairs
+    ``shared_pairs`` common to every texel (an encoder's fixed input), or None.
+    """
+
+    values: torch.Tensor
+    lights: torch.Tensor
+    views: torch.Tensor
+    texels: np.ndarray
+    shared: torch.Tensor | None = None
+    shared_pairs: np.ndarray | None = None
+
+    def take(self, rows: torch.Tensor, cols: torch.Tensor
+             ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
+        """(values (…, 3), light index, view index) at pool rows ``rows`` and sample
+        positions ``cols`` (broadcast together)."""
+        return (self.values[rows, cols], self.lights[rows, cols].long(),
+                self.views[rows, cols].long())  # fmt: skip
+
+
+def read_pool(
+    btf: BTF,
+    n_samples: int,
+    gen: torch.Generator,
+    texels: np.ndarray | None = None,
+    shared_pairs: np.ndarray | None = None,
+    progress: bool | None = None,
+) -> SamplePool:
+    """Read ``n_samples`` random (light, view) samples of each texel of ``btf`` (``texels``:
+    flat indices, default all) in bands of rows of at most :data:`READ_BYTES`, plus the
+    values at the flat pairs ``shared_pairs`` (light·V + view) if given."""
+    h, w, nl, nv, _ = btf.shape
+    want = np.arange(h * w) if texels is None else np.unique(np.asarray(texels, np.int64))
+    row_bytes = 12 * w * nl * nv
+    band = max(1, READ_BYTES // row_bytes)
+    vals, lis, vis, shared = [], [], [], []
+    rows_needed = np.unique(want // w)
+    starts = list(range(int(rows_needed[0]), int(rows_needed[-1]) + 1, band))
+    with bar(len(starts), f"read {btf.label}", "band", progress) as pb:
+        for r0 in starts:
+            r1 = min(r0 + band, h)
+            sel = want[(want >= r0 * w) & (want < r1 * w)]
+            pb.update(1)
+            if not sel.size:
+                continue
+            block = btf.region(slice(r0, r1), slice(None)).reshape((r1 - r0) * w, nl * nv, 3)
+            block = np.log1p(np.maximum(block[sel - r0 * w], 0))
+            pairs = torch.randint(0, nl * nv, (sel.size, n_samples), generator=gen).numpy()
+            vals.append(np.take_along_axis(block, pairs[..., None], axis=1))
+            lis.append((pairs // nv).astype(np.int16))
+            vis.append((pairs % nv).astype(np.int16))
+            if shared_pairs is not None:
+                shared.append(block[:, shared_pairs])
+    return SamplePool(
+        torch.from_numpy(np.concatenate(vals)), torch.from_numpy(np.concatenate(lis)),
+        torch.from_numpy(np.concatenate(vis)), want,
+        torch.from_numpy(np.concatenate(shared)) if shared_pairs is not None else None,
+        None if shared_pairs is None else np.asarray(shared_pairs),
+    )  # fmt: skip
+
+
+# -- the lazy reconstruction ------------------------------------------------------------------
+class NeuralBTF(BTF):
+    """A neural method's reconstruction, decoded on demand from its stored binary16 arrays.
+
+    ``code`` (H, W, n) is the per-texel input (latents or a neural texture), ``layers`` the
+    MLP's (W (out, in), b (out,)) whose first layer takes [code, ω_i.xy, ω_o.xy]; ``head`` maps
+    the output to linear RGB (:func:`output`), clamped at 0. All arrays are binary16
+    (:func:`binary16`); they are decoded in float32. Queries are evaluated ``batch`` at a time.
+    """
+
+    def __init__(
+        self,
+        code: np.ndarray,
+        layers: Sequence[tuple[np.ndarray, np.ndarray]],
+        lights: DirectionSet,
+        views: DirectionSet,
+        *,
+        head: str,
+        slope: float,
+        name: str = "neural",
+        attrs: dict[str, Any] | None = None,
+        batch: int = BATCH,
+        threads: int | None = None,
+    ) -> None:
+        h, w, n = code.shape
+        super().__init__(h, w, lights, views, name, attrs)
+        self.code = np.asarray(code, dtype=np.float16)
+        self.layers = [(np.asarray(a, np.float16), np.asarray(b, np.float16)) for a, b in layers]
+        self.head, self.slope = head, float(slope)
+        self.batch, self.threads = max(1, int(batch)), threads
+        net = [(as_f32(a), as_f32(b)) for a, b in self.layers]
+        w0, b0 = net[0]
+        self._net = net
+        self._texel = as_f32(self.code).reshape(h * w, n) @ w0[:, :n].T + b0
+        self._light, self._view = direction_terms(
+            w0, n, direction_xy(lights), direction_xy(views)
+        )
+
+    def stored(self) -> dict[str, np.ndarray]:
+        """Every stored array by name (binary16): ``code``, ``layer{i}.weight``/``.bias``."""
+        out = {"code": self.code}
+        for i, (a, b) in enumerate(self.layers):
+            out[f"layer{i}.weight"], out[f"layer{i}.bias"] = a, b
+        return out
+
+    def decoder_values(self) -> int:
+        """Values of the MLP (weights and biases)."""
+        return sum(a.size + b.size for a, b in self.layers)
+
+    def _decode(self, pre: torch.Tensor) -> torch.Tensor:
+        return output(tail(pre, self._net, self.slope), self.head).clamp_min_(0)
+
+    def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
+        r, c, li, vi = self.indices(rows, cols, lights, views)
+        tex = torch.from_numpy((r[:, None] * self.width + c[None, :]).ravel())
+        li_t, vi_t = torch.from_numpy(li), torch.from_numpy(vi)
+        out = np.empty((tex.numel(), li.size, vi.size, 3), dtype=np.float32)
+        n_v = max(vi.size, 1)
+        per_tex = li.size * n_v
+        kt = max(1, self.batch // max(per_tex, 1))  # texels per batch
+        kl = li.size if kt > 1 else max(1, self.batch // n_v)  # lights per batch
+        view_term = self._view[vi_t][None, None]
+        with torch.inference_mode(), torch_threads(self.threads):
+            for t0 in range(0, tex.numel(), kt):
+                tk = self._texel[tex[t0:t0 + kt]][:, None, None]
+                for l0 in range(0, li.size, kl):
+                    pre = tk + self._light[li_t[l0:l0 + kl]][None, :, None] + view_term
+                    val = self._decode(pre.reshape(-1, pre.shape[-1]))
+                    out[t0:t0 + kt, l0:l0 + kl] = val.reshape(*pre.shape[:3], 3).numpy()
+        return out.reshape(r.size, c.size, li.size, vi.size, 3)
+
+    def query(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
+        """Values at point queries: four equal-length integer arrays → (n, 3) float32."""
+        arrays = [as_index(ix, n, f) for ix, n, f in zip(
+            (rows, cols, lights, views), (self.height, self.width, len(self.lights),
+                                          len(self.views)), ("row", "col", "light", "view"),
+            strict=True)]  # fmt: skip
+        sizes = {a.size for a in arrays}
+        if len(sizes) != 1:
+            raise BTFInputError(f"{self.label}: query arrays differ in length: "
+                                f"{[a.size for a in arrays]}")  # fmt: skip
+        r, c, li, vi = (torch.from_numpy(a) for a in arrays)
+        out = np.empty((r.numel(), 3), dtype=np.float32)
+        with torch.inference_mode(), torch_threads(self.threads):
+            for s in range(0, r.numel(), self.batch):
+                e = s + self.batch
+                pre = (self._texel[r[s:e] * self.width + c[s:e]] + self._light[li[s:e]]
+                       + self._view[vi[s:e]])  # fmt: skip
+                out[s:e] = self._decode(pre).numpy()
+        return out
