@@ -115,6 +115,7 @@ def test_a_bad_cap_is_one_line_before_any_work(folder, monkeypatch, capsys) -> N
 
 def test_large_writes_are_announced_in_one_note(folder, monkeypatch, capsys) -> None:
     monkeypatch.setattr(cache_mod, "NOTE_BYTES", 1)  # every write counts as large here
+    monkeypatch.setattr(cache_mod, "_HINTED", set())
     assert main(["info", "synth:felt:4:0:tiny7", "--no-scan"]) == 0
     notes = [ln for ln in capsys.readouterr().err.splitlines() if ln]
     path = cache_path("felt", **TINY)
@@ -124,6 +125,11 @@ def test_large_writes_are_announced_in_one_note(folder, monkeypatch, capsys) -> 
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # reused: no note
         cached("felt", **TINY)
+    # a second large write in this process: the note without the hint
+    with pytest.warns(UserWarning) as notes:
+        cached("felt", seed=2, **TINY)
+    text = str(notes[0].message)
+    assert text.startswith("caching ") and "'sparsebtf cache'" not in text
     monkeypatch.setattr(cache_mod, "NOTE_BYTES", path.stat().st_size * 10)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # small: no note

@@ -153,11 +153,19 @@ def announce_write(path: str | os.PathLike[str], nbytes: int) -> None:
     total = sum(e.bytes for e in entries(p.parent))
     capped = (f"capped at {format_bytes(cap)} by {CACHE_MAX_VARIABLE}" if cap is not None
               else f"set {CACHE_MAX_VARIABLE} (e.g. 2GB) to cap it")  # fmt: skip
+    # how to list, clear and cap the cache: once per folder and process (a benchmark caches
+    # a dozen materials in a row)
+    hint = "" if p.parent in _HINTED else f"; 'sparsebtf cache' lists and clears it, {capped}"
+    _HINTED.add(p.parent)
     warnings.warn(
         f"caching {p.name} ({format_bytes(nbytes)}) in {p.parent} (holding "
-        f"{format_bytes(total)}); 'sparsebtf cache' lists and clears it, {capped}",
+        f"{format_bytes(total)}){hint}",
         stacklevel=3,
     )
+
+
+#: the cache folders whose first large-write note this process has given (with the hint)
+_HINTED: set[Path] = set()
 
 
 def enforce_cap(just_written: str | os.PathLike[str]) -> list[CacheEntry]:
