@@ -251,7 +251,8 @@ class _QualityRun:
                          seed=self.seed, progress=self.progress, executor=self.ex, config=cfg)
         for m in self.methods:
             t0 = time.perf_counter()
-            self.say(f"fitting {m.label} ({m.scope}) on {len(train)} training materials")
+            if m.scope == "shared":  # a per-material method is fitted on each material
+                self.say(f"fitting {m.label} on {len(train)} training materials")
             m.fit(train, ctx)
             self.stage(f"train_{m.name}", t0)
             if m is self.ref:
