@@ -172,6 +172,9 @@ def test_bench_renders_figure8_and_measures_decode_speed(tiny_run):
     md = (out / "results.md").read_text()
     assert "## Figure 8 shape" in md and "figure8/figure8.png" in md
     assert "## Decode speed" in md
+    # every method's training budget beside the comparison
+    budgets = md[md.index("Training budgets"):]
+    assert all(run["label"] in budgets for run in result["method_runs"].values())
 
 
 def test_bench_meets_true_black(tiny_run):

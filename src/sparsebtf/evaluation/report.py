@@ -290,10 +290,38 @@ def _table3_section(result: dict[str, Any], img: str) -> list[str]:
     else:
         lines += ["", "_No method beyond SparseBTF's own variants in this run (the neural "
                   "ones need PyTorch: `pip install -e \".[neural]\"`)._"]
+    lines += _budgets_table(result)
     for g in result.get("figure5", []):
         lines += ["", "Figure 5 shape: reference, SparseBTF(32) and RGJW20(32), false-colour "
                   "|error| x2.", "", f"![{g}]({img}{g})"]
     return lines
+
+
+def _budgets_table(result: dict[str, Any]) -> list[str]:
+    """Each method's training budget (seconds; training queries seen per texel and
+    iterations where a method reports them) and shared bytes; [] for runs before methods were
+    recorded."""
+    runs = result.get("method_runs") or {}
+    if not runs:
+        return []
+
+    def cell(x: Any) -> str:
+        if x is None:
+            return "—"
+        if isinstance(x, dict):  # per channel
+            return ", ".join(f"{k} {v}" for k, v in x.items())
+        return f"{x:,.0f}" if isinstance(x, float) else str(x)
+
+    body = [[v["label"], v["scope"], f"{v.get('shared_bytes', 0):,d}",
+             cell((v.get("training_budget") or {}).get("seconds")),
+             cell((v.get("training_budget") or {}).get("queries_per_texel")),
+             cell((v.get("training_budget") or {}).get("iterations"))]
+            for v in runs.values()]  # fmt: skip
+    return ["", "Training budgets: seconds of fitting (a per-material method: over all the "
+            "materials it coded), training queries seen per texel and iterations (per channel "
+            "for SparseBTF's dictionaries), and the bytes every material shares.", "",
+            _table(["method", "scope", "shared bytes", "seconds", "queries per texel",
+                    "iterations"], body)]  # fmt: skip
 
 
 def _figure8_section(result: dict[str, Any], img: str) -> list[str]:
