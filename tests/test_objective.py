@@ -18,12 +18,13 @@ import pytest
 
 from sparsebtf.cli.main import main
 from sparsebtf.codec.encode import encode, encode_levels
+from sparsebtf.colour import YUV_TO_RGB
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError
 from sparsebtf.learning.coding import _rule_keys, sparse_code, topk_abs
 from sparsebtf.learning.tensor import project
 from sparsebtf.points.grid import PatchGrid, iter_points
-from sparsebtf.points.preprocessing import YUV_TO_RGB, Preprocessor
+from sparsebtf.points.preprocessing import Preprocessor
 
 from .conftest import smooth_btf, tiny_model
 

@@ -31,10 +31,11 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from ._progress import bar
+from .colour import RGB_TO_YUV
 from .data.btf import BTF
 from .display import tone_map
 from .errors import BTFInputError
-from .points.preprocessing import EPS, RGB_TO_YUV, Standardization
+from .points.preprocessing import EPS, Standardization
 
 __all__ = [
     "PSNR_PEAK",

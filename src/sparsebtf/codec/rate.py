@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from ..colour import YUV_TO_RGB
 from ..data.btf import BTF
 from ..errors import BTFInputError, UnreachableTargetError
 from ..learning.coding import DEFAULT_CANDIDATES, screen_dictionaries, topk_abs
@@ -25,13 +26,7 @@ from ..learning.rate_control import PAPER_SPLIT, ChannelCandidates, allocate, re
 from ..learning.tensor import project
 from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid, stream_points
-from ..points.preprocessing import (
-    YUV_TO_RGB,
-    LogOffset,
-    Preprocessor,
-    Standardization,
-    StdMode,
-)
+from ..points.preprocessing import LogOffset, Preprocessor, Standardization, StdMode
 from .encode import batch_errors, check_candidates, check_model_objective, coded_btf, rule_params
 from .jobs import Header, Source, run_plan
 

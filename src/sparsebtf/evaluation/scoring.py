@@ -35,6 +35,7 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from .._progress import bar
+from ..colour import yuv_to_rgb
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.parallel import single_threaded_blas
@@ -48,7 +49,7 @@ from ..metrics import (
     top_k_largest,
 )
 from ..model import CodedBTF
-from ..points.preprocessing import EPS, yuv_to_rgb
+from ..points.preprocessing import EPS
 from ..runtime.dense import DecodedBTF
 
 __all__ = ["coded_mse_std", "score_many"]

@@ -28,10 +28,10 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from .._semantic import check_color_header, check_directions
+from ..colour import YUV_TO_RGB_RELEASE
 from ..data.btf import BTF, LOG_EPS, Index, _span
 from ..data.directions import from_angles
 from ..errors import BTFInputError, FileFormatError
-from ..points.preprocessing import YUV_TO_RGB_RELEASE
 
 __all__ = ["COLOR_MODELS", "UBO2014BTF", "read_ubo2014"]
 

@@ -125,7 +125,7 @@ class ChannelError:
     def for_batch(cls, objective: str, log_rgb: np.ndarray, std: np.ndarray,
                   bound: np.ndarray | None, eps: float, channel: int) -> ChannelError:  # fmt: skip
         """From the statistics: σ (L, V, 1 or 3) and the channel's index (0: Y, 1: U, 2: V)."""
-        from ..points.preprocessing import YUV_TO_RGB
+        from ..colour import YUV_TO_RGB
 
         sd = np.broadcast_to(std, (*std.shape[:2], 3))[..., channel]
         scale = (sd[..., None] * YUV_TO_RGB[:, channel]).astype(np.float32)

@@ -125,7 +125,7 @@ def iter_points(
     the coding of a channel wants it; same values). Points are
     read one spatial patch at a time (a patch holds every direction), so memory stays at
     ``batch`` data points whatever the BTF size. NaN/Inf raise with their location; negative
-    values are clamped to 0 (counted by :func:`~sparsebtf.points.preprocessing.gather_statistics`).
+    values are clamped to 0 (counted by :func:`~sparsebtf.points.statistics.gather_statistics`).
     ``parallel``: the points of a batch are read on the worker threads
     (:func:`~sparsebtf.learning.parallel.parallel_map`); the values are the same.
     ``reuse = n``: the batches are written into ``n`` arrays in turn (batch k's array again
