@@ -100,9 +100,9 @@ def timed_statistics() -> dict[str, float]:
 def parts(btf: FactorBTF, model: Model, taus: list[int], n: int = 4) -> list[tuple[str, str]]:
     """Core-seconds of each step on ``n`` data points, one thread each (BLAS too): the
     breakdown of a point's cost, robust to other jobs sharing the machine (CPU time)."""
+    from sparsebtf._threads import single_threaded_blas
     from sparsebtf.colour import RGB_TO_YUV_F32
     from sparsebtf.learning.coding import sparse_code_levels
-    from sparsebtf.learning.parallel import single_threaded_blas
     from sparsebtf.points import kernels
     from sparsebtf.points.preprocessing import Preprocessor, Standardization
 

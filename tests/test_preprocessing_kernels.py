@@ -5,10 +5,10 @@ equals a float64 computation whatever its bands, threads and view ranges."""
 import numpy as np
 import pytest
 
+from sparsebtf import _threads
 from sparsebtf.colour import RGB_TO_YUV
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError
-from sparsebtf.learning import parallel
 from sparsebtf.points import kernels, statistics
 from sparsebtf.points.grid import extract, iter_points, stream_points
 from sparsebtf.points.preprocessing import Preprocessor
@@ -159,7 +159,7 @@ def test_statistics_read_bounded_bands(monkeypatch):
 
 def test_ordered_map_keeps_order_and_raises(monkeypatch):
     monkeypatch.setenv("SPARSEBTF_THREADS", "2")
-    assert list(parallel.ordered_map(lambda v: v * v, range(7))) == [v * v for v in range(7)]
+    assert list(_threads.ordered_map(lambda v: v * v, range(7))) == [v * v for v in range(7)]
 
     def fail(v):
         if v == 3:
@@ -168,7 +168,7 @@ def test_ordered_map_keeps_order_and_raises(monkeypatch):
 
     got = []
     with pytest.raises(ValueError, match="three"):
-        for v in parallel.ordered_map(fail, range(6)):
+        for v in _threads.ordered_map(fail, range(6)):
             got.append(v)
     assert got == [0, 1, 2]
 

@@ -15,13 +15,13 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import parallel_map
 from ..colour import YUV_TO_RGB
 from ..data.btf import BTF
 from ..errors import BTFInputError, UnreachableTargetError
 from ..learning.coding import DEFAULT_CANDIDATES, screen_dictionaries, topk_abs
 from ..learning.cost import DICTIONARY_ENTRY_BYTES, location_width, raw_bytes
 from ..learning.objective import DISPLAY_A, DISPLAY_GAMMA, objective_params
-from ..learning.parallel import parallel_map
 from ..learning.rate_control import PAPER_SPLIT, ChannelCandidates, allocate, reference_counts
 from ..learning.tensor import project
 from ..model import CodedBTF, Model

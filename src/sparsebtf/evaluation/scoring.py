@@ -35,10 +35,10 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from .._progress import bar
+from .._threads import single_threaded_blas
 from ..colour import yuv_to_rgb
 from ..data.btf import BTF
 from ..errors import BTFInputError
-from ..learning.parallel import single_threaded_blas
 from ..metrics import (
     PSNR_PEAK,
     TOP_SHARE,

@@ -34,8 +34,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._threads import parallel_map
 from ..errors import BTFInputError
-from .parallel import parallel_map
 from .tensor import project, reconstruct_sparse, sum_squares
 
 if TYPE_CHECKING:

@@ -44,11 +44,11 @@ from typing import Any, Protocol
 import numpy as np
 
 from .._semantic import check_orthonormal
+from .._threads import parallel_map
 from ..checkpoints import check_key, read_checkpoint, write_checkpoint
 from ..errors import BTFInputError, FileFormatError
 from ..execution import Executor, InProcess
 from .coding import SparseCodes, reconstruct_points, sparse_code
-from .parallel import parallel_map
 from .partitions import (
     PARTITION_POINTS,
     ArraySource,

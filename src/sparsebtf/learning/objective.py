@@ -57,8 +57,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._threads import parallel_map
 from ..errors import BTFInputError
-from .parallel import parallel_map
 from .tensor import project, reconstruct_sparse
 
 if TYPE_CHECKING:

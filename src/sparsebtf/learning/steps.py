@@ -41,9 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._threads import parallel_map
 from ..errors import BTFInputError
 from .coding import SparseCodes, _count_and_error, topk_abs
-from .parallel import parallel_map
 from .tensor import project, project_modes, projection_order, sum_squares
 
 __all__ = [

@@ -125,10 +125,10 @@ def statistic_sums(
     """The :class:`StatisticSums` of ``btf`` over ``views`` (default: all).
 
     Read in bands of rows of a few views (:func:`statistic_bands`; memory: a band per
-    thread), the groups of views on the worker threads (:func:`~sparsebtf.learning.parallel.
+    thread), the groups of views on the worker threads (:func:`~sparsebtf._threads.
     ordered_map`), each value touched in three passes (:mod:`.kernels`); ``tick(n)`` after
     each group of n views. NaN/Inf abort with their count and first location."""
-    from ..learning.parallel import ordered_map
+    from .._threads import ordered_map
 
     h, w, nl, nv, _ = btf.shape
     v0, v1 = views if views is not None else (0, nv)
