@@ -48,7 +48,8 @@ from .._threads import parallel_map
 from ..checkpoints import check_key, read_checkpoint, write_checkpoint
 from ..errors import BTFInputError, FileFormatError
 from ..execution import Executor, InProcess
-from .coding import SparseCodes, reconstruct_points, sparse_code
+from .codes import SparseCodes
+from .coding import reconstruct_points, sparse_code
 from .partitions import (
     PARTITION_POINTS,
     ArraySource,
