@@ -101,7 +101,7 @@ def material_target_bytes(
         raise BTFInputError(
             f"{btf.label}: the target of {total:,d} bytes does not even hold the model's shared "
             f"dictionaries ({dicts:,d} bytes); ask for a per-material target "
-            "(per_material=True, --per-material) or a larger size"
+            "(per_material=True; on the command line, without --with-dictionaries) or a larger size"
         )
     return total - dicts
 
