@@ -33,7 +33,7 @@ from _common import best_of, machine, report, synthetic_coded
 from sparsebtf._hdf5 import _probe
 from sparsebtf.data.dense_file import DenseFileBTF, write_dense
 from sparsebtf.fuzzing import _legacy_copy
-from sparsebtf.points.preprocessing import gather_statistics
+from sparsebtf.points.statistics import gather_statistics
 from sparsebtf.storage import load_coded, save_coded
 
 

@@ -100,10 +100,11 @@ def timed_statistics() -> dict[str, float]:
 def parts(btf: FactorBTF, model: Model, taus: list[int], n: int = 4) -> list[tuple[str, str]]:
     """Core-seconds of each step on ``n`` data points, one thread each (BLAS too): the
     breakdown of a point's cost, robust to other jobs sharing the machine (CPU time)."""
+    from sparsebtf._threads import single_threaded_blas
+    from sparsebtf.colour import RGB_TO_YUV_F32
     from sparsebtf.learning.coding import sparse_code_levels
-    from sparsebtf.learning.parallel import single_threaded_blas
     from sparsebtf.points import kernels
-    from sparsebtf.points.preprocessing import _RGB_TO_YUV_F32, Preprocessor, Standardization
+    from sparsebtf.points.preprocessing import Preprocessor, Standardization
 
     nl, nv = len(btf.lights), len(btf.views)
     stats = Standardization("shared", np.zeros((nl, nv, 1)), np.ones((nl, nv, 1)), eps=1e-3)
@@ -119,7 +120,7 @@ def parts(btf: FactorBTF, model: Model, taus: list[int], n: int = 4) -> list[tup
             out = np.zeros((n, *rgb[0].shape), np.float32)  # pages touched: reused, as encoding's
             tiny = out[0, :1, :1].reshape(-1, nl * nv, 3)  # compile (or load) the kernels
             kernels.clamp_offset(tiny, 1e-3, tiny)
-            kernels.standardise_log_rgb(tiny, _RGB_TO_YUV_F32, np.zeros((nl * nv, 3), np.float32),
+            kernels.standardise_log_rgb(tiny, RGB_TO_YUV_F32, np.zeros((nl * nv, 3), np.float32),
                                         np.ones((nl * nv, 3), np.float32))  # fmt: skip
             c = cpu_seconds()
             for j, x in enumerate(rgb):
@@ -131,7 +132,7 @@ def parts(btf: FactorBTF, model: Model, taus: list[int], n: int = 4) -> list[tup
             mu, inv = np.zeros((nl * nv, 3), np.float32), np.ones((nl * nv, 3), np.float32)
             c = cpu_seconds()
             for j in range(n):
-                kernels.standardise_log_rgb(out[j].reshape(-1, nl * nv, 3), _RGB_TO_YUV_F32,
+                kernels.standardise_log_rgb(out[j].reshape(-1, nl * nv, 3), RGB_TO_YUV_F32,
                                             mu, inv)  # fmt: skip
             rows.append(("  YUV + standardise (compiled)", cpu_seconds() - c))
             c = cpu_seconds()

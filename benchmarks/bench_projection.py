@@ -16,9 +16,9 @@ import argparse
 import numpy as np
 
 from _common import best_of, gemm_gflops, machine, report
+from sparsebtf._threads import n_workers, parallel_map
 from sparsebtf.learning.coding import sparse_code
 from sparsebtf.learning.ensemble import random_orthonormal
-from sparsebtf.learning.parallel import n_workers, parallel_map
 from sparsebtf.learning.tensor import project
 
 

@@ -11,7 +11,7 @@ from sparsebtf.cli.main import main
 from sparsebtf.codec import encode, encode_many, output_name
 from sparsebtf.data.crop import CroppedBTF
 from sparsebtf.data.dense_file import write_dense
-from sparsebtf.points.preprocessing import combine_statistics, gather_statistics, statistic_sums
+from sparsebtf.points.statistics import combine_statistics, gather_statistics, statistic_sums
 from sparsebtf.storage import save_model
 
 from .conftest import smooth_btf, tiny_model

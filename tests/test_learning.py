@@ -270,7 +270,7 @@ def test_ensemble_parameter_errors():
 
 
 def test_prefetch_keeps_order_and_reraises():
-    from sparsebtf.learning.parallel import parallel_map, prefetch
+    from sparsebtf._threads import parallel_map, prefetch
 
     assert list(prefetch(iter(range(50)), depth=2)) == list(range(50))
 

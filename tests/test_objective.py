@@ -18,12 +18,14 @@ import pytest
 
 from sparsebtf.cli.main import main
 from sparsebtf.codec.encode import encode, encode_levels
+from sparsebtf.colour import YUV_TO_RGB
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError
-from sparsebtf.learning.coding import _rule_keys, sparse_code, topk_abs
+from sparsebtf.learning.codes import rule_keys, topk_abs
+from sparsebtf.learning.coding import sparse_code
 from sparsebtf.learning.tensor import project
 from sparsebtf.points.grid import PatchGrid, iter_points
-from sparsebtf.points.preprocessing import YUV_TO_RGB, Preprocessor
+from sparsebtf.points.preprocessing import Preprocessor
 
 from .conftest import smooth_btf, tiny_model
 
@@ -65,7 +67,7 @@ def _reference_codes(batch, dicts, tau, eps):
         for k in range(dicts[0].shape[0]):
             s = project(x[None], [np.asarray(d[k], np.float32) for d in dicts]).reshape(-1)
             idx = topk_abs(s, tau)
-            n, e = _rule_keys((s[idx].astype(np.float64) ** 2)[None], energy, size, tau, eps)
+            n, e = rule_keys((s[idx].astype(np.float64) ** 2)[None], energy, size, tau, eps)
             opts.append((int(n[0]), float(e[0]), k, idx[: int(n[0])], s[idx[: int(n[0])]]))
         n, _, k, idx, vals = min(opts, key=lambda o: (o[0], o[1], o[2]))
         member.append(k)

@@ -1,15 +1,12 @@
 import numpy as np
 import pytest
 
+from sparsebtf.colour import RGB_TO_YUV, YUV_TO_RGB_RELEASE
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError
 from sparsebtf.points.grid import PatchGrid, assemble, extract, iter_points, sample_points
-from sparsebtf.points.preprocessing import (
-    RGB_TO_YUV,
-    YUV_TO_RGB_RELEASE,
-    Preprocessor,
-    gather_statistics,
-)
+from sparsebtf.points.preprocessing import Preprocessor
+from sparsebtf.points.statistics import gather_statistics
 
 from .conftest import smooth_btf
 

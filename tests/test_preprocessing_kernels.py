@@ -5,14 +5,14 @@ equals a float64 computation whatever its bands, threads and view ranges."""
 import numpy as np
 import pytest
 
+from sparsebtf import _threads
+from sparsebtf.colour import RGB_TO_YUV
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError
-from sparsebtf.learning import parallel
-from sparsebtf.points import kernels, preprocessing
+from sparsebtf.points import kernels, statistics
 from sparsebtf.points.grid import extract, iter_points, stream_points
-from sparsebtf.points.preprocessing import (
-    RGB_TO_YUV,
-    Preprocessor,
+from sparsebtf.points.preprocessing import Preprocessor
+from sparsebtf.points.statistics import (
     combine_statistics,
     gather_statistics,
     statistic_bands,
@@ -124,7 +124,7 @@ def _dense_like(btf, hint):
 
 def test_statistic_sums_same_bits_whatever_threads_and_view_ranges(monkeypatch):
     btf = _dense_like(smooth_btf(7, size=8), (2, 4))
-    monkeypatch.setattr(preprocessing, "STATS_READ_BYTES", 12 * 8 * 13 * 4 * 3)  # 3 rows
+    monkeypatch.setattr(statistics, "STATS_READ_BYTES", 12 * 8 * 13 * 4 * 3)  # 3 rows
     assert statistic_bands(btf) == (2, 4)  # whole multiples of the hint's rows
     monkeypatch.setenv("SPARSEBTF_THREADS", "1")
     one = statistic_sums(btf, eps=1e-4)
@@ -142,7 +142,7 @@ def test_statistic_sums_same_bits_whatever_threads_and_view_ranges(monkeypatch):
 def test_statistics_read_bounded_bands(monkeypatch):
     """Each read of the pass is a band of rows of a few views, never the whole BTF."""
     btf = _dense_like(smooth_btf(8, size=8), (1, 3))
-    monkeypatch.setattr(preprocessing, "STATS_READ_BYTES", 12 * 8 * 13 * 3 * 2)  # 2 rows
+    monkeypatch.setattr(statistics, "STATS_READ_BYTES", 12 * 8 * 13 * 3 * 2)  # 2 rows
     shapes = []
     read = btf.read
 
@@ -159,7 +159,7 @@ def test_statistics_read_bounded_bands(monkeypatch):
 
 def test_ordered_map_keeps_order_and_raises(monkeypatch):
     monkeypatch.setenv("SPARSEBTF_THREADS", "2")
-    assert list(parallel.ordered_map(lambda v: v * v, range(7))) == [v * v for v in range(7)]
+    assert list(_threads.ordered_map(lambda v: v * v, range(7))) == [v * v for v in range(7)]
 
     def fail(v):
         if v == 3:
@@ -168,7 +168,7 @@ def test_ordered_map_keeps_order_and_raises(monkeypatch):
 
     got = []
     with pytest.raises(ValueError, match="three"):
-        for v in parallel.ordered_map(fail, range(6)):
+        for v in _threads.ordered_map(fail, range(6)):
             got.append(v)
     assert got == [0, 1, 2]
 

@@ -18,7 +18,8 @@ from sparsebtf.errors import BTFInputError
 from sparsebtf.learning.cost import material_bytes
 from sparsebtf.learning.rate_control import ChannelCandidates, allocate, reference_counts
 from sparsebtf.metrics import compare
-from sparsebtf.points.preprocessing import Preprocessor, gather_statistics
+from sparsebtf.points.preprocessing import Preprocessor
+from sparsebtf.points.statistics import gather_statistics
 from sparsebtf.runtime import coded_btf_view
 from sparsebtf.storage import load_coded, load_model, save_coded, save_model, storage_report
 

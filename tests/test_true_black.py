@@ -16,15 +16,8 @@ from sparsebtf.evaluation.benchmark_set import FLOOR
 from sparsebtf.evaluation.runner import floored
 from sparsebtf.metrics import compare, top_k_largest
 from sparsebtf.open import parse_synth_spec
-from sparsebtf.points.preprocessing import (
-    BOUND_STEP,
-    EPS,
-    LOG_OFFSET_FRACTION,
-    choose_log_offset,
-    gather_statistics,
-    resolve_log_offset,
-    round_up_bound,
-)
+from sparsebtf.points.preprocessing import BOUND_STEP, EPS, resolve_log_offset, round_up_bound
+from sparsebtf.points.statistics import LOG_OFFSET_FRACTION, choose_log_offset, gather_statistics
 from sparsebtf.runtime import RuntimeBTF, coded_btf_view, kernels
 from sparsebtf.storage import load_coded, save_coded
 

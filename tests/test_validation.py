@@ -298,7 +298,7 @@ def test_damaged_checkpoint_is_one_line(checkpoint, damage):
 
 
 def test_checkpoint_hash_and_contents(checkpoint):
-    from sparsebtf.learning.ensemble import checkpoint_digest
+    from sparsebtf.checkpoints import checkpoint_digest
 
     ck, x, kw = checkpoint
     with np.load(ck) as f:

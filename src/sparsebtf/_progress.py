@@ -35,10 +35,6 @@ def _mode(flag: bool | None) -> str:
     return "bar" if sys.stderr.isatty() else "lines"
 
 
-def _enabled(flag: bool | None) -> bool:
-    return _mode(flag) != "off"
-
-
 def _duration(seconds: float) -> str:
     """``42s``, ``3m07s``, ``2h05m``."""
     s = round(seconds)

@@ -6,7 +6,7 @@ code runs in one process and on many machines and gives the same numbers.
 
 * :class:`InProcess` (default): tasks run here, one after the other, when their results are
   asked for. Inside a task the array kernels keep today's parallelism (one thread per core,
-  one BLAS thread each: :mod:`sparsebtf.learning.parallel`). Dask is not imported.
+  one BLAS thread each: :mod:`sparsebtf._threads`). Dask is not imported.
 * :class:`DaskExecutor`: tasks run on the workers of a ``dask.distributed`` cluster, one task
   per worker thread (each task single-threaded: a worker plugin sets ``SPARSEBTF_THREADS=1``
   unless the worker's environment sets it). :func:`executor` starts a ``LocalCluster`` of

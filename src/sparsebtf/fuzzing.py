@@ -784,7 +784,7 @@ def _case_release(corpus: dict[str, Any], kind: str, field: str, op: str,
 
 def _case_checkpoint(corpus: dict[str, Any], kind: str, field: str, op: str,
                      rng: np.random.Generator, target: Path) -> bool:  # fmt: skip
-    from .learning.ensemble import checkpoint_digest
+    from .checkpoints import checkpoint_digest
 
     with np.load(target) as ck:
         arrays = {k: ck[k] for k in ck.files if k != "sha256"}

@@ -31,17 +31,20 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from ._progress import bar
+from .colour import RGB_TO_YUV
 from .data.btf import BTF
 from .display import tone_map
 from .errors import BTFInputError
-from .points.preprocessing import EPS, RGB_TO_YUV, Standardization
+from .points.preprocessing import EPS, Standardization
 
 __all__ = [
     "PSNR_PEAK",
     "TOP_SHARE",
+    "angular_sample",
     "compare",
     "display_values",
     "psnr",
+    "squared_sum",
     "ssim_angular",
     "top_k_largest",
 ]
@@ -62,7 +65,7 @@ def top_k_largest(kept: np.ndarray, new: np.ndarray, k: int) -> np.ndarray:
     return both if both.size <= k else np.partition(both, both.size - k)[-k:]
 
 
-def _sumsq(x: np.ndarray) -> float:
+def squared_sum(x: np.ndarray) -> float:
     """Σx² of a float32 array with a float64 (pairwise) accumulator."""
     return float(np.sum(np.square(x), dtype=np.float64))
 
@@ -81,7 +84,7 @@ def psnr(mse: float, peak: float = PSNR_PEAK) -> float:
     return float(10 * np.log10(peak**2 / mse))
 
 
-def _angular_sample(n_lights: int, n_views: int, count: int) -> list[tuple[int, int]]:
+def angular_sample(n_lights: int, n_views: int, count: int) -> list[tuple[int, int]]:
     """``count`` (light, view) pairs spread regularly over the L·V angular images."""
     total = n_lights * n_views
     count = max(1, min(count, total))
@@ -169,8 +172,8 @@ def compare(
             sums["rgb"] += float(np.sum(d2, dtype=np.float64))
             worst = top_k_largest(worst, d2, k_top)
             dl = np.log(a + np.float32(EPS)) - np.log(np.maximum(b, 0) + np.float32(EPS))
-            sums["log"] += _sumsq(dl)
-            sums["display"] += _sumsq(display_values(a) - display_values(b))
+            sums["log"] += squared_sum(dl)
+            sums["display"] += squared_sum(display_values(a) - display_values(b))
             if inv_sd is not None:
                 # z_a − z_b = YUV(ln(a + ε) − ln(b + ε)) / σ with the material's own ε: the
                 # mean cancels.
@@ -178,11 +181,11 @@ def compare(
                     e = np.float32(stats.eps)
                     dl = np.log(a + e) - np.log(np.maximum(b, 0) + e)
                 dz = (dl @ yuv) * inv_sd
-                sums["std"] += _sumsq(dz)
+                sums["std"] += squared_sum(dz)
             n += a.size
             pb.update(1)
     mse_rgb = sums["rgb"] / n
-    pairs = _angular_sample(len(reference.lights), len(reference.views), ssim_images)
+    pairs = angular_sample(len(reference.lights), len(reference.views), ssim_images)
     out: dict[str, Any] = {
         "mse_rgb": mse_rgb,
         "psnr_rgb": psnr(mse_rgb),

@@ -162,7 +162,6 @@ def register(sub: Any) -> None:
     s.add_argument("--with-dictionaries", action="store_true",
                    help="with --budget paper: targets also count the shared dictionaries (K x "
                    "3 channels, about 2.1 MiB for the release model), as Table 4's totals do")
-    s.add_argument("--per-material", action="store_true", help=argparse.SUPPRESS)
     s.add_argument("--eps", type=float, default=1e-5,
                    help="stop adding coefficients to a point once its mean squared residual "
                    "(standardised log-YUV; with --objective linear/display, that objective's "

@@ -15,15 +15,12 @@ from typing import Any
 
 import numpy as np
 
+from ..colour import yuv_to_rgb
 from ..errors import BTFInputError, SparseBTFError
 from ..open import file_format, open_btf
 from ..points.grid import PatchGrid
-from ..points.preprocessing import (
-    gather_statistics,
-    inverse_log_transform,
-    to_log_yuv,
-    yuv_to_rgb,
-)
+from ..points.preprocessing import inverse_log_transform, to_log_yuv
+from ..points.statistics import gather_statistics
 from ._args import integer
 from ._model import MODEL_HELP
 from ._output import add_allow_nonfinite, check_finite_result, format_value, print_json, table

@@ -30,22 +30,3 @@ __all__ = [
     "parse_tau",
     "train",
 ]
-
-#: Decoding moved to the runtime; the old names still resolve, with a warning.
-_MOVED = {
-    "coded_btf_view", "decode_points", "decode_points_eq5", "DecodedBTF", "EQ5_MAX_DIRECTIONS",
-}
-
-
-def __getattr__(name: str) -> object:
-    if name in _MOVED:
-        import warnings
-
-        from ..runtime import dense
-
-        warnings.warn(
-            f"sparsebtf.codec.{name} moved to sparsebtf.runtime.{name}", DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(dense, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

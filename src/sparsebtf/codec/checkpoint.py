@@ -11,7 +11,7 @@ A checkpoint folder holds one ``points_B_LO_HI.npz`` per finished range ``[LO, H
   standardisation, the batch size and the range layout;
 * the result's arrays (any nesting of lists, dicts, :class:`SparseCodes` and arrays, laid out
   by a JSON ``tree``), and ``sha256`` over all of them
-  (:func:`~sparsebtf.learning.ensemble.checkpoint_digest`, as training's checkpoints).
+  (:func:`~sparsebtf.checkpoints.checkpoint_digest`, as training's checkpoints).
 
 A resumed run checks every file first (all but the statistics before the statistics pass,
 then those) and reads each range back instead of coding it when its turn comes (one range in
@@ -32,10 +32,10 @@ from typing import Any
 
 import numpy as np
 
-from .._atomic import atomic_output, remove_stale_parts
+from .._atomic import remove_stale_parts
+from ..checkpoints import check_key, read_checkpoint, write_checkpoint
 from ..errors import BTFInputError, FileFormatError
 from ..learning.coding import SparseCodes
-from ..learning.ensemble import _check_key, checkpoint_digest, read_checkpoint
 
 __all__ = ["EncodeCheckpoint", "range_key", "range_layout"]
 
@@ -152,8 +152,7 @@ class EncodeCheckpoint:
         arrays["tree"] = np.asarray(json.dumps(tree))
         arrays["key"] = np.asarray(json.dumps(key, sort_keys=True))
         self.folder.mkdir(parents=True, exist_ok=True)
-        with atomic_output(self.path(b, lo, hi)) as tmp, open(tmp, "wb") as f:
-            np.savez(f, sha256=np.asarray(checkpoint_digest(arrays)), **arrays)
+        write_checkpoint(self.path(b, lo, hi), arrays)
 
     def scan(
         self, keys: list[dict[str, Any]], ranges: list[list[tuple[int, int]]],
@@ -177,7 +176,7 @@ class EncodeCheckpoint:
                 )
             found, _ = self._read(path)
             want = {k: v for k, v in keys[b].items() if k not in skip}
-            _check_key(path, {k: v for k, v in found.items() if k not in skip}, want,
+            check_key(path, {k: v for k, v in found.items() if k not in skip}, want,
                        "inputs or encoding parameters")  # fmt: skip
             if (lo, hi) not in ranges[b]:
                 raise BTFInputError(
@@ -193,7 +192,7 @@ class EncodeCheckpoint:
         must now equal ``keys[b]`` in full (one line otherwise)."""
         for b, ranges in enumerate(done):
             for (lo, hi), found in ranges.items():
-                _check_key(self.path(b, lo, hi), found, keys[b], "inputs or encoding parameters")
+                check_key(self.path(b, lo, hi), found, keys[b], "inputs or encoding parameters")
         return [set(ranges) for ranges in done]
 
     def read(self, b: int, lo: int, hi: int, key: dict[str, Any]) -> Any:
@@ -201,7 +200,7 @@ class EncodeCheckpoint:
         and ``key``, in case the file changed since :meth:`scan`)."""
         path = self.path(b, lo, hi)
         found, part = self._read(path)
-        _check_key(path, found, key, "inputs or encoding parameters")
+        check_key(path, found, key, "inputs or encoding parameters")
         return part
 
     def _read(self, path: Path) -> tuple[dict[str, Any], Any]:

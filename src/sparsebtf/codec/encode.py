@@ -188,7 +188,7 @@ def batch_errors(x: np.ndarray, pre: Preprocessor, objective: str
     None for the log objective."""
     if objective == "log":
         return None
-    from ..points.preprocessing import yuv_to_rgb
+    from ..colour import yuv_to_rgb
 
     z = x if x.shape[-1] == 3 and x.ndim == 6 else np.moveaxis(x, 0, -1)
     st = pre.stats

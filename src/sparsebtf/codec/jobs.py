@@ -2,7 +2,7 @@
 process and on a Dask cluster.
 
 For every BTF: open it where the task runs (:class:`Source`) and read its header; gather its
-statistics by view ranges (:func:`~sparsebtf.points.preprocessing.statistic_sums`) and
+statistics by view ranges (:func:`~sparsebtf.points.statistics.statistic_sums`) and
 combine them here; code its data points by point ranges (starts on batch boundaries, so every
 batch is the one a single pass reads: the codes are bit for bit those of a one-process run);
 join the ranges in order. What is computed per range and how the ranges are joined is an
@@ -27,14 +27,11 @@ from ..errors import FileFormatError, SparseBTFError
 from ..execution import Executor, executor, worker_label
 from ..model import Model
 from ..points.grid import PatchGrid
-from ..points.preprocessing import (
-    LogOffset,
-    StdMode,
-    check_std_mode,
+from ..points.preprocessing import LogOffset, StdMode, check_std_mode, resolve_log_offset
+from ..points.statistics import (
     choose_log_offset,
     combine_statistics,
     gather_statistics,
-    resolve_log_offset,
     statistic_sums,
     warn_negatives,
 )
@@ -206,7 +203,7 @@ def run_plan(
     Runs in process, or on the cluster of ``client`` / ``scheduler`` / ``workers``
     (:func:`sparsebtf.execution.executor`). Every BTF is checked before work starts.
     ``log_offset`` is the rule for each BTF's log offset ε
-    (:func:`~sparsebtf.points.preprocessing.choose_log_offset`). With ``checkpoint_dir`` every
+    (:func:`~sparsebtf.points.statistics.choose_log_offset`). With ``checkpoint_dir`` every
     finished point range is saved there (:mod:`.checkpoint`: ranges of :data:`RANGE_BATCHES`
     batches, in process too) and the ranges already there are read back instead of coded:
     the results equal an uninterrupted run's. The caller removes the folder when done.

@@ -15,23 +15,18 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import parallel_map
+from ..colour import YUV_TO_RGB
 from ..data.btf import BTF
 from ..errors import BTFInputError, UnreachableTargetError
 from ..learning.coding import DEFAULT_CANDIDATES, screen_dictionaries, topk_abs
 from ..learning.cost import DICTIONARY_ENTRY_BYTES, location_width, raw_bytes
 from ..learning.objective import DISPLAY_A, DISPLAY_GAMMA, objective_params
-from ..learning.parallel import parallel_map
 from ..learning.rate_control import PAPER_SPLIT, ChannelCandidates, allocate, reference_counts
 from ..learning.tensor import project
 from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid, stream_points
-from ..points.preprocessing import (
-    YUV_TO_RGB,
-    LogOffset,
-    Preprocessor,
-    Standardization,
-    StdMode,
-)
+from ..points.preprocessing import LogOffset, Preprocessor, Standardization, StdMode
 from .encode import batch_errors, check_candidates, check_model_objective, coded_btf, rule_params
 from .jobs import Header, Source, run_plan
 
@@ -106,7 +101,7 @@ def material_target_bytes(
         raise BTFInputError(
             f"{btf.label}: the target of {total:,d} bytes does not even hold the model's shared "
             f"dictionaries ({dicts:,d} bytes); ask for a per-material target "
-            "(per_material=True, --per-material) or a larger size"
+            "(per_material=True; on the command line, without --with-dictionaries) or a larger size"
         )
     return total - dicts
 

@@ -199,7 +199,7 @@ def train(
     linear R, G, B (in the channel slots Y, U, V) — the [MHU19] baseline of the paper's Table 2.
     Encoding with the model then uses the same (no) processing. ``log_offset`` is the rule for
     each BTF's ε in ln(x + ε) ("auto", "release" = 1e-5, or a number; see
-    :func:`~sparsebtf.points.preprocessing.choose_log_offset`).
+    :func:`~sparsebtf.points.statistics.choose_log_offset`).
 
     ``btfs`` are BTF objects or sources (paths, ``synth:`` specs; ``crop`` = (rows, cols)
     applies to every one). ``client`` (a ``dask.distributed.Client``), ``scheduler`` (an

@@ -28,7 +28,7 @@ from .directions import DirectionSet
 #: ln(x + 1e-5) (release: ``DataBTF4D.inl``, the shader's exp(·) − 1e-5). Defined once here.
 LOG_EPS = 1e-5
 
-__all__ = ["BTF", "LOG_EPS", "ArrayBTF", "FactorBTF", "FunctionBTF", "as_index"]
+__all__ = ["BTF", "LOG_EPS", "ArrayBTF", "FactorBTF", "FunctionBTF", "as_index", "contiguous_slice"]
 
 Index = slice | np.ndarray | list[int]
 
@@ -47,7 +47,7 @@ def as_index(idx: Index | int, n: int, field: str) -> np.ndarray:
     return arr
 
 
-def _span(idx: np.ndarray) -> slice | None:
+def contiguous_slice(idx: np.ndarray) -> slice | None:
     """The slice equal to ``idx`` when it is a contiguous ascending run, else None."""
     if idx.size and np.all(np.diff(idx) == 1):
         return slice(int(idx[0]), int(idx[-1]) + 1)
@@ -239,7 +239,7 @@ class ArrayBTF(BTF):
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
         r, c, li, vi = self.indices(rows, cols, lights, views)
-        sel = tuple((_span(ix) or ix) for ix in (r, c, li, vi))
+        sel = tuple((contiguous_slice(ix) or ix) for ix in (r, c, li, vi))
         out = self.data
         # Index one axis at a time: outer-product indexing without fancy-index broadcasting.
         for axis, ix in enumerate(sel):
@@ -347,7 +347,7 @@ class FactorBTF(BTF):
         ang = (li[:, None] * nv + vi[None, :]).ravel()
         dt = np.result_type(self.spatial.dtype, self.angular.dtype, np.float32)
         # contiguous runs (a patch's all directions, a view's lights) as views, not copies
-        pix_at, ang_at = _span(pix) or pix, _span(ang) or ang
+        pix_at, ang_at = contiguous_slice(pix) or pix, contiguous_slice(ang) or ang
         out = np.empty((r.size, c.size, li.size, vi.size, 3), dtype=np.float32)
         for ch in range(3):
             s = np.asarray(self.spatial[min(ch, self.spatial.shape[0] - 1)][pix_at], dtype=dt)

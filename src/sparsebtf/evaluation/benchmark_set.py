@@ -126,7 +126,7 @@ class BenchConfig:
     with_per_channel: bool = True
     with_rate_control: bool = True
     #: the log-offset rule of every SparseBTF encode ("auto", "release" or a number; see
-    #: :func:`~sparsebtf.points.preprocessing.choose_log_offset`)
+    #: :func:`~sparsebtf.points.statistics.choose_log_offset`)
     log_offset: str = "auto"
     #: the dictionary rule of every SparseBTF encode: the candidates projected exactly after
     #: the screening (:func:`~sparsebtf.learning.coding.screen_dictionaries`), or None for

@@ -5,7 +5,7 @@ with the materials' dynamic range.
 Everything comes from the two runs' ``results.json`` (no number typed by hand). A material's
 dynamic range is its largest value (the rows' ``reference_max``) over its median positive value
 (``material_values``, the sample the ``auto`` log offset uses:
-:func:`~sparsebtf.points.preprocessing.positive_median`); runs made before that record existed
+:func:`~sparsebtf.points.statistics.positive_median`); runs made before that record existed
 have no median, and their materials are left out of the dynamic-range table.
 """
 

@@ -51,7 +51,7 @@ from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..execution import Executor, executor
 from ..figures import comparison_grid
-from ..points.preprocessing import positive_median
+from ..points.statistics import positive_median
 from .benchmark_set import FLOOR, BenchConfig
 from .methods import PAPER, Budget, Coding, FitContext, Method
 from .methods.selection import resolve_methods

@@ -35,20 +35,21 @@ import numpy as np
 from skimage.metrics import structural_similarity
 
 from .._progress import bar
+from .._threads import single_threaded_blas
+from ..colour import yuv_to_rgb
 from ..data.btf import BTF
 from ..errors import BTFInputError
-from ..learning.parallel import single_threaded_blas
 from ..metrics import (
     PSNR_PEAK,
     TOP_SHARE,
-    _angular_sample,
-    _sumsq,
+    angular_sample,
     display_values,
     psnr,
+    squared_sum,
     top_k_largest,
 )
 from ..model import CodedBTF
-from ..points.preprocessing import EPS, yuv_to_rgb
+from ..points.preprocessing import EPS
 from ..runtime.dense import DecodedBTF
 
 __all__ = ["coded_mse_std", "score_many"]
@@ -111,7 +112,7 @@ def score_many(
                 f"{reference.label} and {rec.label} have different direction tables"
             )
     h, w = reference.height, reference.width
-    pairs = _angular_sample(len(reference.lights), len(reference.views), ssim_images)
+    pairs = angular_sample(len(reference.lights), len(reference.views), ssim_images)
     li = np.array([p[0] for p in pairs])
     vi = np.array([p[1] for p in pairs])
     n_rec = len(reconstructions)
@@ -141,8 +142,8 @@ def score_many(
                 sums[j, 0] += float(np.sum(d2, dtype=np.float64))
                 worst[j] = top_k_largest(worst[j], d2, k_top)
                 top[j] = max(top[j], float(b.max()))
-                sums[j, 1] += _sumsq(la - lb)
-                sums[j, 2] += _sumsq(da - display_values(b))
+                sums[j, 1] += squared_sum(la - lb)
+                sums[j, 2] += squared_sum(da - display_values(b))
                 if ssim_images:
                     rec_img[j, :, rows, cols] = np.moveaxis(b[:, :, li, vi], 2, 0)
                 pb.update(1)

@@ -129,7 +129,7 @@ def single_value_lookup(rec: BTF) -> tuple[Lookup, dict[str, Any]]:
 def _one_thread() -> Iterator[None]:
     """numba, BLAS and (when loaded) torch limited to one thread; restored afterwards."""
     from .._numba import numba
-    from ..learning.parallel import single_threaded_blas
+    from .._threads import single_threaded_blas
 
     torch = sys.modules.get("torch")
     nb_threads = numba.get_num_threads() if numba is not None else None

@@ -28,10 +28,10 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from .._semantic import check_color_header, check_directions
-from ..data.btf import BTF, LOG_EPS, Index, _span
+from ..colour import YUV_TO_RGB_RELEASE
+from ..data.btf import BTF, LOG_EPS, Index, contiguous_slice
 from ..data.directions import from_angles
 from ..errors import BTFInputError, FileFormatError
-from ..points.preprocessing import YUV_TO_RGB_RELEASE
 
 __all__ = ["COLOR_MODELS", "UBO2014BTF", "read_ubo2014"]
 
@@ -119,7 +119,7 @@ def _factor(path: Path, offset: int, dtype: np.dtype, rows: int, k: int) -> np.n
 
 def _rows(m: np.ndarray, idx: np.ndarray, dt: np.dtype) -> np.ndarray:
     """Rows ``idx`` of a (memory-mapped) factor, as ``dt``; a slice when contiguous (fast)."""
-    sp = _span(idx)
+    sp = contiguous_slice(idx)
     return np.asarray(m[sp] if sp is not None else m[idx], dtype=dt)
 
 

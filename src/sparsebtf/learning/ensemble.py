@@ -32,12 +32,10 @@ fixed order, so both give the same dictionaries; the SVDs run here.
 from __future__ import annotations
 
 import functools
-import hashlib
 import json
 import math
 import os
 import time
-import zipfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,12 +43,13 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from .._atomic import atomic_output
 from .._semantic import check_orthonormal
+from .._threads import parallel_map
+from ..checkpoints import check_key, read_checkpoint, write_checkpoint
 from ..errors import BTFInputError, FileFormatError
 from ..execution import Executor, InProcess
-from .coding import SparseCodes, reconstruct_points, sparse_code
-from .parallel import parallel_map
+from .codes import SparseCodes
+from .coding import reconstruct_points, sparse_code
 from .partitions import (
     PARTITION_POINTS,
     ArraySource,
@@ -479,8 +478,9 @@ class DictionaryEnsemble:
         }
 
     def _save_checkpoint(self, state: _State) -> None:
-        """Write ``state`` (``.npz``) with the SHA-256 of its arrays (:func:`checkpoint_digest`),
-        so a resumed fit can tell a damaged checkpoint from a good one."""
+        """Write ``state`` (``.npz``) with the SHA-256 of its arrays
+        (:func:`~sparsebtf.checkpoints.write_checkpoint`), so a resumed fit can tell a damaged
+        checkpoint from a good one."""
         if self.checkpoint is None:
             return
         arrays = {
@@ -493,18 +493,15 @@ class DictionaryEnsemble:
             "key": np.asarray(json.dumps(self._key, sort_keys=True)),
             **{f"mode{n}": np.asarray(d) for n, d in enumerate(state.dicts)},
         }
-        path = Path(self.checkpoint)
-        with atomic_output(path) as tmp:
-            with open(tmp, "wb") as f:
-                np.savez(f, sha256=np.asarray(checkpoint_digest(arrays)), **arrays)
+        write_checkpoint(self.checkpoint, arrays)
 
     def _resume(self, src: PointSource, data_key: str = "") -> _State | None:
         self._key = self._params_key(src, data_key)
         if self.checkpoint is None or not Path(self.checkpoint).exists():
             return None
-        arrays = read_checkpoint(self.checkpoint)
+        arrays = read_checkpoint(self.checkpoint, TRAIN_FIELDS)
         where = str(self.checkpoint)
-        _check_key(self.checkpoint, json.loads(str(arrays["key"])), self._key)
+        check_key(self.checkpoint, json.loads(str(arrays["key"])), self._key)
         dicts = [arrays.get(f"mode{n}") for n in range(len(src.mode_sizes))]
         for n, (u, m) in enumerate(zip(dicts, src.mode_sizes, strict=True), start=1):
             want = (self.n_dictionaries, m, m)
@@ -553,76 +550,9 @@ def _check_state(state: _State, n_points: int, k: int, where: str) -> None:
         )
 
 
-def checkpoint_digest(arrays: dict[str, np.ndarray]) -> str:
-    """SHA-256 over a checkpoint's arrays: for each name in sorted order, the name, dtype,
-    shape and C-order bytes."""
-    h = hashlib.sha256()
-    for name in sorted(arrays):
-        a = np.ascontiguousarray(arrays[name])
-        h.update(f"{name}|{a.dtype.str}|{a.shape}|".encode())
-        h.update(a.tobytes())
-    return h.hexdigest()
-
-
-#: What ``np.load`` raises on a damaged ``.npz`` (truncated, flipped bits: bad CRC, bad zip).
-_NPZ_ERRORS = (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, zipfile.LargeZipFile,
-               RuntimeError, TypeError, IndexError, UnicodeDecodeError)  # fmt: skip
-
-
 #: The arrays every training checkpoint holds (besides ``sha256`` and the dictionaries).
 TRAIN_FIELDS = ("iteration", "objective", "passes", "ranking", "reseeded_from", "converged",
                 "key")  # fmt: skip
-
-
-def read_checkpoint(
-    path: str | os.PathLike[str], required: tuple[str, ...] = TRAIN_FIELDS
-) -> dict[str, np.ndarray]:
-    """The arrays of a checkpoint (training: ``required`` = :data:`TRAIN_FIELDS`; encoding:
-    :mod:`sparsebtf.codec.checkpoint`), verified against the SHA-256 it stores.
-
-    A damaged, truncated or foreign file is one :class:`FileFormatError` line naming it."""
-    try:
-        with np.load(path, allow_pickle=False) as ck:
-            arrays = {name: ck[name] for name in ck.files}
-    except _NPZ_ERRORS as e:
-        raise FileFormatError(
-            f"checkpoint {path} is damaged or not a checkpoint ({type(e).__name__}: "
-            f"{str(e)[:120]}); delete it to start over"
-        ) from None
-    stored = str(arrays.pop("sha256", ""))
-    missing = [k for k in required if k not in arrays]
-    if not stored or missing:
-        raise FileFormatError(
-            f"checkpoint {path}: no {'sha256' if not stored else ', '.join(missing)}: written by "
-            "an older version or not a checkpoint; delete it to start over"
-        )
-    found = checkpoint_digest(arrays)
-    if found != stored:
-        raise FileFormatError(
-            f"checkpoint {path} is damaged: its arrays hash to {found[:12]}…, the file records "
-            f"{stored[:12]}…; delete it to start over"
-        )
-    return arrays
-
-
-def _check_key(path: Any, found: dict[str, Any], want: dict[str, Any],
-               what: str = "training parameters or data") -> None:  # fmt: skip
-    """One line naming what differs between a checkpoint and this run."""
-    diff = [k for k in sorted(set(found) | set(want)) if found.get(k) != want.get(k)]
-    if not diff:
-        return
-    shown = ", ".join(
-        f"{k}: {_short(found.get(k))} in the checkpoint, {_short(want.get(k))} now" for k in diff
-    )
-    raise BTFInputError(
-        f"checkpoint {path} was made with other {what} ({shown}); "
-        "delete it or choose another checkpoint path"
-    )
-
-
-def _short(v: Any) -> str:
-    text = json.dumps(v)
-    return text if len(text) <= 40 else text[:37] + "..."
 
 
 def _default_partition(ex: Executor, src: PointSource, batch_size: int, lo: int, hi: int,

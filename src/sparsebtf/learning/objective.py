@@ -53,16 +53,13 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._threads import parallel_map
 from ..errors import BTFInputError
-from .parallel import parallel_map
+from .codes import SparseCodes, rule_keys, topk_abs
 from .tensor import project, reconstruct_sparse
-
-if TYPE_CHECKING:
-    from .coding import SparseCodes
 
 __all__ = [
     "DISPLAY_A",
@@ -125,7 +122,7 @@ class ChannelError:
     def for_batch(cls, objective: str, log_rgb: np.ndarray, std: np.ndarray,
                   bound: np.ndarray | None, eps: float, channel: int) -> ChannelError:  # fmt: skip
         """From the statistics: σ (L, V, 1 or 3) and the channel's index (0: Y, 1: U, 2: V)."""
-        from ..points.preprocessing import YUV_TO_RGB
+        from ..colour import YUV_TO_RGB
 
         sd = np.broadcast_to(std, (*std.shape[:2], 3))[..., channel]
         scale = (sd[..., None] * YUV_TO_RGB[:, channel]).astype(np.float32)
@@ -178,8 +175,6 @@ def judged_code_levels(
     judged codes' errors are E_c, the log rule's (from the same projections, its codes bit
     for bit) its mean squared standardised residual.
     """
-    from .coding import _rule_keys, topk_abs
-
     x = np.ascontiguousarray(batch, dtype=dtype)
     b = x.shape[0]
     shape = x.shape[1:]
@@ -218,7 +213,7 @@ def judged_code_levels(
         best_log: list[tuple[tuple[int, float], int] | None] = [None] * b
         for i, k in pairs:
             vals = found[i, k][1]
-            n, e = _rule_keys((vals.astype(np.float64) ** 2)[None, :], float(energy[i]), size,
+            n, e = rule_keys((vals.astype(np.float64) ** 2)[None, :], float(energy[i]), size,
                               tau, eps)  # fmt: skip
             key = (int(n[0]), float(e[0]))
             if best_log[i] is None or key < best_log[i][0]:  # type: ignore[index]
@@ -279,8 +274,6 @@ def joint_choice(
     rule's at its level, nor above its E at a lower level. Returns ``[c][j]`` codes, each
     point's ``errors`` its channel's E_c.
     """
-    from .coding import SparseCodes
-
     n_ch, n_lv = len(x), len(taus[0])
     b = x[0].shape[0]
     e0 = errors[0]

@@ -32,10 +32,10 @@ from typing import Any
 
 import numpy as np
 
+from .._threads import prefetch
 from ..errors import BTFInputError
 from ..execution import Executor, PairwiseSum
-from .coding import SparseCodes
-from .parallel import prefetch
+from .codes import SparseCodes
 from .steps import BatchCoding, code_step, cross_products, pair_modes, sparse_cross_products
 
 __all__ = [

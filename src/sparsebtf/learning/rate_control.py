@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BTFInputError
-from .coding import SparseCodes
+from .codes import SparseCodes
 from .cost import coefficient_budget, material_bytes
 
 __all__ = [

@@ -41,9 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._threads import parallel_map
 from ..errors import BTFInputError
-from .coding import SparseCodes, _count_and_error, topk_abs
-from .parallel import parallel_map
+from .codes import SparseCodes, count_and_error, topk_abs
 from .tensor import project, project_modes, projection_order, sum_squares
 
 __all__ = [
@@ -185,7 +185,7 @@ def code_step(
         s = project_modes(inner[None], mats_k[k], [mode_b]).reshape(-1)
         idx = topk_abs(s, tau)
         vals = s[idx]
-        n, err = _count_and_error(vals.astype(np.float64) ** 2, energy[i], size, tau, eps)
+        n, err = count_and_error(vals.astype(np.float64) ** 2, energy[i], size, tau, eps)
         idx, vals = idx[:n], vals[:n]
         loc = np.stack(np.unravel_index(idx, shape), axis=1)
         # The values as the codes store them (float32), as the update passes will read them.

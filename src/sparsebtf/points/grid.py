@@ -125,14 +125,14 @@ def iter_points(
     the coding of a channel wants it; same values). Points are
     read one spatial patch at a time (a patch holds every direction), so memory stays at
     ``batch`` data points whatever the BTF size. NaN/Inf raise with their location; negative
-    values are clamped to 0 (counted by :func:`~sparsebtf.points.preprocessing.gather_statistics`).
+    values are clamped to 0 (counted by :func:`~sparsebtf.points.statistics.gather_statistics`).
     ``parallel``: the points of a batch are read on the worker threads
-    (:func:`~sparsebtf.learning.parallel.parallel_map`); the values are the same.
+    (:func:`~sparsebtf._threads.parallel_map`); the values are the same.
     ``reuse = n``: the batches are written into ``n`` arrays in turn (batch k's array again
     holds batch k + n), sparing the fresh pages the kernel zeroes for every new array (tens
     of ms per UBO2014 data point); the caller must be done with a batch ``n`` batches later.
     """
-    from ..learning.parallel import parallel_map
+    from .._threads import parallel_map
 
     grid = PatchGrid.for_btf(btf, patch)
     if (pre.stats.n_lights, pre.stats.n_views) != btf.shape[2:4]:
@@ -190,11 +190,11 @@ def stream_points(
 ) -> Iterator[tuple[np.ndarray, np.ndarray]]:
     """:func:`iter_points` for a coding loop, keeping every core busy: each batch is read
     on the worker threads while the caller codes the one before (a background thread,
-    :func:`~sparsebtf.learning.parallel.prefetch`), BLAS single-threaded throughout (both
+    :func:`~sparsebtf._threads.prefetch`), BLAS single-threaded throughout (both
     the reads and the caller's projections are one GEMM per thread). Memory: three batches
     (coded, ready, being read), three arrays written in turn: use a batch before asking for
     the one after next."""
-    from ..learning.parallel import prefetch, single_threaded_blas
+    from .._threads import prefetch, single_threaded_blas
 
     # With prefetch one batch ahead, the reader fills batch k + 3 only after the caller has
     # asked for batch k + 2, so after it finished with batch k: three arrays suffice.

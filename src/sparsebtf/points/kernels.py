@@ -3,7 +3,7 @@ present (``SPARSEBTF_NO_NUMBA=1`` keeps NumPy).
 
 Every value of a BTF goes through the same three steps, whether a data point is coded
 (:meth:`~sparsebtf.points.preprocessing.Preprocessor.forward_into`) or the statistics are
-gathered (:func:`~sparsebtf.points.preprocessing.statistic_sums`)::
+gathered (:func:`~sparsebtf.points.statistics.statistic_sums`)::
 
     q   = max(x, 0) + ε              clamp_offset   (counts NaN/Inf and negatives)
     l   = ln q                       NumPy's log, in place, on both paths

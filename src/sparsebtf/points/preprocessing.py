@@ -14,42 +14,21 @@ Two standardisation conventions are provided:
 * ``"per_channel"`` — each channel its own mean and n−1 standard deviation.
 
 The inverse is exact (``np.linalg.inv`` of the forward matrix): the float64 round trip is at
-rounding level. :data:`YUV_TO_RGB_RELEASE` holds the rounded inverse of the release's shader
-for renderers that must match it bit for bit.
-
-Statistics are gathered in one streaming pass over view blocks (:func:`gather_statistics`), or
-by view ranges in separate tasks (:func:`statistic_sums`, :func:`combine_statistics`).
-
-True black and high dynamic range. ln(x + 1e-5) turns an exact zero (a hard shadow, a masked
-texel) into −11.5 among values near −2: standardisation and the sparse code then chase those
-outliers, and the overshoot they cause comes back through exp() as values thousands of times
-the material's maximum. Two defences, both recorded with the statistics:
-
-* the **log offset** ε is chosen per material (:func:`choose_log_offset`, ``"auto"``):
-  :data:`LOG_OFFSET_FRACTION` of the median positive value, never below the release's 1e-5;
-  values far below ε lose their relative precision, which costs nothing in linear error;
-  ``"release"`` keeps 1e-5;
-* the **bound**: for every angular image the largest ln(x + ε) over its texels and R, G, B,
-  rounded up to a multiple of 1/32. Every decoder clamps its log-RGB values to it
-  (interpolated with the angular weights between sampled directions), so no decoded value
-  exceeds the brightest value of its angular image by more than 3.2 %:
-  :meth:`Standardization.clamp_log_rgb`.
+rounding level. The colour matrices live in :mod:`sparsebtf.colour`; the statistics (μ, σ, the
+bound, the log offset) are measured by :mod:`.statistics`.
 """
 
 from __future__ import annotations
 
-import itertools
 import threading
-import warnings
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
-from .._progress import bar
 from .._semantic import EPS_RANGE
-from ..data.btf import BTF, LOG_EPS, Index, as_index
+from ..colour import RGB_TO_YUV_F32, rgb_to_yuv, yuv_to_rgb
+from ..data.btf import LOG_EPS, Index, as_index
 from ..data.validate import check_finite
 from ..errors import BTFInputError
 
@@ -57,32 +36,21 @@ __all__ = [
     "BOUND_STEP",
     "EPS",
     "LOG_OFFSETS",
-    "LOG_OFFSET_FRACTION",
-    "RGB_TO_YUV",
-    "STATS_READ_BYTES",
+    "MAX_LOG_OFFSET",
     "STD_MODES",
     "TRANSFORMS",
-    "YUV_TO_RGB",
-    "YUV_TO_RGB_RELEASE",
+    "LogOffset",
     "Preprocessor",
     "Standardization",
-    "StatisticSums",
+    "StdMode",
     "Transform",
     "check_std_mode",
-    "choose_log_offset",
-    "combine_statistics",
     "from_log_yuv",
-    "gather_statistics",
     "inverse_log_transform",
     "log_transform",
     "resolve_log_offset",
-    "rgb_to_yuv",
     "round_up_bound",
-    "statistic_bands",
-    "statistic_sums",
     "to_log_yuv",
-    "warn_negatives",
-    "yuv_to_rgb",
 ]
 
 #: The log offset of §3.1 (and of UBO2014's dynamic-range reduction).
@@ -94,42 +62,13 @@ STD_MODES = ("shared", "per_channel")
 Transform = Literal["log_yuv", "identity"]
 TRANSFORMS = ("log_yuv", "identity")
 
-#: Analog BT.601 RGB → YUV, applied to log values (release: ``DataBTF4D.inl``).
-RGB_TO_YUV = np.array(
-    [
-        [0.299, 0.587, 0.114],
-        [-0.14713, -0.28886, 0.436],
-        [0.615, -0.51499, -0.10001],
-    ]
-)
-_RGB_TO_YUV_F32 = RGB_TO_YUV.astype(np.float32)
-#: Exact inverse of :data:`RGB_TO_YUV`.
-YUV_TO_RGB = np.linalg.inv(RGB_TO_YUV)
-#: The release shader's rounded inverse (|inv·fwd − I| ≤ 1.6e-5).
-YUV_TO_RGB_RELEASE = np.array(
-    [
-        [1.0, 0.0, 1.13983],
-        [1.0, -0.39465, -0.5806],
-        [1.0, 2.03211, 0.0],
-    ]
-)
-
-
-#: The per-material log offset: ε = max(:data:`EPS`, this share of the median positive value).
-LOG_OFFSET_FRACTION = 0.01
 #: The bound on ln(RGB + ε) is kept rounded up to a multiple of this (:func:`round_up_bound`).
 BOUND_STEP = 1 / 32
-#: Named log-offset rules: "auto" (:func:`choose_log_offset`) and "release" (ε = 1e-5).
+#: Named log-offset rules: "auto" (:func:`~.statistics.choose_log_offset`) and "release" (ε = 1e-5).
 LOG_OFFSETS = ("auto", "release")
-#: A log offset must lie in [EPS, _MAX_LOG_OFFSET]: beyond it the log is all but linear (the
+#: A log offset must lie in [EPS, MAX_LOG_OFFSET]: beyond it the log is all but linear (the
 #: readers' bound, so that every offset the encoder takes makes a file they accept).
-_MAX_LOG_OFFSET = EPS_RANGE[1]
-#: Views read to choose the log offset (evenly spaced; all of them up to this many).
-_OFFSET_VIEWS = 12
-#: Log-spaced histogram of positive values for the median: 64 bins per decade, 1e-12 … 1e12.
-_HIST_PER_DECADE, _HIST_LOW, _HIST_DECADES = 64, -12, 24
-#: Texels per view block the median is taken over (a regular subsample of larger tiles).
-_OFFSET_TEXELS = 10_000
+MAX_LOG_OFFSET = EPS_RANGE[1]
 
 LogOffset = float | Literal["auto", "release"]
 
@@ -150,15 +89,6 @@ def inverse_log_transform(y: np.ndarray, eps: float = EPS) -> np.ndarray:
     return np.exp(y) - eps
 
 
-def rgb_to_yuv(x: np.ndarray) -> np.ndarray:
-    """Colour transform on the last axis (size 3)."""
-    return x @ RGB_TO_YUV.T.astype(x.dtype, copy=False)
-
-
-def yuv_to_rgb(x: np.ndarray, release_matrix: bool = False) -> np.ndarray:
-    """Inverse colour transform on the last axis; ``release_matrix`` uses the shader's rounding."""
-    m = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
-    return x @ m.T.astype(x.dtype, copy=False)
 
 
 def to_log_yuv(rgb: np.ndarray, eps: float = EPS) -> np.ndarray:
@@ -323,7 +253,7 @@ class Preprocessor:
             mu, inv = self.stats._full(slice(None), slice(None), np.dtype(np.float32), True)
             self._full_f32 = (mu.reshape(-1, 3), inv.reshape(-1, 3))
         n_a = self._full_f32[0].shape[0]
-        standardise_log_rgb(q.reshape(-1, n_a, 3), _RGB_TO_YUV_F32, *self._full_f32,
+        standardise_log_rgb(q.reshape(-1, n_a, 3), RGB_TO_YUV_F32, *self._full_f32,
                             out=out.reshape(3, -1, n_a) if planar else None)  # fmt: skip
         return out
 
@@ -369,160 +299,6 @@ class Preprocessor:
         return inverse_log_transform(log_rgb, self.stats.eps)
 
 
-@dataclass(frozen=True, eq=False)
-class StatisticSums:
-    """Sums over the texels of one BTF's log-YUV values, for the views ``[v0, v1)``.
-
-    Each view's sums are independent of the others, so a BTF's statistics can be gathered
-    by view ranges in separate tasks (or machines) and combined by
-    :func:`combine_statistics` into exactly what one pass gives. Sums are shifted by the first
-    texel (``shift``) to keep Σ(x − μ)² accurate in float32.
-
-    Attributes
-    ----------
-    views : (v0, v1).
-    shift, s1, s2 : (L, v1 − v0, 3) float64: the first texel, Σ(x − shift), Σ(x − shift)².
-    top : (L, v1 − v0) float64: the largest ln(x + ε) over texels and R, G, B.
-    n_texels : H·W.
-    negatives : values clamped to 0.
-    """
-
-    views: tuple[int, int]
-    shift: np.ndarray
-    s1: np.ndarray
-    s2: np.ndarray
-    top: np.ndarray
-    n_texels: int
-    negatives: int
-
-
-#: Bytes of BTF values one statistics read holds (a band of rows of a few views), per thread,
-#: unless one row of the file's chunks is larger: the pass's memory does not grow with the
-#: number of views.
-STATS_READ_BYTES = 32 * 2**20
-
-
-def statistic_bands(btf: BTF) -> tuple[int, int]:
-    """(rows, views) of one read of the statistics pass: :attr:`BTF.block_hint` views
-    (a file's chunk) and as many whole rows (a multiple of the hint's) as fit
-    :data:`STATS_READ_BYTES`, at least the hint's. Fixed per BTF, so every view's sums are
-    added in the same bands whatever the view ranges of the tasks."""
-    h, w, nl, nv, _ = btf.shape
-    hint_rows, hint_views = (max(1, int(x)) for x in btf.block_hint)
-    views = min(hint_views, nv)
-    rows = max(1, STATS_READ_BYTES // max(1, 12 * w * nl * views))
-    rows = max(hint_rows, rows - rows % hint_rows) if rows >= hint_rows else hint_rows
-    return min(rows, h), views
-
-
-def statistic_sums(
-    btf: BTF,
-    views: tuple[int, int] | None = None,
-    eps: float = EPS,
-    tick: Callable[[int], object] | None = None,
-) -> StatisticSums:
-    """The :class:`StatisticSums` of ``btf`` over ``views`` (default: all).
-
-    Read in bands of rows of a few views (:func:`statistic_bands`; memory: a band per
-    thread), the groups of views on the worker threads (:func:`~sparsebtf.learning.parallel.
-    ordered_map`), each value touched in three passes (:mod:`.kernels`); ``tick(n)`` after
-    each group of n views. NaN/Inf abort with their count and first location."""
-    from ..learning.parallel import ordered_map
-
-    h, w, nl, nv, _ = btf.shape
-    v0, v1 = views if views is not None else (0, nv)
-    if not 0 <= v0 < v1 <= nv:
-        raise BTFInputError(f"{btf.label}: view range [{v0}, {v1}) is not inside [0, {nv})")
-    n = h * w
-    if n < 2:
-        raise BTFInputError(f"{btf.label}: standardisation needs at least 2 texels, got {n}")
-    rows, step = statistic_bands(btf)
-    # groups aligned on the storage's view blocks (absolute indices), cut at [v0, v1)
-    edges = sorted({v0, v1, *range(v0 - v0 % step + step, v1, step)})
-    groups = list(itertools.pairwise(edges))
-    s1 = np.zeros((nl, v1 - v0, 3))
-    s2 = np.zeros((nl, v1 - v0, 3))
-    shift = np.zeros((nl, v1 - v0, 3))
-    top = np.zeros((nl, v1 - v0))
-    negatives = 0
-
-    def group_sums(vs: tuple[int, int]) -> tuple[np.ndarray, ...]:
-        return _group_sums(btf, vs, rows, eps)
-
-    for (a, b), (sh, g1, g2, gt, neg) in zip(
-        groups, ordered_map(group_sums, groups), strict=True
-    ):
-        shift[:, a - v0 : b - v0] = sh
-        s1[:, a - v0 : b - v0] = g1
-        s2[:, a - v0 : b - v0] = g2
-        top[:, a - v0 : b - v0] = gt
-        negatives += neg
-        if tick is not None:
-            tick(b - a)
-    return StatisticSums((v0, v1), shift, s1, s2, top, n, negatives)
-
-
-def _group_sums(
-    btf: BTF, views: tuple[int, int], rows: int, eps: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
-    """Shift, Σd, Σd², top ((L, v, 3) or (L, v)) and the negative count of views
-    ``[a, b)``, read in bands of ``rows`` rows; each view's sums in band order."""
-    from .kernels import accumulate_sums, log_offset
-
-    h, _, nl, _, _ = btf.shape
-    a, b = views
-    nvg = b - a
-    shift = np.zeros((nl * nvg, 3), dtype=np.float32)
-    s1 = np.zeros((nl * nvg, 3))
-    s2 = np.zeros((nl * nvg, 3))
-    top = np.full(nl * nvg, -np.inf)
-    negatives = 0
-    for r0 in range(0, h, rows):
-        block = btf.read(slice(r0, min(r0 + rows, h)), slice(None), slice(None), slice(a, b))
-        # float32 transforms (the release computed its statistics in single precision),
-        # float64 accumulators.
-        logs, bad, neg = log_offset(block, eps)
-        if bad:
-            check_finite(block, btf.label, offset=(r0, 0, 0, a))
-        negatives += neg
-        accumulate_sums(logs.reshape(-1, nl * nvg, 3), _RGB_TO_YUV_F32, shift, s1, s2, top,
-                        first=r0 == 0)  # fmt: skip
-    return (
-        shift.reshape(nl, nvg, 3).astype(np.float64),
-        s1.reshape(nl, nvg, 3),
-        s2.reshape(nl, nvg, 3),
-        top.reshape(nl, nvg),
-        negatives,
-    )
-
-
-def combine_statistics(
-    parts: Sequence[StatisticSums], mode: StdMode = "shared", eps: float = EPS
-) -> Standardization:
-    """The :class:`Standardization` from :class:`StatisticSums` of consecutive view ranges
-    covering every view (bit for bit the same whatever the ranges)."""
-    check_std_mode(mode)
-    if not parts or parts[0].views[0] != 0 or any(
-        a.views[1] != b.views[0] for a, b in itertools.pairwise(parts)
-    ):
-        raise BTFInputError("statistic sums must cover consecutive view ranges from view 0")
-    n = parts[0].n_texels
-    shift, s1, s2, top = (np.concatenate([getattr(p, a) for p in parts], axis=1)
-                          for a in ("shift", "s1", "s2", "top"))  # fmt: skip
-    # With y = x − K: Σ(x − μ)² = Σy² + 2(K − μ)Σy + n(K − μ)².
-    if mode == "shared":
-        mean = (shift + s1 / n).mean(axis=2, keepdims=True)
-        # per channel, about the shared μ (release convention)
-        d = shift - mean
-        ss = s2 + 2 * d * s1 + n * d**2
-        std = np.sqrt(np.maximum(ss, 0) / (n - 1)).mean(axis=2, keepdims=True)
-    else:
-        mean = shift + s1 / n
-        std = np.sqrt(np.maximum(s2 - s1**2 / n, 0) / (n - 1))
-    std = np.where(std > 0, std, 1.0)
-    return Standardization(mode=mode, mean=mean, std=std, eps=eps, bound=round_up_bound(top))
-
-
 def round_up_bound(x: np.ndarray) -> np.ndarray:
     r"""float32 copy of ``x`` rounded up to a multiple of :data:`BOUND_STEP` (never below
     ``x``; exact in binary16 for \|x\| < 64), the precision a bound is kept in.
@@ -546,107 +322,8 @@ def resolve_log_offset(rule: LogOffset) -> LogOffset:
                 f"log offset must be 'auto', 'release' or a number, got {rule!r}"
             ) from None
     value = float(rule)
-    if not EPS <= value <= _MAX_LOG_OFFSET:  # also refuses NaN
+    if not EPS <= value <= MAX_LOG_OFFSET:  # also refuses NaN
         raise BTFInputError(
-            f"log offset must be between {EPS:g} and {_MAX_LOG_OFFSET:g}, got {value:g}"
+            f"log offset must be between {EPS:g} and {MAX_LOG_OFFSET:g}, got {value:g}"
         )
     return value
-
-
-def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
-    """The log offset ε of ``btf``: a number as given, 1e-5 for "release", and for "auto"
-    max(1e-5, :data:`LOG_OFFSET_FRACTION` × the median positive value).
-
-    The median comes from a log-spaced histogram (64 bins per decade) of up to
-    :data:`_OFFSET_VIEWS` evenly spaced view blocks, on a regular subsample of about
-    :data:`_OFFSET_TEXELS` texels of each (every texel of a tile up to 100×100), so it costs a
-    few view reads and memory of one block. A material with a stray-light floor far above 1 %
-    of its median keeps values in the same order; one with exact zeros gets a floor that the
-    zeros no longer dominate.
-    """
-    rule = resolve_log_offset(rule)
-    if rule == "release":
-        return EPS
-    if not isinstance(rule, str):
-        return float(rule)
-    median, _ = positive_median(btf)
-    if median is None:
-        return EPS
-    # Round to 3 significant digits: the offset is a recorded parameter, not a measurement.
-    return float(f"{max(EPS, min(LOG_OFFSET_FRACTION * median, _MAX_LOG_OFFSET)):.3g}")
-
-
-def positive_median(btf: BTF) -> tuple[float | None, float]:
-    """(median of the positive values, share of values <= 0) of ``btf``, on the sample the
-    ``auto`` log offset uses (:func:`choose_log_offset`): up to :data:`_OFFSET_VIEWS` evenly
-    spaced view blocks, a regular subsample of about :data:`_OFFSET_TEXELS` texels of each;
-    the median is its log-spaced histogram bin's geometric centre (64 bins per decade), None
-    when no value is positive. NaN/Inf abort with their count and a location."""
-    h, w, _, nv, _ = btf.shape
-    views = np.unique(np.linspace(0, nv - 1, min(nv, _OFFSET_VIEWS)).round().astype(int))
-    step = max(1, int(np.sqrt(h * w / _OFFSET_TEXELS)))
-    n_bins = _HIST_DECADES * _HIST_PER_DECADE
-    counts = np.zeros(n_bins, dtype=np.int64)
-    sub = slice(None, None, step)
-    seen = 0
-    for v in views:
-        block = btf.read(sub, sub, slice(None), [int(v)])  # the subsample only
-        bad = ~np.isfinite(block)
-        if bad.any():  # located in the whole BTF: rows and cols of the subsample × step
-            r, c, li, _, ch = (int(i[0]) for i in np.nonzero(bad))
-            raise BTFInputError(
-                f"{btf.label}: {int(bad.sum())} NaN/Inf values; first at row {r * step}, "
-                f"col {c * step}, "
-                f"light {li}, view {int(v)}, channel {ch}"
-            )
-        seen += block.size
-        x = block.ravel()
-        x = x[x > 0].astype(np.float64)
-        # bin = ⌊64·(log10 x + 12)⌋: one pass, no search over the edges
-        b = np.floor((np.log10(x) - _HIST_LOW) * _HIST_PER_DECADE).astype(np.int64)
-        counts += np.bincount(np.clip(b, 0, n_bins - 1), minlength=n_bins)
-    total = int(counts.sum())
-    zeros = 1.0 - total / seen if seen else 0.0
-    if total == 0:
-        return None, zeros
-    k = int(np.searchsorted(np.cumsum(counts), (total + 1) // 2))
-    return float(10.0 ** (_HIST_LOW + (k + 0.5) / _HIST_PER_DECADE)), zeros  # bin centre
-
-
-def warn_negatives(name: str, parts: Sequence[StatisticSums]) -> None:
-    """One warning with the total count of negative values clamped to 0, if any."""
-    negatives = sum(p.negatives for p in parts)
-    if negatives:
-        warnings.warn(f"{name}: clamped {negatives} negative values to 0", stacklevel=3)
-
-
-def gather_statistics(
-    btf: BTF,
-    mode: StdMode = "shared",
-    eps: float = EPS,
-    progress: bool | None = None,
-    transform: Transform = "log_yuv",
-) -> Standardization:
-    """μ and σ of every angular image of ``btf`` in log-YUV, in one pass over view blocks.
-
-    Memory is one view block (H·W·L·3 values). NaN/Inf abort with their count and first
-    location; negative values are clamped to 0 with one warning giving the total count.
-    ``transform="identity"`` reads nothing and returns μ = 0, σ = 1 (no processing at all).
-    The pass is :func:`statistic_sums` + :func:`combine_statistics`.
-    """
-    check_std_mode(mode)
-    if transform not in TRANSFORMS:
-        raise BTFInputError(
-            f"preprocessing transform must be one of {TRANSFORMS}, got {transform!r}"
-        )
-    _, _, nl, nv, _ = btf.shape
-    if transform == "identity":
-        c = 1 if mode == "shared" else 3
-        return Standardization(
-            mode=mode, mean=np.zeros((nl, nv, c)), std=np.ones((nl, nv, c)), eps=eps,
-            transform="identity",
-        )
-    with bar(nv, "statistics", "view", progress) as pb:
-        sums = statistic_sums(btf, eps=eps, tick=pb.update)
-    warn_negatives(btf.label, [sums])
-    return combine_statistics([sums], mode, eps)

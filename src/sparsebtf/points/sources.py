@@ -25,15 +25,8 @@ from .._progress import bar
 from ..data.btf import BTF
 from ..errors import BTFInputError, OutputError
 from .grid import PatchGrid, iter_points, sample_points
-from .preprocessing import (
-    EPS,
-    LogOffset,
-    Preprocessor,
-    StdMode,
-    Transform,
-    choose_log_offset,
-    gather_statistics,
-)
+from .preprocessing import EPS, LogOffset, Preprocessor, StdMode, Transform
+from .statistics import choose_log_offset, gather_statistics
 
 __all__ = [
     "STAGE_LIMIT_BYTES",
@@ -229,7 +222,7 @@ def training_points(
 ) -> BTFPointSource:
     """The training set of §3.1: a seeded ``sample`` fraction of every BTF's data points,
     standardised with each BTF's own statistics (all three channels) after ln(x + ε), ε by
-    ``log_offset`` (:func:`~sparsebtf.points.preprocessing.choose_log_offset`)."""
+    ``log_offset`` (:func:`~sparsebtf.points.statistics.choose_log_offset`)."""
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
     check_same_directions(btfs)

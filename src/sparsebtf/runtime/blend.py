@@ -22,9 +22,9 @@ from collections.abc import Sequence
 import numpy as np
 
 from .._progress import bar
+from .._threads import parallel_map
 from ..errors import BTFInputError, ModelMismatchError
 from ..learning.coding import SparseCodes, topk_abs
-from ..learning.parallel import parallel_map
 from ..learning.tensor import reconstruct
 from ..model import CodedBTF, TauSpec, model_text, parse_tau
 from ..points.preprocessing import Standardization, round_up_bound

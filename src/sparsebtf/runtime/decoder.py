@@ -22,10 +22,11 @@ from typing import Any, Literal
 
 import numpy as np
 
+from ..colour import YUV_TO_RGB, yuv_to_rgb
 from ..errors import BTFInputError
 from ..model import CHANNELS, CodedBTF, TauSpec
 from ..points.grid import PatchGrid
-from ..points.preprocessing import YUV_TO_RGB, inverse_log_transform, yuv_to_rgb
+from ..points.preprocessing import inverse_log_transform
 from . import kernels
 from .angular import SCHEMES, Scheme, angular_weights, neighbour_table
 

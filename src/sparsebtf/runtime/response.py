@@ -24,8 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from ..colour import yuv_to_rgb
 from ..model import CHANNELS
-from ..points.preprocessing import inverse_log_transform, yuv_to_rgb
+from ..points.preprocessing import inverse_log_transform
 
 __all__ = ["LUMINANCE", "angular_response", "mean_log_yuv"]
 

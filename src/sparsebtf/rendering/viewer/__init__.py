@@ -95,13 +95,6 @@ def _shader(name: str) -> bytes:
     return (resources.files("sparsebtf.rendering") / "shaders" / name).read_bytes()
 
 
-def shader_source(name: str = "sparsebtf_lookup.glsl") -> str:
-    """Text of one of the viewer's shaders (``sparsebtf_lookup.glsl``, ``viewer_scene.glsl``)."""
-    if name not in SHADER_FILES:
-        raise BTFInputError(f"unknown shader {name!r}; choose one of {', '.join(SHADER_FILES)}")
-    return _shader(name).decode()
-
-
 def _texture(name: str, fmt: str, flat: np.ndarray, where: str) -> tuple[dict[str, Any], bytes]:
     """One texture: ``flat`` (n·channels entries) padded to TEX_WIDTH-wide rows."""
     dtype, comps = _TYPES[fmt]

@@ -1,10 +1,12 @@
-"""Run independent projections side by side: one BLAS thread per worker, one worker per core.
+"""Worker threads for the whole pipeline: one BLAS thread per worker, one worker per core.
 
-A projection is a chain of GEMMs on one data point (151×151 matrices against 15,100-column
-slabs). Splitting each small GEMM over two BLAS threads costs more in synchronisation than it
-gains, and collapses when another process holds a core; giving each core its own data point
-keeps every GEMM single-threaded and the cores busy. Numpy releases the GIL inside BLAS and
-large array operations, so threads suffice (no copies between processes).
+Independent work (projections, statistics of view groups, texel blocks) runs side by side on
+one thread pool for the process. A projection is a chain of GEMMs on one data point (151×151
+matrices against 15,100-column slabs). Splitting each small GEMM over two BLAS threads costs
+more in synchronisation than it gains, and collapses when another process holds a core; giving
+each core its own data point keeps every GEMM single-threaded and the cores busy. Numpy
+releases the GIL inside BLAS and large array operations, so threads suffice (no copies between
+processes).
 ``SPARSEBTF_THREADS`` sets the number of workers (default: the cores this process may use).
 """
 
