@@ -83,7 +83,7 @@ def parse_target(target: Target) -> tuple[str, Any]:
             if not r > 0:
                 raise BTFInputError(f"target={target!r}: a ratio must be > 0")
             return "ratio", r
-        if re.search(r"[a-wyz]", target, re.I) and target.strip().lower() not in ("all",):
+        if re.search(r"[a-z]", target, re.I):
             raise BTFInputError(f"target={target!r} is not a tau, size or ratio; give "
                                 + _SPELLINGS)
     elif not isinstance(target, Sequence | Mapping):
