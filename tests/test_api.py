@@ -165,7 +165,7 @@ def test_many_btfs_yield_one_coded_each(model):
     assert [c.name for c in coded] == [b.name for b in btfs]
     for c, b in zip(coded, btfs, strict=True):
         _same_codes(c, sb.encode(b, model, target=(16, 4, 4)))
-    sized = list(sb.encode(tuple(btfs), model, target="30000B"))
+    sized = list(sb.encode((b for b in btfs), model, target="30000B"))  # any iterable
     for c, b in zip(sized, btfs, strict=True):
         _same_codes(c, sb.encode(b, model, target="30000B"))
 
@@ -247,6 +247,8 @@ def test_save_btf_refusals_leave_no_file(model, btf, tmp_path):
     assert list(tmp_path.iterdir()) == []
     with pytest.raises(SparseBTFError, match="decode takes a coded BTF"):
         sb.decode(object())  # type: ignore[arg-type]
+    with pytest.raises(BTFInputError, match="encode takes a BTF, a path or a list"):
+        sb.encode(3.5, model)  # type: ignore[call-overload]
 
 
 # -- load_model ------------------------------------------------------------------------------

@@ -16,7 +16,7 @@ from __future__ import annotations
 import inspect
 import os
 import re
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, overload
 
 from .errors import BTFInputError
@@ -132,7 +132,7 @@ def _check_tau(tau: Any, model: Model) -> None:
 def encode(btf_or_btfs: BTF | str | os.PathLike[str], model: Model | str | os.PathLike[str] |
            None = None, *, target: Target = None, **options: Any) -> CodedBTF: ...
 @overload
-def encode(btf_or_btfs: Sequence[BTF | str | os.PathLike[str]], model: Model | str |
+def encode(btf_or_btfs: Iterable[BTF | str | os.PathLike[str]], model: Model | str |
            os.PathLike[str] | None = None, *, target: Target = None,
            **options: Any) -> Iterator[CodedBTF]: ...
 def encode(
@@ -147,7 +147,7 @@ def encode(
 
     ``btf_or_btfs``: a BTF, or a path / ``synth:`` spec (opened by
     :func:`~sparsebtf.open.open_btf`) → one :class:`~sparsebtf.model.CodedBTF`; a list or
-    tuple of them → an iterator yielding one coded BTF per input, in order
+    tuple (any iterable) of them → an iterator yielding one coded BTF per input, in order
     (:func:`~sparsebtf.codec.encode_many`; iterate to the end to release a cluster it started).
 
     ``target`` (:func:`parse_target`): a τ per data point and channel, ``(885, 64, 64)`` by
@@ -164,18 +164,23 @@ def encode(
     """
     from .codec import encode as encode_tau
     from .codec import encode_many, encode_to_size
+    from .data.btf import BTF
 
     kind, value = parse_target(target)
     the_model = _model_of(model)
     if kind != "tau":
         options = {"budget": "stored", "per_material": True, **options}
     sized = {"target_bytes": value} if kind == "bytes" else {"target_ratio": value}
-    if isinstance(btf_or_btfs, list | tuple):
+    if not isinstance(btf_or_btfs, BTF | str | os.PathLike):
+        if not isinstance(btf_or_btfs, Iterable):
+            raise BTFInputError(f"encode takes a BTF, a path or a list of them, not a "
+                                f"{type(btf_or_btfs).__name__}")  # fmt: skip
+        many = list(btf_or_btfs)
         _check_options(encode_many, options, kind)
         if kind == "tau":
             _check_tau(value, the_model)
-            return encode_many(btf_or_btfs, the_model, tau=value, **options)
-        return encode_many(btf_or_btfs, the_model, **sized, **options)
+            return encode_many(many, the_model, tau=value, **options)
+        return encode_many(many, the_model, **sized, **options)
     btf = btf_or_btfs
     if isinstance(btf, str | os.PathLike):
         from .open import open_btf
