@@ -154,7 +154,7 @@ def encode(
     default (:func:`~sparsebtf.codec.encode`: each point's sparsest code with mean squared
     residual below ``eps``, at most τ coefficients); or a coded size, ``"1.2MB"``, or a ratio,
     ``"50x"`` (rate control, :func:`~sparsebtf.codec.encode_to_size`). A size or a ratio means
-    the coded file, as ``sparsebtf encode --ratio`` does: raw fp16 bytes / ratio
+    the coded file, as ``sparsebtf encode --target-ratio`` does: raw fp16 bytes / ratio
     (``budget="stored", per_material=True``); ``budget="paper", per_material=False`` count by
     Table 4 with the shared dictionaries.
 
