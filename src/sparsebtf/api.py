@@ -1,0 +1,225 @@
+"""The front functions of ``import sparsebtf as sb``: :func:`load_model`, :func:`encode` (one
+function for τ, a target size or a ratio, one BTF or many) and :func:`decode`.
+
+They choose and call the codec's encoders (:func:`~sparsebtf.codec.encode`,
+:func:`~sparsebtf.codec.encode_to_size`, :func:`~sparsebtf.codec.encode_many`) and the
+runtime's decoder (:func:`~sparsebtf.runtime.coded_btf_view`); every heavy import happens at
+the first call, so ``import sparsebtf`` stays cheap.
+
+>>> import sparsebtf as sb                                             # doctest: +SKIP
+>>> coded = sb.encode(sb.open_btf("synth:stone:20:7"), target="50x")   # doctest: +SKIP
+>>> sb.save_btf(coded, "stone.coded.h5")                               # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import inspect
+import os
+import re
+from collections.abc import Iterable, Iterator, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, overload
+
+from .errors import BTFInputError
+
+if TYPE_CHECKING:
+    from .data.btf import BTF
+    from .model import CodedBTF, Model
+    from .runtime.dense import DecodedBTF
+
+__all__ = ["Target", "decode", "encode", "load_model", "parse_target"]
+
+#: What :func:`encode`'s ``target`` accepts (see :func:`parse_target`).
+Target = None | str | Sequence[int] | Mapping[str, int]
+
+#: Bytes per unit of a size target (decimal and binary prefixes; case does not matter).
+_UNITS = {"b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "kib": 2**10, "mib": 2**20,
+          "gib": 2**30}  # fmt: skip
+_SIZE = re.compile(r"^\s*(\d+(?:\.\d*)?(?:e[+-]?\d+)?)\s*([kmg]i?b|b)\s*$", re.I)
+_RATIO = re.compile(r"^\s*(\d+(?:\.\d*)?(?:e[+-]?\d+)?)\s*x\s*$", re.I)
+_SPELLINGS = ('a tau such as (885, 64, 64), {"Y": 885, "U": 64, "V": 64}, "885,64,64" or '
+              '"0.25" (a fraction of 885,64,64); a coded size such as "1.2MB", "300KiB" or '
+              '"250000B"; or a compression ratio such as "50x"')
+
+
+def load_model(spec: str | os.PathLike[str] = "release") -> Model:
+    """The model ``spec`` names: a bundled model's name (``"release"``: the authors' Y/U/V
+    ensembles, K = 8, 10×10 patches, the 151 UBO2014 directions; ``sparsebtf models`` lists
+    them) or the path of a model file (``.h5`` from :func:`~sparsebtf.codec.train` saved by
+    :func:`~sparsebtf.storage.save_model`, or from ``sparsebtf import-release``)."""
+    from .storage.bundled import open_model
+
+    return open_model(spec)
+
+
+def parse_target(target: Target) -> tuple[str, Any]:
+    """``target`` as ``("tau", τ)``, ``("bytes", n)`` or ``("ratio", r)``.
+
+    * None → ``("tau", (885, 64, 64))``, the release's τ;
+    * a tuple / list of integers, a ``{channel: τ}`` mapping, or a string in the τ syntax
+      (``"885,64,64"``, ``"64"``, ``"0.25"``: :func:`~sparsebtf.model.parse_tau`) → τ;
+    * a string with a byte unit, ``"1.2MB"``, ``"300KiB"``, ``"250000B"`` (k/M/G = 10³, 10⁶,
+      10⁹; Ki/Mi/Gi = 2¹⁰, 2²⁰, 2³⁰) → a size in bytes, rounded down;
+    * a string ending in ``x``, ``"50x"`` → a compression ratio.
+
+    A bare number is refused: 64 could be a τ or a size; write ``(64,)``, ``"64B"`` or
+    ``"64x"``. Every refusal is one :class:`~sparsebtf.errors.BTFInputError` line.
+    """
+    if target is None:
+        return "tau", (885, 64, 64)
+    if isinstance(target, bool) or isinstance(target, int | float) or (
+            hasattr(target, "dtype") and getattr(target, "ndim", 1) == 0):  # fmt: skip
+        raise BTFInputError(f"target={target!r} is ambiguous (a tau or a size?): give "
+                            f"({target!r},) or '{target}' for a tau, '{target}B' for a size "
+                            f"in bytes or '{target}x' for a ratio")  # fmt: skip
+    if isinstance(target, str):
+        size, ratio = _SIZE.match(target), _RATIO.match(target)
+        if size is not None:
+            n = int(float(size.group(1)) * _UNITS[size.group(2).lower()])
+            if n < 1:
+                raise BTFInputError(f"target={target!r}: a size must be at least 1 byte")
+            return "bytes", n
+        if ratio is not None:
+            r = float(ratio.group(1))
+            if not r > 0:
+                raise BTFInputError(f"target={target!r}: a ratio must be > 0")
+            return "ratio", r
+        if re.search(r"[a-z]", target, re.I):
+            raise BTFInputError(f"target={target!r} is not a tau, size or ratio; give "
+                                + _SPELLINGS)
+    elif not isinstance(target, Sequence | Mapping):
+        raise BTFInputError(f"target={target!r}: expected {_SPELLINGS}")
+    return "tau", target
+
+
+def _model_of(model: Model | str | os.PathLike[str] | None) -> Model:
+    from .model import Model
+
+    if model is None:
+        return load_model("release")
+    if isinstance(model, Model):
+        return model
+    if isinstance(model, str | os.PathLike):
+        return load_model(model)
+    raise BTFInputError(f"model must be a Model, a bundled model's name or a model file, "
+                        f"not a {type(model).__name__}")  # fmt: skip
+
+
+def _check_options(encoder: Any, options: Mapping[str, Any], kind: str) -> None:
+    """One line for an option the chosen encoder does not take (instead of a TypeError)."""
+    named = {"tau", "target_bytes", "target_ratio"}
+    inputs = {"btf", "model", "sources"}
+    taken = [p for p in inspect.signature(encoder).parameters if p not in inputs]
+    for key in options:
+        if key in named:
+            raise BTFInputError(f"encode: give the sparsity as target=..., not {key}= ("
+                                + _SPELLINGS + ")")
+        if key not in taken:
+            ok = ", ".join(p for p in taken if p not in named)
+            raise BTFInputError(f"encode: option {key!r} does not apply to a {kind} target; "
+                                f"options there: {ok}")  # fmt: skip
+
+
+def _check_tau(tau: Any, model: Model) -> None:
+    """The τ syntax checked now (a many-BTF encode is lazy and would say it at its first BTF)."""
+    from .codec.encode import RELEASE_TAU
+    from .model import parse_tau
+
+    nominal = RELEASE_TAU if set(model.channels) <= set(RELEASE_TAU) else None
+    parse_tau(tau, model.channels, nominal=nominal)
+
+
+@overload
+def encode(btf_or_btfs: BTF | str | os.PathLike[str], model: Model | str | os.PathLike[str] |
+           None = None, *, target: Target = None, **options: Any) -> CodedBTF: ...
+@overload
+def encode(btf_or_btfs: Iterable[BTF | str | os.PathLike[str]], model: Model | str |
+           os.PathLike[str] | None = None, *, target: Target = None,
+           **options: Any) -> Iterator[CodedBTF]: ...
+def encode(
+    btf_or_btfs: Any,
+    model: Model | str | os.PathLike[str] | None = None,
+    *,
+    target: Target = None,
+    **options: Any,
+) -> CodedBTF | Iterator[CodedBTF]:
+    """Sparse codes of one BTF, or of many, on ``model`` (paper §3.3; default: the bundled
+    ``"release"`` model; a name or a model file is loaded with :func:`load_model`).
+
+    ``btf_or_btfs``: a BTF, or a path / ``synth:`` spec (opened by
+    :func:`~sparsebtf.open.open_btf`) → one :class:`~sparsebtf.model.CodedBTF`; a list or
+    tuple (any iterable) of them → an iterator yielding one coded BTF per input, in order
+    (:func:`~sparsebtf.codec.encode_many`; iterate to the end to release a cluster it started).
+
+    ``target`` (:func:`parse_target`): a τ per data point and channel, ``(885, 64, 64)`` by
+    default (:func:`~sparsebtf.codec.encode`: each point's sparsest code with mean squared
+    residual below ``eps``, at most τ coefficients); or a coded size, ``"1.2MB"``, or a ratio,
+    ``"50x"`` (rate control, :func:`~sparsebtf.codec.encode_to_size`). A size or a ratio means
+    the coded file, as ``sparsebtf encode --target-ratio`` does: raw fp16 bytes / ratio
+    (``budget="stored", per_material=True``); ``budget="paper", per_material=False`` count by
+    Table 4 with the shared dictionaries.
+
+    ``options`` go to that encoder unchanged (e.g. ``eps``, ``candidates``, ``objective``,
+    ``workers``, ``client``, ``progress``; many BTFs also take ``crop``, ``checkpoint_dir``);
+    one the chosen encoder does not take is refused in one line.
+    """
+    from .codec import encode as encode_tau
+    from .codec import encode_many, encode_to_size
+    from .data.btf import BTF
+
+    kind, value = parse_target(target)
+    the_model = _model_of(model)
+    if kind != "tau":
+        options = {"budget": "stored", "per_material": True, **options}
+    sized = {"target_bytes": value} if kind == "bytes" else {"target_ratio": value}
+    if not isinstance(btf_or_btfs, BTF | str | os.PathLike):
+        if not isinstance(btf_or_btfs, Iterable):
+            raise BTFInputError(f"encode takes a BTF, a path or a list of them, not a "
+                                f"{type(btf_or_btfs).__name__}")  # fmt: skip
+        many = list(btf_or_btfs)
+        _check_options(encode_many, options, kind)
+        if kind == "tau":
+            _check_tau(value, the_model)
+            return encode_many(many, the_model, tau=value, **options)
+        return encode_many(many, the_model, **sized, **options)
+    btf = btf_or_btfs
+    if isinstance(btf, str | os.PathLike):
+        from .open import open_btf
+
+        btf = open_btf(btf, progress=options.get("progress"))
+    if kind == "tau":
+        _check_options(encode_tau, options, kind)
+        return encode_tau(btf, the_model, tau=value, **options)
+    _check_options(encode_to_size, options, kind)
+    return encode_to_size(btf, the_model, **sized, **options)
+
+
+def decode(
+    coded: CodedBTF | str | os.PathLike[str], model: Model | str | os.PathLike[str] | None = None
+) -> DecodedBTF:
+    """The decoded BTF of ``coded`` (Eq. 4), lazy: values are decoded from the codes when read
+    (``.read(rows, cols, lights, views)``, ``.angular_image(l, v)``, ``.to_array()`` for the
+    whole (H, W, L, V, 3) array), so a large BTF is never whole in memory.
+
+    ``coded``: a :class:`~sparsebtf.model.CodedBTF` or a coded ``.h5`` file. Its model is
+    ``model`` (a Model, a bundled name or a model file) if given, else the one attached, else
+    the one the codes name (a bundled model by content hash, or the model file recorded at
+    encoding); the wrong model is refused (:class:`~sparsebtf.errors.ModelMismatchError`).
+    """
+    from .model import CodedBTF, Model
+    from .runtime.dense import coded_btf_view
+    from .storage.bundled import find_model
+
+    if isinstance(coded, str | os.PathLike):
+        from .storage import load_coded, load_coded_with_model
+
+        if isinstance(model, Model):
+            return coded_btf_view(load_coded(coded).attach(model))
+        return coded_btf_view(load_coded_with_model(coded, model))
+    if not isinstance(coded, CodedBTF):
+        raise BTFInputError(f"decode takes a coded BTF or a coded .h5 file, not a "
+                            f"{type(coded).__name__}")  # fmt: skip
+    if model is not None:
+        coded.attach(_model_of(model))
+    elif coded.model is None:
+        coded.attach(find_model(coded, None, coded.label))
+    return coded_btf_view(coded)
