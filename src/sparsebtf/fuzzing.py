@@ -20,10 +20,12 @@ from typing import Any
 import h5py
 import numpy as np
 
+from .formats.registry import fuzz_readers
+
 __all__ = ["READERS", "build_corpus", "exercise", "mutate", "run_case", "write_case"]
 
-#: The readers fuzzed, in report order.
-READERS = ("ubo2014", "ubo2003", "dense", "model", "coded", "release")
+#: The readers fuzzed, in report order: the registered formats that have a corpus maker.
+READERS = fuzz_readers()
 
 #: Interesting 32-bit words for size and count fields.
 _WORDS = (0, 1, 2, 3, 0x7F, 0xFF, 0x7FFF, 0xFFFF, 0x10000, 0x7FFFFFFF, 0x80000000, 0x80000003,
@@ -112,66 +114,107 @@ def _legacy_copy(src: Path, dst: Path) -> Path:
 
 
 def build_corpus(folder: str | os.PathLike[str]) -> dict[str, list[Path]]:
-    """Valid seed files for every reader in ``folder`` (a few KB each), made by our writers.
+    """Valid seed files for every reader in ``folder`` (a few KB each), made by our writers:
+    each registered format's corpus maker (:mod:`sparsebtf.formats.registry`), in turn.
 
     Returns reader → files; the coded files' model is ``folder/model.h5`` and the release files
     are named as the authors named theirs, so the reader is known from the name.
     """
-    from .data.dense_file import write_dense
-    from .formats.ubo2003 import write_ubo2003_zip
-    from .formats.ubo2014_write import write_ubo2014
-    from .storage import save_coded, save_model
+    from .formats.registry import FORMATS
 
     d = Path(folder)
     d.mkdir(parents=True, exist_ok=True)
+    shared: dict[str, Any] = {}
+    return {f.kind: f.corpus(d, shared) for f in FORMATS if f.corpus is not None}
+
+
+def corpus_ubo2014(d: Path, shared: dict[str, Any]) -> list[Path]:
+    """Bonn files: DFMF (half), FMF (float, with a height map), a version-1 DFMF (double)."""
+    from .formats.ubo2014_write import write_ubo2014
+
     rng = np.random.default_rng(0)
     lights, views = _directions()
     nl, nv, h, w = len(lights), len(views), 3, 5
-    out: dict[str, list[Path]] = {r: [] for r in READERS}
 
     def factors(k: int, rows: int, scale: float = 0.3) -> np.ndarray:
         return rng.normal(0, scale, (rows, k))
 
+    out = []
     p = d / "dfmf.btf"
     write_ubo2014(p, [factors(2, h * w) for _ in range(3)], [factors(2, nl * nv) for _ in range(3)],
                   h, w, lights, views, "DFMF", "half")  # fmt: skip
-    out["ubo2014"].append(p)
+    out.append(p)
     p = d / "fmf.btf"
     write_ubo2014(p, factors(2, h * w), factors(2, 3 * nl * nv), h, w, lights, views, "FMF",
                   "float", height_map=rng.uniform(0, 1, (2, 3)))  # fmt: skip
-    out["ubo2014"].append(p)
+    out.append(p)
     p = d / "dfmf_v1.btf"
     write_ubo2014(p, [factors(1, h * w) for _ in range(3)], [factors(1, nl * nv) for _ in range(3)],
                   h, w, lights, views, "DFMF", "double", rotations=False, version=1)  # fmt: skip
-    out["ubo2014"].append(p)
+    out.append(p)
+    return out
 
+
+def corpus_ubo2003(d: Path, shared: dict[str, Any]) -> list[Path]:
+    """Zip archives of JPEG and of Radiance HDR images, and the HDR one deflated."""
+    from .formats.ubo2003 import write_ubo2003_zip
+
+    lights, views = _directions()
     data = np.asarray(_btf(1).to_array(), dtype=np.float64)
-    for kind in ("jpeg", "hdr"):
-        p = write_ubo2003_zip(d / f"ubo2003_{kind}.zip", data, lights, views, kind=kind)
-        out["ubo2003"].append(p)
+    out = [write_ubo2003_zip(d / f"ubo2003_{kind}.zip", data, lights, views, kind=kind)
+           for kind in ("jpeg", "hdr")]  # fmt: skip
     deflated = d / "ubo2003_deflated.zip"
-    with zipfile.ZipFile(out["ubo2003"][1]) as zi, zipfile.ZipFile(
-        deflated, "w", zipfile.ZIP_DEFLATED
-    ) as zo:
+    with zipfile.ZipFile(out[1]) as zi, zipfile.ZipFile(deflated, "w", zipfile.ZIP_DEFLATED) as zo:
         for info in zi.infolist():
             zo.writestr(info.filename, zi.read(info))
-    out["ubo2003"].append(deflated)
-
-    out["dense"].append(write_dense(d / "dense.h5", _btf(2)))
-    out["dense"].append(write_dense(d / "dense16.h5", _btf(3), dtype="float16"))
-    out["dense"].append(_legacy_copy(out["dense"][0], d / "dense_v1.h5"))
-
-    model = _model()
-    out["model"].append(save_model(model, d / "model.h5"))
-    out["model"].append(_legacy_copy(out["model"][0], d / "model_v1.h5"))
-    coded = _coded(model)
-    coded.params["model_file"] = str(d / "model.h5")
-    out["coded"].append(save_coded(coded, d / "coded.h5"))
-    out["coded"].append(save_coded(coded, d / "coded_v2.h5", schema=2))
-    out["coded"].append(_legacy_copy(out["coded"][1], d / "coded_v1.h5"))
-
-    out["release"] = _release_files(d / "release", model, coded)
+    out.append(deflated)
     return out
+
+
+def corpus_dense(d: Path, shared: dict[str, Any]) -> list[Path]:
+    """Dense files: float32, float16, and a schema-1 copy."""
+    from .data.dense_file import write_dense
+
+    first = write_dense(d / "dense.h5", _btf(2))
+    return [first, write_dense(d / "dense16.h5", _btf(3), dtype="float16"),
+            _legacy_copy(first, d / "dense_v1.h5")]  # fmt: skip
+
+
+def _shared_model(d: Path, shared: dict[str, Any]) -> Any:
+    if "model" not in shared:
+        from .storage import save_model
+
+        shared["model"] = _model()
+        save_model(shared["model"], d / "model.h5")
+    return shared["model"]
+
+
+def _shared_coded(d: Path, shared: dict[str, Any]) -> Any:
+    if "coded" not in shared:
+        shared["coded"] = _coded(_shared_model(d, shared))
+        shared["coded"].params["model_file"] = str(d / "model.h5")
+    return shared["coded"]
+
+
+def corpus_model(d: Path, shared: dict[str, Any]) -> list[Path]:
+    """The model file (``model.h5``, the coded files' model) and a schema-1 copy."""
+    _shared_model(d, shared)
+    return [d / "model.h5", _legacy_copy(d / "model.h5", d / "model_v1.h5")]
+
+
+def corpus_coded(d: Path, shared: dict[str, Any]) -> list[Path]:
+    """Coded files: schema 3 (today's), schema 2, and a schema-1 copy of the schema-2 one."""
+    from .storage import save_coded
+
+    coded = _shared_coded(d, shared)
+    out = [save_coded(coded, d / "coded.h5"), save_coded(coded, d / "coded_v2.h5", schema=2)]
+    return [*out, _legacy_copy(out[1], d / "coded_v1.h5")]
+
+
+def corpus_release(d: Path, shared: dict[str, Any]) -> list[Path]:
+    """The authors' five file kinds (in ``d/release``)."""
+    coded = _shared_coded(d, shared)
+    return _release_files(d / "release", _shared_model(d, shared), coded)
 
 
 def _release_files(d: Path, model: Any, coded: Any) -> list[Path]:
