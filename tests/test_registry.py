@@ -85,3 +85,39 @@ def test_a_registered_format_is_accepted_by_open_btf_and_the_cli(tmp_path, capsy
 def test_register_refuses_a_kind_twice():
     with pytest.raises(ValueError, match="already registered"):
         registry.register(Format("dense", (".x",), "x"))
+
+
+def _header(path):
+    """Everything of a dense file but its values: root attributes, /btf's layout and filters,
+    the direction tables."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        ds = f["btf"]
+        out = {"attrs": {k: f.attrs[k] for k in sorted(f.attrs)},
+               "btf": (ds.shape, str(ds.dtype), ds.chunks, ds.fletcher32, ds.compression,
+                       sorted(ds.attrs))}  # fmt: skip
+        for g in ("lights", "views"):
+            out[g] = ({k: f[g].attrs[k] for k in f[g].attrs},
+                      {k: (f[g][k][()].tobytes(), f[g][k].fletcher32) for k in f[g]})  # fmt: skip
+        out["members"] = sorted(f)
+        return out
+
+
+def test_capture_and_write_dense_write_the_same_header(tmp_path):
+    """The capture's file and write_dense's copy of it (same name, attributes, directions):
+    one header writer, identical header attributes and datasets."""
+    from sparsebtf.data.capture import capture
+    from sparsebtf.data.dense_file import write_dense
+    from sparsebtf.llvm import configure
+
+    if not configure().ok:
+        pytest.skip("capture renders with Mitsuba's LLVM backend")
+    scene = tmp_path / "plane.py"
+    scene.write_text("def scene(seed):\n    return {'type': 'scene', 'plane': {'type': "
+                     "'rectangle', 'bsdf': {'type': 'diffuse'}}}\n")  # fmt: skip
+    captured = capture(str(scene), tmp_path / "c.h5", size=8, directions="tiny13", spp=1,
+                       progress=False)  # fmt: skip
+    with open_btf(captured) as b:
+        copy = write_dense(tmp_path / "d.h5", b)
+    assert _header(captured) == _header(copy)
