@@ -1,6 +1,6 @@
 """The authors' SparseBTF release (behnazkavoosi/SparseBTF, MIT) as our model and coded files.
 
-Byte layouts are in ``shared/specs/official-release-format.md`` §2:
+Byte layouts (``docs/format.md`` §8):
 
 * ``DictEnsOrth4D{Y,U,V}.bin`` — fp16, four blocks in mode order, each K column-major n×n
   matrices (``U_k[row, col]`` at ``row + n·col + n²·k``); ``.mat`` (HDF5 v7.3) holds the same
