@@ -3,8 +3,8 @@
 One declarative table, :data:`FORMATS`, read by :func:`sparsebtf.open.open_btf` (which reader),
 the command line's output checks (``cli/_args.output_format``: which extensions an output of
 a role may have, and the one-line refusal naming them), the BTF writer behind ``-o``
-(:func:`writer_for`) and the fuzz harness (:mod:`sparsebtf.fuzzing`: which readers, from which
-seed files). A new format is one :class:`Format` row (or :func:`register` at run time).
+(:func:`writer_for`) and the fuzz harness (:mod:`sparsebtf.testing`: which readers, from
+which seed files). A new format is one :class:`Format` row (or :func:`register` at run time).
 
 Several formats may share an extension (``.h5`` holds our dense, model and coded files); those
 carry the HDF5 ``format`` attribute that tells them apart (:attr:`Format.hdf5_format`).
@@ -138,9 +138,9 @@ def _corpus(name: str) -> Corpus:
     tooling, not a dependency of the formats)."""
 
     def make(folder: Path, shared: dict[str, Any]) -> list[Path]:
-        from .. import fuzzing
+        from ..testing import corpus
 
-        return getattr(fuzzing, name)(folder, shared)  # type: ignore[no-any-return]
+        return getattr(corpus, name)(folder, shared)  # type: ignore[no-any-return]
 
     make.__name__ = name
     return make
