@@ -121,3 +121,18 @@ def test_capture_and_write_dense_write_the_same_header(tmp_path):
     with open_btf(captured) as b:
         copy = write_dense(tmp_path / "d.h5", b)
     assert _header(captured) == _header(copy)
+
+
+def test_build_corpus_runs_every_registered_corpus_maker(tmp_path):
+    from sparsebtf.fuzzing import build_corpus
+
+    def maker(folder, shared):
+        assert "model" in shared  # the built-in makers ran first and shared their model
+        p = folder / "x.tst"
+        p.write_bytes(b"seed")
+        return [p]
+
+    with registered(Format("tst", (".tst",), "a test format", corpus=maker)):
+        files = build_corpus(tmp_path)
+    assert files["tst"] == [tmp_path / "x.tst"]
+    assert set(files) == {*READERS, "tst"}
