@@ -146,8 +146,13 @@ def _corpus(name: str) -> Corpus:
     return make
 
 
-#: The built-in formats: ours first (refusals name them in this order), then the foreign ones.
+#: The built-in formats, in the fuzz harness's report order (its cases' seeds depend on it).
 FORMATS: list[Format] = [
+    Format("ubo2014", (".btf",), "a UBO2014 file", ("btf",), _read_ubo2014, _write_ubo2014,
+           _ubo2014_nbytes, lambda shape, dtype: f"UBO2014 DFMF, {shape}, {dtype}",
+           _corpus("corpus_ubo2014")),
+    Format("ubo2003", (".zip",), "a UBO2003 / ATRIUM archive", (), _read_ubo2003,
+           corpus=_corpus("corpus_ubo2003")),
     Format("dense", (".h5", ".hdf5"), "our dense file", ("btf", "dense"), _read_dense,
            _write_dense, _dense_nbytes, lambda shape, dtype: f"{shape}, {dtype}",
            _corpus("corpus_dense"), hdf5_format="sparsebtf-dense"),
@@ -155,11 +160,6 @@ FORMATS: list[Format] = [
            corpus=_corpus("corpus_model"), hdf5_format="sparsebtf-model"),
     Format("coded", (".h5", ".hdf5"), "a coded file is HDF5", ("coded",), _read_coded,
            corpus=_corpus("corpus_coded"), hdf5_format="sparsebtf-coded"),
-    Format("ubo2014", (".btf",), "a UBO2014 file", ("btf",), _read_ubo2014, _write_ubo2014,
-           _ubo2014_nbytes, lambda shape, dtype: f"UBO2014 DFMF, {shape}, {dtype}",
-           _corpus("corpus_ubo2014")),
-    Format("ubo2003", (".zip",), "a UBO2003 / ATRIUM archive", (), _read_ubo2003,
-           corpus=_corpus("corpus_ubo2003")),
     Format("release", (".bin",), "the authors' release files", (),
            corpus=_corpus("corpus_release")),
     Format("png", (".png",), "the image is written as PNG", ("png",)),
@@ -206,7 +206,8 @@ def fuzz_readers() -> tuple[str, ...]:
 def output_extensions(role: str) -> tuple[dict[str, str], str]:
     """For an output of ``role``: extension → kind, and the text naming the extensions to
     give (``.h5 (our dense file) or .btf (a UBO2014 file)``)."""
-    formats = [f for f in FORMATS if role in f.roles]
+    # ours (the HDF5 formats) are named first, then the others in table order
+    formats = sorted((f for f in FORMATS if role in f.roles), key=lambda f: f.hdf5_format is None)
     if not formats:
         raise KeyError(role)
     table = {ext: f.kind for f in formats for ext in f.extensions}
