@@ -9,6 +9,8 @@ Accepted sources:
 * ``PATH.zip`` — a UBO2003 / ATRIUM archive of JPEG or Radiance HDR angular images;
 * ``synth:CLASS[+black][:SIZE[:SEED[:DIRECTIONS]]]`` — a cached synthetic material, e.g.
   ``synth:stone:64:1:ubo2014`` (``+black``: true black and high dynamic range).
+
+Which reader a file gets is the format registry's (:mod:`sparsebtf.formats.registry`).
 """
 
 from __future__ import annotations
@@ -19,9 +21,8 @@ from pathlib import Path
 from ._h5check import HDF5_ERRORS, read_str_attr
 from ._hdf5 import open_h5, read_error
 from .data.btf import BTF
-from .data.dense_file import FORMAT as DENSE_FORMAT
-from .data.dense_file import DenseFileBTF
 from .errors import FileFormatError
+from .formats.registry import FORMATS, formats_for
 
 __all__ = ["file_format", "open_btf", "parse_synth_spec"]
 
@@ -85,20 +86,13 @@ def open_btf(
 
 
 def _open_file(s: str, model_path: str | os.PathLike[str] | None) -> BTF:
-    if s.lower().endswith(".btf"):
-        from .formats.ubo2014 import read_ubo2014
-
-        return read_ubo2014(s)
-    if s.lower().endswith(".zip"):
-        from .formats.ubo2003 import read_ubo2003_zip
-
-        return read_ubo2003_zip(s)
+    """The reader :data:`~sparsebtf.formats.registry.FORMATS` gives ``s``'s extension; where
+    several share it (or none is registered), the HDF5 ``format`` attribute decides."""
+    candidates = [f for f in formats_for(s) if f.reader is not None]
+    if len(candidates) == 1 and candidates[0].hdf5_format is None:
+        return candidates[0].reader(s, model_path)  # type: ignore[misc]
     fmt = file_format(s)
-    if fmt == DENSE_FORMAT:
-        return DenseFileBTF(s)
-    if fmt == "sparsebtf-coded":
-        from .runtime.dense import coded_btf_view
-        from .storage import load_coded_with_model
-
-        return coded_btf_view(load_coded_with_model(s, model_path))
+    for f in FORMATS:
+        if f.hdf5_format == fmt and f.reader is not None:
+            return f.reader(s, model_path)  # type: ignore[no-any-return]
     raise FileFormatError(f"{s}: format {fmt!r} is not a BTF (dense or coded) file")

@@ -29,20 +29,15 @@ if TYPE_CHECKING:
     from .data.btf import BTF
     from .model import CodedBTF
 
-__all__ = ["SAVE_FORMATS", "save_btf", "save_format"]
+__all__ = ["save_btf", "save_format"]
 
-#: What each extension holds when written: (a BTF's writer, a coded BTF's writer or None).
-SAVE_FORMATS: dict[str, tuple[str, str | None]] = {
-    ".h5": ("dense", "coded"),
-    ".hdf5": ("dense", "coded"),
-    ".btf": ("ubo2014", None),
-}
 
 
 def save_format(obj: Any, path: str | os.PathLike[str]) -> str:
     """What :func:`save_btf` writes ``obj`` to ``path`` as: "coded", "dense" or "ubo2014";
     one line (:class:`~sparsebtf.errors.BTFInputError`) for any other extension or object."""
     from .data.btf import BTF
+    from .formats.registry import output_extensions
     from .model import CodedBTF
 
     ext = Path(path).suffix.lower()
@@ -50,12 +45,14 @@ def save_format(obj: Any, path: str | os.PathLike[str]) -> str:
     if not (coded or isinstance(obj, BTF)):
         raise BTFInputError(f"{path}: save_btf writes a BTF or a coded BTF, not a "
                             f"{type(obj).__name__} (a model: sparsebtf.storage.save_model)")
-    if ext not in SAVE_FORMATS:
+    # the format registry says which extensions a BTF and a coded BTF are written as
+    as_btf = output_extensions("btf")[0].get(ext)
+    as_coded = output_extensions("coded")[0].get(ext)
+    if as_btf is None and as_coded is None:
         have = ".h5/.hdf5 (a coded file)" if coded else (
             ".h5/.hdf5 (our dense file) or .btf (a UBO2014 file)")  # fmt: skip
         raise BTFInputError(f"{path}: cannot write a {'coded ' if coded else ''}BTF as "
                             f"{ext or 'a file without an extension'}; give {have}")
-    as_btf, as_coded = SAVE_FORMATS[ext]
     if coded and as_coded is None:
         raise BTFInputError(f"{path}: a coded BTF is written as a coded .h5 file; to write "
                             f"{ext}, decode it first: save_btf(decode(coded), {str(path)!r})")
@@ -85,17 +82,15 @@ def save_btf(
         from .storage import save_coded
 
         return save_coded(btf, path, **options)  # type: ignore[arg-type]
-    if kind == "ubo2014":
-        if options:
-            raise BTFInputError(f"{path}: the UBO2014 writer takes no options, got "
-                                f"{', '.join(sorted(options))}")  # fmt: skip
-        from .formats.ubo2014_write import write_btf_ubo2014
+    if kind == "ubo2014" and options:
+        raise BTFInputError(f"{path}: the UBO2014 writer takes no options, got "
+                            f"{', '.join(sorted(options))}")  # fmt: skip
+    if kind == "dense":
+        from .runtime.dense import DecodedBTF
 
-        write_btf_ubo2014(path, btf, "half" if dtype == "float16" else "float")
-        return Path(path)
-    from .data.dense_file import write_dense
-    from .runtime.dense import DecodedBTF
+        # A decoded BTF decodes whole data points (every direction of a patch): by region.
+        options.setdefault("by", "regions" if isinstance(btf, DecodedBTF) else "views")
+    from .formats.registry import writer_for
 
-    # A decoded BTF decodes whole data points (every direction of a patch): stream by region.
-    options.setdefault("by", "regions" if isinstance(btf, DecodedBTF) else "views")
-    return write_dense(path, btf, dtype=dtype, progress=progress, **options)  # type: ignore[arg-type]
+    writer_for(path).writer(str(path), btf, dtype, progress=progress, **options)  # type: ignore[misc]
+    return Path(path)

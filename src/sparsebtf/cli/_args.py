@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 from ..errors import SparseBTFError
+from ..formats.registry import OUTPUT_FORMATS as _REGISTRY_OUTPUTS
 
 __all__ = [
     "OUTPUT_FORMATS",
@@ -133,15 +134,9 @@ def check_args(args: argparse.Namespace) -> None:
 
 #: What each kind of output file is written as, by extension, and the names to give: one rule
 #: for every command that writes (a file under another kind's name would not read back).
-OUTPUT_FORMATS: dict[str, tuple[dict[str, str], str]] = {
-    "btf": ({".h5": "dense", ".hdf5": "dense", ".btf": "ubo2014"},
-            ".h5 (our dense file) or .btf (a UBO2014 file)"),
-    "dense": ({".h5": "dense", ".hdf5": "dense"}, ".h5 (our dense file)"),
-    "coded": ({".h5": "coded", ".hdf5": "coded"}, ".h5 (a coded file is HDF5)"),
-    "model": ({".h5": "model", ".hdf5": "model"}, ".h5 (a model file is HDF5)"),
-    "png": ({".png": "png"}, ".png (the image is written as PNG)"),
-    "npz": ({".npz": "npz"}, ".npz (NumPy arrays, np.load reads them)"),
-}  # fmt: skip
+#: role → (extension → kind, the extensions named in a refusal): the format registry's
+#: (:data:`sparsebtf.formats.registry.OUTPUT_FORMATS`), read at each look-up.
+OUTPUT_FORMATS = _REGISTRY_OUTPUTS
 
 
 def output_format(

@@ -14,6 +14,15 @@ from ._output import print_json
 __all__ = ["register"]
 
 
+def _size(text: str) -> tuple[int, int]:
+    """``HxW`` → (H, W), multiples of the release's 10-texel patches."""
+    h, x, w = text.lower().partition("x")
+    if not (x and h.isdigit() and w.isdigit() and int(h) > 0 and int(w) > 0
+            and int(h) % 10 == 0 and int(w) % 10 == 0):
+        raise SparseBTFError(f"--size {text}: expected HxW, positive multiples of 10 (400x400)")
+    return int(h), int(w)
+
+
 def run(args: argparse.Namespace) -> int:
     from ..storage import save_coded, save_model
     from ..storage.release import import_release
@@ -24,7 +33,9 @@ def run(args: argparse.Namespace) -> int:
     check_output_file(args.output, kind="model")
     check_output_dir(args.coded_dir, "--coded-dir")
     against = open_model_arg(args.model) if args.model else None
-    model, coded, notes = import_release(args.folder, prefer=args.prefer, model=against)
+    height, width = _size(args.size)
+    model, coded, notes = import_release(args.folder, prefer=args.prefer, model=against,
+                                         height=height, width=width)
     if args.output:
         save_model(model, args.output)
         model_path = str(Path(args.output).resolve())
@@ -64,5 +75,8 @@ def register(sub: Any) -> None:
                    "folder)")
     s.add_argument("--prefer", choices=["mat", "bin"], default="mat",
                    help="dictionaries from the fp64 .mat (exact, default) or the fp16 .bin")
+    s.add_argument("--size", default="400x400",
+                   help="texels HxW of every material (the files do not say; default 400x400, "
+                   "the release's; export-release prints the size to give)")
     s.add_argument("--json", action="store_true", help="print what was written as JSON")
     s.set_defaults(func=run)

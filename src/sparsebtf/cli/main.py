@@ -31,6 +31,7 @@ from . import (
     demo,
     encode,
     evaluate,
+    export_release,
     import_release,
     info,
     lookup,
@@ -46,8 +47,8 @@ __all__ = ["build_parser", "main"]
 
 #: The commands in the order ``sparsebtf --help`` lists them: the pipeline first.
 COMMANDS = (
-    synth, capture, info, models, train, encode, decode, evaluate, convert, import_release, lookup,
-    demo, blend, render, view, bench, cache,
+    synth, capture, info, models, train, encode, decode, evaluate, convert, import_release,
+    export_release, lookup, demo, blend, render, view, bench, cache,
 )  # fmt: skip
 
 

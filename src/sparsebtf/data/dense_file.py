@@ -47,7 +47,7 @@ from .directions import DirectionSet, from_vectors
 
 __all__ = [
     "DEFAULT_CHUNK", "FORMAT", "SCHEMA_VERSION", "DenseFileBTF", "chunk_cache_bytes",
-    "dense_file_bytes", "write_dense",
+    "dense_file_bytes", "write_dense", "write_header",
 ]  # fmt: skip
 
 FORMAT = "sparsebtf-dense"
@@ -98,6 +98,31 @@ def dense_file_bytes(
     return n_chunks * math.prod(chunk) * np.dtype(dtype).itemsize
 
 
+def write_header(
+    f: h5py.File,
+    shape: Sequence[int],
+    dtype: str,
+    name: str,
+    attrs: dict[str, Any],
+    lights: DirectionSet,
+    views: DirectionSet,
+    chunks: Sequence[int] | None = None,
+) -> h5py.Dataset:
+    """Everything of a dense file but its values, into the new file ``f``: the root
+    attributes (format, schema_version, name, attrs_json), the empty ``/btf`` dataset of
+    ``shape`` (H, W, L, V, 3) and ``dtype``, chunked (:data:`DEFAULT_CHUNK` clipped to the
+    shape unless ``chunks``), and the direction tables. Returns ``/btf`` for the writer to
+    fill. The one header writer of dense files (:func:`write_dense`, the capture's)."""
+    write_str_attr(f, "format", FORMAT)
+    f.attrs["schema_version"] = SCHEMA_VERSION
+    write_str_attr(f, "name", name)
+    write_str_attr(f, "attrs_json", json.dumps(attrs, sort_keys=True, default=str))
+    ds = create_dataset(f, "btf", shape=tuple(shape), dtype=dtype, chunks=_chunk(shape, chunks))
+    write_directions(f.create_group("lights"), lights)
+    write_directions(f.create_group("views"), views)
+    return ds
+
+
 def write_dense(
     path: str | os.PathLike[str],
     btf: BTF,
@@ -129,13 +154,7 @@ def write_dense(
     step = chunk[3]
     with atomic_output(target) as tmp:
         with create(tmp) as f:
-            write_str_attr(f, "format", FORMAT)
-            f.attrs["schema_version"] = SCHEMA_VERSION
-            write_str_attr(f, "name", btf.name)
-            write_str_attr(f, "attrs_json", json.dumps(meta, sort_keys=True, default=str))
-            ds = create_dataset(f, "btf", shape=shape, dtype=dtype, chunks=chunk)
-            write_directions(f.create_group("lights"), btf.lights)
-            write_directions(f.create_group("views"), btf.views)
+            ds = write_header(f, shape, dtype, btf.name, meta, btf.lights, btf.views, chunk)
             if by == "views":
                 blocks = [
                     (slice(None), slice(None), slice(v0, min(v0 + step, nv)))

@@ -1,6 +1,6 @@
 """The authors' SparseBTF release (behnazkavoosi/SparseBTF, MIT) as our model and coded files.
 
-Byte layouts are in ``shared/specs/official-release-format.md`` §2:
+Byte layouts (``docs/format.md`` §8):
 
 * ``DictEnsOrth4D{Y,U,V}.bin`` — fp16, four blocks in mode order, each K column-major n×n
   matrices (``U_k[row, col]`` at ``row + n·col + n²·k``); ``.mat`` (HDF5 v7.3) holds the same
@@ -314,9 +314,19 @@ def import_release(
 
     With ``model`` (e.g. the bundled ``release`` model, the same ensembles rounded to
     float32), the coefficients are coded against it instead, after checking that the folder's
-    dictionaries equal it within :data:`MATCH_TOLERANCE`; it is returned as the model.
+    dictionaries equal it within :data:`MATCH_TOLERANCE`; it is returned as the model. A
+    folder without dictionaries (as ``sparsebtf export-release`` writes) needs ``model``.
+    ``height`` × ``width``: the texels of every material (the files do not say; the release's
+    are 400 × 400).
     """
     d = Path(directory)
+    if model is not None and d.is_dir() and not any(d.glob("DictEnsOrth4D*")):
+        # A folder written by ``export-release``: no dictionaries, the codes refer to the
+        # release's ensembles, which ``model`` holds.
+        _check_folder_directions(d, model)
+        return model, *_import_codes(d, model, model, height, width,
+                                     [f"{d}: no dictionaries; the coefficients are read "
+                                      f"against model {model.content_hash[:12]}"])  # fmt: skip
     own, notes = release_model(d, prefer)
     if model is not None:
         worst = check_same_dictionaries(own, model)
@@ -330,6 +340,21 @@ def import_release(
         )
     else:
         model = own
+    return model, *_import_codes(d, own, model, height, width, notes)
+
+
+def _check_folder_directions(d: Path, model: Model) -> None:
+    """The folder's ``bonn_angles.bin`` (when there is one) names the model's directions."""
+    p = d / "bonn_angles.bin"
+    if p.exists() and not read_angles(p).equals(model.lights):
+        raise ModelMismatchError(f"{p}: its directions differ from the model's")
+
+
+def _import_codes(
+    d: Path, own: Model, model: Model, height: int, width: int, notes: list[str]
+) -> tuple[dict[str, CodedBTF], list[str]]:
+    """The folder's coefficient and statistics files as coded BTFs on ``model`` (``own``: the
+    folder's ensembles and directions)."""
     dicts = own.dictionaries
     directions = own.lights
     groups: dict[str, dict[str, tuple[Path, float]]] = {}
@@ -388,4 +413,4 @@ def import_release(
         )
         coded[mat] = c.attach(model)
         notes.append(f"{mat}: channels {', '.join(codes)} ({n_points} points)")
-    return model, coded, notes
+    return coded, notes

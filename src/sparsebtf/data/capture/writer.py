@@ -25,7 +25,7 @@ import h5py
 import numpy as np
 
 from ...errors import BTFInputError, OutputError
-from ..dense_file import DEFAULT_CHUNK, FORMAT, SCHEMA_VERSION, write_directions
+from ..dense_file import DEFAULT_CHUNK, write_header
 from ..directions import DirectionSet, from_vectors
 from .geometry import grazing_tan
 
@@ -146,20 +146,13 @@ def check_scene(spec: CaptureSpec) -> dict[str, Any]:
 
 def _new_partial(path: Path, spec: CaptureSpec, key: dict[str, Any], name: str,
                  attrs: dict[str, Any], dtype: str) -> h5py.File:  # fmt: skip
-    from ..._hdf5 import LIBVER, create_dataset, write_str_attr
+    from ..._hdf5 import LIBVER, write_str_attr
 
     f = h5py.File(path, "w", libver=LIBVER)
     try:
-        write_str_attr(f, "format", FORMAT)
-        f.attrs["schema_version"] = SCHEMA_VERSION
-        write_str_attr(f, "name", name)
-        write_str_attr(f, "attrs_json", json.dumps(attrs, sort_keys=True, default=str))
         shape = spec.shape
-        chunk = tuple(min(c, s) for c, s in zip(_CHUNK, shape, strict=True))
-        create_dataset(f, "btf", shape=shape, dtype=dtype, chunks=chunk)
         dirs = spec.direction_set
-        write_directions(f.create_group("lights"), dirs)
-        write_directions(f.create_group("views"), dirs)
+        write_header(f, shape, dtype, name, attrs, dirs, dirs, _CHUNK)
         write_str_attr(f, "capture_json", json.dumps(key, sort_keys=True))
         f.attrs["capture_done"] = np.zeros(shape[3], dtype=np.uint8)
         f.flush()
