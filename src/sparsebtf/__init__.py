@@ -27,6 +27,8 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from ._version import library_version
+
 if TYPE_CHECKING:
     from .api import decode, encode, load_model
     from .codec.train import train
@@ -75,12 +77,3 @@ def __getattr__(name: str) -> Any:
 def __dir__() -> list[str]:
     return sorted(set(__all__) | {n for n in globals() if n.startswith("__")})
 
-
-def library_version() -> str:
-    """The installed ``sparsebtf`` version, or ``"unknown"`` when not installed."""
-    from importlib import metadata
-
-    try:
-        return metadata.version("sparsebtf")
-    except metadata.PackageNotFoundError:
-        return "unknown"

@@ -19,7 +19,7 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from typing import Any, NoReturn
 
-from .. import library_version
+from .._version import library_version
 from ..errors import SparseBTFError
 from . import (
     bench,

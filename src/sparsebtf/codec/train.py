@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from .. import library_version
+from .._version import library_version
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..execution import Executor, executor

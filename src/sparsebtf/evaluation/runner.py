@@ -44,9 +44,9 @@ from typing import Any
 
 import numpy as np
 
-from .. import library_version
 from .._atomic import atomic_output
 from .._json import json_default
+from .._version import library_version
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..execution import Executor, executor

@@ -58,7 +58,8 @@ class Format:
     writer : writes a BTF in it, or None.
     nbytes : ``nbytes(btf, dtype)``, the size a write will have (said before writing).
     summary : ``summary(shape_text, dtype)``, what a write announces beside its size.
-    corpus : makes the fuzz harness's valid seed files, or None (not fuzzed).
+    corpus : makes the fuzz harness's valid seed files (a maker, or the name of one in
+        :mod:`sparsebtf.testing.corpus`), or None (not fuzzed).
     hdf5_format : the HDF5 ``format`` attribute that tells it apart from others sharing an
         extension, or None.
     """
@@ -71,7 +72,7 @@ class Format:
     writer: Writer | None = None
     nbytes: Callable[[Any, str], int] | None = None
     summary: Callable[[str, str], str] | None = None
-    corpus: Corpus | None = None
+    corpus: Corpus | str | None = None
     hdf5_format: str | None = None
 
 
@@ -133,35 +134,22 @@ def _ubo2014_nbytes(btf: Any, dtype: str) -> int:
                          _ubo2014_scalar(dtype))  # fmt: skip
 
 
-def _corpus(name: str) -> Corpus:
-    """The fuzz harness's corpus maker ``name`` (imported when called: the harness is test
-    tooling, not a dependency of the formats)."""
-
-    def make(folder: Path, shared: dict[str, Any]) -> list[Path]:
-        from ..testing import corpus
-
-        return getattr(corpus, name)(folder, shared)  # type: ignore[no-any-return]
-
-    make.__name__ = name
-    return make
-
-
 #: The built-in formats, in the fuzz harness's report order (its cases' seeds depend on it).
 FORMATS: list[Format] = [
     Format("ubo2014", (".btf",), "a UBO2014 file", ("btf",), _read_ubo2014, _write_ubo2014,
            _ubo2014_nbytes, lambda shape, dtype: f"UBO2014 DFMF, {shape}, {dtype}",
-           _corpus("corpus_ubo2014")),
+           "corpus_ubo2014"),
     Format("ubo2003", (".zip",), "a UBO2003 / ATRIUM archive", (), _read_ubo2003,
-           corpus=_corpus("corpus_ubo2003")),
+           corpus="corpus_ubo2003"),
     Format("dense", (".h5", ".hdf5"), "our dense file", ("btf", "dense"), _read_dense,
            _write_dense, _dense_nbytes, lambda shape, dtype: f"{shape}, {dtype}",
-           _corpus("corpus_dense"), hdf5_format="sparsebtf-dense"),
+           "corpus_dense", hdf5_format="sparsebtf-dense"),
     Format("model", (".h5", ".hdf5"), "a model file is HDF5", ("model",),
-           corpus=_corpus("corpus_model"), hdf5_format="sparsebtf-model"),
+           corpus="corpus_model", hdf5_format="sparsebtf-model"),
     Format("coded", (".h5", ".hdf5"), "a coded file is HDF5", ("coded",), _read_coded,
-           corpus=_corpus("corpus_coded"), hdf5_format="sparsebtf-coded"),
+           corpus="corpus_coded", hdf5_format="sparsebtf-coded"),
     Format("release", (".bin",), "the authors' release files", (),
-           corpus=_corpus("corpus_release")),
+           corpus="corpus_release"),
     Format("png", (".png",), "the image is written as PNG", ("png",)),
     Format("npz", (".npz",), "NumPy arrays, np.load reads them", ("npz",)),
 ]  # fmt: skip

@@ -45,7 +45,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .. import library_version
 from .._atomic import atomic_output
 from .._h5check import (
     checked_dataset,
@@ -58,6 +57,7 @@ from .._h5check import (
 )
 from .._hdf5 import LIBVER, CompressedGroup, create, create_dataset, write_str_attr
 from .._semantic import check_same_directions, validate_coded
+from .._version import library_version
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.coding import SparseCodes

@@ -33,7 +33,6 @@ from pathlib import Path
 import h5py
 import numpy as np
 
-from .. import library_version
 from .._atomic import atomic_output
 from .._h5check import (
     as_str,
@@ -51,6 +50,7 @@ from .._semantic import (
     check_orthonormal,
     validate_model_dictionaries,
 )
+from .._version import library_version
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError
 from ..model import Model, dictionaries_hash
