@@ -52,7 +52,7 @@ from ..errors import BTFInputError
 from ..execution import Executor, executor
 from ..figures import comparison_grid
 from ..points.statistics import positive_median
-from .benchmark_set import FLOOR, BenchConfig
+from .benchmark_set import FLOOR, BenchConfig, reference_level
 from .methods import PAPER, Budget, Coding, FitContext, Method
 from .methods.selection import resolve_methods
 from .scoring import score_many
@@ -126,6 +126,16 @@ def floored(btf: BTF, floor: float) -> BTF:
 
 def _label(cls: str, seed: int) -> str:
     return f"{cls}{seed:02d}"
+
+
+def _view_at(views: dict[tuple[int, str], BTF], level: int) -> BTF | None:
+    """A method's reconstruction at ``level`` from its views by (level, matching): the
+    reference's (matching ""), else the paper's matching where the method was coded under it,
+    else any other; None when it has none at that level."""
+    for key in ((level, ""), (level, PAPER)):
+        if key in views:
+            return views[key]
+    return next((v for (lv, _), v in views.items() if lv == level), None)
 
 
 def budgets_for(
@@ -340,13 +350,11 @@ class _QualityRun:
     def figure5(self, label: str, btf: BTF, views: dict) -> str | None:
         """Figure 5's image: the reference, SparseBTF(32) and RGJW20(32) (the paper's
         matching where coded under it), when RGJW20 is in the run."""
-        lv = 32 if 32 in self.cfg.levels else self.cfg.levels[len(self.cfg.levels) // 2]
+        lv = reference_level(self.cfg.levels)
         recs = {f"{self.ref.label}({lv})": views[self.ref.name][(lv, "")]}
         for m in self.others:
             if m.name in FIGURE5 and m.name in views:
-                got = views[m.name]
-                v = got.get((lv, PAPER)) or next(
-                    (x for (lv2, _), x in got.items() if lv2 == lv), None)
+                v = _view_at(views[m.name], lv)
                 if v is not None:
                     recs[f"{m.label}({lv})"] = v
         if len(recs) < 2:
@@ -359,13 +367,10 @@ class _QualityRun:
         reference, :func:`~.renders.render_methods`) and Table 1's single-value decode speed
         (:func:`~.speed.decode_speed`), on the first test material."""
         cfg = self.cfg
-        lv = 32 if 32 in cfg.levels else cfg.levels[len(cfg.levels) // 2]
+        lv = reference_level(cfg.levels)
         recs: dict[str, BTF] = {}
         for m in self.methods:
-            got = views.get(m.name, {})
-            # the paper's matching where the method was coded under it
-            v = got.get((lv, "")) or got.get((lv, PAPER)) or next(
-                (x for (lv2, _), x in got.items() if lv2 == lv), None)
+            v = _view_at(views.get(m.name, {}), lv)
             if v is not None:
                 recs[f"{m.label}({lv})"] = v
         if cfg.speed_seconds > 0:

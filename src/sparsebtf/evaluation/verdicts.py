@@ -14,6 +14,7 @@ import itertools
 from typing import Any
 
 from ..storage.accounting import paper_storage
+from .benchmark_set import reference_level
 from .claims3 import summarise_table3
 from .rows import get as _get
 from .rows import levels as _levels
@@ -39,7 +40,7 @@ def _ratio_claim(result: dict[str, Any], num: str, den: str, level: int) -> dict
 def summarise(result: dict[str, Any]) -> dict[str, Any]:
     """Per-claim figures and verdicts (the rules are stated in each entry)."""
     levels = _levels(result)
-    mid = 32 if 32 in levels else levels[len(levels) // 2]
+    mid = reference_level(levels)
     methods = {r["method"] for r in result["rows"]}
     out: dict[str, Any] = {"reference_level": mid}
 
