@@ -57,7 +57,7 @@ def code_ways(btf: Any, model: Any, ways: tuple[str, ...]) -> dict[str, list[Any
         if way in ("before", "floored"):  # no bound: the decoder as it was
             coded = [replace(c, stats=replace(c.stats, bound=None)) for c in coded]
         out[way] = [coded_btf_view(c) for c in coded]
-        out[way + "_eps"] = coded[0].stats.eps
+        out[way + "_eps"] = coded[0].stats.log_offset
     return out
 
 

@@ -107,7 +107,8 @@ def parts(btf: FactorBTF, model: Model, taus: list[int], n: int = 4) -> list[tup
     from sparsebtf.points.preprocessing import Preprocessor, Standardization
 
     nl, nv = len(btf.lights), len(btf.views)
-    stats = Standardization("shared", np.zeros((nl, nv, 1)), np.ones((nl, nv, 1)), eps=1e-3)
+    stats = Standardization("shared", np.zeros((nl, nv, 1)), np.ones((nl, nv, 1)),
+                            log_offset=1e-3)
     pre = Preprocessor(stats)
     rows: list[tuple[str, float]] = []
     old = os.environ.get("SPARSEBTF_THREADS")

@@ -11,7 +11,7 @@ level to the next, and the encode time per point (wall clock, so on a loaded mac
 their ratio means much).
 
     python benchmarks/bench_objective.py BTF [--objectives log linear display]
-                                         [--log-offset auto|release|EPS] [--json]
+                                         [--log-offset auto|release|OFFSET] [--json]
 """
 
 from __future__ import annotations

@@ -92,7 +92,8 @@ def test_unrepresentable_coded_files_are_refused(coded_file, tmp_path, capsys):
     with pytest.raises(BTFInputError, match="not the release's ensembles"):
         check_exportable(c, "0" * 64)
     with pytest.raises(BTFInputError, match="log offset"):
-        check_exportable(dataclasses.replace(c, stats=dataclasses.replace(c.stats, eps=1e-3)), h)
+        offset = dataclasses.replace(c.stats, log_offset=1e-3)
+        check_exportable(dataclasses.replace(c, stats=offset), h)
     with pytest.raises(BTFInputError, match="cannot be a release file name"):
         check_exportable(c, h, name="a/b")
     big = dataclasses.replace(c.codes["U"], values=c.codes["U"].values * 1e5)

@@ -72,7 +72,7 @@ def test_clamp_offset_counts_non_finite_values(backend):
 @pytest.mark.parametrize("mode", ["shared", "per_channel"])
 def test_forward_into_equals_forward_to_float32_rounding(mode):
     btf = smooth_btf(5)
-    pre = Preprocessor(gather_statistics(btf, mode, eps=1e-3))
+    pre = Preprocessor(gather_statistics(btf, mode, log_offset=1e-3))
     rgb = btf.patch(4, 0, 4)
     rgb[0, 1, 2, 3] = -0.5  # counts as 0
     ref = pre.forward(np.maximum(rgb, 0), dtype=np.float64)
@@ -109,7 +109,7 @@ def _float64_statistics(btf, eps):
 
 def test_statistics_equal_a_float64_computation():
     btf = smooth_btf(6, size=8)
-    stats = gather_statistics(btf, "per_channel", eps=1e-4)
+    stats = gather_statistics(btf, "per_channel", log_offset=1e-4)
     mean, std = _float64_statistics(btf, 1e-4)
     assert np.allclose(stats.mean, mean, rtol=0, atol=2e-6)
     assert np.allclose(stats.std, std, rtol=2e-5, atol=0)
@@ -127,9 +127,9 @@ def test_statistic_sums_same_bits_whatever_threads_and_view_ranges(monkeypatch):
     monkeypatch.setattr(statistics, "STATS_READ_BYTES", 12 * 8 * 13 * 4 * 3)  # 3 rows
     assert statistic_bands(btf) == (2, 4)  # whole multiples of the hint's rows
     monkeypatch.setenv("SPARSEBTF_THREADS", "1")
-    one = statistic_sums(btf, eps=1e-4)
+    one = statistic_sums(btf, log_offset=1e-4)
     monkeypatch.setenv("SPARSEBTF_THREADS", "2")
-    two = statistic_sums(btf, eps=1e-4)
+    two = statistic_sums(btf, log_offset=1e-4)
     parts = [statistic_sums(btf, r, 1e-4) for r in [(0, 5), (5, 6), (6, 13)]]
     for attr in ("shift", "s1", "s2", "top"):
         assert np.array_equal(getattr(one, attr), getattr(two, attr))

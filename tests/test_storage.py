@@ -163,7 +163,7 @@ def test_coded_round_trip(files: tuple[Path, Path, CodedBTF], model: Model) -> N
             assert np.all(np.diff(mags) <= 0)
     np.testing.assert_allclose(back.stats.mean, coded.stats.mean, rtol=1e-7)
     np.testing.assert_allclose(back.stats.std, coded.stats.std, rtol=1e-7)
-    assert back.stats.mode == "shared" and back.stats.eps == coded.stats.eps
+    assert back.stats.mode == "shared" and back.stats.log_offset == coded.stats.log_offset
     with h5py.File(cpath, "r") as f:
         g = f["codes/Y"]
         assert g["membership"].dtype == np.uint8

@@ -16,7 +16,8 @@ from sparsebtf.evaluation.benchmark_set import FLOOR
 from sparsebtf.evaluation.runner import floored
 from sparsebtf.metrics import compare, top_k_largest
 from sparsebtf.open import parse_synth_spec
-from sparsebtf.points.preprocessing import BOUND_STEP, EPS, resolve_log_offset, round_up_bound
+from sparsebtf.points.preprocessing import BOUND_STEP, resolve_log_offset, round_up_bound
+from sparsebtf.points.preprocessing import RELEASE_LOG_OFFSET as OFFSET
 from sparsebtf.points.statistics import LOG_OFFSET_FRACTION, choose_log_offset, gather_statistics
 from sparsebtf.runtime import RuntimeBTF, coded_btf_view, kernels
 from sparsebtf.storage import load_coded, save_coded
@@ -62,14 +63,14 @@ def test_black_variant_is_cached_apart_and_named():
 # -- the log offset -----------------------------------------------------------------------------
 def test_log_offset_rules():
     btf = ArrayBTF(np.full((4, 4, 13, 13, 3), 0.2, np.float32), *[smooth_btf(0).lights] * 2)
-    assert choose_log_offset(btf, "release") == EPS
+    assert choose_log_offset(btf, "release") == OFFSET
     assert choose_log_offset(btf, 0.003) == 0.003
     # 1 % of the median positive value (to the histogram's 64 bins per decade)
     assert choose_log_offset(btf, "auto") == pytest.approx(LOG_OFFSET_FRACTION * 0.2, rel=0.04)
     data = np.zeros((4, 4, 13, 13, 3), np.float32)
-    assert choose_log_offset(ArrayBTF(data, btf.lights, btf.views), "auto") == EPS  # all black
+    assert choose_log_offset(ArrayBTF(data, btf.lights, btf.views), "auto") == OFFSET  # all black
     data[:2] = 1e-6  # a dark material never goes below the release's offset
-    assert choose_log_offset(ArrayBTF(data, btf.lights, btf.views), "auto") == EPS
+    assert choose_log_offset(ArrayBTF(data, btf.lights, btf.views), "auto") == OFFSET
     for bad in ("big", 0.0, 1e-9, float("nan"), 1e9, "-1"):
         with pytest.raises(BTFInputError, match="log offset"):
             resolve_log_offset(bad)
@@ -83,14 +84,14 @@ def test_exact_zeros_do_not_move_the_offset_of_the_lit_values():
     d = smooth_btf(0).lights
     a = choose_log_offset(ArrayBTF(lit.astype(np.float32), d, d), "auto")
     b = choose_log_offset(ArrayBTF(with_zeros.astype(np.float32), d, d), "auto")
-    assert a > EPS and b == pytest.approx(a, rel=0.15)
+    assert a > OFFSET and b == pytest.approx(a, rel=0.15)
 
 
 # -- the bound ----------------------------------------------------------------------------------
 def test_bound_is_the_brightest_log_value_of_each_angular_image_rounded_up():
     btf = smooth_btf(4)
     data = _full(btf)
-    st = gather_statistics(btf, eps=1e-3, progress=False)
+    st = gather_statistics(btf, log_offset=1e-3, progress=False)
     true = np.log(data.astype(np.float32) + np.float32(1e-3)).max(axis=(0, 1, 4))
     assert st.bound.shape == true.shape
     assert np.all(st.bound >= true)
@@ -110,7 +111,7 @@ def test_dense_decoder_clamps_to_the_bound(coded):
     tight = tight_bound(coded)
     free = coded_btf_view(replace(coded, stats=replace(coded.stats, bound=None))).read(*ALL)
     got = coded_btf_view(tight).read(*ALL)
-    cap = np.exp(tight.stats.bound.astype(np.float64)) - tight.stats.eps
+    cap = np.exp(tight.stats.bound.astype(np.float64)) - tight.stats.log_offset
     assert np.all(got <= cap[None, None, :, :, None] * (1 + 1e-6) + 1e-7)
     clamped = free > cap[None, None, :, :, None] * (1 + 1e-5)
     assert 0.1 < clamped.mean() < 0.9  # the test clamps for real
@@ -142,7 +143,7 @@ def test_runtime_clamps_like_the_dense_decoder(coded, backend, domain):
     vi2, vw = angular_weights(coded.views, wi[::-1], "linear")
     w2 = lw[:, :, None] * vw[:, None, :]
     cap = np.exp(np.einsum("nab,nab->n", w2, tight.stats.bound[li2[:, :, None], vi2[:, None, :]]))
-    assert np.all(got <= (cap - tight.stats.eps)[:, None] * (1 + 1e-5) + 1e-7)
+    assert np.all(got <= (cap - tight.stats.log_offset)[:, None] * (1 + 1e-5) + 1e-7)
     free = RuntimeBTF(coded, dtype=np.float64).evaluate(
         wi, wi[::-1], texel=tex, backend=backend, domain=domain
     )
@@ -153,7 +154,7 @@ def test_bound_round_trips_through_the_file_and_old_files_have_none(coded, tmp_p
     save_coded(coded, tmp_path / "c.h5")
     back = load_coded(tmp_path / "c.h5")
     assert np.array_equal(back.stats.bound, coded.stats.bound)
-    assert back.stats.eps == coded.stats.eps
+    assert back.stats.log_offset == coded.stats.log_offset
     old = replace(coded, stats=replace(coded.stats, bound=None))
     save_coded(old, tmp_path / "old.h5")
     assert load_coded(tmp_path / "old.h5").stats.bound is None
@@ -225,11 +226,11 @@ def test_cli_log_offset(tmp_path, capsys):
     model = tiny_model()
     save_model(model, tmp_path / "m.h5")
     src = "synth:stone+black:8:3:tiny13"
-    for rule, eps in (("release", EPS), ("0.002", 0.002)):
+    for rule, eps in (("release", OFFSET), ("0.002", 0.002)):
         out = tmp_path / f"{rule}.h5"
         assert main(["encode", src, "-m", str(tmp_path / "m.h5"), "-o", str(out),
                      "--tau", "16,4,4", "--log-offset", rule]) == 0  # fmt: skip
-        assert load_coded(out).stats.eps == eps
+        assert load_coded(out).stats.log_offset == eps
     capsys.readouterr()
     assert main(["encode", src, "-m", str(tmp_path / "m.h5"), "-o", str(tmp_path / "x.h5"),
                  "--log-offset", "1e9"]) == 2  # fmt: skip
@@ -249,14 +250,17 @@ def test_blend_carries_offsets_and_bounds_and_decodes_bounded():
     a = encode(smooth_btf(9), model, tau=(40, 8, 8), eps=0.0, progress=False)
     b = encode(smooth_btf(5), model, tau=(40, 8, 8), eps=0.0, log_offset="release",
                progress=False)  # fmt: skip
-    assert a.stats.eps != b.stats.eps  # different offsets blend (they were refused before)
+    # different offsets blend (they were refused before)
+    assert a.stats.log_offset != b.stats.log_offset
     mix = blend([a, b], alpha=0.3, progress=False)
     want = round_up_bound((1 - 0.3) * a.stats.bound.astype(np.float64)
                          + 0.3 * b.stats.bound.astype(np.float64))
     assert np.array_equal(mix.stats.bound, want)
-    assert mix.stats.eps == pytest.approx(0.7 * a.stats.eps + 0.3 * b.stats.eps)
+    assert mix.stats.log_offset == pytest.approx(
+        0.7 * a.stats.log_offset + 0.3 * b.stats.log_offset)
     same = blend([a, b], alpha=0.0, progress=False)
-    assert np.array_equal(same.stats.bound, a.stats.bound) and same.stats.eps == a.stats.eps
+    assert np.array_equal(same.stats.bound, a.stats.bound)
+    assert same.stats.log_offset == a.stats.log_offset
     got = coded_btf_view(mix).read(*ALL)
-    cap = np.exp(mix.stats.bound.astype(np.float64)) - mix.stats.eps
+    cap = np.exp(mix.stats.bound.astype(np.float64)) - mix.stats.log_offset
     assert np.all(got <= cap[None, None, :, :, None] * (1 + 1e-5) + 1e-7)

@@ -13,6 +13,8 @@ The public API is one import::
 * :func:`load_model` — a bundled model (``"release"``) or a model file;
 * :func:`train` — a model from BTFs (paper §3.2);
 * :func:`encode` — sparse codes at a τ, a size or a ratio, one BTF or many (§3.3);
+* :class:`EncodeOptions`, :class:`TrainOptions`, :class:`Execution` — how ``encode`` and
+  ``train`` work and where they run (``options=``, ``execution=``, or the same keywords);
 * :func:`decode` — a coded BTF as a lazy BTF (Eq. 4);
 * :class:`RuntimeBTF` — batches of (uv, ω_i, ω_o) queries and a shader's arrays (Eq. 5/6);
 * :func:`blend` — inter-BTF interpolation in coefficient space (Eq. 7–9);
@@ -31,15 +33,20 @@ from ._version import library_version
 
 if TYPE_CHECKING:
     from .api import decode, encode, load_model
+    from .codec.options import EncodeOptions, TrainOptions
     from .codec.train import train
     from .data.capture import capture
+    from .execution import Execution
     from .open import open_btf
     from .runtime.blend import blend
     from .runtime.decoder import RuntimeBTF
     from .save import save_btf
 
 __all__ = [
+    "EncodeOptions",
+    "Execution",
     "RuntimeBTF",
+    "TrainOptions",
     "blend",
     "capture",
     "decode",
@@ -53,7 +60,10 @@ __all__ = [
 
 #: Public name → the module defining it, imported at the name's first use.
 _LAZY = {
+    "EncodeOptions": "sparsebtf.codec.options",
+    "Execution": "sparsebtf.execution",
     "RuntimeBTF": "sparsebtf.runtime.decoder",
+    "TrainOptions": "sparsebtf.codec.options",
     "blend": "sparsebtf.runtime.blend",
     "capture": "sparsebtf.data.capture",
     "decode": "sparsebtf.api",

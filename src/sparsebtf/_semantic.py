@@ -7,8 +7,8 @@ finiteness); this module makes sure they *mean* something possible, before any w
 direction tables      finite, unit length within :data:`UNIT_TOLERANCE`, on the upper hemisphere
                       (z ≥ −:data:`UNIT_TOLERANCE`), pairwise distinct (chord > :data:`MIN_CHORD`)
 statistics            μ, σ finite, \\|μ\\| ≤ :data:`STAT_BOUND`, 0 < σ ≤ :data:`STAT_BOUND`,
-                      ε (log offset) in :data:`EPS_RANGE`, the bound on ln(RGB + ε) (when
-                      present) finite, in [ln ε, :data:`STAT_BOUND`]
+                      the log offset (``stats@eps``) in :data:`LOG_OFFSET_RANGE`, the bound on
+                      ln(RGB + offset) (when present) finite, in [ln offset, :data:`STAT_BOUND`]
 sparse codes          counts ≥ 0 summing to the number of values, memberships in [0, K), locations
                       inside the data point and distinct within a point, values finite and sorted
                       by decreasing \\|v\\| within a point, residuals ≥ 0 or NaN (unknown)
@@ -42,7 +42,7 @@ class Standardization(Protocol):
 
     mean: np.ndarray
     std: np.ndarray
-    eps: float
+    log_offset: float
     transform: str
     bound: np.ndarray | None
 
@@ -73,7 +73,7 @@ class CodedBTF(Protocol):
 __all__ = [
     "COLOR_BOUND",
     "DICTIONARY_RULES",
-    "EPS_RANGE",
+    "LOG_OFFSET_RANGE",
     "MIN_CHORD",
     "ORTHONORMAL_TOLERANCE",
     "ORTHONORMAL_TOLERANCE_FP16",
@@ -102,9 +102,9 @@ MIN_CHORD = 1e-4
 #: ε ≥ 1e-12 lies within ±27.7, so Y within ±27.7, U within ±24.1 and V within ±34.0 (the sums
 #: of the absolute BT.601 coefficients times 27.7). Beyond ±88.7 exp() overflows float32.
 STAT_BOUND = 40.0
-#: Accepted log offsets ε (the paper's and the release's is 1e-5; ``encode --log-offset``
+#: Accepted log offsets (the paper's and the release's is 1e-5; ``encode --log-offset``
 #: chooses one per material in [1e-5, the upper end]).
-EPS_RANGE = (1e-12, 1e3)
+LOG_OFFSET_RANGE = (1e-12, 1e3)
 #: Orthonormality of float32 / float64 dictionaries: the bundled float32 model gives 8.1e-8,
 #: the release's float64 ``.mat`` files 1.2e-14.
 ORTHONORMAL_TOLERANCE = 1e-4
@@ -180,19 +180,20 @@ def check_same_directions(xyz: np.ndarray, reference: np.ndarray, where: str, wh
 
 def check_statistics(stats: Standardization, where: str) -> None:
     """Log-YUV statistics: μ and σ finite, \\|μ\\| ≤ :data:`STAT_BOUND`,
-    0 < σ ≤ :data:`STAT_BOUND`, ε in :data:`EPS_RANGE`, the bound (if any) in
-    [ln ε, :data:`STAT_BOUND`]. The one home of these rules."""
-    eps = float(stats.eps)
-    lo, hi = EPS_RANGE
-    if not (np.isfinite(eps) and lo <= eps <= hi):
-        raise _fail(f"{where}@eps", f"log offset is {eps!r}; expected {lo:g} <= eps <= {hi:g}")
+    0 < σ ≤ :data:`STAT_BOUND`, the log offset in :data:`LOG_OFFSET_RANGE`, the bound (if
+    any) in [ln offset, :data:`STAT_BOUND`]. The one home of these rules."""
+    offset = float(stats.log_offset)
+    lo, hi = LOG_OFFSET_RANGE
+    if not (np.isfinite(offset) and lo <= offset <= hi):
+        # named as the file's attribute: stats@eps
+        raise _fail(f"{where}@eps", f"log offset is {offset!r}; expected {lo:g} <= eps <= {hi:g}")
     if stats.transform != "log_yuv":
         return  # identity statistics (μ = 0, σ = 1) are never read from a file
     _check_range(np.asarray(stats.mean), f"{where}/mean", -STAT_BOUND, STAT_BOUND, "mean")
     _check_range(np.asarray(stats.std), f"{where}/std", 0.0, STAT_BOUND, "std", lo_open=True)
     if stats.bound is not None:
-        # No angular image lies below ln(0 + ε), the log of black (the bound is rounded up).
-        _check_range(np.asarray(stats.bound), f"{where}/bound", float(np.log(eps)) - 1e-2,
+        # No angular image lies below ln(0 + offset), the log of black (the bound is rounded up).
+        _check_range(np.asarray(stats.bound), f"{where}/bound", float(np.log(offset)) - 1e-2,
                      STAT_BOUND, "bound")
 
 

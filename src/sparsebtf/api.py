@@ -2,8 +2,9 @@
 function for τ, a target size or a ratio, one BTF or many) and :func:`decode`.
 
 They choose and call the codec's encoders (:func:`~sparsebtf.codec.encode`,
-:func:`~sparsebtf.codec.encode_to_size`, :func:`~sparsebtf.codec.encode_many`) and the
-runtime's decoder (:func:`~sparsebtf.runtime.coded_btf_view`); every heavy import happens at
+:func:`~sparsebtf.codec.encode_to_size`, :func:`~sparsebtf.codec.encode_many`, with
+:class:`~sparsebtf.codec.options.EncodeOptions` and :class:`~sparsebtf.execution.Execution`)
+and the runtime's decoder (:func:`~sparsebtf.runtime.coded_btf_view`); every heavy import happens at
 the first call, so ``import sparsebtf`` stays cheap.
 
 >>> import sparsebtf as sb                                             # doctest: +SKIP
@@ -13,7 +14,6 @@ the first call, so ``import sparsebtf`` stays cheap.
 
 from __future__ import annotations
 
-import inspect
 import os
 import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
@@ -22,7 +22,9 @@ from typing import TYPE_CHECKING, Any, overload
 from .errors import BTFInputError
 
 if TYPE_CHECKING:
+    from .codec.options import EncodeOptions
     from .data.btf import BTF
+    from .execution import Execution
     from .model import CodedBTF, Model
     from .runtime.dense import DecodedBTF
 
@@ -65,7 +67,9 @@ def parse_target(target: Target) -> tuple[str, Any]:
     ``"64x"``. Every refusal is one :class:`~sparsebtf.errors.BTFInputError` line.
     """
     if target is None:
-        return "tau", (885, 64, 64)
+        from .learning.codes import RELEASE_TAU
+
+        return "tau", RELEASE_TAU
     if isinstance(target, bool) or isinstance(target, int | float) or (
             hasattr(target, "dtype") and getattr(target, "ndim", 1) == 0):  # fmt: skip
         raise BTFInputError(f"target={target!r} is ambiguous (a tau or a size?): give "
@@ -104,43 +108,23 @@ def _model_of(model: Model | str | os.PathLike[str] | None) -> Model:
                         f"not a {type(model).__name__}")  # fmt: skip
 
 
-def _check_options(encoder: Any, options: Mapping[str, Any], kind: str) -> None:
-    """One line for an option the chosen encoder does not take (instead of a TypeError)."""
-    named = {"tau", "target_bytes", "target_ratio"}
-    inputs = {"btf", "model", "sources"}
-    taken = [p for p in inspect.signature(encoder).parameters if p not in inputs]
-    for key in options:
-        if key in named:
-            raise BTFInputError(f"encode: give the sparsity as target=..., not {key}= ("
-                                + _SPELLINGS + ")")
-        if key not in taken:
-            ok = ", ".join(p for p in taken if p not in named)
-            raise BTFInputError(f"encode: option {key!r} does not apply to a {kind} target; "
-                                f"options there: {ok}")  # fmt: skip
-
-
-def _check_tau(tau: Any, model: Model) -> None:
-    """The τ syntax checked now (a many-BTF encode is lazy and would say it at its first BTF)."""
-    from .codec.encode import RELEASE_TAU
-    from .model import parse_tau
-
-    nominal = RELEASE_TAU if set(model.channels) <= set(RELEASE_TAU) else None
-    parse_tau(tau, model.channels, nominal=nominal)
-
-
 @overload
 def encode(btf_or_btfs: BTF | str | os.PathLike[str], model: Model | str | os.PathLike[str] |
-           None = None, *, target: Target = None, **options: Any) -> CodedBTF: ...
+           None = None, *, target: Target = None, options: EncodeOptions | None = None,
+           execution: Execution | None = None, **keywords: Any) -> CodedBTF: ...
 @overload
 def encode(btf_or_btfs: Iterable[BTF | str | os.PathLike[str]], model: Model | str |
            os.PathLike[str] | None = None, *, target: Target = None,
-           **options: Any) -> Iterator[CodedBTF]: ...
+           options: EncodeOptions | None = None, execution: Execution | None = None,
+           **keywords: Any) -> Iterator[CodedBTF]: ...
 def encode(
     btf_or_btfs: Any,
     model: Model | str | os.PathLike[str] | None = None,
     *,
     target: Target = None,
-    **options: Any,
+    options: EncodeOptions | None = None,
+    execution: Execution | None = None,
+    **keywords: Any,
 ) -> CodedBTF | Iterator[CodedBTF]:
     """Sparse codes of one BTF, or of many, on ``model`` (paper §3.3; default: the bundled
     ``"release"`` model; a name or a model file is loaded with :func:`load_model`).
@@ -158,39 +142,44 @@ def encode(
     (``budget="stored", per_material=True``); ``budget="paper", per_material=False`` count by
     Table 4 with the shared dictionaries.
 
-    ``options`` go to that encoder unchanged (e.g. ``eps``, ``candidates``, ``objective``,
-    ``workers``, ``client``, ``progress``; many BTFs also take ``crop``, ``checkpoint_dir``);
-    one the chosen encoder does not take is refused in one line.
+    How it codes is ``options`` (:class:`~sparsebtf.codec.options.EncodeOptions`: ``eps``,
+    ``candidates``, ``objective``, ``log_offset`` …), where it runs ``execution``
+    (:class:`~sparsebtf.execution.Execution`: ``workers``, ``scheduler``, ``client``);
+    ``keywords`` set their fields (``eps=1e-3``, ``workers=4``). A keyword that does not
+    apply to the target (``eps`` to a ratio), or to one BTF (``crop``, ``checkpoint_dir``),
+    is refused in one line.
     """
     from .codec import encode as encode_tau
     from .codec import encode_many, encode_to_size
     from .data.btf import BTF
 
     kind, value = parse_target(target)
+    for key in ("tau", "target_bytes", "target_ratio"):
+        if key in keywords:
+            raise BTFInputError(f"encode: give the sparsity as target=..., not {key}= ("
+                                + _SPELLINGS + ")")  # fmt: skip
     the_model = _model_of(model)
-    if kind != "tau":
-        options = {"budget": "stored", "per_material": True, **options}
-    sized = {"target_bytes": value} if kind == "bytes" else {"target_ratio": value}
+    if kind == "tau":
+        goal: dict[str, Any] = {"tau": value}
+    else:  # the coded file's bytes, unless the caller counts otherwise
+        goal = {"target_bytes" if kind == "bytes" else "target_ratio": value,
+                "budget": keywords.pop("budget", "stored"),
+                "per_material": keywords.pop("per_material", True)}  # fmt: skip
+    settings = {"options": options, "execution": execution, **keywords}
     if not isinstance(btf_or_btfs, BTF | str | os.PathLike):
         if not isinstance(btf_or_btfs, Iterable):
             raise BTFInputError(f"encode takes a BTF, a path or a list of them, not a "
                                 f"{type(btf_or_btfs).__name__}")  # fmt: skip
-        many = list(btf_or_btfs)
-        _check_options(encode_many, options, kind)
-        if kind == "tau":
-            _check_tau(value, the_model)
-            return encode_many(many, the_model, tau=value, **options)
-        return encode_many(many, the_model, **sized, **options)
+        return encode_many(list(btf_or_btfs), the_model, **goal, **settings)
     btf = btf_or_btfs
     if isinstance(btf, str | os.PathLike):
         from .open import open_btf
 
-        btf = open_btf(btf, progress=options.get("progress"))
+        progress = keywords.get("progress", None if options is None else options.progress)
+        btf = open_btf(btf, progress=progress)
     if kind == "tau":
-        _check_options(encode_tau, options, kind)
-        return encode_tau(btf, the_model, tau=value, **options)
-    _check_options(encode_to_size, options, kind)
-    return encode_to_size(btf, the_model, **sized, **options)
+        return encode_tau(btf, the_model, **goal, **settings)
+    return encode_to_size(btf, the_model, **goal, **settings)
 
 
 def decode(

@@ -27,3 +27,16 @@ class ModelMismatchError(SparseBTFError):
 class OutputError(SparseBTFError):
     """An output could not be written (full disk, read-only folder, bad path); the previous
     file at the target, if any, is left as it was."""
+
+
+class OptionError(BTFInputError):
+    """An option's value outside its constraints (:mod:`sparsebtf.constraints`): one line that
+    names the option, what it must be and the value found."""
+
+    def __init__(self, option: str, rest: str) -> None:
+        super().__init__(option + rest)
+        self.option, self.rest = option, rest
+
+    def renamed(self, name: str) -> OptionError:
+        """The same refusal naming the option ``name`` (the command line's flag, ``--batch``)."""
+        return OptionError(name, self.rest)

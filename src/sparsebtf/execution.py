@@ -51,15 +51,18 @@ import socket
 import sys
 import uuid
 from collections.abc import Callable, Iterable, Iterator, Sequence
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, ClassVar
 
 from ._progress import bar
-from .errors import SparseBTFError
+from .constraints import Interval, Options, Rule
+from .errors import BTFInputError, SparseBTFError
 
 __all__ = [
     "SCHEDULER_ENV",
     "ClusterError",
     "DaskExecutor",
+    "Execution",
     "Executor",
     "InProcess",
     "PairwiseSum",
@@ -509,6 +512,47 @@ def _local_cluster(workers: int, memory_limit: str | float, dashboard: bool) -> 
         )
 
 
+def _is_client(value: Any) -> bool:
+    """A ``distributed.Client`` (by its interface: Dask need not be imported) or an Executor."""
+    return isinstance(value, Executor) or (hasattr(value, "submit") and hasattr(value, "scheduler"))
+
+
+@dataclass(frozen=True, kw_only=True)
+class Execution(Options):
+    """Where work runs: in this process (the default); on a local Dask cluster of ``workers``
+    single-threaded processes; on the cluster of ``scheduler`` (an address such as
+    ``tcp://10.0.0.5:8786``; default :data:`SCHEDULER_ENV` if set); or through ``client``
+    (a ``dask.distributed.Client``, or an :class:`Executor`, used as it is). The results do
+    not depend on it. Training and every encoder take one (``execution=``), or the same
+    keywords."""
+
+    client: Any = None
+    scheduler: str | None = None
+    workers: int | None = None
+
+    constraints: ClassVar[dict[str, list[Any]]] = {
+        "client": [Rule(_is_client, "a dask.distributed.Client or an Executor"), None],
+        "scheduler": [str, None],
+        "workers": [Interval(int, 1, None, unit="(worker processes)"), None],
+    }
+
+    def check(self) -> None:
+        if self.workers is not None and self.scheduler:
+            raise BTFInputError("give either workers (a local cluster) or a scheduler, not both")
+
+    @classmethod
+    def take(cls, base: Execution | None, keywords: dict[str, Any]
+             ) -> tuple[Execution, dict[str, Any]]:  # fmt: skip
+        """``base`` with this object's keywords of ``keywords`` in place, and the other
+        keywords (a function's options besides where it runs)."""
+        mine = {k: v for k, v in keywords.items() if k in cls.names()}
+        return cls.build(base, **mine), {k: v for k, v in keywords.items() if k not in mine}
+
+    def executor(self, **kwargs: Any) -> contextlib.AbstractContextManager[Executor]:
+        """:func:`executor` of this place (``kwargs``: its keyword-only arguments)."""
+        return executor(self.client, self.scheduler, self.workers, **kwargs)
+
+
 @contextlib.contextmanager
 def executor(
     client: Any = None,
@@ -520,16 +564,12 @@ def executor(
     timeout: float | None = None,
     announce: bool = True,
 ) -> Iterator[Executor]:
-    """The executor the caller asked for, closed (if we started it) when the block ends.
-
-    ``client``: a ``distributed.Client`` (or an :class:`Executor`) to use as is.
-    ``scheduler``: the address of a running scheduler, e.g. ``tcp://10.0.0.5:8786``.
-    ``workers``: start a ``LocalCluster`` of that many single-threaded worker processes
-    (``memory_limit`` each: "auto" shares this machine's memory among them).
-    Neither: the scheduler named by :data:`SCHEDULER_ENV` if set, else :class:`InProcess`.
-    ``timeout`` (seconds) bounds connecting (default: Dask's ``distributed.comm.timeouts
-    .connect``). ``announce`` prints the cluster and its dashboard address on stderr.
-    """
+    """The executor of ``client`` / ``scheduler`` / ``workers`` (:class:`Execution`), closed
+    (if we started it) when the block ends. A local cluster's workers get ``memory_limit``
+    each ("auto" shares this machine's memory); ``timeout`` (seconds) bounds connecting
+    (default: Dask's ``distributed.comm.timeouts.connect``); ``announce`` prints the cluster
+    and its dashboard address on stderr."""
+    Execution(client=client, scheduler=scheduler, workers=workers)  # one line if unusable
     if isinstance(client, Executor):
         yield client
         return
@@ -537,10 +577,6 @@ def executor(
         ex: Executor = DaskExecutor(client)
         yield ex
         return
-    if workers is not None and scheduler:
-        raise SparseBTFError("give either workers (a local cluster) or a scheduler, not both")
-    if workers is not None and workers < 1:
-        raise SparseBTFError(f"workers must be >= 1, got {workers}")
     address = scheduler or (None if workers else os.environ.get(SCHEDULER_ENV) or None)
     if address is None and workers is None:
         yield InProcess()

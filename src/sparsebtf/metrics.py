@@ -35,7 +35,7 @@ from .colour import RGB_TO_YUV
 from .data.btf import BTF
 from .display import tone_map
 from .errors import BTFInputError
-from .points.preprocessing import EPS, Standardization
+from .points.preprocessing import RELEASE_LOG_OFFSET, Standardization
 
 __all__ = [
     "PSNR_PEAK",
@@ -171,14 +171,15 @@ def compare(
             d2 = np.square(a - b)
             sums["rgb"] += float(np.sum(d2, dtype=np.float64))
             worst = top_k_largest(worst, d2, k_top)
-            dl = np.log(a + np.float32(EPS)) - np.log(np.maximum(b, 0) + np.float32(EPS))
+            e = np.float32(RELEASE_LOG_OFFSET)
+            dl = np.log(a + e) - np.log(np.maximum(b, 0) + e)
             sums["log"] += squared_sum(dl)
             sums["display"] += squared_sum(display_values(a) - display_values(b))
             if inv_sd is not None:
-                # z_a − z_b = YUV(ln(a + ε) − ln(b + ε)) / σ with the material's own ε: the
-                # mean cancels.
-                if stats.eps != EPS:
-                    e = np.float32(stats.eps)
+                # z_a − z_b = YUV(ln(a + o) − ln(b + o)) / σ with the material's own offset
+                # o: the mean cancels.
+                if stats.log_offset != RELEASE_LOG_OFFSET:
+                    e = np.float32(stats.log_offset)
                     dl = np.log(a + e) - np.log(np.maximum(b, 0) + e)
                 dz = (dl @ yuv) * inv_sd
                 sums["std"] += squared_sum(dz)

@@ -79,7 +79,7 @@ def parse_tau(
     a ``{channel: τ}`` mapping; a string ``"885,64,64"``, ``"64"`` or ``"0.25"``; a fraction in
     (0, 1) of the coded τ (``nominal``, else ``full``), rounded up; ``None`` or ``"all"`` for
     every stored coefficient (``full``). Encoding passes only ``nominal`` (the release's
-    885,64,64, :data:`sparsebtf.codec.encode.RELEASE_TAU`): a fraction is of that, and a
+    885,64,64, :data:`sparsebtf.learning.codes.RELEASE_TAU`): a fraction is of that, and a
     count is needed. Where neither is given, only explicit counts are accepted. Every τ is an
     integer >= 1.
     """

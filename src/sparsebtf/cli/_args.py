@@ -5,29 +5,33 @@ one file per input in a folder) and where the work runs (``--workers`` / ``--sch
 Every output is checked before any work starts.
 
 Numeric checks are declared beside each command's options, ``s.set_defaults(checks={...})``
-with :func:`number` / :func:`integer`, and run by :func:`check_args` before the command; every
-failure is one ``sparsebtf: error: …`` line (exit 2).
+with :func:`number` / :func:`integer`, and run by :func:`check_args` before the command; the
+options of the library's option objects (``encode``, ``train``) are checked by the objects
+themselves (:func:`build_options`: the library's constraint table, the flag named). Every
+failure is one ``sparsebtf: error: …`` line (exit 2), in the words of
+:mod:`sparsebtf.constraints`.
 """
 
 from __future__ import annotations
 
 import argparse
 import contextlib
-import math
 import os
 import sys
 import tempfile
-from collections.abc import Callable, Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
-from ..errors import SparseBTFError
+from ..constraints import Interval, Options, check_option
+from ..errors import OptionError, SparseBTFError
 from ..formats.registry import OUTPUT_FORMATS as _REGISTRY_OUTPUTS
 
 __all__ = [
     "OUTPUT_FORMATS",
     "add_cluster_options",
     "add_deprecated_alias",
+    "build_options",
     "check_args",
     "check_output_dir",
     "check_output_file",
@@ -36,25 +40,14 @@ __all__ = [
     "integer",
     "number",
     "open_source",
+    "option_checks",
     "output_files",
     "output_format",
     "parse_crop",
 ]
 
 Check = Callable[[Any, str], None]
-
-
-def _range_text(lo: float | None, hi: float | None, lo_open: bool, hi_open: bool) -> str:
-    def f(x: float) -> str:
-        return str(x) if isinstance(x, int) else f"{x:g}"
-
-    if lo is not None and hi is not None:
-        return f"in {'(' if lo_open else '['}{f(lo)}, {f(hi)}{')' if hi_open else ']'}"
-    if lo is not None:
-        return f"{'>' if lo_open else '>='} {f(lo)}"
-    if hi is not None:
-        return f"{'<' if hi_open else '<='} {f(hi)}"
-    return "finite"
+_O = TypeVar("_O", bound=Options)
 
 
 def number(
@@ -65,34 +58,38 @@ def number(
     hi_open: bool = False,
     unit: str = "",
 ) -> Check:
-    """A check that a float option is finite and in [lo, hi] (open ends with ``*_open``)."""
-
-    def check(value: Any, flag: str) -> None:
-        v = float(value)
-        ok = math.isfinite(v)
-        ok = ok and (lo is None or (v > lo if lo_open else v >= lo))
-        ok = ok and (hi is None or (v < hi if hi_open else v <= hi))
-        if not ok:
-            what = _range_text(lo, hi, lo_open, hi_open)
-            raise SparseBTFError(
-                f"{flag} must be a finite number {what}{f' {unit}' if unit else ''}, got {value!r}"
-            )
-
-    return check
+    """A check that a float option is finite and in [lo, hi] (open ends with ``*_open``): an
+    :class:`~sparsebtf.constraints.Interval`, the library's own constraint."""
+    closed = {(False, False): "both", (False, True): "left", (True, False): "right",
+              (True, True): "neither"}[lo_open, hi_open]  # fmt: skip
+    rule = [Interval(float, lo, hi, closed=closed, unit=unit)]  # type: ignore[arg-type]
+    return lambda value, flag: check_option(flag, value, rule)
 
 
 def integer(lo: int | None = None, hi: int | None = None, *, unit: str = "") -> Check:
-    """A check that an integer option lies in [lo, hi]."""
+    """A check that an integer option lies in [lo, hi] (an :class:`Interval` of integers)."""
+    rule = [Interval(int, lo, hi, unit=unit)]
+    return lambda value, flag: check_option(flag, value, rule)
 
-    def check(value: Any, flag: str) -> None:
-        v = int(value)
-        if (lo is not None and v < lo) or (hi is not None and v > hi):
-            what = _range_text(lo, hi, False, False)
-            raise SparseBTFError(
-                f"{flag} must be an integer {what}{f' {unit}' if unit else ''}, got {value!r}"
-            )
 
-    return check
+def option_checks(cls: type[Options], flags: Mapping[str, str]) -> dict[str, Check]:
+    """The ``checks`` (:func:`check_args`) of the options ``flags`` names (option → flag):
+    the library's own constraints (``cls.constraints``), run before the command."""
+
+    def check(name: str) -> Check:
+        return lambda value, flag: check_option(flag, value, cls.constraints[name])
+
+    return {flag.lstrip("-").replace("-", "_"): check(name) for name, flag in flags.items()}
+
+
+def build_options(cls: type[_O], flags: Mapping[str, str], **values: Any) -> _O:
+    """The option object ``cls`` (:class:`~sparsebtf.codec.options.EncodeOptions` …) of a
+    command's parsed ``values``; its refusal is the library's line naming the flag (``flags``:
+    option → flag; else ``--`` + the option's name)."""
+    try:
+        return cls(**values)
+    except OptionError as e:
+        raise e.renamed(flags.get(e.option, "--" + e.option.replace("_", "-"))) from None
 
 
 class _DeprecatedAlias(argparse.Action):
@@ -400,10 +397,8 @@ def output_files(
 
 
 def log_offset(text: str) -> Any:
-    """The ``--log-offset`` value: "auto", "release" or a number in [1e-5, 1e3]."""
+    """The ``--log-offset`` value: "auto", "release" or a number in [1e-5, 1e3] (the library's
+    rule, :data:`~sparsebtf.points.preprocessing.LOG_OFFSET_RULE`, naming the flag)."""
     from ..points.preprocessing import resolve_log_offset
 
-    try:
-        return resolve_log_offset(text)
-    except SparseBTFError as e:
-        raise SparseBTFError(f"--log-offset: {e}") from None
+    return resolve_log_offset(text, "--log-offset")

@@ -109,7 +109,7 @@ def register(sub: Any) -> None:
                    help="materials: synth (height-field ray-marcher, default) or capture "
                    "(Mitsuba 3 renders of the built-in samples of 'sparsebtf capture': true "
                    "black, high dynamic range; rendered once into the cache)")
-    q.add_argument("--log-offset", default=None, metavar="auto|release|EPS",
+    q.add_argument("--log-offset", default=None, metavar="auto|release|OFFSET",
                    help="log offset of every SparseBTF encode (default auto; release = the "
                    "authors' 1e-5; see 'sparsebtf encode --help')")
     q.add_argument("--exhaustive", action="store_true",

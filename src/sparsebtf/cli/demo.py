@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from ..learning.codes import RELEASE_TAU, RELEASE_TAU_TRAIN
 from ._args import check_output_dir, integer
 
 __all__ = ["DemoConfig", "register", "run_demo"]
@@ -41,7 +42,7 @@ class DemoConfig:
     test_size: int = 60
     directions: str = "ubo2014"
     n_dictionaries: int = 4
-    tau_train: tuple[int, int, int] = (256, 32, 32)
+    tau_train: tuple[int, int, int] = RELEASE_TAU_TRAIN
     sample: float = 0.5
     iters: int = 3
     taus: tuple[tuple[int, int, int], ...] = (
@@ -52,7 +53,7 @@ class DemoConfig:
     )
     ssim_images: int = 16
     #: τ at which the bundled model codes the test materials (the release's).
-    bundled_tau: tuple[int, int, int] = (885, 64, 64)
+    bundled_tau: tuple[int, int, int] = RELEASE_TAU
 
     @classmethod
     def quick(cls) -> DemoConfig:

@@ -4,15 +4,15 @@ or on a Dask cluster (``--workers`` / ``--scheduler``)."""
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 from typing import Any
 
+from ..codec.options import EncodeOptions
 from ..errors import SparseBTFError, UnreachableTargetError
-from ..learning.coding import DEFAULT_CANDIDATES
 from ..learning.objective import OBJECTIVES
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
+    build_options,
     check_output_dir,
     check_resume,
     check_tau,
@@ -22,6 +22,7 @@ from ._args import (
     log_offset,
     number,
     open_source,
+    option_checks,
     output_files,
     parse_crop,
     resumable,
@@ -31,19 +32,30 @@ from ._output import format_value, print_json
 
 __all__ = ["register"]
 
+#: The library's defaults, which the flags show and take.
+DEFAULTS = EncodeOptions()
+#: The numeric options and their flags: checked before the command by the library's table.
+FLAGS = {"eps": "--eps", "candidates": "--candidates", "batch_size": "--batch"}
+
 
 def run(args: argparse.Namespace) -> int:
     from ..codec.checkpoint import EncodeCheckpoint
 
     tau = check_tau(args.tau)
-    offset = log_offset(args.log_offset)
-    outputs = output_files(args.btf, args.output, inputs=[args.model])
     ck = checkpoint_dir(args)
+    options = build_options(
+        EncodeOptions, FLAGS, eps=args.eps,
+        candidates=None if args.exhaustive else args.candidates, objective=args.objective,
+        allow_below_training=args.allow_below_training, std_mode=args.std_mode,
+        log_offset=log_offset(args.log_offset), batch_size=args.batch,
+        crop=parse_crop(args.crop), checkpoint_dir=ck,
+    )  # fmt: skip
+    outputs = output_files(args.btf, args.output, inputs=[args.model])
     check_output_dir(str(ck), "--checkpoint-dir")
     check_resume(ck, args.resume, "points_*.npz", "encode")
     try:
         with resumable(ck):
-            _encode(args, tau, offset, outputs, ck)
+            _encode(args, tau, options, outputs)
     except UnreachableTargetError:
         EncodeCheckpoint(ck).remove()  # ranges coded for this target serve no other run
         raise
@@ -51,9 +63,10 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _encode(args: argparse.Namespace, tau: str | None, offset: Any, outputs: list[Any],
-            ck: Path) -> None:  # fmt: skip
+def _encode(args: argparse.Namespace, tau: str | None, options: EncodeOptions,
+            outputs: list[Any]) -> None:  # fmt: skip
     from ..codec import encode_many
+    from ..execution import Execution
     from ..storage import save_coded, storage_report
 
     model = open_model_arg(args.model)
@@ -70,15 +83,11 @@ def _encode(args: argparse.Namespace, tau: str | None, offset: Any, outputs: lis
                 f"({raw:,} bytes in fp16): the ratio would be below 1"
             )
     per_material = not args.with_dictionaries
-    coded_all = encode_many(
-        args.btf, model, tau=tau, eps=args.eps, target_bytes=args.target_bytes,
-        target_ratio=args.target_ratio, per_material=per_material, budget=args.budget,
-        std_mode=args.std_mode, log_offset=offset, batch_size=args.batch,
-        allow_below_training=args.allow_below_training,
-        crop=parse_crop(args.crop), checkpoint_dir=ck,
-        candidates=None if args.exhaustive else args.candidates, objective=args.objective,
-        **cluster_options(args),
-    )  # fmt: skip
+    sized = args.target_bytes is not None or args.target_ratio is not None
+    target = {"target_bytes": args.target_bytes, "target_ratio": args.target_ratio,
+              "per_material": per_material, "budget": args.budget} if sized else {"tau": tau}
+    coded_all = encode_many(args.btf, model, **target, options=options,
+                            execution=Execution(**cluster_options(args)))  # fmt: skip
     reports = []
     for coded, output in zip(coded_all, outputs, strict=True):
         if model.file:
@@ -162,34 +171,35 @@ def register(sub: Any) -> None:
     s.add_argument("--with-dictionaries", action="store_true",
                    help="with --budget paper: targets also count the shared dictionaries (K x "
                    "3 channels, about 2.1 MiB for the release model), as Table 4's totals do")
-    s.add_argument("--eps", type=float, default=1e-5,
+    s.add_argument("--eps", type=float, default=DEFAULTS.eps,
                    help="stop adding coefficients to a point once its mean squared residual "
                    "(standardised log-YUV; with --objective linear/display, that objective's "
-                   "first-order error) is below this (default 1e-5)")
+                   f"first-order error) is below this (default {DEFAULTS.eps:g})")
     s.add_argument("--std-mode", choices=STD_MODES, default=None,
                    help="standardisation of the material: shared (one mean/std for Y, U, V, "
                    "the release's) or per_channel (default: the model's)")
-    s.add_argument("--log-offset", default="auto", metavar="auto|release|EPS",
-                   help="the offset eps of ln(x + eps): auto (default) = 1%% of the "
+    s.add_argument("--log-offset", default=DEFAULTS.log_offset, metavar="auto|release|OFFSET",
+                   help="the offset of ln(x + offset): auto (default) = 1%% of the "
                    "material's median positive value, at least 1e-5, so exact zeros (hard "
                    "shadows, masked texels) do not dominate the code; release = 1e-5, the "
                    "authors' preprocessing; or a number in [1e-5, 1e3]")
     rule = s.add_mutually_exclusive_group()
-    rule.add_argument("--candidates", type=int, default=DEFAULT_CANDIDATES, metavar="N",
+    rule.add_argument("--candidates", type=int, default=DEFAULTS.candidates, metavar="N",
                       help="dictionaries projected exactly per data point and channel, after a "
                       "screening by partial projections ranks all K (default "
-                      f"{DEFAULT_CANDIDATES}; K or more: every dictionary)")
+                      f"{DEFAULTS.candidates}; K or more: every dictionary)")
     rule.add_argument("--exhaustive", action="store_true",
                       help="project every data point on every dictionary (the paper's rule; "
                       "the default screening projects it on --candidates of them)")
-    s.add_argument("--objective", choices=OBJECTIVES, default="log",
+    s.add_argument("--objective", choices=OBJECTIVES, default=DEFAULTS.objective,
                    help="the error each point's dictionary and count are chosen by: log "
                    "(default, the paper's rule: the standardised log-YUV error), linear (the "
                    "error of linear RGB, the radiance a renderer integrates: for glossy "
                    "highlights) or display (after the display mapping 1.3*I^(1/1.8), clipped "
                    "at 1); --eps is then in its units (mean squared error per value)")
-    s.add_argument("--batch", type=int, default=4,
-                   help="data points read and coded at a time (memory bound; default 4)")
+    s.add_argument("--batch", type=int, default=DEFAULTS.batch_size,
+                   help="data points read and coded at a time (memory bound; default "
+                   f"{DEFAULTS.batch_size})")
     s.add_argument("--crop", metavar="R0:R1,C0:C1",
                    help="code only rows R0..R1-1 and columns C0..C1-1 (0-based, end excluded)")
     s.add_argument("--allow-below-training", action="store_true",
@@ -204,10 +214,10 @@ def register(sub: Any) -> None:
                    "uninterrupted run's")
     add_cluster_options(s)
     s.add_argument("--json", action="store_true", help="print the storage report(s) as JSON")
+    # the targets' ranges, and the options' by EncodeOptions' table (again, with the rest,
+    # when the command builds the options: build_options)
     s.set_defaults(func=run, checks={
-        "eps": number(0, unit="(residual mean squared error, standardised)"),
         "target_ratio": number(1, unit="(raw bytes / coded bytes)"),
         "target_bytes": integer(1, unit="bytes"),
-        "batch": integer(1, 4096, unit="data points per batch"),
-        "candidates": integer(1, unit="dictionaries per data point"),
+        **option_checks(EncodeOptions, FLAGS),
     })  # fmt: skip

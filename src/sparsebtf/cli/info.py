@@ -127,8 +127,8 @@ def describe(
             "objective": _objective_text(coded.objective),
             "preprocessing": {
                 "standardisation": coded.stats.mode,
-                "log_offset": coded.stats.eps,
-                "bound": ("largest ln(RGB + eps) per angular image, every decoder clamps to it"
+                "log_offset": coded.stats.log_offset,
+                "bound": ("largest ln(RGB + offset) per angular image, every decoder clamps to it"
                           if coded.stats.bound is not None else
                           "none (older file: no clamp)" if schema < 3 else
                           "none (the file says its statistics have none, e.g. imported from "

@@ -2,8 +2,8 @@
 
 For texel (row, col) (the release's convention: ``point = row//p + (H/p)·(col//p)``), light
 index l and view index v, reports per channel the ``standardized`` value (Eq. 5 on the codes),
-the ``log`` value (x·σ + μ, the log-YUV domain) and ``rgb`` (exp(min(YUV⁻¹·log, bound)) − ε,
-the material's log offset ε and bound, as every decoder), or null
+the ``log`` value (x·σ + μ, the log-YUV domain) and ``rgb`` (exp(min(YUV⁻¹·log, bound)) − offset,
+the material's log offset and bound, as every decoder), or null
 when a channel is missing (the release ships no Y coefficients; ``rgb_note`` says so).
 """
 
@@ -70,7 +70,7 @@ def lookup(
         if all(ch in log for ch in ("Y", "U", "V")):
             log_rgb = yuv_to_rgb(np.array([[[log["Y"], log["U"], log["V"]]]]))
             coded.stats.clamp_log_rgb(log_rgb, [light], [view])  # as every decoder does
-            rgb = inverse_log_transform(log_rgb, coded.stats.eps)[0, 0]
+            rgb = inverse_log_transform(log_rgb, coded.stats.log_offset)[0, 0]
             out["rgb"] = [float(v) for v in rgb]
         else:
             missing = [ch for ch in ("Y", "U", "V") if ch not in log]

@@ -70,9 +70,9 @@ def range_key(header: Any, model: Any, plan: Any, stats: Any, batch_size: int,
     ``stats`` (before the statistics pass) it leaves out :data:`MEASURED`."""
     plan_params = dataclasses.asdict(plan) if dataclasses.is_dataclass(plan) else repr(plan)
     measured = {} if stats is None else {
-        "statistics": _digest(stats.mean, stats.std, stats.bound, np.float64(stats.eps)),
+        "statistics": _digest(stats.mean, stats.std, stats.bound, np.float64(stats.log_offset)),
         "std_mode": stats.mode,
-        "log_offset": float(stats.eps),
+        "log_offset": float(stats.log_offset),
     }  # fmt: skip
     return {
         "input": header.name,

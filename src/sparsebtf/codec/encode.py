@@ -11,32 +11,30 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
 from ..data.btf import BTF
 from ..errors import BTFInputError
-from ..learning.coding import (
-    DEFAULT_CANDIDATES,
-    SparseCodes,
-    sparse_code_levels,
-    sparse_code_objective,
-)
+from ..execution import Execution
+from ..learning.codes import RELEASE_EPS, RELEASE_TAU
+from ..learning.coding import SparseCodes, sparse_code_levels, sparse_code_objective
 from ..learning.objective import ChannelError, check_objective, joint_choice, objective_params
-from ..model import CodedBTF, Model, TauSpec, parse_tau
+from ..model import CHANNELS, CodedBTF, Model, TauSpec, parse_tau
 from ..points.grid import stream_points
-from ..points.preprocessing import LogOffset, Preprocessor, Standardization, StdMode
-from .jobs import Header, Source, run_plan
+from ..points.preprocessing import Preprocessor, Standardization
+from .jobs import Header, run_plan
+from .options import EncodeOptions
 
 __all__ = [
     "FixedTau",
     "batch_errors",
-    "check_candidates",
     "check_model_objective",
     "coded_btf",
     "encode",
     "encode_levels",
+    "plan_candidates",
     "rule_params",
 ]
 
@@ -70,57 +68,25 @@ def coded_btf(
 def encode(
     btf: BTF,
     model: Model,
+    tau: TauSpec = RELEASE_TAU,
     *,
-    tau: TauSpec = (885, 64, 64),
-    eps: float = 1e-5,
-    std_mode: StdMode | None = None,
-    log_offset: LogOffset = "auto",
-    batch_size: int = 4,
-    dtype: str = "float32",
-    allow_below_training: bool = False,
-    progress: bool | None = None,
-    client: Any = None,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    candidates: int | None = DEFAULT_CANDIDATES,
-    objective: str = "log",
+    options: EncodeOptions | None = None,
+    execution: Execution | None = None,
+    **keywords: Any,
 ) -> CodedBTF:
     """Sparse representation of one BTF on a trained model (paper §3.3, Eq. 3).
 
-    ``tau`` caps the coefficients per data point and channel (release: Y 885, U 64, V 64);
-    ``eps`` is the mean-squared-residual threshold. τ_t < τ_l is refused (the paper requires
-    τ_t >= τ_l) unless ``allow_below_training``. ``client`` (a ``dask.distributed.Client``),
-    ``scheduler`` (an address) or ``workers`` (a local cluster of that many processes) spread
-    the data points over a Dask cluster (:mod:`sparsebtf.execution`); the codes are the same.
-    ``candidates``: dictionaries projected exactly per point and channel after the screening
-    (:func:`~sparsebtf.learning.coding.screen_dictionaries`); None: every dictionary, the
-    paper's exhaustive rule. The coded file records the rule (:func:`rule_params`).
-    ``objective``: the error the dictionary choice, the coefficients kept and the ε rule
-    minimise (:mod:`sparsebtf.learning.objective`): "log" (the paper's rule), "linear"
-    (first-order linear RGB) or "display" (the display mapping's); ``eps`` is in its units.
-    The coded file records it (``params["objective"]``, absent for "log").
+    ``tau`` caps the coefficients per data point and channel (default the release's: Y 885,
+    U 64, V 64); each point keeps the fewest coefficients whose mean squared residual is below
+    ``eps``. How it codes is ``options`` (:class:`~.options.EncodeOptions`: ``eps``,
+    ``candidates``, ``objective``, ``log_offset`` …), where it runs ``execution``
+    (:class:`~sparsebtf.execution.Execution`: in process, ``workers``, ``scheduler``,
+    ``client``; the codes are the same); ``keywords`` set either's fields (``eps=0.0``,
+    ``workers=4``). τ_t < τ_l is refused (the paper requires τ_t >= τ_l) unless
+    ``allow_below_training``. The coded file records the dictionary rule
+    (:func:`rule_params`) and a weighted objective (``params["objective"]``, absent for "log").
     """
-    return encode_levels(
-        btf,
-        model,
-        [tau],
-        eps=eps,
-        std_mode=std_mode, log_offset=log_offset,
-        batch_size=batch_size,
-        dtype=dtype,
-        allow_below_training=allow_below_training,
-        progress=progress,
-        client=client,
-        scheduler=scheduler,
-        workers=workers,
-        candidates=candidates,
-        objective=objective,
-    )[0]
-
-
-#: The release's τ per channel: encoding's default, and what a fractional τ (0.25) is a
-#: fraction of when encoding (elsewhere it is a fraction of the coded τ).
-RELEASE_TAU = {"Y": 885, "U": 64, "V": 64}
+    return encode_levels(btf, model, [tau], options=options, execution=execution, **keywords)[0]
 
 
 def _check_levels(levels: list[dict[str, int]], model: Model, allow_below: bool) -> None:
@@ -142,16 +108,13 @@ def _check_levels(levels: list[dict[str, int]], model: Model, allow_below: bool)
                 )
 
 
-def check_candidates(candidates: int | None, model: Model) -> int | None:
-    """``candidates`` as an encoding plan keeps it: None (exhaustive) when it is None or at
-    least every channel's K, or when the model's data points are not 4D (the screening's
-    partial projection needs two spatial and two angular modes); one line if below 1."""
+def plan_candidates(candidates: int | None, model: Model) -> int | None:
+    """``candidates`` (an option, :class:`~.options.EncodeOptions`) as an encoding plan keeps
+    it: None (exhaustive) when it is None or at least every channel's K, or when the model's
+    data points are not 4D (the screening's partial projection needs two spatial and two
+    angular modes)."""
     if candidates is None:
         return None
-    if isinstance(candidates, bool) or int(candidates) != candidates or candidates < 1:
-        raise BTFInputError(
-            f"candidates must be an integer >= 1 (or exhaustive), got {candidates!r}"
-        )
     k_max = max(model.n_dictionaries(ch) for ch in model.channels)
     if int(candidates) >= k_max or len(model.mode_sizes) != 4:
         return None
@@ -193,7 +156,7 @@ def batch_errors(x: np.ndarray, pre: Preprocessor, objective: str
     z = x if x.shape[-1] == 3 and x.ndim == 6 else np.moveaxis(x, 0, -1)
     st = pre.stats
     log_rgb = np.ascontiguousarray(yuv_to_rgb(st.invert(z)), dtype=np.float32)
-    return [ChannelError.for_batch(objective, log_rgb, st.std, st.bound, st.eps, c)
+    return [ChannelError.for_batch(objective, log_rgb, st.std, st.bound, st.log_offset, c)
             for c in range(3)]  # fmt: skip
 
 
@@ -201,12 +164,13 @@ def batch_errors(x: np.ndarray, pre: Preprocessor, objective: str
 class FixedTau:
     """Encoding at fixed sparsity levels (τ per channel, ε): one coded BTF per level.
 
-    Build it with :meth:`for_model`, which checks the levels against the model.
+    ``FixedTau(taus)`` is the target; :meth:`bind` (or :meth:`for_model`) parses the levels
+    and checks them against a model, with the options the plan uses.
     """
 
     taus: tuple[Any, ...]
-    levels: tuple[dict[str, int], ...]
-    eps: float = 1e-5
+    levels: tuple[dict[str, int], ...] = ()
+    eps: float = RELEASE_EPS
     dtype: str = "float32"
     desc: str = "encode"
     #: dictionaries projected exactly after screening; None: all (see :func:`check_candidates`)
@@ -214,20 +178,26 @@ class FixedTau:
     #: the coding objective (:mod:`sparsebtf.learning.objective`)
     objective: str = "log"
 
+    kind: ClassVar[str] = "tau"
+
     @classmethod
     def for_model(
-        cls, model: Model, taus: Sequence[TauSpec], eps: float = 1e-5, dtype: str = "float32",
-        allow_below_training: bool = False, candidates: int | None = DEFAULT_CANDIDATES,
-        objective: str = "log",
+        cls, model: Model, taus: Sequence[TauSpec], options: EncodeOptions | None = None,
+        **keywords: Any,
     ) -> FixedTau:  # fmt: skip
-        nominal = RELEASE_TAU if set(model.channels) <= set(RELEASE_TAU) else None
-        levels = [parse_tau(t, model.channels, nominal=nominal) for t in taus]
-        _check_levels(levels, model, allow_below_training)
-        if eps < 0:
-            raise BTFInputError(f"eps must be >= 0, got {eps}")
-        return cls(tuple(taus), tuple(levels), eps, dtype,
-                   candidates=check_candidates(candidates, model),
-                   objective=check_model_objective(objective, model))  # fmt: skip
+        """The plan of ``taus`` on ``model`` with ``options`` (``keywords`` set its fields)."""
+        return cls(tuple(taus)).bind(model, EncodeOptions.build(options, **keywords))
+
+    def bind(self, model: Model, options: EncodeOptions) -> FixedTau:
+        """The levels parsed (a fraction of the release's τ where the channels are Y, U, V)
+        and checked against ``model``, with ``options``' ε, dtype, candidates, objective."""
+        release = dict(zip(CHANNELS, RELEASE_TAU, strict=True))
+        nominal = release if set(model.channels) <= set(release) else None
+        levels = [parse_tau(t, model.channels, nominal=nominal) for t in self.taus]
+        _check_levels(levels, model, options.allow_below_training)
+        return FixedTau(self.taus, tuple(levels), options.eps, options.dtype,
+                        candidates=plan_candidates(options.candidates, model),
+                        objective=check_model_objective(options.objective, model))  # fmt: skip
 
     def prepare(self, header: Header, model: Model) -> None:
         return None
@@ -305,29 +275,13 @@ def encode_levels(
     model: Model,
     taus: Sequence[TauSpec],
     *,
-    eps: float = 1e-5,
-    std_mode: StdMode | None = None,
-    log_offset: LogOffset = "auto",
-    batch_size: int = 4,
-    dtype: str = "float32",
-    allow_below_training: bool = False,
-    progress: bool | None = None,
-    client: Any = None,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    candidates: int | None = DEFAULT_CANDIDATES,
-    objective: str = "log",
+    options: EncodeOptions | None = None,
+    execution: Execution | None = None,
+    **keywords: Any,
 ) -> list[CodedBTF]:
     """:func:`encode` at several sparsity levels from one pass (projections are shared).
 
     Under a weighted ``objective`` each point's error in it never grows with the level's τ
     (:func:`~sparsebtf.learning.objective.weighted_code_levels`)."""
-    plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training, candidates,
-                              objective)
-    (coded,) = run_plan(
-        [Source.of(btf)], model, plan, std_mode=std_mode,
-        log_offset=log_offset,
-        batch_size=batch_size,
-        progress=progress, client=client, scheduler=scheduler, workers=workers,
-    )  # fmt: skip
+    (coded,) = run_plan([btf], model, FixedTau(tuple(taus)), options, execution, **keywords)
     return coded

@@ -23,11 +23,11 @@ from typing import Any, Protocol
 
 from ..data.btf import BTF
 from ..data.directions import DirectionSet
-from ..errors import FileFormatError, SparseBTFError
-from ..execution import Executor, executor, worker_label
+from ..errors import BTFInputError, FileFormatError, SparseBTFError
+from ..execution import Execution, Executor, worker_label
 from ..model import Model
 from ..points.grid import PatchGrid
-from ..points.preprocessing import LogOffset, StdMode, check_std_mode, resolve_log_offset
+from ..points.preprocessing import LogOffset, StdMode
 from ..points.statistics import (
     choose_log_offset,
     combine_statistics,
@@ -37,6 +37,7 @@ from ..points.statistics import (
 )
 from ..storage.coded_streams import binary16_statistics
 from .checkpoint import MEASURED, EncodeCheckpoint, range_key, range_layout
+from .options import EncodeOptions, encode_settings
 
 __all__ = ["EncodingPlan", "Header", "Source", "run_plan"]
 
@@ -138,10 +139,21 @@ class Header:
 class EncodingPlan(Protocol):
     """What an encoding computes per point range and how it joins the ranges of one BTF.
 
-    A plan is pickled to the workers with each task: keep it small (parameters only).
+    Made from the target alone (τ levels, byte targets) and bound to a model and the options
+    by :meth:`bind`; a plan is pickled to the workers with each task: keep it small
+    (parameters only: its fields fingerprint a checkpoint's ranges).
     """
 
     desc: str
+
+    @property
+    def kind(self) -> str:
+        """The target, as a refusal names it: "tau", "size" or "ratio"."""
+        ...
+
+    def bind(self, model: Model, options: EncodeOptions) -> EncodingPlan:
+        """This target with the options it uses, checked against ``model`` (one line)."""
+        ...
 
     def prepare(self, header: Header, model: Model) -> Any:
         """Check one BTF before any work; what its tasks need beyond the model (small)."""
@@ -169,8 +181,8 @@ def _header(x: Source | BTF) -> Header:
     return Header.of(_as_btf(x))
 
 
-def _sums(x: Source | BTF, views: tuple[int, int], eps: float, tick: Any = None) -> Any:
-    return statistic_sums(_as_btf(x), views, eps, tick)
+def _sums(x: Source | BTF, views: tuple[int, int], log_offset: float, tick: Any = None) -> Any:
+    return statistic_sums(_as_btf(x), views, log_offset, tick)
 
 
 def _log_offset(x: Source | BTF, rule: LogOffset) -> float:
@@ -185,44 +197,52 @@ def _range(
 
 
 def run_plan(
-    sources: Sequence[Source],
+    btfs: Sequence[str | os.PathLike[str] | BTF],
     model: Model,
     plan: EncodingPlan,
+    options: EncodeOptions | None = None,
+    execution: Execution | None = None,
+    /,
     *,
-    std_mode: StdMode | None = None,
-    log_offset: LogOffset = "auto",
-    batch_size: int = 4,
-    progress: bool | None = None,
-    client: Any = None,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    checkpoint_dir: str | os.PathLike[str] | None = None,
+    many: bool = False,
+    **keywords: Any,
 ) -> Iterator[list[Any]]:
-    """Encode ``sources`` by ``plan``; yield each one's result, in order, as it completes.
+    """The one encoder behind every public one: ``btfs`` (paths, ``synth:`` specs or BTF
+    objects) coded on ``model`` to the target ``plan`` (fixed τ levels, :class:`~.encode.
+    FixedTau`; rate targets, :class:`~.rate.RateTargets`), with ``options`` and ``keywords``
+    (:func:`~.options.encode_settings`; ``many``: :func:`~.encode_many`'s keywords apply), on
+    ``execution`` (:func:`sparsebtf.execution.executor`); yields each BTF's coded BTFs (one
+    per level), in order, as each completes.
 
-    Runs in process, or on the cluster of ``client`` / ``scheduler`` / ``workers``
-    (:func:`sparsebtf.execution.executor`). Every BTF is checked before work starts.
-    ``log_offset`` is the rule for each BTF's log offset ε
-    (:func:`~sparsebtf.points.statistics.choose_log_offset`). With ``checkpoint_dir`` every
-    finished point range is saved there (:mod:`.checkpoint`: ranges of :data:`RANGE_BATCHES`
-    batches, in process too) and the ranges already there are read back instead of coded:
-    the results equal an uninterrupted run's. The caller removes the folder when done.
+    Everything is checked when this is called, before the iterator starts: the options, the
+    plan against the model (:meth:`EncodingPlan.bind`). Each BTF is then checked before any
+    work. ``options.log_offset`` is the rule for each BTF's log offset
+    (:func:`~sparsebtf.points.statistics.choose_log_offset`). With ``options.checkpoint_dir``
+    every finished point range is saved there (:mod:`.checkpoint`: ranges of
+    :data:`RANGE_BATCHES` batches, in process too) and the ranges already there are read back
+    instead of coded: the results equal an uninterrupted run's. The caller removes the folder
+    when done.
     """
-    if batch_size < 1:
-        raise SparseBTFError(f"batch size must be >= 1, got {batch_size}")
-    rule = resolve_log_offset(log_offset)
-    ck = None if checkpoint_dir is None else EncodeCheckpoint(checkpoint_dir)
-    with executor(client=client, scheduler=scheduler, workers=workers) as ex:
-        yield from _run(ex, list(sources), model, plan, std_mode, rule, batch_size, progress, ck)
+    opts, where = encode_settings(options, execution, keywords, kind=plan.kind, many=many)
+    if not btfs:
+        raise BTFInputError("nothing to encode: give at least one BTF")
+    bound = plan.bind(model, opts)
+    sources = [Source.of(b, opts.crop) for b in btfs]
+    ck = None if opts.checkpoint_dir is None else EncodeCheckpoint(opts.checkpoint_dir)
+
+    def runs() -> Iterator[list[Any]]:
+        with where.executor() as ex:
+            yield from _run(ex, sources, model, bound, opts, ck)
+
+    return runs()
 
 
 def _run(
     ex: Executor, sources: list[Source], model: Model, plan: EncodingPlan,
-    std_mode: StdMode | None, log_offset: LogOffset, batch_size: int, progress: bool | None,
-    ck: EncodeCheckpoint | None = None,
+    options: EncodeOptions, ck: EncodeCheckpoint | None = None,
 ) -> Iterator[list[Any]]:  # fmt: skip
-    mode = std_mode or model.std_mode
-    check_std_mode(mode)
+    mode = options.std_mode or model.std_mode
+    batch_size, progress = options.batch_size, options.progress
     # In process the tasks share one opened BTF. On a cluster each worker opens a path
     # itself; a BTF object travels once, as a shared value, not with every task.
     opened = [
@@ -245,7 +265,7 @@ def _run(
         early = [range_key(h, model, plan, None, batch_size, r)
                  for h, r in zip(headers, layout, strict=True)]  # fmt: skip
         found = ck.scan(early, layout, skip=MEASURED)  # refused before the statistics pass
-    stats = _statistics(ex, opened, headers, model, mode, log_offset, progress)
+    stats = _statistics(ex, opened, headers, model, mode, options.log_offset, progress)
     done: list[set[tuple[int, int]]] = [set() for _ in headers]
     if ck is not None:
         keys = [range_key(h, model, plan, s, batch_size, r)

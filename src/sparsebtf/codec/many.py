@@ -17,11 +17,12 @@ from typing import Any
 
 from ..data.btf import BTF
 from ..errors import BTFInputError
-from ..learning.coding import DEFAULT_CANDIDATES
+from ..execution import Execution
+from ..learning.codes import RELEASE_TAU
 from ..model import CodedBTF, Model, TauSpec
-from ..points.preprocessing import LogOffset, StdMode
 from .encode import FixedTau
-from .jobs import Source, run_plan
+from .jobs import run_plan
+from .options import EncodeOptions
 from .rate import RateTargets
 
 __all__ = ["encode_many", "output_name"]
@@ -35,64 +36,31 @@ def encode_many(
     model: Model,
     *,
     tau: TauSpec | None = None,
-    eps: float = 1e-5,
-    target_bytes: int | None = None,
-    target_ratio: float | None = None,
-    per_material: bool = False,
-    budget: str = "paper",
-    weighting: str = "rgb",
-    std_mode: StdMode | None = None,
-    log_offset: LogOffset = "auto",
-    batch_size: int = 4,
-    dtype: str = "float32",
-    allow_below_training: bool = False,
-    crop: tuple[slice, slice] | None = None,
-    progress: bool | None = None,
-    client: Any = None,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    checkpoint_dir: str | os.PathLike[str] | None = None,
-    candidates: int | None = DEFAULT_CANDIDATES,
-    objective: str = "log",
+    options: EncodeOptions | None = None,
+    execution: Execution | None = None,
+    **keywords: Any,
 ) -> Iterator[CodedBTF]:
-    """Encode every BTF of ``sources`` on ``model``; yield their coded BTFs in order.
+    """Encode every BTF of ``sources`` on ``model``; an iterator of their coded BTFs in order.
 
     ``sources`` are paths or ``synth:`` specs (opened by whoever runs the task: on a cluster,
-    every worker must see the files) or BTF objects. Sparsity: ``tau`` / ``eps`` (see
-    :func:`~sparsebtf.codec.encode`, default τ = 885,64,64), or rate control to
-    ``target_bytes`` / ``target_ratio`` per BTF, counted as ``budget`` says (see
-    :func:`~sparsebtf.codec.encode_to_size`).
-    ``crop`` = (rows, cols) applies to every source. ``client`` / ``scheduler`` / ``workers``
-    choose the cluster (:func:`sparsebtf.execution.executor`; default: this process).
-    Iterate to the end (or close the iterator) to release a cluster it started.
-    ``checkpoint_dir`` saves each finished point range there and resumes from the ranges it
-    already holds (:mod:`.checkpoint`; the coded BTFs are those of an uninterrupted run).
-    ``candidates``: dictionaries projected exactly per point after screening; None: every
-    dictionary (the paper's exhaustive rule; see :func:`~sparsebtf.codec.encode`).
-    ``objective``: the error coded for, "log" (the paper's), "linear" or "display"
-    (:mod:`sparsebtf.learning.objective`), at fixed τ and in rate control alike.
+    every worker must see the files) or BTF objects. Sparsity: ``tau`` (see
+    :func:`~sparsebtf.codec.encode`, default the release's 885,64,64), or rate control to the
+    keywords ``target_bytes`` / ``target_ratio`` per BTF, counted as ``budget`` and
+    ``per_material`` say (:func:`~sparsebtf.codec.encode_to_size`'s). How and where:
+    ``options`` (:class:`~.options.EncodeOptions`; its ``crop`` = (rows, cols) applies to
+    every source, its ``checkpoint_dir`` saves each finished point range there and resumes
+    from the ranges it already holds: :mod:`.checkpoint`) and ``execution``
+    (:class:`~sparsebtf.execution.Execution`; default: this process), or their fields as
+    ``keywords``. The options and the target are checked now; the work starts with the
+    iteration: iterate to the end (or close the iterator) to release a cluster it started.
     """
-    if not sources:
-        raise BTFInputError("nothing to encode: give at least one BTF")
-    if target_bytes is not None or target_ratio is not None:
-        if tau is not None:
-            raise BTFInputError("give a sparsity tau or a target size, not both")
-        plan: FixedTau | RateTargets = RateTargets(
-            target_bytes=target_bytes, target_ratio=target_ratio, per_material=per_material,
-            budget=budget, weighting=weighting, dtype=dtype, candidates=candidates,
-            objective=objective,
-        ).check(model)  # fmt: skip
-    else:
-        taus = [tau if tau is not None else (885, 64, 64)]
-        plan = FixedTau.for_model(model, taus, eps, dtype, allow_below_training, candidates,
-                                  objective)
-    for levels in run_plan(
-        [Source.of(s, crop) for s in sources], model, plan, std_mode=std_mode,
-        log_offset=log_offset,
-        batch_size=batch_size, progress=progress, client=client, scheduler=scheduler,
-        workers=workers, checkpoint_dir=checkpoint_dir,
-    ):  # fmt: skip
-        yield levels[0]
+    plan: FixedTau | RateTargets | None = RateTargets.take(keywords)
+    if plan is not None and tau is not None:
+        raise BTFInputError("give a sparsity tau or a target size, not both")
+    if plan is None:
+        plan = FixedTau((RELEASE_TAU if tau is None else tau,))
+    runs = run_plan(sources, model, plan, options, execution, many=True, **keywords)
+    return (levels[0] for levels in runs)
 
 
 def output_name(source: str | os.PathLike[str]) -> str:

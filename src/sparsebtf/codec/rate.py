@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -19,20 +19,22 @@ from .._threads import parallel_map
 from ..colour import YUV_TO_RGB
 from ..data.btf import BTF
 from ..errors import BTFInputError, UnreachableTargetError
-from ..learning.coding import DEFAULT_CANDIDATES, screen_dictionaries, topk_abs
+from ..execution import Execution
+from ..learning.codes import RELEASE_TAU
+from ..learning.coding import screen_dictionaries, topk_abs
 from ..learning.cost import DICTIONARY_ENTRY_BYTES, location_width, raw_bytes
 from ..learning.objective import DISPLAY_A, DISPLAY_GAMMA, objective_params
-from ..learning.rate_control import PAPER_SPLIT, ChannelCandidates, allocate, reference_counts
+from ..learning.rate_control import ChannelCandidates, allocate, reference_counts
 from ..learning.tensor import project
 from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid, stream_points
-from ..points.preprocessing import LogOffset, Preprocessor, Standardization, StdMode
-from .encode import batch_errors, check_candidates, check_model_objective, coded_btf, rule_params
-from .jobs import Header, Source, run_plan
+from ..points.preprocessing import Preprocessor, Standardization
+from .encode import batch_errors, check_model_objective, coded_btf, plan_candidates, rule_params
+from .jobs import Header, run_plan
+from .options import EncodeOptions
 
 __all__ = [
     "BUDGETS",
-    "WEIGHTINGS",
     "RateTargets",
     "encode_rate_levels",
     "encode_to_size",
@@ -40,8 +42,6 @@ __all__ = [
 ]
 
 
-#: Error weightings of the rate control (see :func:`encode_rate_levels`).
-WEIGHTINGS = ("rgb", "log", "uniform")
 #: What a size or ratio target counts: the coded file's bytes, or the paper's Table 4 bytes.
 BUDGETS = ("stored", "paper")
 #: A stored-bytes target is met when the file is at most this fraction below it.
@@ -151,6 +151,8 @@ class RateTargets:
     "stored" that single target is the coded file's size instead
     (:func:`stored_target_bytes`): the Table 4 budget is searched until the file written by
     :func:`~sparsebtf.storage.save_coded` is within :data:`STORED_TOLERANCE` below it.
+    Those fields are the target; :meth:`bind` adds the options the plan uses (weighting,
+    split, candidate factor, dtype, candidates, objective) and checks it against a model.
     """
 
     targets: tuple[int, ...] | None = None
@@ -171,10 +173,38 @@ class RateTargets:
     #: the allocation weighs points by its first-order weights ("rgb", "display")
     objective: str = "log"
 
+    #: The fields that give a size target (the keywords of :func:`encode_to_size`).
+    SIZE_FIELDS: ClassVar[tuple[str, ...]] = ("target_bytes", "target_ratio", "per_material",
+                                              "budget")  # fmt: skip
+
+    @classmethod
+    def take(cls, keywords: dict[str, Any]) -> RateTargets | None:
+        """The size target that ``keywords`` give (its fields are taken out of them), or None
+        when they name neither a size nor a ratio."""
+        size = {k: keywords.pop(k) for k in cls.SIZE_FIELDS if k in keywords}
+        if size.get("target_bytes") is None and size.get("target_ratio") is None:
+            keywords.update({k: v for k, v in size.items() if k not in cls.SIZE_FIELDS[:2]})
+            return None
+        return cls(**size)
+
+    @property
+    def kind(self) -> str:
+        """The target as a refusal names it: "ratio" or "size"."""
+        return "ratio" if self.target_ratio is not None else "size"
+
+    def bind(self, model: Model, options: EncodeOptions) -> RateTargets:
+        """This target with ``options``' weighting, split, candidate factor, dtype, candidates
+        and objective, checked against ``model`` (:meth:`check`)."""
+        return replace(
+            self, weighting=options.weighting,
+            split=None if options.split is None else tuple(options.split),
+            candidate_factor=options.candidate_factor, dtype=options.dtype,
+            candidates=options.candidates, objective=options.objective,
+        ).check(model)  # fmt: skip
+
     def check(self, model: Model) -> RateTargets:
-        """Refuse bad parameters before any work; returns self."""
-        if self.weighting not in WEIGHTINGS:
-            raise BTFInputError(f"weighting must be one of {WEIGHTINGS}, got {self.weighting!r}")
+        """Refuse a target or a combination of options that cannot work, before any work;
+        returns self (candidates as the plan keeps them, :func:`~.encode.plan_candidates`)."""
         if self.budget not in BUDGETS:
             raise BTFInputError(f"budget must be one of {BUDGETS}, got {self.budget!r}")
         if self.budget == "stored" and (self.targets is not None or not self.per_material):
@@ -185,8 +215,6 @@ class RateTargets:
             )
         if self.targets is not None and not self.targets:
             raise BTFInputError("give at least one target size")
-        if self.candidate_factor < 1:
-            raise BTFInputError(f"candidate_factor must be >= 1, got {self.candidate_factor}")
         if "YUV" in model.channels:
             raise BTFInputError("rate control supports the 4D (Y, U, V) models only")
         check_model_objective(self.objective, model)
@@ -195,7 +223,7 @@ class RateTargets:
                 f"the {self.objective} objective weighs the allocation itself; the weighting "
                 f"{self.weighting!r} applies to the log objective only"
             )
-        candidates = check_candidates(self.candidates, model)
+        candidates = plan_candidates(self.candidates, model)
         return self if candidates == self.candidates else replace(self, candidates=candidates)
 
     @property
@@ -224,7 +252,7 @@ class RateTargets:
         size = int(np.prod(shape))
         split = self.split
         if split is None:
-            split = PAPER_SPLIT if model.transform == "log_yuv" else (1.0, 1.0, 1.0)
+            split = RELEASE_TAU if model.transform == "log_yuv" else (1.0, 1.0, 1.0)
         loc_w = location_width(shape)
         refs = [reference_counts(int(t), n_pts, channels, loc_w, split, size) for t in targets]
         ncand = [
@@ -452,19 +480,9 @@ def encode_rate_levels(
     model: Model,
     targets: Sequence[int],
     *,
-    weighting: str = "rgb",
-    split: Sequence[float] | None = None,
-    candidate_factor: float = 4.0,
-    std_mode: StdMode | None = None,
-    log_offset: LogOffset = "auto",
-    batch_size: int = 4,
-    dtype: str = "float32",
-    progress: bool | None = None,
-    client: Any = None,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    candidates: int | None = DEFAULT_CANDIDATES,
-    objective: str = "log",
+    options: EncodeOptions | None = None,
+    execution: Execution | None = None,
+    **keywords: Any,
 ) -> list[CodedBTF]:
     """Encode to per-material byte targets by rate control (one projection pass for all).
 
@@ -473,31 +491,22 @@ def encode_rate_levels(
     (exact by Parseval, :mod:`sparsebtf.learning.rate_control`). ``targets`` are bytes per
     material by Table 4 (coefficients + membership/counts, dictionaries excluded; see
     :func:`material_target_bytes`). Each point's dictionary is the one with the least error at
-    the point's reference count (the target split over channels as ``split``, default the
-    release's 885:64:64, or equal for identity preprocessing); its top
+    the point's reference count (the target split over channels as the option ``split``,
+    default the release's 885:64:64, or equal for identity preprocessing); its top
     ``candidate_factor`` × that count (+16) coefficients are the candidates. ``weighting``
-    is one of :data:`WEIGHTINGS` (see :func:`_point_weights`). Results hit each target to
-    within one coefficient (5 bytes) unless the candidate pool runs out (a warning).
-    ``client`` / ``scheduler`` / ``workers``: run the candidate pass on a Dask cluster
-    (:mod:`sparsebtf.execution`), with the same result. ``candidates``: dictionaries projected
-    exactly per point after screening, the others ranked by a partial projection
+    is one of :data:`~.options.WEIGHTINGS` (see :func:`_point_weights`). Results hit each
+    target to within one coefficient (5 bytes) unless the candidate pool runs out (a warning).
+    ``options`` / ``execution`` / ``keywords`` as for :func:`~.encode.encode` (a Dask cluster
+    gives the same result). ``candidates``: dictionaries projected exactly per point after
+    screening, the others ranked by a partial projection
     (:func:`~sparsebtf.learning.coding.screen_dictionaries`); None: every dictionary.
     ``objective`` "linear" or "display" (:mod:`sparsebtf.learning.objective`): each point's
     dictionary is the one of least error in that objective at its reference count, and the
     allocation weighs the points by the objective's first-order weights
     (:attr:`RateTargets.point_weighting`).
     """
-    plan = RateTargets(
-        tuple(int(t) for t in targets), weighting=weighting,
-        split=None if split is None else tuple(split), candidate_factor=candidate_factor,
-        dtype=dtype, candidates=candidates, objective=objective,
-    ).check(model)  # fmt: skip
-    (coded,) = run_plan(
-        [Source.of(btf)], model, plan, std_mode=std_mode,
-        log_offset=log_offset,
-        batch_size=batch_size,
-        progress=progress, client=client, scheduler=scheduler, workers=workers,
-    )  # fmt: skip
+    plan = RateTargets(tuple(int(t) for t in targets))
+    (coded,) = run_plan([btf], model, plan, options, execution, **keywords)
     return coded
 
 
@@ -509,17 +518,9 @@ def encode_to_size(
     target_ratio: float | None = None,
     per_material: bool = False,
     budget: str = "paper",
-    weighting: str = "rgb",
-    std_mode: StdMode | None = None,
-    log_offset: LogOffset = "auto",
-    batch_size: int = 4,
-    dtype: str = "float32",
-    progress: bool | None = None,
-    client: Any = None,
-    scheduler: str | None = None,
-    workers: int | None = None,
-    candidates: int | None = DEFAULT_CANDIDATES,
-    objective: str = "log",
+    options: EncodeOptions | None = None,
+    execution: Execution | None = None,
+    **keywords: Any,
 ) -> CodedBTF:
     """Encode ``btf`` to a target size or compression ratio by rate control.
 
@@ -529,17 +530,9 @@ def encode_to_size(
     :func:`material_target_bytes`); the result lands within one coefficient (5 bytes) of the
     target. ``budget="stored"`` (needs ``per_material``): they are the coded file's size
     (``bytes_stored``, ``compression_ratio_per_material``), met to within
-    :data:`STORED_TOLERANCE` below. See :func:`encode_rate_levels` (and ``candidates``,
-    ``objective``).
+    :data:`STORED_TOLERANCE` below. See :func:`encode_rate_levels` (options, execution).
     """
-    plan = RateTargets(
-        target_bytes=target_bytes, target_ratio=target_ratio, per_material=per_material,
-        budget=budget, weighting=weighting, dtype=dtype, candidates=candidates,
-        objective=objective,
-    ).check(model)  # fmt: skip
-    ((coded,),) = run_plan(
-        [Source.of(btf)], model, plan, std_mode=std_mode, log_offset=log_offset,
-        batch_size=batch_size, progress=progress, client=client, scheduler=scheduler,
-        workers=workers,
-    )  # fmt: skip
+    plan = RateTargets(target_bytes=target_bytes, target_ratio=target_ratio,
+                       per_material=per_material, budget=budget)  # fmt: skip
+    ((coded,),) = run_plan([btf], model, plan, options, execution, **keywords)
     return coded

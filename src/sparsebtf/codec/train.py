@@ -24,64 +24,38 @@ import numpy as np
 from .._version import library_version
 from ..data.btf import BTF
 from ..errors import BTFInputError
-from ..execution import Executor, executor
-from ..learning.ensemble import (
-    FULL_PASS_EVERY,
-    DictionaryEnsemble,
-    PointSource,
-)
-from ..learning.partitions import PARTITION_POINTS, load_points
-from ..model import CHANNELS, Model, TauSpec, parse_tau
-from ..points.preprocessing import (
-    TRANSFORMS,
-    LogOffset,
-    StdMode,
-    Transform,
-    resolve_log_offset,
-)
+from ..execution import Execution, Executor
+from ..learning.ensemble import DictionaryEnsemble, PointSource
+from ..learning.partitions import load_points
+from ..model import CHANNELS, Model, parse_tau
+from ..points.preprocessing import resolve_log_offset
 from ..points.sources import BTFPointSource, channel_sources, training_points
 from .jobs import Source
+from .options import TrainOptions, train_settings
 
 __all__ = ["train"]
 
 
 def _train_channel(
-    ch: str,
-    c: int,
-    src: PointSource,
-    tau: int,
-    *,
-    n_dictionaries: int,
-    max_iter: int,
-    tol: float,
-    init: str,
-    candidates: int | None,
-    full_pass_every: int,
-    batch_size: int,
-    partition_size: int,
-    dtype: str,
-    seed: int,
-    checkpoint_dir: str | None,
-    progress: bool | None,
-    ex: Executor,
-    partition: Callable[[int, int, int], Any] | None,
-    data_key: str,
-) -> tuple[list[np.ndarray], dict[str, Any]]:
+    ch: str, c: int, src: PointSource, tau: int, options: TrainOptions, ex: Executor,
+    partition: Callable[[int, int, int], Any] | None, data_key: str,
+) -> tuple[list[np.ndarray], dict[str, Any]]:  # fmt: skip
     """Fit one channel's ensemble; its dictionaries and training diagnostics."""
+    o = options
     ens = DictionaryEnsemble(
-        n_dictionaries=n_dictionaries,
+        n_dictionaries=o.n_dictionaries,
         tau=tau,
-        max_iter=max_iter,
-        tol=tol,
-        init=init,
-        candidates=candidates,
-        full_pass_every=full_pass_every,
-        batch_size=batch_size,
-        partition_size=partition_size,
-        dtype=dtype,
-        random_state=seed + c,
-        checkpoint=None if checkpoint_dir is None else checkpoint_path(checkpoint_dir, ch),
-        progress=progress,
+        max_iter=o.max_iter,
+        tol=o.tol,
+        init=o.init,
+        candidates=o.candidates,
+        full_pass_every=o.full_pass_every,
+        batch_size=o.batch_size,
+        partition_size=o.partition_size,
+        dtype=o.dtype,
+        random_state=o.seed + c,
+        checkpoint=None if o.checkpoint_dir is None else checkpoint_path(o.checkpoint_dir, ch),
+        progress=o.progress,
     )
     ens.fit(src, desc=f"train {ch}", executor=ex, partition=partition, data_key=data_key)
     return ens.dictionaries_, {
@@ -95,7 +69,7 @@ def _train_channel(
         # dictionaries tried per point between full passes (K: every pass full), and whether
         # the caller chose it or the size rule did (DictionaryEnsemble.candidates_for)
         "candidates": int(ens.candidates_),
-        "candidate_rule": "given" if candidates is not None else "auto",
+        "candidate_rule": "given" if o.candidates is not None else "auto",
         "iteration_seconds": [float(v) for v in ens.iteration_seconds_],
     }
 
@@ -156,130 +130,81 @@ def _check_tau_fits(taus: dict[str, int], patch: int, btf: BTF, colour_mode: boo
 def train(
     btfs: Sequence[BTF | str | os.PathLike[str]],
     *,
-    n_dictionaries: int = 8,
-    tau_train: TauSpec = (256, 32, 32),
-    patch: int = 10,
-    sample: float = 0.1,
-    max_iter: int = 10,
-    tol: float = 1e-4,
-    std_mode: StdMode = "shared",
-    colour_mode: bool = False,
-    init: str = "points",
-    candidates: int | None = None,
-    full_pass_every: int = FULL_PASS_EVERY,
-    batch_size: int = 4,
-    partition_size: int = PARTITION_POINTS,
-    dtype: str = "float32",
-    seed: int = 0,
-    checkpoint_dir: str | None = None,
-    stage: bool | None = None,
-    stage_dir: str | None = None,
-    progress: bool | None = None,
-    preprocessing: Transform = "log_yuv",
-    log_offset: LogOffset = "auto",
-    crop: tuple[slice, slice] | None = None,
-    client: Any = None,
-    scheduler: str | None = None,
-    workers: int | None = None,
+    options: TrainOptions | None = None,
+    execution: Execution | None = None,
+    **keywords: Any,
 ) -> Model:
     """Learn a model from BTFs (paper §3.2): one ensemble per YUV channel, or one 5D ensemble.
 
-    ``sample`` is the fraction of each BTF's data points used (paper: 10% of 18 BTFs).
-    ``colour_mode`` trains one ensemble on 5D points (p, p, L, V, 3), the paper's Table 6.
-    ``candidates`` and ``full_pass_every`` set the coding passes between full ones
-    (:class:`~sparsebtf.learning.ensemble.DictionaryEnsemble`; ``candidates >= n_dictionaries``
-    is the exhaustive trainer; None: all K when a full pass projects at most
-    :data:`~sparsebtf.learning.ensemble.EXHAUSTIVE_MAX_ENTRIES` tensor entries, else 1); the
-    final memberships always come from a full pass.
-    With ``checkpoint_dir`` each channel resumes from its last completed iteration.
-    ``stage`` preprocesses the sampled points once into a temporary file in ``stage_dir``
-    (default: when they need at most :data:`~sparsebtf.points.sources.STAGE_LIMIT_BYTES` and
-    half the free disk); otherwise every pass streams them from the BTFs.
-    ``preprocessing="identity"`` skips log, YUV and standardisation: the ensembles learn raw
-    linear R, G, B (in the channel slots Y, U, V) — the [MHU19] baseline of the paper's Table 2.
-    Encoding with the model then uses the same (no) processing. ``log_offset`` is the rule for
-    each BTF's ε in ln(x + ε) ("auto", "release" = 1e-5, or a number; see
-    :func:`~sparsebtf.points.statistics.choose_log_offset`).
+    ``options`` (:class:`~.options.TrainOptions`) say how: K = ``n_dictionaries``,
+    ``tau_train``, ``patch``, ``sample`` (the fraction of each BTF's data points used; paper:
+    10% of 18 BTFs), ``max_iter``, ``colour_mode`` (one ensemble on 5D points (p, p, L, V, 3),
+    the paper's Table 6), ``candidates`` / ``full_pass_every`` (the coding passes between full
+    ones, :class:`~sparsebtf.learning.ensemble.DictionaryEnsemble`; the final memberships
+    always come from a full pass), ``preprocessing="identity"`` (raw linear R, G, B in the
+    channel slots Y, U, V, the [MHU19] baseline of Table 2; encoding with the model then uses
+    the same), ``log_offset`` (the rule of each BTF's offset in ln(x + offset): "auto",
+    "release" = 1e-5, or a number; :func:`~sparsebtf.points.statistics.choose_log_offset`) …
+    With ``checkpoint_dir`` each channel resumes from its last completed iteration; ``stage``
+    preprocesses the sampled points once into a temporary file in ``stage_dir`` (default:
+    when they need at most :data:`~sparsebtf.points.sources.STAGE_LIMIT_BYTES` and half the
+    free disk), otherwise every pass streams them from the BTFs. ``keywords`` set the options'
+    fields (``n_dictionaries=2``) and the execution's (``workers=4``).
 
     ``btfs`` are BTF objects or sources (paths, ``synth:`` specs; ``crop`` = (rows, cols)
-    applies to every one). ``client`` (a ``dask.distributed.Client``), ``scheduler`` (an
-    address) or ``workers`` (a local cluster of that many processes) run the training passes
-    on a Dask cluster (:mod:`sparsebtf.execution`; default: this process). The points are cut
-    into tasks of ``partition_size`` points; the model does not depend on where they run.
-    On a cluster the workers open the sources themselves (give paths on shared storage).
+    applies to every one). ``execution`` (:class:`~sparsebtf.execution.Execution`) runs the
+    training passes in this process (default) or on a Dask cluster; the points are cut into
+    tasks of ``partition_size`` points, and the model does not depend on where they run. On a
+    cluster the workers open the sources themselves (give paths on shared storage).
     """
+    o, where = train_settings(options, execution, keywords)
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
-    # The ensemble's own parameter checks, before the statistics pass over every BTF.
-    DictionaryEnsemble(
-        n_dictionaries=n_dictionaries, init=init, candidates=candidates,
-        full_pass_every=full_pass_every, batch_size=batch_size, partition_size=partition_size,
-        dtype=dtype,
-    )._validate()  # fmt: skip
-    if preprocessing not in TRANSFORMS:
-        raise BTFInputError(f"preprocessing must be one of {TRANSFORMS}, got {preprocessing!r}")
-    rule = resolve_log_offset(log_offset)
-    channels = ("YUV",) if colour_mode else CHANNELS
-    taus = parse_tau(tau_train, channels)
+    rule = resolve_log_offset(o.log_offset)
+    channels = ("YUV",) if o.colour_mode else CHANNELS
+    taus = parse_tau(o.tau_train, channels)
     t0 = time.perf_counter()
-    if checkpoint_dir is not None:
-        Path(checkpoint_dir).mkdir(parents=True, exist_ok=True)
-    sources = [Source.of(b, crop) for b in btfs]
+    if o.checkpoint_dir is not None:
+        Path(o.checkpoint_dir).mkdir(parents=True, exist_ok=True)
+    sources = [Source.of(b, o.crop) for b in btfs]
     opened = [s.open() for s in sources]
-    _check_tau_fits(taus, patch, opened[0], colour_mode)
-    points = training_points(opened, patch, sample, seed, std_mode, preprocessing, progress,
-                             rule)
+    _check_tau_fits(taus, o.patch, opened[0], o.colour_mode)
+    points = training_points(opened, o.patch, o.sample, o.seed, o.std_mode, o.preprocessing,
+                             o.progress, rule)  # fmt: skip
     dictionaries: dict[str, list[np.ndarray]] = {}
     training: dict[str, dict[str, Any]] = {}
     with (
-        executor(client=client, scheduler=scheduler, workers=workers) as ex,
+        where.executor() as ex,
         # On a cluster the workers load the points; here only a few are read (seeds).
-        channel_sources(points, channels, False if ex.distributed else stage, stage_dir,
-                        batch_size, progress) as source,
+        channel_sources(points, channels, False if ex.distributed else o.stage, o.stage_dir,
+                        o.batch_size, o.progress) as source,
     ):  # fmt: skip
         for c, ch in enumerate(channels):
-            channel = None if colour_mode else c
+            channel = None if o.colour_mode else c
+            partition = (_partitions(ex, points, sources, opened, channel, o.batch_size)
+                         if ex.distributed else None)  # fmt: skip
             dictionaries[ch], training[ch] = _train_channel(
-                ch,
-                c,
-                source(ch),
-                taus[ch],
-                n_dictionaries=n_dictionaries,
-                max_iter=max_iter,
-                tol=tol,
-                init=init,
-                candidates=candidates,
-                full_pass_every=full_pass_every,
-                batch_size=batch_size,
-                partition_size=partition_size,
-                dtype=dtype,
-                seed=seed,
-                checkpoint_dir=checkpoint_dir,
-                progress=progress,
-                ex=ex,
-                partition=_partitions(ex, points, sources, opened, channel, batch_size)
-                if ex.distributed else None,
-                data_key=_data_key(points, ch),
+                ch, c, source(ch), taus[ch], o, ex, partition, _data_key(points, ch)
             )
     params = {
-        "n_dictionaries": n_dictionaries,
+        "n_dictionaries": o.n_dictionaries,
         "tau_train": taus,
-        "patch": patch,
-        "sample": sample,
-        "max_iter": max_iter,
-        "tol": tol,
-        "std_mode": std_mode,
-        "colour_mode": colour_mode,
-        "init": init,
+        "patch": o.patch,
+        "sample": o.sample,
+        "max_iter": o.max_iter,
+        "tol": o.tol,
+        "std_mode": o.std_mode,
+        "colour_mode": o.colour_mode,
+        "init": o.init,
         # what the passes used (the channels share their points, so one value)
         "candidates": max(t["candidates"] for t in training.values()),
-        "full_pass_every": full_pass_every,
-        "partition_size": partition_size,
-        "seed": seed,
-        "dtype": dtype,
+        "full_pass_every": o.full_pass_every,
+        "partition_size": o.partition_size,
+        "seed": o.seed,
+        "dtype": o.dtype,
     }
-    if preprocessing != "log_yuv":
-        params["preprocessing"] = preprocessing
+    if o.preprocessing != "log_yuv":
+        params["preprocessing"] = o.preprocessing
     else:
         params["log_offset"] = rule
     provenance = {
@@ -289,5 +214,5 @@ def train(
         "seconds": time.perf_counter() - t0,
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
     }
-    return Model(dictionaries, patch, opened[0].lights, opened[0].views, params, provenance,
+    return Model(dictionaries, o.patch, opened[0].lights, opened[0].views, params, provenance,
                  training)

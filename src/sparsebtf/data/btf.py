@@ -24,11 +24,12 @@ from .._limits import check_allocation, format_bytes, memory_budget
 from ..errors import BTFInputError
 from .directions import DirectionSet
 
-#: Log offset of BTF dynamic-range reduction: UBO2014 stores ln(x + 1e-5), and §3.1 codes
+#: The log offset of BTF dynamic-range reduction: UBO2014 stores ln(x + 1e-5), and §3.1 codes
 #: ln(x + 1e-5) (release: ``DataBTF4D.inl``, the shader's exp(·) − 1e-5). Defined once here.
-LOG_EPS = 1e-5
+RELEASE_LOG_OFFSET = 1e-5
 
-__all__ = ["BTF", "LOG_EPS", "ArrayBTF", "FactorBTF", "FunctionBTF", "as_index", "contiguous_slice"]
+__all__ = ["BTF", "RELEASE_LOG_OFFSET", "ArrayBTF", "FactorBTF", "FunctionBTF", "as_index",
+           "contiguous_slice"]
 
 Index = slice | np.ndarray | list[int]
 
@@ -295,8 +296,8 @@ class FactorBTF(BTF):
 
     ``spatial`` is (3, H·W, R) or (H·W, R) shared; ``angular`` is (3, L·V, R). Pixel index is
     ``row * W + col``; angular index is ``light * V + view``. If ``log_domain`` is true the
-    product holds ln(B + eps) (UBO2014's dynamic-range reduction) and is mapped back with
-    exp(·) − eps. Sums run in float32 or wider (float64 when the factors are float64).
+    product holds ln(B + log_offset) (UBO2014's dynamic-range reduction) and is mapped back
+    with exp(·) − log_offset. Sums run in float32 or wider (float64 when the factors are float64).
     """
 
     def __init__(
@@ -308,7 +309,7 @@ class FactorBTF(BTF):
         lights: DirectionSet,
         views: DirectionSet,
         log_domain: bool = False,
-        eps: float = LOG_EPS,
+        log_offset: float = RELEASE_LOG_OFFSET,
         name: str = "btf",
         attrs: dict[str, Any] | None = None,
     ) -> None:
@@ -334,7 +335,7 @@ class FactorBTF(BTF):
         self.spatial = s
         self.angular = a
         self.log_domain = log_domain
-        self.eps = eps
+        self.log_offset = log_offset
 
     @property
     def rank(self) -> int:
@@ -355,6 +356,6 @@ class FactorBTF(BTF):
             val = s @ a.T
             if self.log_domain:
                 np.exp(val, out=val)
-                val -= self.eps
+                val -= self.log_offset
             out[..., ch] = val.reshape(r.size, c.size, li.size, vi.size)
         return out

@@ -29,7 +29,7 @@ from typing import Literal
 import numpy as np
 
 from .._progress import bar
-from ..data.btf import BTF, LOG_EPS, FactorBTF
+from ..data.btf import BTF, RELEASE_LOG_OFFSET, FactorBTF
 from ..errors import BTFInputError
 
 __all__ = [
@@ -44,7 +44,7 @@ __all__ = [
 
 PCADomain = Literal["log", "linear"]
 #: Log offset of the log-domain PCA (UBO2014's and the release's 1e-5).
-PCA_EPS = LOG_EPS
+PCA_LOG_OFFSET = RELEASE_LOG_OFFSET
 
 
 def pca_bytes(ranks: int | list[int] | tuple[int, ...], n_texels: int, n_angular: int) -> int:
@@ -103,7 +103,7 @@ def _tile_matrix(
     x = np.maximum(btf.region(rows, cols).astype(np.float32), 0)
     n = x.shape[0] * x.shape[1]
     x = np.moveaxis(x.reshape(n, -1, 3), 2, 0)
-    parts = [np.log(x + np.float32(PCA_EPS)) if d == "log" else x for d in domains]
+    parts = [np.log(x + np.float32(PCA_LOG_OFFSET)) if d == "log" else x for d in domains]
     return np.ascontiguousarray(np.concatenate(parts) if len(parts) > 1 else parts[0])
 
 
@@ -218,7 +218,7 @@ def pca_reconstruction(
 
     Factors are split as S = U·√σ and A = V·√σ, rounded to binary16 (what the bytes count),
     and channels of lower rank are padded with zero columns. A channel of rank 0 is 0 (linear)
-    or exp(0) − eps ≈ 1 (log), the honest value of storing nothing.
+    or exp(0) − offset ≈ 1 (log), the honest value of storing nothing.
     """
     if any(r > fit.max_rank for r in ranks):
         raise BTFInputError(f"ranks {ranks} exceed the fitted rank {fit.max_rank}")
@@ -232,6 +232,6 @@ def pca_reconstruction(
         an[c, :, :r] = (fit.v[c, :, :r] * root).astype(np.float16)
     return FactorBTF(
         sp, an, like.height, like.width, like.lights, like.views,
-        log_domain=fit.domain == "log", eps=PCA_EPS,
+        log_domain=fit.domain == "log", log_offset=PCA_LOG_OFFSET,
         name=name or f"{like.name}-pca{sum(ranks)}-{fit.domain}",
     )

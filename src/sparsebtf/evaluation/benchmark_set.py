@@ -21,8 +21,10 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
+from ..learning.codes import RELEASE_TAU, RELEASE_TAU_TRAIN
 from ..learning.coding import DEFAULT_CANDIDATES
 from ..learning.cost import coefficient_budget
+from ..points.grid import RELEASE_PATCH
 from ..storage.accounting import paper_storage
 
 __all__ = [
@@ -68,7 +70,7 @@ def level_tau(
     point_bytes: float,
     n_channels: int = 3,
     location_bytes: int = 3,
-    split: tuple[float, float, float] = (885.0, 64.0, 64.0),
+    split: tuple[float, float, float] = RELEASE_TAU,
     minimum: tuple[int, int, int] = (1, 1, 1),
 ) -> tuple[int, int, int]:
     """Fixed τ per channel spending ``point_bytes`` per data point (Table 4 formula).
@@ -103,9 +105,9 @@ class BenchConfig:
     table5_materials: tuple[tuple[str, int], ...] = (("carpet", 12), ("felt", 5), ("stone", 5))
     table5_size: int = 100
     directions: str = "ubo2014"
-    patch: int = 10
+    patch: int = RELEASE_PATCH
     n_dictionaries: int = 8
-    tau_train: tuple[int, int, int] = (256, 32, 32)
+    tau_train: tuple[int, int, int] = RELEASE_TAU_TRAIN
     #: 18 materials × 25 points × 0.8 = 360 training points per channel (the toy run before
     #: the fast trainer: 18 × 16 × 0.125 = 36)
     sample: float = 0.8

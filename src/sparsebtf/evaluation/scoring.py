@@ -49,7 +49,7 @@ from ..metrics import (
     top_k_largest,
 )
 from ..model import CodedBTF
-from ..points.preprocessing import EPS
+from ..points.preprocessing import RELEASE_LOG_OFFSET
 from ..runtime.dense import DecodedBTF
 
 __all__ = ["coded_mse_std", "score_many"]
@@ -77,13 +77,13 @@ def _log_rgb(rec: BTF, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray
         st = rec.coded.stats
         st.clamp_log_rgb(log_rgb)  # the decoder's bound, as every decoder applies it
         lin = np.exp(log_rgb)
-        lin -= np.float32(st.eps)
-        if st.eps == EPS:
+        lin -= np.float32(st.log_offset)
+        if st.log_offset == RELEASE_LOG_OFFSET:
             # ln(max(exp ℓ − ε, 0) + ε) = max(ℓ, ln ε): no log of the exp.
-            return lin, np.maximum(log_rgb, np.float32(np.log(EPS)))
-        return lin, np.log(np.maximum(lin, 0) + np.float32(EPS))
+            return lin, np.maximum(log_rgb, np.float32(np.log(RELEASE_LOG_OFFSET)))
+        return lin, np.log(np.maximum(lin, 0) + np.float32(RELEASE_LOG_OFFSET))
     lin = rec.region(rows, cols).astype(np.float32, copy=False)
-    return lin, np.log(np.maximum(lin, 0) + np.float32(EPS))
+    return lin, np.log(np.maximum(lin, 0) + np.float32(RELEASE_LOG_OFFSET))
 
 
 def score_many(
@@ -129,7 +129,7 @@ def score_many(
         for r, c in tiles:
             rows, cols = slice(r, min(r + tile, h)), slice(c, min(c + tile, w))
             a = np.maximum(reference.region(rows, cols).astype(np.float32), 0)
-            la = np.log(a + np.float32(EPS))
+            la = np.log(a + np.float32(RELEASE_LOG_OFFSET))
             da = display_values(a)
             ref_max = max(ref_max, float(a.max()))
             n += a.size

@@ -29,14 +29,11 @@ import numpy as np
 
 from .._semantic import check_color_header, check_directions
 from ..colour import YUV_TO_RGB_RELEASE
-from ..data.btf import BTF, LOG_EPS, Index, contiguous_slice
+from ..data.btf import BTF, RELEASE_LOG_OFFSET, Index, contiguous_slice
 from ..data.directions import from_angles
 from ..errors import BTFInputError, FileFormatError
 
 __all__ = ["COLOR_MODELS", "UBO2014BTF", "read_ubo2014"]
-
-#: ε of the log encodings (``drr_eps``); hard-coded by Bonn's decoders, not stored in files.
-EPS = LOG_EPS
 
 # Longest first: "!DFMF08FC" is a prefix of "!DFMF08FCR" (§1.2).
 _MAGICS: dict[bytes, tuple[str, bool, bool]] = {
@@ -169,7 +166,8 @@ class UBO2014BTF(BTF):
             s = _rows(sxv, pix, self._acc)
             for ch in range(3):
                 q[..., ch] = s @ _rows(u, ang * 3 + ch, self._acc).T
-            rgb = np.exp(q) - EPS if self.drr else q
+            # the DRR's offset (Bonn's drr_eps) is hard-coded by their decoders, not stored
+            rgb = np.exp(q) - RELEASE_LOG_OFFSET if self.drr else q
         out = rgb.reshape(r.size, c.size, li.size, vi.size, 3)
         if self.divide_cosine:
             # BL removes the foreshortening term when the file says it is baked in (§1.10.5).
@@ -182,7 +180,7 @@ class UBO2014BTF(BTF):
         if m == 0:
             return q
         if m == 12:
-            return np.exp(q) - EPS
+            return np.exp(q) - RELEASE_LOG_OFFSET
         if m == 3:
             t = np.asarray(self.color_transform, dtype=q.dtype)
             return q @ t + np.asarray(self.color_mean, dtype=q.dtype)
@@ -192,14 +190,14 @@ class UBO2014BTF(BTF):
         if m == 1:
             yuv = q
         else:
-            y = np.exp(q[..., 0]) - EPS
+            y = np.exp(q[..., 0]) - RELEASE_LOG_OFFSET
             if m == 9:
                 u, v = q[..., 1], q[..., 2]
             elif m == 10:
-                u = np.sign(q[..., 1]) * EPS * np.exp(np.abs(q[..., 1]))
-                v = np.sign(q[..., 2]) * EPS * np.exp(np.abs(q[..., 2]))
-            else:  # 11: U and V were divided by (Y + ε) before the SVD
-                u, v = q[..., 1] * (y + EPS), q[..., 2] * (y + EPS)
+                u = np.sign(q[..., 1]) * RELEASE_LOG_OFFSET * np.exp(np.abs(q[..., 1]))
+                v = np.sign(q[..., 2]) * RELEASE_LOG_OFFSET * np.exp(np.abs(q[..., 2]))
+            else:  # 11: U and V were divided by (Y + offset) before the SVD
+                u, v = q[..., 1] * (y + RELEASE_LOG_OFFSET), q[..., 2] * (y + RELEASE_LOG_OFFSET)
             yuv = np.stack([y, u, v], axis=-1)
         return yuv @ _YUV2RGB.T.astype(q.dtype)
 

@@ -18,7 +18,27 @@ import numpy as np
 
 from ..errors import BTFInputError
 
-__all__ = ["SparseCodes", "coding_rule", "count_and_error", "rule_keys", "topk_abs"]
+__all__ = [
+    "DTYPES",
+    "RELEASE_EPS",
+    "RELEASE_TAU",
+    "RELEASE_TAU_TRAIN",
+    "SparseCodes",
+    "coding_rule",
+    "count_and_error",
+    "rule_keys",
+    "topk_abs",
+]
+
+#: The release's sparsity τ per data point, (Y, U, V) (paper §4): encoding's default, the
+#: split of rate control's budget, and what a fractional τ (0.25) is a fraction of.
+RELEASE_TAU = (885, 64, 64)
+#: The paper's training sparsity τ_l, (Y, U, V) (§4): training's default.
+RELEASE_TAU_TRAIN = (256, 32, 32)
+#: The release's residual threshold ε: mean squared residual per tensor entry (count rule).
+RELEASE_EPS = 1e-5
+#: The floating-point types coding and training compute in.
+DTYPES = ("float32", "float64")
 
 
 def topk_abs(c: np.ndarray, k: int) -> np.ndarray:

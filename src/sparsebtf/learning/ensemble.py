@@ -48,7 +48,7 @@ from .._threads import parallel_map
 from ..checkpoints import check_key, read_checkpoint, write_checkpoint
 from ..errors import BTFInputError, FileFormatError
 from ..execution import Executor, InProcess
-from .codes import SparseCodes
+from .codes import DTYPES, SparseCodes
 from .coding import reconstruct_points, sparse_code
 from .partitions import (
     PARTITION_POINTS,
@@ -74,6 +74,7 @@ __all__ = [
     "CANDIDATES",
     "EXHAUSTIVE_MAX_ENTRIES",
     "FULL_PASS_EVERY",
+    "INITS",
     "UPDATES",
     "ArraySource",
     "DictionaryEnsemble",
@@ -100,6 +101,8 @@ EXHAUSTIVE_MAX_ENTRIES = 2**29
 
 #: How Z⁽ⁿ'ᵏ⁾ is built: from the codes (fast) or from dense partial projections (reference).
 UPDATES = ("codes", "projections")
+#: How the dictionaries start: from the HOSVD bases of random points, or Haar-random.
+INITS = ("points", "random")
 
 
 class PointSource(Protocol):
@@ -367,9 +370,9 @@ class DictionaryEnsemble:
             raise BTFInputError(f"n_dictionaries must be in [1, 255], got {self.n_dictionaries}")
         if self.tau < 1:
             raise BTFInputError(f"training sparsity tau must be >= 1, got {self.tau}")
-        if self.init not in ("points", "random"):
+        if self.init not in INITS:
             raise BTFInputError(f"init must be 'points' or 'random', got {self.init!r}")
-        if self.dtype not in ("float32", "float64"):
+        if self.dtype not in DTYPES:
             raise BTFInputError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
         if self.candidates is not None and self.candidates < 1:
             raise BTFInputError(f"candidates must be >= 1, got {self.candidates}")

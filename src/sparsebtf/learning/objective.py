@@ -108,30 +108,31 @@ def _display(v: np.ndarray) -> np.ndarray:
 class ChannelError:
     """E_c of the module docstring for one channel of a batch of points.
 
-    ``log_rgb`` (B, p, p, L, V, 3) float32: ln(RGB + ε) of the points; ``scale`` (L, V, 3):
-    YUV_TO_RGB[r, c]·σ_{j,c}; ``bound`` (L, V) or None; ``eps`` the log offset.
+    ``log_rgb`` (B, p, p, L, V, 3) float32: ln(RGB + log_offset) of the points; ``scale``
+    (L, V, 3): YUV_TO_RGB[r, c]·σ_{j,c}; ``bound`` (L, V) or None.
     """
 
     objective: str
     log_rgb: np.ndarray
     scale: np.ndarray
     bound: np.ndarray | None
-    eps: float
+    log_offset: float
 
     @classmethod
     def for_batch(cls, objective: str, log_rgb: np.ndarray, std: np.ndarray,
-                  bound: np.ndarray | None, eps: float, channel: int) -> ChannelError:  # fmt: skip
+                  bound: np.ndarray | None, log_offset: float, channel: int
+                  ) -> ChannelError:  # fmt: skip
         """From the statistics: σ (L, V, 1 or 3) and the channel's index (0: Y, 1: U, 2: V)."""
         from ..colour import YUV_TO_RGB
 
         sd = np.broadcast_to(std, (*std.shape[:2], 3))[..., channel]
         scale = (sd[..., None] * YUV_TO_RGB[:, channel]).astype(np.float32)
         b = None if bound is None else np.asarray(bound, dtype=np.float32)
-        return cls(objective, log_rgb, scale, b, float(eps))
+        return cls(objective, log_rgb, scale, b, float(log_offset))
 
     def _value(self, y: np.ndarray) -> np.ndarray:
         v = np.exp(y)
-        v -= np.float32(self.eps)
+        v -= np.float32(self.log_offset)
         return _display(v) if self.objective == "display" else v
 
     def reference(self, i: int) -> np.ndarray:

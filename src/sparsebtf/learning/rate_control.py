@@ -30,19 +30,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import BTFInputError
-from .codes import SparseCodes
+from .codes import RELEASE_TAU, SparseCodes
 from .cost import coefficient_budget, material_bytes
 
 __all__ = [
-    "PAPER_SPLIT",
     "ChannelCandidates",
     "allocate",
     "reference_counts",
 ]
-
-#: The release's split of coefficients over Y, U, V (τ = 885, 64, 64).
-PAPER_SPLIT = (885, 64, 64)
-
 
 def _coefficient_budget(target_bytes: int, n_points: int, n_channels: int,
                         location_bytes: int) -> int:
@@ -62,7 +57,7 @@ def reference_counts(
     n_points: int,
     channels: Sequence[str],
     location_bytes: int = 3,
-    split: Sequence[float] | Mapping[str, float] = PAPER_SPLIT,
+    split: Sequence[float] | Mapping[str, float] = RELEASE_TAU,
     size: int | None = None,
 ) -> dict[str, int]:
     """Mean coefficients per point and channel if ``target_bytes`` were split as ``split``.

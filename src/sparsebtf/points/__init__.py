@@ -1,6 +1,6 @@
 """BTF data points (paper §3.1): preprocessing, the patch grid and the training point sources.
 
-* :mod:`.preprocessing` — ln(x + ε), BT.601 YUV (:mod:`sparsebtf.colour`), per-angular-image
+* :mod:`.preprocessing` — ln(x + offset), BT.601 YUV (:mod:`sparsebtf.colour`), per-angular-image
   standardisation.
 * :mod:`.statistics` — what is measured of a BTF first: μ, σ, the bound, the log offset.
 * :mod:`.grid` — 4D data points: p×p patches with every light and view, release numbering,

@@ -23,7 +23,21 @@ from ..data.validate import check_finite
 from ..errors import BTFInputError
 from .preprocessing import Preprocessor
 
-__all__ = ["PatchGrid", "assemble", "extract", "iter_points", "sample_points", "stream_points"]
+__all__ = [
+    "MAX_PATCH",
+    "RELEASE_PATCH",
+    "PatchGrid",
+    "assemble",
+    "extract",
+    "iter_points",
+    "sample_points",
+    "stream_points",
+]
+
+#: The release's patch size p (10×10 texels; paper §3.1): the default everywhere.
+RELEASE_PATCH = 10
+#: The largest patch size any reader accepts (and training takes).
+MAX_PATCH = 4096
 
 
 @dataclass(frozen=True)
@@ -32,7 +46,7 @@ class PatchGrid:
 
     height: int
     width: int
-    patch: int = 10
+    patch: int = RELEASE_PATCH
 
     def __post_init__(self) -> None:
         if self.patch < 1:
@@ -45,7 +59,7 @@ class PatchGrid:
             )
 
     @classmethod
-    def for_btf(cls, btf: BTF, patch: int = 10) -> PatchGrid:
+    def for_btf(cls, btf: BTF, patch: int = RELEASE_PATCH) -> PatchGrid:
         return cls(btf.height, btf.width, patch)
 
     @property
@@ -110,7 +124,7 @@ def assemble(points: np.ndarray, height: int, width: int) -> np.ndarray:
 def iter_points(
     btf: BTF,
     pre: Preprocessor,
-    patch: int = 10,
+    patch: int = RELEASE_PATCH,
     points: Sequence[int] | np.ndarray | None = None,
     batch: int = 4,
     dtype: type = np.float32,

@@ -5,7 +5,7 @@ Every value of a BTF goes through the same three steps, whether a data point is 
 (:meth:`~sparsebtf.points.preprocessing.Preprocessor.forward_into`) or the statistics are
 gathered (:func:`~sparsebtf.points.statistics.statistic_sums`)::
 
-    q   = max(x, 0) + ε              clamp_offset   (counts NaN/Inf and negatives)
+    q   = max(x, 0) + offset         clamp_offset   (counts NaN/Inf and negatives)
     l   = ln q                       NumPy's log, in place, on both paths
     yuv = M · l                      then either standardise or accumulate the sums
 
@@ -36,11 +36,11 @@ __all__ = [
 ]
 
 
-def _clamp_offset_numpy(x: np.ndarray, eps: np.float32, out: np.ndarray) -> tuple[int, int]:
+def _clamp_offset_numpy(x: np.ndarray, offset: np.float32, out: np.ndarray) -> tuple[int, int]:
     bad = int(x.size - np.count_nonzero(np.isfinite(x)))
     negatives = int(np.count_nonzero(x < 0))
     np.maximum(x, 0, out=out)
-    out += eps
+    out += offset
     return bad, negatives
 
 
@@ -102,7 +102,7 @@ if HAVE_NUMBA:
     assert _nb is not None
 
     @_nb.njit(cache=True, nogil=True)
-    def _clamp_offset_nb(x, eps, out):  # pragma: no cover - compiled
+    def _clamp_offset_nb(x, offset, out):  # pragma: no cover - compiled
         xf = x.reshape(-1)
         of = out.reshape(-1)
         bad = 0
@@ -112,7 +112,7 @@ if HAVE_NUMBA:
             v = xf[i]
             bad += np.int64(not (v - v == zero))  # NaN and ±Inf give NaN
             negatives += np.int64(v < zero)
-            of[i] = max(v, zero) + eps
+            of[i] = max(v, zero) + offset
         return bad, negatives
 
     @_nb.njit(cache=True, nogil=True)
@@ -179,11 +179,11 @@ def _backend(backend: str | None) -> str:
 
 
 def clamp_offset(
-    x: np.ndarray, eps: float, out: np.ndarray, backend: str | None = None
+    x: np.ndarray, offset: float, out: np.ndarray, backend: str | None = None
 ) -> tuple[int, int]:
-    """``out = max(x, 0) + ε`` (float32, any shape equal to x's); returns (NaN/Inf count,
+    """``out = max(x, 0) + offset`` (float32, any shape equal to x's); returns (NaN/Inf count,
     negative count) of ``x``. NaN stays NaN in ``out`` (callers refuse it)."""
-    e = np.float32(eps)
+    e = np.float32(offset)
     if _backend(backend) == "numba":
         bad, negatives = _clamp_offset_nb(x, e, out)
         return int(bad), int(negatives)
@@ -191,13 +191,13 @@ def clamp_offset(
 
 
 def log_offset(
-    x: np.ndarray, eps: float, out: np.ndarray | None = None, backend: str | None = None
+    x: np.ndarray, offset: float, out: np.ndarray | None = None, backend: str | None = None
 ) -> tuple[np.ndarray, int, int]:
-    """``ln(max(x, 0) + ε)`` in float32 into ``out`` (new if None): (logs, NaN/Inf count,
+    """``ln(max(x, 0) + offset)`` in float32 into ``out`` (new if None): (logs, NaN/Inf count,
     negative count). The log is NumPy's on every backend."""
     x = np.ascontiguousarray(x, dtype=np.float32)
     out = np.empty_like(x) if out is None else out
-    bad, negatives = clamp_offset(x, eps, out, backend)
+    bad, negatives = clamp_offset(x, offset, out, backend)
     with np.errstate(invalid="ignore"):
         np.log(out, out=out)
     return out, bad, negatives

@@ -2,7 +2,7 @@
 
 Forward, for linear RGB ``x`` at angular image j = (light, view)::
 
-    y   = ln(x + 1e-5)                       dynamic-range reduction (release: eps 1e-5)
+    y   = ln(x + 1e-5)                       dynamic-range reduction (release: offset 1e-5)
     yuv = M · y                              analog BT.601, on log values
     z_c = (yuv_c − μ_j,c) / σ_j,c            standardisation of every angular image
 
@@ -26,17 +26,19 @@ from typing import Literal
 
 import numpy as np
 
-from .._semantic import EPS_RANGE
+from .._semantic import LOG_OFFSET_RANGE
 from ..colour import RGB_TO_YUV_F32, rgb_to_yuv, yuv_to_rgb
-from ..data.btf import LOG_EPS, Index, as_index
+from ..constraints import Interval, StrOptions, check_option
+from ..data.btf import RELEASE_LOG_OFFSET, Index, as_index
 from ..data.validate import check_finite
 from ..errors import BTFInputError
 
 __all__ = [
     "BOUND_STEP",
-    "EPS",
     "LOG_OFFSETS",
+    "LOG_OFFSET_RULE",
     "MAX_LOG_OFFSET",
+    "RELEASE_LOG_OFFSET",
     "STD_MODES",
     "TRANSFORMS",
     "LogOffset",
@@ -53,8 +55,6 @@ __all__ = [
     "to_log_yuv",
 ]
 
-#: The log offset of §3.1 (and of UBO2014's dynamic-range reduction).
-EPS = LOG_EPS
 StdMode = Literal["shared", "per_channel"]
 STD_MODES = ("shared", "per_channel")
 #: ``"log_yuv"``: the paper's §3.1 processing. ``"identity"``: none at all — the codes hold raw
@@ -62,15 +62,20 @@ STD_MODES = ("shared", "per_channel")
 Transform = Literal["log_yuv", "identity"]
 TRANSFORMS = ("log_yuv", "identity")
 
-#: The bound on ln(RGB + ε) is kept rounded up to a multiple of this (:func:`round_up_bound`).
+#: The bound on ln(RGB + offset) is kept rounded up to a multiple of this (:func:`round_up_bound`).
 BOUND_STEP = 1 / 32
-#: Named log-offset rules: "auto" (:func:`~.statistics.choose_log_offset`) and "release" (ε = 1e-5).
+#: Named log-offset rules: "auto" (:func:`~.statistics.choose_log_offset`) and "release" (1e-5).
 LOG_OFFSETS = ("auto", "release")
-#: A log offset must lie in [EPS, MAX_LOG_OFFSET]: beyond it the log is all but linear (the
-#: readers' bound, so that every offset the encoder takes makes a file they accept).
-MAX_LOG_OFFSET = EPS_RANGE[1]
+#: A log offset must lie in [RELEASE_LOG_OFFSET, MAX_LOG_OFFSET]: beyond it the log is all but
+#: linear (the readers' bound, so that every offset the encoder takes makes a file they accept).
+MAX_LOG_OFFSET = LOG_OFFSET_RANGE[1]
 
 LogOffset = float | Literal["auto", "release"]
+#: What a log-offset rule may be: the option tables' entry (:mod:`sparsebtf.constraints`).
+LOG_OFFSET_RULE = [
+    StrOptions(LOG_OFFSETS, what="log offset rule"),
+    Interval(float, RELEASE_LOG_OFFSET, MAX_LOG_OFFSET, unit="(the offset of ln(x + offset))"),
+]
 
 
 def check_std_mode(mode: str) -> None:
@@ -79,26 +84,29 @@ def check_std_mode(mode: str) -> None:
         raise BTFInputError(f"standardisation mode must be 'shared' or 'per_channel', got {mode!r}")
 
 
-def log_transform(rgb: np.ndarray, eps: float = EPS) -> np.ndarray:
-    """ln(x + eps): the dynamic-range reduction of §3.1."""
-    return np.log(rgb + eps)
+def log_transform(rgb: np.ndarray, log_offset: float = RELEASE_LOG_OFFSET) -> np.ndarray:
+    """ln(x + log_offset): the dynamic-range reduction of §3.1."""
+    return np.log(rgb + log_offset)
 
 
-def inverse_log_transform(y: np.ndarray, eps: float = EPS) -> np.ndarray:
-    """exp(y) − eps, the inverse of :func:`log_transform` (no clamping, as in the release)."""
-    return np.exp(y) - eps
+def inverse_log_transform(y: np.ndarray, log_offset: float = RELEASE_LOG_OFFSET) -> np.ndarray:
+    """exp(y) − log_offset, the inverse of :func:`log_transform` (no clamping, as in the
+    release)."""
+    return np.exp(y) - log_offset
 
 
 
 
-def to_log_yuv(rgb: np.ndarray, eps: float = EPS) -> np.ndarray:
+def to_log_yuv(rgb: np.ndarray, log_offset: float = RELEASE_LOG_OFFSET) -> np.ndarray:
     """Linear RGB → log-YUV (no standardisation)."""
-    return rgb_to_yuv(log_transform(rgb, eps))
+    return rgb_to_yuv(log_transform(rgb, log_offset))
 
 
-def from_log_yuv(yuv: np.ndarray, eps: float = EPS, release_matrix: bool = False) -> np.ndarray:
+def from_log_yuv(
+    yuv: np.ndarray, log_offset: float = RELEASE_LOG_OFFSET, release_matrix: bool = False
+) -> np.ndarray:
     """Log-YUV → linear RGB."""
-    return inverse_log_transform(yuv_to_rgb(yuv, release_matrix), eps)
+    return inverse_log_transform(yuv_to_rgb(yuv, release_matrix), log_offset)
 
 
 @dataclass(frozen=True, eq=False)
@@ -110,10 +118,11 @@ class Standardization:
     mode : "shared" (the release's: one μ, σ for Y, U and V) or "per_channel".
     mean, std : (L, V, C) float64 with C = 1 (shared) or 3 (per channel). σ = 0 (a constant
         angular image) is stored as 1 so the forward map stays finite.
-    eps : the log offset ε used (the release's 1e-5, or chosen per material).
+    log_offset : the offset of ln(x + offset) used (the release's 1e-5, or chosen per
+        material; the coded file's ``stats@eps``).
     transform : "log_yuv" (default) or "identity" (no log, no YUV, μ = 0, σ = 1: raw RGB is
         coded as is, for the [MHU19] baseline; such statistics cannot be saved in a coded file).
-    bound : (L, V) float32 or None: per angular image, the largest ln(x + ε) over its texels
+    bound : (L, V) float32 or None: per angular image, the largest ln(x + offset) over its texels
         and R, G, B, rounded up to a multiple of 1/32 (:func:`round_up_bound`); decoders clamp
         to it.
         None for statistics made before bounds existed (no clamp).
@@ -122,7 +131,7 @@ class Standardization:
     mode: StdMode
     mean: np.ndarray
     std: np.ndarray
-    eps: float = EPS
+    log_offset: float = RELEASE_LOG_OFFSET
     transform: Transform = "log_yuv"
     bound: np.ndarray | None = None
 
@@ -194,7 +203,7 @@ class Standardization:
     def clamp_log_rgb(
         self, log_rgb: np.ndarray, lights: Index = slice(None), views: Index = slice(None)
     ) -> np.ndarray:
-        """min(log_rgb, bound) in place on a (..., l, v, 3) block of ln(RGB + ε) values.
+        """min(log_rgb, bound) in place on a (..., l, v, 3) block of ln(RGB + offset) values.
 
         No value then decodes above its angular image's brightest (over texels and R, G, B);
         the clamp never moves a value away from the truth, which is below the bound.
@@ -241,7 +250,7 @@ class Preprocessor:
         # planar: the per-value passes run in a scratch array of this thread, reused
         q = self._scratch(x.shape) if planar else out
         identity = self.stats.transform == "identity"
-        bad, _ = clamp_offset(x, 0.0 if identity else self.stats.eps, q)
+        bad, _ = clamp_offset(x, 0.0 if identity else self.stats.log_offset, q)
         if bad:
             check_finite(x, where, offset)
         if identity:
@@ -281,7 +290,7 @@ class Preprocessor:
         """(..., l, v, 3) linear RGB → standardised log-YUV (clamp negative inputs first)."""
         if self.stats.transform == "identity":
             return np.asarray(rgb, dtype=dtype)
-        y = to_log_yuv(np.asarray(rgb, dtype=dtype), self.stats.eps)
+        y = to_log_yuv(np.asarray(rgb, dtype=dtype), self.stats.log_offset)
         return self.stats.apply(y, lights, views).astype(dtype, copy=False)
 
     def inverse(
@@ -296,7 +305,7 @@ class Preprocessor:
             return np.asarray(z)
         log_rgb = yuv_to_rgb(self.stats.invert(z, lights, views), release_matrix)
         self.stats.clamp_log_rgb(log_rgb, lights, views)
-        return inverse_log_transform(log_rgb, self.stats.eps)
+        return inverse_log_transform(log_rgb, self.stats.log_offset)
 
 
 def round_up_bound(x: np.ndarray) -> np.ndarray:
@@ -310,20 +319,13 @@ def round_up_bound(x: np.ndarray) -> np.ndarray:
     return (np.ceil(np.asarray(x, dtype=np.float64) / BOUND_STEP) * BOUND_STEP).astype(np.float32)
 
 
-def resolve_log_offset(rule: LogOffset) -> LogOffset:
-    """Check a log-offset rule: "auto", "release" or a number in [1e-5, 1e3]."""
-    if isinstance(rule, str):
-        if rule in LOG_OFFSETS:
-            return rule  # type: ignore[return-value]
+def resolve_log_offset(rule: LogOffset | str, name: str = "log offset") -> LogOffset:
+    """A log-offset rule checked (:data:`LOG_OFFSET_RULE`): "auto", "release" or a number in
+    [1e-5, 1e3], also written as text ("0.002"); a refusal names it ``name``."""
+    if isinstance(rule, str) and rule not in LOG_OFFSETS:
         try:
             rule = float(rule)
         except ValueError:
-            raise BTFInputError(
-                f"log offset must be 'auto', 'release' or a number, got {rule!r}"
-            ) from None
-    value = float(rule)
-    if not EPS <= value <= MAX_LOG_OFFSET:  # also refuses NaN
-        raise BTFInputError(
-            f"log offset must be between {EPS:g} and {MAX_LOG_OFFSET:g}, got {value:g}"
-        )
-    return value
+            pass
+    check_option(name, rule, LOG_OFFSET_RULE)
+    return rule if isinstance(rule, str) else float(rule)  # type: ignore[return-value]

@@ -25,7 +25,7 @@ from .._progress import bar
 from ..data.btf import BTF
 from ..errors import BTFInputError, OutputError
 from .grid import PatchGrid, iter_points, sample_points
-from .preprocessing import EPS, LogOffset, Preprocessor, StdMode, Transform
+from .preprocessing import RELEASE_LOG_OFFSET, LogOffset, Preprocessor, StdMode, Transform
 from .statistics import choose_log_offset, gather_statistics
 
 __all__ = [
@@ -221,15 +221,17 @@ def training_points(
     log_offset: LogOffset = "auto",
 ) -> BTFPointSource:
     """The training set of §3.1: a seeded ``sample`` fraction of every BTF's data points,
-    standardised with each BTF's own statistics (all three channels) after ln(x + ε), ε by
-    ``log_offset`` (:func:`~sparsebtf.points.statistics.choose_log_offset`)."""
+    standardised with each BTF's own statistics (all three channels) after ln(x + offset), the
+    offset by ``log_offset`` (:func:`~sparsebtf.points.statistics.choose_log_offset`)."""
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
     check_same_directions(btfs)
     grids = [PatchGrid.for_btf(b, patch) for b in btfs]
     pres = [
         Preprocessor(gather_statistics(
-            b, std_mode, eps=choose_log_offset(b, log_offset) if transform == "log_yuv" else EPS,
+            b, std_mode,
+            log_offset=(choose_log_offset(b, log_offset) if transform == "log_yuv"
+                        else RELEASE_LOG_OFFSET),
             progress=progress, transform=transform,
         ))
         for b in btfs

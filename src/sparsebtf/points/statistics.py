@@ -9,11 +9,12 @@ texel) into −11.5 among values near −2: standardisation and the sparse code 
 outliers, and the overshoot they cause comes back through exp() as values thousands of times
 the material's maximum. Two defences, both recorded with the statistics:
 
-* the **log offset** ε is chosen per material (:func:`choose_log_offset`, ``"auto"``):
-  :data:`LOG_OFFSET_FRACTION` of the median positive value, never below the release's 1e-5;
-  values far below ε lose their relative precision, which costs nothing in linear error;
+* the **log offset** of ln(x + offset) is chosen per material (:func:`choose_log_offset`,
+  ``"auto"``): :data:`LOG_OFFSET_FRACTION` of the median positive value, never below the
+  release's 1e-5;
+  values far below the offset lose their relative precision, which costs nothing in linear error;
   ``"release"`` keeps 1e-5;
-* the **bound**: for every angular image the largest ln(x + ε) over its texels and R, G, B,
+* the **bound**: for every angular image the largest ln(x + offset) over its texels and R, G, B,
   rounded up to a multiple of 1/32. Every decoder clamps its log-RGB values to it
   (interpolated with the angular weights between sampled directions), so no decoded value
   exceeds the brightest value of its angular image by more than 3.2 %:
@@ -35,8 +36,8 @@ from ..data.btf import BTF
 from ..data.validate import check_finite
 from ..errors import BTFInputError
 from .preprocessing import (
-    EPS,
     MAX_LOG_OFFSET,
+    RELEASE_LOG_OFFSET,
     TRANSFORMS,
     LogOffset,
     Standardization,
@@ -60,7 +61,8 @@ __all__ = [
     "warn_negatives",
 ]
 
-#: The per-material log offset: ε = max(:data:`EPS`, this share of the median positive value).
+#: The per-material log offset: max(:data:`RELEASE_LOG_OFFSET`, this share of the median
+#: positive value).
 LOG_OFFSET_FRACTION = 0.01
 #: Views read to choose the log offset (evenly spaced; all of them up to this many).
 _OFFSET_VIEWS = 12
@@ -83,7 +85,7 @@ class StatisticSums:
     ----------
     views : (v0, v1).
     shift, s1, s2 : (L, v1 − v0, 3) float64: the first texel, Σ(x − shift), Σ(x − shift)².
-    top : (L, v1 − v0) float64: the largest ln(x + ε) over texels and R, G, B.
+    top : (L, v1 − v0) float64: the largest ln(x + offset) over texels and R, G, B.
     n_texels : H·W.
     negatives : values clamped to 0.
     """
@@ -119,7 +121,7 @@ def statistic_bands(btf: BTF) -> tuple[int, int]:
 def statistic_sums(
     btf: BTF,
     views: tuple[int, int] | None = None,
-    eps: float = EPS,
+    log_offset: float = RELEASE_LOG_OFFSET,
     tick: Callable[[int], object] | None = None,
 ) -> StatisticSums:
     """The :class:`StatisticSums` of ``btf`` over ``views`` (default: all).
@@ -148,7 +150,7 @@ def statistic_sums(
     negatives = 0
 
     def group_sums(vs: tuple[int, int]) -> tuple[np.ndarray, ...]:
-        return _group_sums(btf, vs, rows, eps)
+        return _group_sums(btf, vs, rows, log_offset)
 
     for (a, b), (sh, g1, g2, gt, neg) in zip(
         groups, ordered_map(group_sums, groups), strict=True
@@ -164,7 +166,7 @@ def statistic_sums(
 
 
 def _group_sums(
-    btf: BTF, views: tuple[int, int], rows: int, eps: float
+    btf: BTF, views: tuple[int, int], rows: int, offset: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     """Shift, Σd, Σd², top ((L, v, 3) or (L, v)) and the negative count of views
     ``[a, b)``, read in bands of ``rows`` rows; each view's sums in band order."""
@@ -182,7 +184,7 @@ def _group_sums(
         block = btf.read(slice(r0, min(r0 + rows, h)), slice(None), slice(None), slice(a, b))
         # float32 transforms (the release computed its statistics in single precision),
         # float64 accumulators.
-        logs, bad, neg = log_offset(block, eps)
+        logs, bad, neg = log_offset(block, offset)
         if bad:
             check_finite(block, btf.label, offset=(r0, 0, 0, a))
         negatives += neg
@@ -198,7 +200,8 @@ def _group_sums(
 
 
 def combine_statistics(
-    parts: Sequence[StatisticSums], mode: StdMode = "shared", eps: float = EPS
+    parts: Sequence[StatisticSums], mode: StdMode = "shared",
+    log_offset: float = RELEASE_LOG_OFFSET,
 ) -> Standardization:
     """The :class:`Standardization` from :class:`StatisticSums` of consecutive view ranges
     covering every view (bit for bit the same whatever the ranges)."""
@@ -221,11 +224,12 @@ def combine_statistics(
         mean = shift + s1 / n
         std = np.sqrt(np.maximum(s2 - s1**2 / n, 0) / (n - 1))
     std = np.where(std > 0, std, 1.0)
-    return Standardization(mode=mode, mean=mean, std=std, eps=eps, bound=round_up_bound(top))
+    return Standardization(mode=mode, mean=mean, std=std, log_offset=log_offset,
+                           bound=round_up_bound(top))
 
 
 def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
-    """The log offset ε of ``btf``: a number as given, 1e-5 for "release", and for "auto"
+    """The log offset of ``btf``: a number as given, 1e-5 for "release", and for "auto"
     max(1e-5, :data:`LOG_OFFSET_FRACTION` × the median positive value).
 
     The median comes from a log-spaced histogram (64 bins per decade) of up to
@@ -237,14 +241,15 @@ def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
     """
     rule = resolve_log_offset(rule)
     if rule == "release":
-        return EPS
+        return RELEASE_LOG_OFFSET
     if not isinstance(rule, str):
         return float(rule)
     median, _ = positive_median(btf)
     if median is None:
-        return EPS
+        return RELEASE_LOG_OFFSET
     # Round to 3 significant digits: the offset is a recorded parameter, not a measurement.
-    return float(f"{max(EPS, min(LOG_OFFSET_FRACTION * median, MAX_LOG_OFFSET)):.3g}")
+    offset = max(RELEASE_LOG_OFFSET, min(LOG_OFFSET_FRACTION * median, MAX_LOG_OFFSET))
+    return float(f"{offset:.3g}")
 
 
 def positive_median(btf: BTF) -> tuple[float | None, float]:
@@ -294,7 +299,7 @@ def warn_negatives(name: str, parts: Sequence[StatisticSums]) -> None:
 def gather_statistics(
     btf: BTF,
     mode: StdMode = "shared",
-    eps: float = EPS,
+    log_offset: float = RELEASE_LOG_OFFSET,
     progress: bool | None = None,
     transform: Transform = "log_yuv",
 ) -> Standardization:
@@ -314,10 +319,11 @@ def gather_statistics(
     if transform == "identity":
         c = 1 if mode == "shared" else 3
         return Standardization(
-            mode=mode, mean=np.zeros((nl, nv, c)), std=np.ones((nl, nv, c)), eps=eps,
+            mode=mode, mean=np.zeros((nl, nv, c)), std=np.ones((nl, nv, c)),
+            log_offset=log_offset,
             transform="identity",
         )
     with bar(nv, "statistics", "view", progress) as pb:
-        sums = statistic_sums(btf, eps=eps, tick=pb.update)
+        sums = statistic_sums(btf, log_offset=log_offset, tick=pb.update)
     warn_negatives(btf.label, [sums])
-    return combine_statistics([sums], mode, eps)
+    return combine_statistics([sums], mode, log_offset)

@@ -11,7 +11,7 @@ blend therefore equals the data-space blend Σ_j w_j X_j of the standardised rec
 it is then cut back to the τ largest coefficients per point (the output's sparsity).
 
 The blend lives in each material's standardised domain; the output's statistics μ, σ, its log
-offset ε and its bound on ln(RGB + ε) are the same weighted sums of the inputs' (so α = 0 and
+offset and its bound on ln(RGB + offset) are the same weighted sums of the inputs' (so α = 0 and
 1 return the inputs exactly; the bound is rounded up to 1/32 like every stored bound).
 """
 
@@ -207,12 +207,12 @@ def blend(
     st = first.stats
     pairs = list(zip(w, coded, strict=True))
     bounded = all(c.stats.bound is not None for c in coded)
-    eps = float(sum(wj * c.stats.eps for wj, c in pairs))
+    offset = float(sum(wj * c.stats.log_offset for wj, c in pairs))
     stats = Standardization(
         st.mode,
         sum(wj * c.stats.mean for wj, c in pairs),
         sum(wj * c.stats.std for wj, c in pairs),
-        eps if len({c.stats.eps for c in coded}) > 1 else st.eps,
+        offset if len({c.stats.log_offset for c in coded}) > 1 else st.log_offset,
         st.transform,
         round_up_bound(sum(wj * c.stats.bound.astype(np.float64) for wj, c in pairs))
         if bounded else None,

@@ -32,7 +32,7 @@ from .angular import SCHEMES, Scheme, angular_weights, neighbour_table
 
 __all__ = ["NO_BOUND", "Domain", "RuntimeBTF", "texels_from_uv"]
 
-#: The bound of a material without one (older files): far above any ln(RGB + eps).
+#: The bound of a material without one (older files): far above any ln(RGB + offset).
 NO_BOUND = 1e30
 
 Domain = Literal["standardized", "log"]
@@ -104,7 +104,7 @@ class RuntimeBTF:
         st = coded.stats
         self._mean = np.ascontiguousarray(np.moveaxis(st.mean, 2, 0), dtype=np.float64)
         self._std = np.ascontiguousarray(np.moveaxis(st.std, 2, 0), dtype=np.float64)
-        self.eps = float(st.eps)
+        self.log_offset = float(st.log_offset)
         self._bound = None if st.bound is None else np.asarray(st.bound, dtype=np.float64)
         self.meta: dict[str, Any] = {
             "name": coded.name,
@@ -115,7 +115,7 @@ class RuntimeBTF:
             "n_points": coded.n_points,
             "channels": list(CHANNELS),
             "std_mode": st.mode,
-            "eps": self.eps,
+            "eps": self.log_offset,  # the renderer arrays' name (docs/format.md §6)
             "bounded": self._bound is not None,
             "tau": dict(self.tau),
             "n_lights": len(coded.lights),
@@ -195,7 +195,7 @@ class RuntimeBTF:
         return out
 
     def bound_table(self) -> np.ndarray:
-        """(L, V) float64: the clamp on ln(RGB + eps) per angular image; without a bound
+        """(L, V) float64: the clamp on ln(RGB + offset) per angular image; without a bound
         :data:`NO_BOUND` (finite in every shader, and no sum of weights overflows it)."""
         if self._bound is None:
             return np.full(self._mean.shape[1:], NO_BOUND)
@@ -347,7 +347,7 @@ class RuntimeBTF:
         if self._bound is not None:
             bound = np.einsum("nab,nab->n", w2, self._bound[li[:, :, None], vi[:, None, :]])
             np.minimum(log_rgb, bound[:, None], out=log_rgb)
-        return inverse_log_transform(log_rgb, self.eps).astype(np.float32)
+        return inverse_log_transform(log_rgb, self.log_offset).astype(np.float32)
 
     def image(
         self,

@@ -104,7 +104,7 @@ def angular_response(rt: Any, per_point: bool = False, chunk: int = 32) -> np.nd
     for s in range(0, n, chunk):
         pts = np.arange(s, min(n, s + chunk))
         log_rgb = np.minimum(yuv_to_rgb(_mean_log_yuv(arr, pts)), arr["bound"][..., None])
-        rgb = inverse_log_transform(log_rgb, rt.eps)
+        rgb = inverse_log_transform(log_rgb, rt.log_offset)
         lum = np.maximum(rgb @ LUMINANCE, 0.0)
         if per_point:
             rows.append(lum.astype(np.float32))

@@ -15,8 +15,9 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=3``; 2 and 1 are read too
                             little-endian bytes of the column-major linear index
                             l1 + m1·l2 + m1·m2·l3 + …
     /codes/<CH>/errors      (P,) float32    residual MSE per tensor entry (diagnostic)
-    /stats/mean, /stats/std (L, V, C) float32; attrs mode ("shared" | "per_channel"), eps
-    /stats/bound            (L, V) float16: largest ln(x + eps) over texels and R, G, B of each
+    /stats/mean, /stats/std (L, V, C) float32; attrs mode ("shared" | "per_channel"), eps (the
+                            log offset)
+    /stats/bound            (L, V) float16: largest ln(x + offset) over texels and R, G, B of each
                             angular image, rounded up; decoders clamp to it. Schema 3: always
                             there, or ``stats@clamp = "none"`` says the statistics have none
                             (release imports); schemas 1–2 without it: no clamp
@@ -64,7 +65,8 @@ from ..learning.coding import SparseCodes
 from ..learning.cost import location_width
 from ..learning.objective import OBJECTIVES
 from ..model import CodedBTF, Model, model_text
-from ..points.preprocessing import EPS, STD_MODES, Standardization
+from ..points.grid import MAX_PATCH
+from ..points.preprocessing import RELEASE_LOG_OFFSET, STD_MODES, Standardization
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 from .coded_schema import NO_CLAMP, check_required
 from .coded_streams import read_streams, stored_values, write_streams
@@ -87,7 +89,6 @@ _SUPPORTED = (1, 2, 3)
 #: Schemas :func:`save_coded` can write (2: the uncompressed Table 4 layout, for old readers).
 WRITABLE_SCHEMAS = (2, 3)
 _MAX_SIDE = 2**20  # texels per side
-_MAX_PATCH = 4096
 
 
 # --------------------------------------------------------------------------- location packing
@@ -266,7 +267,7 @@ def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> Non
     if schema >= 3:  # every dataset of the group compressed, whoever adds it
         st = CompressedGroup(st.id)
     write_str_attr(st, "mode", coded.stats.mode)
-    st.attrs["eps"] = float(coded.stats.eps)
+    st.attrs["eps"] = float(coded.stats.log_offset)  # the attribute keeps its name
     for name in ("mean", "std"):
         a = np.asarray(getattr(coded.stats, name), dtype="<f4")
         # schema 3: binary16 when that holds every value exactly (the encoders' statistics)
@@ -335,7 +336,7 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
         name = read_str_attr(f, "name", where) if "name" in f.attrs else p.stem
         height = read_int_attr(f, "height", where, 1, _MAX_SIDE)
         width = read_int_attr(f, "width", where, 1, _MAX_SIDE)
-        patch = read_int_attr(f, "patch", where, 1, _MAX_PATCH)
+        patch = read_int_attr(f, "patch", where, 1, MAX_PATCH)
         params = read_json_attr(f, "params_json", where)
         check_tau_param(params, "tau", where)
         check_str_param(params, "model_file", where)
@@ -521,7 +522,7 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
         raise FileFormatError(
             f"{where}: 'mean' is {mean.shape} but 'std' is {std.shape}; they must agree"
         )
-    eps = read_float_attr(g, "eps", where, default=EPS, positive=True)
+    log_offset = read_float_attr(g, "eps", where, default=RELEASE_LOG_OFFSET, positive=True)
     bound = None
     clamp = read_str_attr(g, NO_CLAMP[0], where) if NO_CLAMP[0] in g.attrs else None
     if clamp is not None and (clamp != NO_CLAMP[1] or "bound" in g):
@@ -537,7 +538,7 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
             mode=mode,  # type: ignore[arg-type]
             mean=mean.astype(np.float64),
             std=std.astype(np.float64),
-            eps=eps,
+            log_offset=log_offset,
             bound=bound,
         )
     except BTFInputError as e:

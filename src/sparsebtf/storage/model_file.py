@@ -54,6 +54,7 @@ from .._version import library_version
 from ..data.dense_file import read_directions, write_directions
 from ..errors import BTFInputError, FileFormatError
 from ..model import Model, dictionaries_hash
+from ..points.grid import MAX_PATCH
 from ..points.preprocessing import STD_MODES, TRANSFORMS
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 
@@ -62,7 +63,6 @@ __all__ = ["MODEL_FORMAT", "MODEL_SCHEMA_VERSION", "exact_dtype", "load_model", 
 MODEL_FORMAT = "sparsebtf-model"
 MODEL_SCHEMA_VERSION = 2
 _SUPPORTED = (1, 2)
-_MAX_PATCH = 4096
 
 
 def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
@@ -137,7 +137,7 @@ def load_model(path: str | os.PathLike[str]) -> Model:
     with open_checked(p, MODEL_FORMAT, _SUPPORTED) as f:
         where = str(p)
         stored_hash = read_str_attr(f, "content_hash", where)
-        patch = read_int_attr(f, "patch", where, 1, _MAX_PATCH)
+        patch = read_int_attr(f, "patch", where, 1, MAX_PATCH)
         root = require(f, "dictionaries", where)
         channels = _channel_list(f, root, where)
         dictionaries: dict[str, list[np.ndarray]] = {}

@@ -28,7 +28,9 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import atomic_output
+from ..data.btf import RELEASE_LOG_OFFSET
 from ..errors import BTFInputError
+from ..learning.codes import RELEASE_EPS
 from ..model import CodedBTF
 from .release import MODE_SIZES
 
@@ -36,9 +38,8 @@ __all__ = ["FP16_MAX", "check_exportable", "export_release", "release_files"]
 
 #: The largest finite fp16 value: coefficients beyond it do not fit the release's values.
 FP16_MAX = 65504.0
-#: The release's ensembles per channel and log offset.
+#: The release's ensembles per channel.
 RELEASE_K = 8
-RELEASE_LOG_OFFSET = 1e-5
 _NAME_RE = re.compile(r"^[A-Za-z0-9][A-Za-z0-9.+-]*$")
 
 
@@ -50,7 +51,7 @@ def _eps_text(eps: float) -> str:
 def release_files(coded: CodedBTF, name: str | None = None) -> list[str]:
     """The file names :func:`export_release` writes for ``coded`` (material ``name``)."""
     n = name or coded.name
-    eps = _eps_text(float(coded.params.get("eps", RELEASE_LOG_OFFSET)))
+    eps = _eps_text(float(coded.params.get("eps", RELEASE_EPS)))
     return [*(f"Coeffs_BTF_{n}_{eps}_{ch}.bin" for ch in coded.codes), f"{n}_mean_std.bin",
             "bonn_angles.bin", "xyz_loc.bin"]  # fmt: skip
 
@@ -96,9 +97,9 @@ def check_exportable(coded: CodedBTF, release_hash: str, name: str | None = None
             f"{where}: statistics {st.mode}/{st.transform}; the release layout "
             "holds one mean and std per angular image (shared, log-YUV)"
         )
-    if not np.isclose(st.eps, RELEASE_LOG_OFFSET, rtol=1e-9, atol=0):
+    if not np.isclose(st.log_offset, RELEASE_LOG_OFFSET, rtol=1e-9, atol=0):
         raise BTFInputError(
-            f"{where}: log offset {st.eps:g}; the release's decoders use "
+            f"{where}: log offset {st.log_offset:g}; the release's decoders use "
             f"{RELEASE_LOG_OFFSET:g} (encode with --log-offset 1e-5)"
         )
     if coded.patch != MODE_SIZES[0] or coded.height % coded.patch or coded.width % coded.patch:
@@ -145,7 +146,7 @@ def export_release(
     check_exportable(coded, release_hash, name)
     d = Path(folder)
     n = name or coded.name
-    eps = _eps_text(float(coded.params.get("eps", RELEASE_LOG_OFFSET)))
+    eps = _eps_text(float(coded.params.get("eps", RELEASE_EPS)))
     blobs: dict[str, bytes] = {}
     for ch, c in coded.codes.items():
         blobs[f"Coeffs_BTF_{n}_{eps}_{ch}.bin"] = _coefficient_words(c).astype("<u2").tobytes()

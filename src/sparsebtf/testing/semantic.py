@@ -46,7 +46,7 @@ _OPS = ("zero", "minus_one", "huge", "nan", "inf", "neg_inf", "tiny", "duplicate
         "negate", "scale")  # fmt: skip
 
 # The format's rules (docs/format.md §1–3, §7), restated for the oracle.
-_UNIT, _CHORD, _BOUND, _EPS = 1e-6, 1e-4, 40.0, (1e-12, 1.0)
+_UNIT, _CHORD, _BOUND, _OFFSETS = 1e-6, 1e-4, 40.0, (1e-12, 1.0)
 _ORTHO, _ORTHO16, _COLOR = 1e-4, 2e-3, 1e4
 
 #: Fields per kind: (name, unused by the reader).
@@ -133,15 +133,15 @@ def _angles_xyz(theta: np.ndarray, phi: np.ndarray) -> np.ndarray | None:
     return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
 
 
-def _stats_ok(mean: np.ndarray, std: np.ndarray, eps: float, bound: Any = None) -> bool:
+def _stats_ok(mean: np.ndarray, std: np.ndarray, log_offset: float, bound: Any = None) -> bool:
     ok = bool(
         np.isfinite(mean).all() and np.isfinite(std).all() and np.all(np.abs(mean) <= _BOUND)
-        and np.all(std > 0) and np.all(std <= _BOUND) and np.isfinite(eps)
-        and _EPS[0] <= eps <= _EPS[1]
+        and np.all(std > 0) and np.all(std <= _BOUND) and np.isfinite(log_offset)
+        and _OFFSETS[0] <= log_offset <= _OFFSETS[1]
     )  # fmt: skip
-    if ok and bound is not None:  # decoded values never above exp(bound); black is ln(eps)
+    if ok and bound is not None:  # decoded values never above exp(bound); black is ln(offset)
         ok = bool(np.isfinite(bound).all() and np.all(bound <= _BOUND)
-                  and np.all(bound >= np.log(eps) - 1e-2))  # fmt: skip
+                  and np.all(bound >= np.log(log_offset) - 1e-2))  # fmt: skip
     return ok
 
 

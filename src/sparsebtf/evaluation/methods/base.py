@@ -32,6 +32,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 from ...data.btf import BTF
+from ...points.grid import RELEASE_PATCH
 
 __all__ = [
     "MATCHINGS",
@@ -106,7 +107,7 @@ class FitContext:
 
     levels: tuple[int, ...]
     level_bytes_per_texel: Mapping[int, float]
-    patch: int = 10
+    patch: int = RELEASE_PATCH
     seed: int = 0
     progress: bool | None = None
     executor: Any = None

@@ -23,8 +23,10 @@ from typing import Any, ClassVar
 
 from ...codec import encode_levels, encode_rate_levels, train
 from ...data.btf import BTF
+from ...learning.codes import RELEASE_TAU_TRAIN
 from ...learning.coding import DEFAULT_CANDIDATES
 from ...model import CodedBTF, Model
+from ...points.grid import RELEASE_PATCH
 from ...runtime import coded_btf_view
 from ...storage.accounting import storage_report
 from ..benchmark_set import level_tau
@@ -74,11 +76,11 @@ class _Ensemble(Method):
         self,
         *,
         n_dictionaries: int = 8,
-        patch: int = 10,
+        patch: int = RELEASE_PATCH,
         sample: float = 0.8,
         iters: int = 20,
         tol: float = 3e-3,
-        tau_train: tuple[int, int, int] = (256, 32, 32),
+        tau_train: tuple[int, int, int] = RELEASE_TAU_TRAIN,
         level_ratios: Mapping[int, float] | None = None,
         log_offset: str | float = "auto",
         candidates: int | None = DEFAULT_CANDIDATES,
@@ -166,7 +168,7 @@ class _Ensemble(Method):
         """One coded material as a :class:`~.base.Coding` (its view decodes lazily)."""
         row = coded_row(coded, self.model_)
         return Coding(coded_btf_view(coded), row["material_bytes"], self.shared_bytes(),
-                      info={**info, **row, "log_offset": float(coded.stats.eps)})
+                      info={**info, **row, "log_offset": float(coded.stats.log_offset)})
 
     def code(self, btf: BTF, budgets: Sequence[Budget]) -> list[Coding]:
         taus = [self.level_tau(btf, b.level) for b in budgets]  # type: ignore[arg-type]

@@ -30,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from ...points.preprocessing import EPS as LOG_EPS
+from ...points.preprocessing import RELEASE_LOG_OFFSET
 from ...runtime.angular import candidate_lists
 from .sampling import ONE_MINUS_EPS, SamplingTables
 
@@ -202,7 +202,7 @@ class CodedArrays:
         self.height, self.width, self.patch = int(m["height"]), int(m["width"]), int(m["patch"])
         self.n_rb = int(m["n_rb"])
         self.n_lights, self.n_views = int(m["n_lights"]), int(m["n_views"])
-        self.eps = float(m["eps"])
+        self.log_offset = float(m["eps"])
         self.n_stats = int(a["mean"].shape[0])
         self.mean = mi.Float(a["mean"].ravel())
         self.std = mi.Float(a["std"].ravel())
@@ -250,8 +250,8 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
     """Eq. 5/6 for a wavefront of queries: linear RGB (Color3f), Dr.Jit variants.
 
     ``uv`` (tiled, wraps); ``light_nb``/``view_nb``: the (indices, weights) of
-    :func:`find_neighbours`; ``prm`` needs ``domain``. The decoder's floor (−eps) is kept: the
-    plugin clamps to 0. The log-RGB values are clamped to the material's bound interpolated
+    :func:`find_neighbours`; ``prm`` needs ``domain``. The decoder's floor (−log offset) is kept:
+    the plugin clamps to 0. The log-RGB values are clamped to the material's bound interpolated
     with the angular weights, as :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate` does.
 
     ``tau``: None (every loaded coefficient), or per channel a Float of per-query levels τ'
@@ -351,7 +351,7 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
     m = data.yuv_to_rgb
     rgb = [
         dr.exp(dr.minimum(m[r][0] * logs[0] + m[r][1] * logs[1] + m[r][2] * logs[2], bound))
-        - data.eps
+        - data.log_offset
         for r in range(3)
     ]
     return mi.Color3f(*rgb)
@@ -378,7 +378,7 @@ def dense_lookup(mi: Any, dr: Any, data: DenseArrays, uv: Any, light_nb: tuple[l
         for y in range(len(vw)):
             idx = base + li[x] * data.n_views + vi[y]
             acc += (lw[x] * vw[y]) * dr.gather(mi.Color3f, data.table, idx, active)
-    return dr.exp(acc) - LOG_EPS
+    return dr.exp(acc) - RELEASE_LOG_OFFSET
 
 
 # -- BTF-driven sampling --------------------------------------------------------------------------
@@ -474,5 +474,5 @@ def scalar_dense(data: tuple, prm: dict[str, Any], uv: np.ndarray, light: np.nda
     row, col = texels_from_uv(uv[None, :], table.shape[0], table.shape[1])
     vals = table[row[0], col[0]][li[0][:, None], vi[0][None, :]]  # (kl, kv, 3)
     w = lw[0][:, None] * vw[0][None, :]
-    return np.exp(np.einsum("ab,abc->c", w, vals)) - LOG_EPS
+    return np.exp(np.einsum("ab,abc->c", w, vals)) - RELEASE_LOG_OFFSET
 

@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import BTFInputError
-from ...points.preprocessing import EPS as LOG_EPS
+from ...points.preprocessing import RELEASE_LOG_OFFSET
 from ...runtime.angular import DEFAULT_K, SCHEMES
 
 #: Mitsuba's ``eval`` returns f_r·cos θ; a BTF value is π·f_r·cos θ_light (docs/format.md,
@@ -162,7 +162,7 @@ def dense_table(btf: Any, max_gib: float = DENSE_MAX_GIB) -> np.ndarray:
         )
     arr = np.array(btf.to_array(), dtype=np.float32)  # one copy; the log is taken in place
     np.maximum(arr, 0, out=arr)
-    arr += np.float32(LOG_EPS)
+    arr += np.float32(RELEASE_LOG_OFFSET)
     return np.log(arr, out=arr)
 
 
@@ -345,7 +345,7 @@ def dense_sampling(prm: dict[str, Any], source: tuple, max_gib: float, data: tup
             )
         return coded_sampling(prm, coded, None, rt)
     return sampling_tables(prm, ("dense", source, max_gib),
-                           lambda: dense_response(table, LOG_EPS), lights, views, 1,
+                           lambda: dense_response(table, RELEASE_LOG_OFFSET), lights, views, 1,
                            DENSE_PLUGIN)  # fmt: skip
 
 

@@ -213,15 +213,16 @@ def build_tables(
     return SamplingTables(int(grid), float(mix), cdf)
 
 
-def dense_response(log_table: np.ndarray, eps: float) -> np.ndarray:
+def dense_response(log_table: np.ndarray, log_offset: float) -> np.ndarray:
     """Angular response of a dense BTF: luminance of the mean over texels of
-    exp(``log_table``) − ``eps`` (the table of :func:`.materials.dense_table`), (L, V) ≥ 0."""
+    exp(``log_table``) − ``log_offset`` (the table of :func:`.materials.dense_table`), (L, V)
+    ≥ 0."""
     from ...runtime.response import LUMINANCE
 
     h = log_table.shape[0]
     acc = np.zeros(log_table.shape[2:4])
     for r in range(h):  # a row of texels at a time: the table may be large
-        lin = np.exp(log_table[r].astype(np.float64)) - eps
+        lin = np.exp(log_table[r].astype(np.float64)) - log_offset
         acc += np.einsum("wlvc,c->lv", lin, LUMINANCE)
     return np.maximum(acc / (h * log_table.shape[1]), 0.0)
 
