@@ -13,6 +13,7 @@ from ..learning.ensemble import (
     CANDIDATES,
     EXHAUSTIVE_MAX_ENTRIES,
     FULL_PASS_EVERY,
+    INITS,
 )
 from ..points.preprocessing import STD_MODES
 from ._args import (
@@ -61,6 +62,7 @@ def _train(args: argparse.Namespace, ck: Path) -> Any:
         args.btfs,
         n_dictionaries=args.dicts,
         tau_train=args.tau_train,
+        init=args.init,
         patch=args.patch,
         sample=args.sample,
         max_iter=args.iters,
@@ -108,8 +110,16 @@ def register(sub: Any) -> None:
     s.add_argument(
         "--tau-train",
         default="256,32,32",
-        help="training sparsity per channel Y,U,V (default 256,32,32)",
+        help="training sparsity per channel Y,U,V (default 256,32,32); several levels "
+        "split the dictionaries evenly over them, e.g. 64,8,8/256,32,32/885,64,64 (--dicts a "
+        "multiple of their number); 'learn' (or learn:LEVELS) chooses each dictionary's level "
+        "from the grid 64,8,8/256,32,32/885,64,64 by the error on a held-out fifth of the "
+        "training points (3 fits: see docs/benchmarks.md)",
     )
+    s.add_argument("--init", choices=INITS, default="points",
+                   help="initial dictionaries: points (default: the HOSVD of K random "
+                   "training points), random, or preclustered (the HOSVD of K groups of points "
+                   "with alike sparsity patterns under a DCT basis)")
     s.add_argument("--patch", type=int, default=10, help="spatial patch size p (default 10)")
     s.add_argument(
         "--sample",

@@ -31,7 +31,7 @@ from ..learning.ensemble import (
     PointSource,
 )
 from ..learning.partitions import PARTITION_POINTS, load_points
-from ..model import CHANNELS, Model, TauSpec, parse_tau
+from ..model import CHANNELS, Model
 from ..points.preprocessing import (
     TRANSFORMS,
     LogOffset,
@@ -41,6 +41,7 @@ from ..points.preprocessing import (
 )
 from ..points.sources import BTFPointSource, channel_sources, training_points
 from .jobs import Source
+from .levels import TauTrainSpec, parse_tau_train
 
 __all__ = ["train"]
 
@@ -49,8 +50,9 @@ def _train_channel(
     ch: str,
     c: int,
     src: PointSource,
-    tau: int,
+    tau: int | list[int],
     *,
+    learn_tau: bool = False,
     n_dictionaries: int,
     max_iter: int,
     tol: float,
@@ -82,6 +84,7 @@ def _train_channel(
         random_state=seed + c,
         checkpoint=None if checkpoint_dir is None else checkpoint_path(checkpoint_dir, ch),
         progress=progress,
+        learn_tau=learn_tau,
     )
     ens.fit(src, desc=f"train {ch}", executor=ex, partition=partition, data_key=data_key)
     return ens.dictionaries_, {
@@ -97,6 +100,9 @@ def _train_channel(
         "candidates": int(ens.candidates_),
         "candidate_rule": "given" if candidates is not None else "auto",
         "iteration_seconds": [float(v) for v in ens.iteration_seconds_],
+        # several training sparsities: each dictionary's, each level's fit, the selection
+        **({"tau_dictionaries": [int(t) for t in ens.taus_], "levels": ens.levels_,
+            "validation": ens.validation_} if learn_tau or np.ndim(tau) else {}),
     }
 
 
@@ -141,11 +147,12 @@ def _partitions(ex: Executor, points: BTFPointSource, sources: list[Source],
     return partition
 
 
-def _check_tau_fits(taus: dict[str, int], patch: int, btf: BTF, colour_mode: bool) -> None:
+def _check_tau_fits(taus: dict[str, list[int]], patch: int, btf: BTF, colour_mode: bool
+                    ) -> None:  # fmt: skip
     """τ_l can be at most the coefficients of a data point (p·p·L·V, ×3 in colour mode)."""
     sizes = [patch, patch, len(btf.lights), len(btf.views)] + ([3] if colour_mode else [])
     atoms = math.prod(sizes)
-    for ch, t in taus.items():
+    for ch, t in ((ch, t) for ch, ts in taus.items() for t in ts):
         if t > atoms:
             raise BTFInputError(
                 f"tau_train {ch} = {t} is more coefficients than a data point has "
@@ -157,7 +164,7 @@ def train(
     btfs: Sequence[BTF | str | os.PathLike[str]],
     *,
     n_dictionaries: int = 8,
-    tau_train: TauSpec = (256, 32, 32),
+    tau_train: TauTrainSpec = (256, 32, 32),
     patch: int = 10,
     sample: float = 0.1,
     max_iter: int = 10,
@@ -184,6 +191,12 @@ def train(
 ) -> Model:
     """Learn a model from BTFs (paper §3.2): one ensemble per YUV channel, or one 5D ensemble.
 
+    ``tau_train``: τ_l per channel; several levels (``[(64, 8, 8), (256, 32, 32)]`` or
+    ``"64,8,8/256,32,32"``: the K dictionaries split evenly over them, each trained at its
+    own) or ``"learn"`` (each dictionary's τ_l chosen from a grid by the error on a validation
+    split): :mod:`sparsebtf.codec.levels`, :mod:`sparsebtf.learning.tau_levels`.
+    ``init``: the initial dictionaries, "points", "random" or "preclustered"
+    (:mod:`sparsebtf.learning.init`).
     ``sample`` is the fraction of each BTF's data points used (paper: 10% of 18 BTFs).
     ``colour_mode`` trains one ensemble on 5D points (p, p, L, V, 3), the paper's Table 6.
     ``candidates`` and ``full_pass_every`` set the coding passes between full ones
@@ -211,16 +224,18 @@ def train(
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
     # The ensemble's own parameter checks, before the statistics pass over every BTF.
+    channels = ("YUV",) if colour_mode else CHANNELS
+    taus, learn = parse_tau_train(tau_train, channels)
+    several = learn or len(next(iter(taus.values()))) > 1
     DictionaryEnsemble(
-        n_dictionaries=n_dictionaries, init=init, candidates=candidates,
+        n_dictionaries=n_dictionaries, tau=next(iter(taus.values())), learn_tau=learn,
+        init=init, candidates=candidates,
         full_pass_every=full_pass_every, batch_size=batch_size, partition_size=partition_size,
         dtype=dtype,
     )._validate()  # fmt: skip
     if preprocessing not in TRANSFORMS:
         raise BTFInputError(f"preprocessing must be one of {TRANSFORMS}, got {preprocessing!r}")
     rule = resolve_log_offset(log_offset)
-    channels = ("YUV",) if colour_mode else CHANNELS
-    taus = parse_tau(tau_train, channels)
     t0 = time.perf_counter()
     if checkpoint_dir is not None:
         Path(checkpoint_dir).mkdir(parents=True, exist_ok=True)
@@ -243,7 +258,8 @@ def train(
                 ch,
                 c,
                 source(ch),
-                taus[ch],
+                taus[ch] if several else taus[ch][0],
+                learn_tau=learn,
                 n_dictionaries=n_dictionaries,
                 max_iter=max_iter,
                 tol=tol,
@@ -263,7 +279,8 @@ def train(
             )
     params = {
         "n_dictionaries": n_dictionaries,
-        "tau_train": taus,
+        # the smallest level: coding below it is refused (encode's allow_below_training)
+        "tau_train": {ch: min(ts) for ch, ts in taus.items()},
         "patch": patch,
         "sample": sample,
         "max_iter": max_iter,
@@ -278,6 +295,11 @@ def train(
         "seed": seed,
         "dtype": dtype,
     }
+    if several:
+        params["tau_train_levels"] = [{ch: ts[i] for ch, ts in taus.items()}
+                                      for i in range(len(next(iter(taus.values()))))]
+        params["tau_learn"] = learn
+        params["tau_dictionaries"] = {ch: t["tau_dictionaries"] for ch, t in training.items()}
     if preprocessing != "log_yuv":
         params["preprocessing"] = preprocessing
     else:

@@ -74,8 +74,6 @@ def check_levels(levels: list[int], k: int, learn: bool, validation: float) -> N
     """One line for training sparsities that cannot be trained."""
     if not levels or any(t < 1 for t in levels):
         raise BTFInputError(f"training sparsity tau must be >= 1 at every level, got {levels}")
-    if len(set(levels)) != len(levels):
-        raise BTFInputError(f"training sparsity levels must differ, got {levels}")
     if learn:
         if not 0 < validation < 1:
             raise BTFInputError(f"validation must be a fraction in (0, 1), got {validation}")
@@ -84,7 +82,7 @@ def check_levels(levels: list[int], k: int, learn: bool, validation: float) -> N
         raise BTFInputError(
             f"{k} dictionaries cannot be split evenly over {len(levels)} training sparsity "
             f"levels {levels}: give a number of dictionaries that is a multiple of "
-            f"{len(levels)} (e.g. {len(levels) * max(1, k // len(levels))})"
+            f"{len(levels)} (e.g. {len(levels) * -(-k // len(levels))})"
         )
 
 
