@@ -1,0 +1,28 @@
+"""Several τ_l, learned τ_l and pre-clustering on a real Dask cluster (worker processes on
+127.0.0.1): the same models as in this process (shapes of test_distributed_training.py)."""
+
+from __future__ import annotations
+
+import pytest
+
+from sparsebtf.codec import train
+
+from .test_distributed_training import assert_same_model, local_cluster, paths  # noqa: F401
+
+distributed = pytest.importorskip("distributed")
+
+BASE = dict(patch=4, sample=1.0, max_iter=2, candidates=1, full_pass_every=2, progress=False)
+CASES = [
+    dict(n_dictionaries=4, tau_train="8,2,2/16,4,4"),
+    dict(n_dictionaries=2, tau_train="learn:8,2,2/16,4,4"),
+    dict(n_dictionaries=3, tau_train=(16, 4, 4), init="preclustered"),
+]
+
+
+def test_cluster_equals_one_process(paths):
+    with local_cluster() as cluster, distributed.Client(cluster) as c:
+        for case in CASES:
+            here = train(paths, **BASE, **case)
+            there = train(paths, client=c, **BASE, **case)
+            assert_same_model(there, here)
+            assert there.params == here.params
