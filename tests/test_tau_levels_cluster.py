@@ -6,8 +6,10 @@ from __future__ import annotations
 import pytest
 
 from sparsebtf.codec import train
+from sparsebtf.data.dense_file import write_dense
 
-from .test_distributed_training import assert_same_model, local_cluster, paths  # noqa: F401
+from .conftest import smooth_btf
+from .test_distributed_training import assert_same_model, local_cluster
 
 distributed = pytest.importorskip("distributed")
 
@@ -17,6 +19,14 @@ CASES = [
     dict(n_dictionaries=2, tau_train="learn:8,2,2/16,4,4"),
     dict(n_dictionaries=3, tau_train=(16, 4, 4), init="preclustered"),
 ]
+
+
+@pytest.fixture(scope="module")
+def paths(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("levels-inputs")
+    for s in range(3):
+        write_dense(tmp / f"m{s}.h5", smooth_btf(20 + s, size=12))
+    return [str(tmp / f"m{s}.h5") for s in range(3)]
 
 
 def test_cluster_equals_one_process(paths):
