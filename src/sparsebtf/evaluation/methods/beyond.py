@@ -18,8 +18,12 @@ The verdicts on them are :mod:`sparsebtf.evaluation.beyond`'s.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
+from ...data.btf import BTF
+from ...learning.partitions import PARTITION_POINTS
+from .base import FitContext, Method
 from .sparse import _Ensemble
 
 __all__ = ["LearnTauMethod", "MultiTauMethod", "PreclusterMethod", "multitau_levels"]
@@ -68,6 +72,15 @@ class LearnTauMethod(_Ensemble):
         t = tuple(int(v) for v in self.tau_train)
         grid = [tuple(max(1, v // 4) for v in t), t, _higher(t)]
         return "learn:" + "/".join(",".join(map(str, lv)) for lv in grid)
+
+    def fit(self, train_btfs: Sequence[BTF], context: FitContext) -> Method:
+        # The validation split holds out whole partitions (5 at least, so a fifth is one):
+        # small training sets (the tests' configuration) get smaller partitions.
+        n = sum(int(self.sample * (b.height // self.patch) * (b.width // self.patch))
+                for b in train_btfs)  # fmt: skip
+        size = PARTITION_POINTS if n >= 5 * PARTITION_POINTS else max(1, n // 5)
+        self.training_options = {**type(self).training_options, "partition_size": size}
+        return super().fit(train_btfs, context)
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "tau_train_used": self.train_tau()}
