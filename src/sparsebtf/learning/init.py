@@ -80,14 +80,19 @@ def dct_basis(m: int) -> np.ndarray:
 
 
 def support_sets(source: Any, s: int, batch_size: int = 4) -> np.ndarray:
-    """(N, s) flat indices of each point's ``s`` largest |DCT coefficients| (sorted per row)."""
-    mats = [dct_basis(m) for m in source.mode_sizes]
+    """(N, s) flat indices of each point's ``s`` largest |DCT coefficients| (sorted per row).
+
+    float32 projections, one point per worker thread (the ranking is all that is kept)."""
+    mats = [dct_basis(m).astype(np.float32) for m in source.mode_sizes]
     s = min(int(s), int(np.prod(source.mode_sizes)))
+
+    def one(x: np.ndarray) -> np.ndarray:
+        c = project(np.asarray(x, dtype=np.float32)[None], mats)[0].reshape(-1)
+        return np.sort(topk_abs(c, s))
+
     rows = []
     for _, xb in source.batches(batch_size):
-        coeffs = project(np.asarray(xb, dtype=np.float64), mats)
-        flat = coeffs.reshape(coeffs.shape[0], -1)
-        rows += list(parallel_map(lambda c: np.sort(topk_abs(c, s)), list(flat)))
+        rows += list(parallel_map(one, list(xb)))
     return np.array(rows, dtype=np.int64).reshape(len(rows), s)
 
 
@@ -143,11 +148,16 @@ def group_hosvd(source: Any, groups: np.ndarray, k: int, batch_size: int = 4
     """Per group, the per-mode HOSVD bases of its points (None for an empty group)."""
     sizes = source.mode_sizes
     grams = [np.zeros((k, m, m)) for m in sizes]
+
+    def one(x: np.ndarray) -> list[np.ndarray]:
+        # float32 products (one point's Gram), summed in float64 over the group
+        x = np.asarray(x, dtype=np.float32)
+        return [(lambda u: u @ u.T)(unfold(x, n)).astype(np.float64) for n in range(len(sizes))]
+
     for idx, xb in source.batches(batch_size):
-        for i, x in zip(idx, np.asarray(xb, dtype=np.float64), strict=True):
+        for i, g in zip(idx, parallel_map(one, list(xb)), strict=True):
             for n in range(len(sizes)):
-                xn = unfold(x, n)
-                grams[n][groups[i]] += xn @ xn.T
+                grams[n][groups[i]] += g[n]
     out: list[Any] = []
     for g in range(k):
         if not np.any(groups == g):
