@@ -141,6 +141,10 @@ def test_learned_levels_are_seeded_and_chosen_on_validation(tmp_path):
     assert np.all(np.diff(a.validation_["scores"]) <= 0)  # each added dictionary helps
     with pytest.raises(BTFInputError, match="partitions"):
         DictionaryEnsemble(**{**kw, "partition_size": 64}).fit(x)
+    # the validation coding levels: the same level fits (the checkpoints serve), another choice
+    c = DictionaryEnsemble(checkpoint=tmp_path / "ck.npz", validation_taus=[100], **kw).fit(x)
+    assert c.validation_["coding_taus"] == [100] and a.validation_["coding_taus"] == [4, 16]
+    assert set(c.taus_) <= {4, 16}
 
 
 def test_forward_selection_takes_the_best_complement():

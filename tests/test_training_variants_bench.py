@@ -56,6 +56,10 @@ def test_variants_are_coded_at_the_reference_bytes_with_verdicts(variants_run):
     models = data["models"]
     assert models["sparsebtf-multitau"]["params"]["tau_dictionaries"]["Y"] == [8, 28]
     assert models["sparsebtf-learntau"]["params"]["tau_learn"] is True
+    # validated at the τ_t the run codes its two levels at (Y of level 16, then 32)
+    coded = [r["tau"] for r in data["rows"] if r["method"] == "sparsebtf" and r["set"] == "test"
+             and r["level"] in (16, 32) and r["material"] == "carpet12"]
+    assert models["sparsebtf-learntau"]["params"]["tau_validation"]["Y"] == [t[0] for t in coded]
     assert models["sparsebtf-precluster"]["params"]["init"] == "preclustered"
     s = data["summary"]
     for key in ("training_multitau", "training_learntau", "training_precluster"):

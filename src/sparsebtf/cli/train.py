@@ -62,6 +62,7 @@ def _train(args: argparse.Namespace, ck: Path) -> Any:
         args.btfs,
         n_dictionaries=args.dicts,
         tau_train=args.tau_train,
+        tau_validation=args.tau_validation,
         init=args.init,
         patch=args.patch,
         sample=args.sample,
@@ -116,6 +117,10 @@ def register(sub: Any) -> None:
         "from the grid 64,8,8/256,32,32/885,64,64 by the error on a held-out fifth of the "
         "training points (3 fits: see docs/benchmarks.md)",
     )
+    s.add_argument("--tau-validation", metavar="LEVELS",
+                   help="with --tau-train learn: the coding tau_t the validation error is "
+                   "measured at, e.g. 885,64,64 or 326,40,40/885,64,64 (default: the grid's "
+                   "levels); give the tau_t you will encode at")
     s.add_argument("--init", choices=INITS, default="points",
                    help="initial dictionaries: points (default: the HOSVD of K random "
                    "training points), random, or preclustered (the HOSVD of K groups of points "

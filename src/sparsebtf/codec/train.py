@@ -53,6 +53,7 @@ def _train_channel(
     tau: int | list[int],
     *,
     learn_tau: bool = False,
+    validation_taus: list[int] | None = None,
     n_dictionaries: int,
     max_iter: int,
     tol: float,
@@ -85,6 +86,7 @@ def _train_channel(
         checkpoint=None if checkpoint_dir is None else checkpoint_path(checkpoint_dir, ch),
         progress=progress,
         learn_tau=learn_tau,
+        validation_taus=validation_taus,
     )
     ens.fit(src, desc=f"train {ch}", executor=ex, partition=partition, data_key=data_key)
     return ens.dictionaries_, {
@@ -165,6 +167,7 @@ def train(
     *,
     n_dictionaries: int = 8,
     tau_train: TauTrainSpec = (256, 32, 32),
+    tau_validation: TauTrainSpec | None = None,
     patch: int = 10,
     sample: float = 0.1,
     max_iter: int = 10,
@@ -195,6 +198,8 @@ def train(
     ``"64,8,8/256,32,32"``: the K dictionaries split evenly over them, each trained at its
     own) or ``"learn"`` (each dictionary's τ_l chosen from a grid by the error on a validation
     split): :mod:`sparsebtf.codec.levels`, :mod:`sparsebtf.learning.tau_levels`.
+    ``tau_validation``: with ``"learn"``, the coding τ_t (one or several, same spellings) the
+    validation error is measured at (default: the grid's levels).
     ``init``: the initial dictionaries, "points", "random" or "preclustered"
     (:mod:`sparsebtf.learning.init`).
     ``sample`` is the fraction of each BTF's data points used (paper: 10% of 18 BTFs).
@@ -227,6 +232,7 @@ def train(
     channels = ("YUV",) if colour_mode else CHANNELS
     taus, learn = parse_tau_train(tau_train, channels)
     several = learn or len(next(iter(taus.values()))) > 1
+    coding = None if tau_validation is None else parse_tau_train(tau_validation, channels)[0]
     DictionaryEnsemble(
         n_dictionaries=n_dictionaries, tau=next(iter(taus.values())), learn_tau=learn,
         init=init, candidates=candidates,
@@ -260,6 +266,7 @@ def train(
                 source(ch),
                 taus[ch] if several else taus[ch][0],
                 learn_tau=learn,
+                validation_taus=None if coding is None else coding[ch],
                 n_dictionaries=n_dictionaries,
                 max_iter=max_iter,
                 tol=tol,
@@ -299,6 +306,8 @@ def train(
         params["tau_train_levels"] = [{ch: ts[i] for ch, ts in taus.items()}
                                       for i in range(len(next(iter(taus.values()))))]
         params["tau_learn"] = learn
+        if learn and coding is not None:
+            params["tau_validation"] = coding
         params["tau_dictionaries"] = {ch: t["tau_dictionaries"] for ch, t in training.items()}
     if preprocessing != "log_yuv":
         params["preprocessing"] = preprocessing

@@ -144,6 +144,8 @@ class DictionaryEnsemble:
     learn_tau : with several ``tau``: they are a candidate grid, and each dictionary's τ_l is
         chosen by the error on a held-out validation split (:mod:`.tau_levels`).
     validation : the fraction of the training points held out for ``learn_tau``.
+    validation_taus : the coding τ_t the validation error is measured at for ``learn_tau``
+        (None: the levels of ``tau``); they should be the τ_t the model will be coded at.
     eps : optional training error threshold ε_l (0: membership by least error at τ_l).
     max_iter : maximum number of iterations (update + coding).
     tol : stop when an iteration ending in a full pass lowers the objective by less than
@@ -206,6 +208,7 @@ class DictionaryEnsemble:
         progress: bool | None = None,
         learn_tau: bool = False,
         validation: float = VALIDATION,
+        validation_taus: Sequence[int] | None = None,
     ) -> None:
         self.n_dictionaries = n_dictionaries
         self.tau = tau
@@ -225,6 +228,7 @@ class DictionaryEnsemble:
         self.progress = progress
         self.learn_tau = learn_tau
         self.validation = validation
+        self.validation_taus = validation_taus
         #: entries added to the checkpoint key (a level of a several-τ_l ensemble)
         self.key_extra: dict[str, Any] = {}
 

@@ -18,11 +18,12 @@ G, and each dictionary's τ_l is chosen by the error on a validation split:
    points, :mod:`.partitions`) is held out; the ensembles are trained on the rest.
 2. A pool: at every τ of G, an ensemble of K dictionaries (L·K dictionaries, L fits).
 3. Every held-out point is projected on every pool dictionary (L·K projections per point);
-   its error at each coding level τ_c ∈ G is Parseval's (‖X‖² − the τ_c largest squared
+   its error at each coding level τ_c (``validation_taus``: the τ_t the model will be coded
+   at; by default the levels of G) is Parseval's (‖X‖² − the τ_c largest squared
    coefficients) / size. The ensemble's error at τ_c is the coder's: the least over its
    dictionaries.
 4. Forward selection of K dictionaries from the pool: each step adds the one that most lowers
-   the mean over τ_c ∈ G of log(mean validation error at τ_c) (equal weight to every level, as
+   the mean over the τ_c of log(mean validation error at τ_c) (equal weight to every level, as
    a mean PSNR; ties to the lower pool index). A dictionary's τ_l is the level it was trained
    at.
 
@@ -232,12 +233,13 @@ def fit_levels(est: Any, src: Any, desc: str, executor: Any,
     est.validation_ = None
     if est.learn_tau:
         dicts = [[d[j] for d in fits[lv].dictionaries_] for lv, j in pool]
-        err = validation_errors(src, val_ranges, dicts, levels, np.dtype(est.dtype).type,
+        coding = [int(t) for t in est.validation_taus or levels]
+        err = validation_errors(src, val_ranges, dicts, coding, np.dtype(est.dtype).type,
                                 est.batch_size)  # fmt: skip
         picked, scores = forward_selection(err, est.n_dictionaries)
         chosen = [pool[j] for j in picked]
         est.validation_ = {
-            "grid": levels, "points": int(err.shape[0]), "chosen_levels":
+            "grid": levels, "coding_taus": coding, "points": int(err.shape[0]), "chosen_levels":
             [levels[lv] for lv, _ in chosen], "scores": scores,
             "level_errors": err.min(axis=1).mean(axis=0).tolist() if err.size else [],
         }  # fmt: skip

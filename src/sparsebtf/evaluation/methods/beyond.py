@@ -9,7 +9,8 @@ accounting); only the training differs:
   (:func:`multitau_levels`), each trained at its own (:mod:`sparsebtf.learning.tau_levels`).
 * :class:`LearnTauMethod` (``sparsebtf-learntau``): each dictionary's τ_l chosen from the grid
   (τ_l/4, τ_l, the higher level of :func:`multitau_levels`) by the error on a validation
-  fifth of the training points (three fits of K: about 3x the reference's training).
+  fifth of the training points, measured at the τ_t the benchmark codes its levels at
+  (three fits of K: about 3x the reference's training).
 * :class:`PreclusterMethod` (``sparsebtf-precluster``): ``init="preclustered"``
   (:mod:`sparsebtf.learning.init`).
 
@@ -79,7 +80,11 @@ class LearnTauMethod(_Ensemble):
         n = sum(int(self.sample * (b.height // self.patch) * (b.width // self.patch))
                 for b in train_btfs)  # fmt: skip
         size = PARTITION_POINTS if n >= 5 * PARTITION_POINTS else max(1, n // 5)
-        self.training_options = {**type(self).training_options, "partition_size": size}
+        # the validation error at the τ_t the benchmark codes every level at
+        coded = [self.level_tau(train_btfs[0], lv) for lv in sorted(self.level_ratios)]
+        self.training_options = {**type(self).training_options, "partition_size": size,
+                                 "tau_validation": "/".join(",".join(map(str, t))
+                                                            for t in coded)}  # fmt: skip
         return super().fit(train_btfs, context)
 
     def describe(self) -> dict[str, Any]:
