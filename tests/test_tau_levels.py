@@ -204,3 +204,25 @@ def test_preclustered_init_is_seeded_and_resumes_after_an_interruption(tmp_path)
     assert resumed.objective_ == whole.objective_
     with pytest.raises(BTFInputError, match="other training parameters"):
         DictionaryEnsemble(checkpoint=ck, **{**kw, "init": "points"}).fit(x)
+
+
+def test_cli_levels_learn_and_init(tmp_path, capsys):
+    from sparsebtf.cli.main import main
+    from sparsebtf.data.dense_file import write_dense
+
+    paths = []
+    for s in range(3):  # 27 points of 4x4: 4 partitions, one held out to learn tau
+        write_dense(tmp_path / f"m{s}.h5", smooth_btf(s, size=12))
+        paths.append(str(tmp_path / f"m{s}.h5"))
+    base = ["train", *paths, "--patch", "4", "--sample", "1", "--iters", "1"]
+    assert main([*base, "-o", str(tmp_path / "bad.h5"), "--dicts", "4",
+                 "--tau-train", "8,2,2/16,4,4/32,6,6"]) != 0  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert "multiple of 3" in err and len(err.splitlines()) == 1
+    out = tmp_path / "learn.h5"
+    assert main([*base, "-o", str(out), "--dicts", "2", "--tau-train", "learn:8,2,2/16,4,4",
+                 "--tau-validation", "20,5,5", "--init", "preclustered"]) == 0  # fmt: skip
+    m = load_model(out)
+    assert m.params["init"] == "preclustered" and m.params["tau_learn"] is True
+    assert m.params["tau_validation"] == {"Y": [20], "U": [5], "V": [5]}
+    assert set(m.dictionary_taus("Y")) <= {8, 16} and len(m.dictionary_taus("Y")) == 2

@@ -151,7 +151,7 @@ def _split(n: int, size: int, fraction: float, seed: int
     if len(bounds) < 2:
         raise BTFInputError(
             f"learning tau holds out whole partitions of {size} training points, but the "
-            f"{n} points make {len(bounds)}; give more points or a smaller partition size"
+            f"{n} training points make {len(bounds)}; train on at least {size + 1} points"
         )
     n_val = min(len(bounds) - 1, max(1, round(fraction * len(bounds))))
     val = set(np.random.default_rng(seed).choice(len(bounds), n_val, replace=False).tolist())
