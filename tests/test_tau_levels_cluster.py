@@ -15,9 +15,8 @@ distributed = pytest.importorskip("distributed")
 
 BASE = dict(patch=4, sample=1.0, max_iter=2, candidates=1, full_pass_every=2, progress=False)
 CASES = [
-    dict(n_dictionaries=4, tau_train="8,2,2/16,4,4"),
+    dict(n_dictionaries=4, tau_train="8,2,2/16,4,4", init="preclustered"),
     dict(n_dictionaries=2, tau_train="learn:8,2,2/16,4,4"),
-    dict(n_dictionaries=3, tau_train=(16, 4, 4), init="preclustered"),
 ]
 
 
