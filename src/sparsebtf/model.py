@@ -270,6 +270,16 @@ class Model:
         """Training sparsity τ_l per channel (empty when unknown, e.g. the release import)."""
         return {ch: int(v) for ch, v in (self.params.get("tau_train") or {}).items()}
 
+    def dictionary_taus(self, channel: str) -> list[int]:
+        """The training τ_l of each of ``channel``'s K dictionaries: ``tau_dictionaries`` of a
+        model trained at several levels, else K times the channel's one ``tau_train`` (a
+        model of one level, every older file); empty when unknown (the release import)."""
+        per = (self.params.get("tau_dictionaries") or {}).get(channel)
+        if per is not None:
+            return [int(t) for t in per]
+        t = self.tau_train.get(channel)
+        return [] if t is None else [t] * self.n_dictionaries(channel)
+
     def check_directions(self, btf: BTF) -> None:
         """Codes only mean something on the direction tables the model was trained for."""
         if not (btf.lights.equals(self.lights) and btf.views.equals(self.views)):

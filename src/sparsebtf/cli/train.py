@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..codec.options import TrainOptions
-from ..learning.ensemble import CANDIDATES, EXHAUSTIVE_MAX_ENTRIES
+from ..learning.ensemble import CANDIDATES, EXHAUSTIVE_MAX_ENTRIES, INITS
 from ..points.preprocessing import STD_MODES
 from ._args import (
     add_cluster_options,
@@ -45,7 +45,8 @@ def run(args: argparse.Namespace) -> int:
     ck = checkpoint_dir(args)
     options = build_options(
         TrainOptions, FLAGS, n_dictionaries=args.dicts, tau_train=args.tau_train,
-        patch=args.patch, sample=args.sample, max_iter=args.iters, tol=args.tol,
+        tau_validation=args.tau_validation, init=args.init, patch=args.patch,
+        sample=args.sample, max_iter=args.iters, tol=args.tol,
         std_mode=args.std_mode, log_offset=log_offset(args.log_offset),
         colour_mode=args.colour_mode, candidates=args.candidates,
         full_pass_every=args.full_pass_every, batch_size=args.batch, seed=args.seed,
@@ -103,7 +104,19 @@ def register(sub: Any) -> None:
                    help=f"dictionaries per ensemble K (default {d.n_dictionaries})")
     tau = ",".join(map(str, d.tau_train))
     s.add_argument("--tau-train", default=tau,
-                   help=f"training sparsity per channel Y,U,V (default {tau})")
+                   help=f"training sparsity per channel Y,U,V (default {tau}); several levels "
+                   "split the dictionaries evenly over them, e.g. 64,8,8/256,32,32/885,64,64 "
+                   "(--dicts a multiple of their number); 'learn' (or learn:LEVELS) chooses "
+                   "each dictionary's level from the grid 64,8,8/256,32,32/885,64,64 by the "
+                   "error on a held-out fifth of the training points (see docs/benchmarks.md)")
+    s.add_argument("--tau-validation", metavar="LEVELS",
+                   help="with --tau-train learn: the coding tau_t the validation error is "
+                   "measured at, e.g. 885,64,64 or 326,40,40/885,64,64 (default: the grid's "
+                   "levels); give the tau_t you will encode at")
+    s.add_argument("--init", choices=INITS, default=d.init,
+                   help=f"initial dictionaries (default {d.init}): points = the HOSVD of K random "
+                   "training points, random, or preclustered (the HOSVD of K groups of points "
+                   "with alike sparsity patterns under a DCT basis)")
     s.add_argument("--patch", type=int, default=d.patch,
                    help=f"spatial patch size p (default {d.patch})")
     s.add_argument("--sample", type=float, default=d.sample,

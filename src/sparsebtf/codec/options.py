@@ -28,7 +28,7 @@ from ..learning.coding import DEFAULT_CANDIDATES
 from ..learning.ensemble import FULL_PASS_EVERY, INITS
 from ..learning.objective import OBJECTIVES
 from ..learning.partitions import PARTITION_POINTS
-from ..model import CHANNELS, TauSpec, parse_tau
+from ..model import CHANNELS, parse_tau
 from ..points.grid import MAX_PATCH, RELEASE_PATCH
 from ..points.preprocessing import (
     LOG_OFFSET_RULE,
@@ -38,6 +38,7 @@ from ..points.preprocessing import (
     StdMode,
     Transform,
 )
+from .levels import TauTrainSpec, parse_tau_train
 
 __all__ = [
     "WEIGHTINGS",
@@ -76,6 +77,19 @@ def _tau(value: Any) -> bool:
     except BTFInputError as e:
         try:
             parse_tau(value, ("YUV",))
+        except BTFInputError:
+            raise e from None
+    return True
+
+
+def _tau_train(value: Any) -> bool:
+    """One training τ_l, several (``"64,8,8/256,32,32"``) or ``"learn"``
+    (:func:`~.levels.parse_tau_train`), for Y, U, V or the colour mode's one channel."""
+    try:
+        parse_tau_train(value, CHANNELS)
+    except BTFInputError as e:
+        try:
+            parse_tau_train(value, ("YUV",))
         except BTFInputError:
             raise e from None
     return True
@@ -149,9 +163,12 @@ class TrainOptions(Options):
     """How a model is learned (paper §3.2); :func:`~sparsebtf.codec.train` takes one.
 
     * ``n_dictionaries`` K per ensemble, ``tau_train`` τ_l per channel (default the paper's
-      256,32,32), ``patch`` p, ``sample`` (the fraction of each BTF's points; paper: 10%).
+      256,32,32; several levels ``"64,8,8/256,32,32"``, K split evenly over them; or
+      ``"learn"``: each dictionary's τ_l chosen on a validation split), ``tau_validation``
+      (with ``"learn"``: the coding τ_t the validation error is read at), ``patch`` p,
+      ``sample`` (the fraction of each BTF's points; paper: 10%).
     * ``max_iter``, ``tol`` (stop below this relative decrease of the objective), ``init``
-      ("points" or "random"), ``seed``.
+      ("points", "random" or "preclustered"), ``seed``.
     * ``candidates`` / ``full_pass_every``: the coding passes between full ones
       (:class:`~sparsebtf.learning.ensemble.DictionaryEnsemble`; None: all K when a full
       pass is cheap, else 1); the final memberships always come from a full pass.
@@ -164,7 +181,8 @@ class TrainOptions(Options):
     """
 
     n_dictionaries: int = 8
-    tau_train: TauSpec = RELEASE_TAU_TRAIN
+    tau_train: TauTrainSpec = RELEASE_TAU_TRAIN
+    tau_validation: TauTrainSpec | None = None
     patch: int = RELEASE_PATCH
     sample: float = 0.1
     max_iter: int = 10
@@ -188,7 +206,10 @@ class TrainOptions(Options):
 
     constraints: ClassVar[dict[str, list[Any]]] = {
         "n_dictionaries": [Interval(int, 1, 255, unit="dictionaries per ensemble")],
-        "tau_train": [Rule(_tau, "a tau: an integer >= 1, or one per channel ('Y,U,V')")],
+        "tau_train": [Rule(_tau_train, "a tau: an integer >= 1, or one per channel "
+                                        "('Y,U,V'); several as 'Y,U,V/Y,U,V'; or 'learn'")],
+        "tau_validation": [Rule(_tau_train, "coding taus: 'Y,U,V' or several as "
+                                            "'Y,U,V/Y,U,V'"), None],
         "patch": [Interval(int, 1, MAX_PATCH, unit="texels")],
         "sample": [Interval(float, 0, 1, closed="right",
                             unit="(fraction of each BTF's data points)")],

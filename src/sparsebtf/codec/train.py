@@ -27,18 +27,20 @@ from ..errors import BTFInputError
 from ..execution import Execution, Executor
 from ..learning.ensemble import DictionaryEnsemble, PointSource
 from ..learning.partitions import load_points
-from ..model import CHANNELS, Model, parse_tau
+from ..model import CHANNELS, Model
 from ..points.preprocessing import resolve_log_offset
 from ..points.sources import BTFPointSource, channel_sources, training_points
 from .jobs import Source
+from .levels import parse_tau_train
 from .options import TrainOptions, train_settings
 
 __all__ = ["train"]
 
 
 def _train_channel(
-    ch: str, c: int, src: PointSource, tau: int, options: TrainOptions, ex: Executor,
-    partition: Callable[[int, int, int], Any] | None, data_key: str,
+    ch: str, c: int, src: PointSource, tau: int | list[int], options: TrainOptions,
+    ex: Executor, partition: Callable[[int, int, int], Any] | None, data_key: str, *,
+    learn_tau: bool = False, validation_taus: list[int] | None = None,
 ) -> tuple[list[np.ndarray], dict[str, Any]]:  # fmt: skip
     """Fit one channel's ensemble; its dictionaries and training diagnostics."""
     o = options
@@ -56,6 +58,8 @@ def _train_channel(
         random_state=o.seed + c,
         checkpoint=None if o.checkpoint_dir is None else checkpoint_path(o.checkpoint_dir, ch),
         progress=o.progress,
+        learn_tau=learn_tau,
+        validation_taus=validation_taus,
     )
     ens.fit(src, desc=f"train {ch}", executor=ex, partition=partition, data_key=data_key)
     return ens.dictionaries_, {
@@ -71,6 +75,9 @@ def _train_channel(
         "candidates": int(ens.candidates_),
         "candidate_rule": "given" if o.candidates is not None else "auto",
         "iteration_seconds": [float(v) for v in ens.iteration_seconds_],
+        # several training sparsities: each dictionary's, each level's fit, the selection
+        **({"tau_dictionaries": [int(t) for t in ens.taus_], "levels": ens.levels_,
+            "validation": ens.validation_} if learn_tau or np.ndim(tau) else {}),
     }
 
 
@@ -115,11 +122,12 @@ def _partitions(ex: Executor, points: BTFPointSource, sources: list[Source],
     return partition
 
 
-def _check_tau_fits(taus: dict[str, int], patch: int, btf: BTF, colour_mode: bool) -> None:
+def _check_tau_fits(taus: dict[str, list[int]], patch: int, btf: BTF, colour_mode: bool
+                    ) -> None:  # fmt: skip
     """τ_l can be at most the coefficients of a data point (p·p·L·V, ×3 in colour mode)."""
     sizes = [patch, patch, len(btf.lights), len(btf.views)] + ([3] if colour_mode else [])
     atoms = math.prod(sizes)
-    for ch, t in taus.items():
+    for ch, t in ((ch, t) for ch, ts in taus.items() for t in ts):
         if t > atoms:
             raise BTFInputError(
                 f"tau_train {ch} = {t} is more coefficients than a data point has "
@@ -136,20 +144,26 @@ def train(
 ) -> Model:
     """Learn a model from BTFs (paper §3.2): one ensemble per YUV channel, or one 5D ensemble.
 
-    ``options`` (:class:`~.options.TrainOptions`) say how: K = ``n_dictionaries``,
-    ``tau_train``, ``patch``, ``sample`` (the fraction of each BTF's data points used; paper:
-    10% of 18 BTFs), ``max_iter``, ``colour_mode`` (one ensemble on 5D points (p, p, L, V, 3),
-    the paper's Table 6), ``candidates`` / ``full_pass_every`` (the coding passes between full
-    ones, :class:`~sparsebtf.learning.ensemble.DictionaryEnsemble`; the final memberships
-    always come from a full pass), ``preprocessing="identity"`` (raw linear R, G, B in the
-    channel slots Y, U, V, the [MHU19] baseline of Table 2; encoding with the model then uses
-    the same), ``log_offset`` (the rule of each BTF's offset in ln(x + offset): "auto",
-    "release" = 1e-5, or a number; :func:`~sparsebtf.points.statistics.choose_log_offset`) …
-    With ``checkpoint_dir`` each channel resumes from its last completed iteration; ``stage``
-    preprocesses the sampled points once into a temporary file in ``stage_dir`` (default:
-    when they need at most :data:`~sparsebtf.points.sources.STAGE_LIMIT_BYTES` and half the
-    free disk), otherwise every pass streams them from the BTFs. ``keywords`` set the options'
-    fields (``n_dictionaries=2``) and the execution's (``workers=4``).
+    ``options`` (:class:`~.options.TrainOptions`) say how: K = ``n_dictionaries``, ``tau_train``
+    (τ_l per channel; several levels, ``[(64, 8, 8), (256, 32, 32)]`` or ``"64,8,8/256,32,32"``: the
+    K dictionaries split evenly over them, each trained at its own; or ``"learn"``: each
+    dictionary's τ_l chosen from a grid by the error on a validation split,
+    :mod:`sparsebtf.codec.levels`, :mod:`sparsebtf.learning.tau_levels`), ``tau_validation`` (with
+    ``"learn"``, the coding τ_t the validation error is measured at; default the grid's levels),
+    ``init`` ("points", "random" or "preclustered", :mod:`sparsebtf.learning.init`), ``patch``,
+    ``sample`` (the fraction of each BTF's data points used; paper: 10% of 18 BTFs), ``max_iter``,
+    ``colour_mode`` (one ensemble on 5D points (p, p, L, V, 3), the paper's Table 6), ``candidates``
+    / ``full_pass_every`` (the coding passes between full ones,
+    :class:`~sparsebtf.learning.ensemble.DictionaryEnsemble`; the final memberships always come from
+    a full pass), ``preprocessing="identity"`` (raw linear R, G, B in the channel slots Y, U, V, the
+    [MHU19] baseline of Table 2; encoding with the model then uses the same), ``log_offset`` (the
+    rule of each BTF's offset in ln(x + offset): "auto", "release" = 1e-5, or a number;
+    :func:`~sparsebtf.points.statistics.choose_log_offset`) … With ``checkpoint_dir`` each channel
+    resumes from its last completed iteration; ``stage`` preprocesses the sampled points once into a
+    temporary file in ``stage_dir`` (default: when they need at most
+    :data:`~sparsebtf.points.sources.STAGE_LIMIT_BYTES` and half the free disk), otherwise every
+    pass streams them from the BTFs. ``keywords`` set the options' fields (``n_dictionaries=2``) and
+    the execution's (``workers=4``).
 
     ``btfs`` are BTF objects or sources (paths, ``synth:`` specs; ``crop`` = (rows, cols)
     applies to every one). ``execution`` (:class:`~sparsebtf.execution.Execution`) runs the
@@ -162,7 +176,15 @@ def train(
         raise BTFInputError("training needs at least one BTF")
     rule = resolve_log_offset(o.log_offset)
     channels = ("YUV",) if o.colour_mode else CHANNELS
-    taus = parse_tau(o.tau_train, channels)
+    taus, learn = parse_tau_train(o.tau_train, channels)
+    several = learn or len(next(iter(taus.values()))) > 1
+    coding = (None if o.tau_validation is None
+              else parse_tau_train(o.tau_validation, channels)[0])  # fmt: skip
+    DictionaryEnsemble(
+        n_dictionaries=o.n_dictionaries, tau=next(iter(taus.values())), learn_tau=learn,
+        init=o.init, candidates=o.candidates, full_pass_every=o.full_pass_every,
+        batch_size=o.batch_size, partition_size=o.partition_size, dtype=o.dtype,
+    )._validate()  # the levels' checks (K a multiple of their number), before any pass
     t0 = time.perf_counter()
     if o.checkpoint_dir is not None:
         Path(o.checkpoint_dir).mkdir(parents=True, exist_ok=True)
@@ -184,11 +206,14 @@ def train(
             partition = (_partitions(ex, points, sources, opened, channel, o.batch_size)
                          if ex.distributed else None)  # fmt: skip
             dictionaries[ch], training[ch] = _train_channel(
-                ch, c, source(ch), taus[ch], o, ex, partition, _data_key(points, ch)
+                ch, c, source(ch), taus[ch] if several else taus[ch][0], o, ex, partition,
+                _data_key(points, ch), learn_tau=learn,
+                validation_taus=None if coding is None else coding[ch],
             )
     params = {
         "n_dictionaries": o.n_dictionaries,
-        "tau_train": taus,
+        # the smallest level: coding below it is refused (encode's allow_below_training)
+        "tau_train": {ch: min(ts) for ch, ts in taus.items()},
         "patch": o.patch,
         "sample": o.sample,
         "max_iter": o.max_iter,
@@ -203,6 +228,13 @@ def train(
         "seed": o.seed,
         "dtype": o.dtype,
     }
+    if several:
+        params["tau_train_levels"] = [{ch: ts[i] for ch, ts in taus.items()}
+                                      for i in range(len(next(iter(taus.values()))))]
+        params["tau_learn"] = learn
+        if learn and coding is not None:
+            params["tau_validation"] = coding
+        params["tau_dictionaries"] = {ch: t["tau_dictionaries"] for ch, t in training.items()}
     if o.preprocessing != "log_yuv":
         params["preprocessing"] = o.preprocessing
     else:

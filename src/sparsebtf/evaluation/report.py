@@ -35,6 +35,7 @@ from .tables import (
     table_stored,
 )
 from .tables import markdown_table as _table
+from .training_verdicts import TRAINING_KEYS
 from .verdicts import summarise
 
 __all__ = [
@@ -187,6 +188,9 @@ def render_markdown(
                     f"gain {_pct(s['gain_geomean'])} (per level "
                     f"{_per_level(s, 'per_level_geomean')}); better on "
                     f"{s['materials_better']}; bytes within {(dev or 0) * 100:.3f}% of target")
+    for key in TRAINING_KEYS:  # beyond the paper: training variants (issue 34)
+        if key in summary:
+            verdict_row(key, summary[key]["claim"], summary[key]["figure"])
     if "table2_metrics" in summary:
         for metric, v in summary["table2_metrics"]["per_metric"].items():
             lines.append(f"| Table 2's processing gain over [MHU19] in {_METRIC_NAMES[metric]} | "
@@ -211,7 +215,7 @@ def render_markdown(
     lines += ["", "Rules behind the verdicts:", ""]
     for key in ("table2_processing", "table2_metrics", "table3_monotone", "table3_vs_rgjw20",
                 "table3_rgjw20_stalls", "table3_rjgw19_lowest", "table5_pca", "true_black",
-                "standardisation", "rate_control"):
+                "standardisation", "rate_control", *TRAINING_KEYS):
         if key in summary:
             lines.append(f"- {key}: {summary[key]['rule']}")
     if captured is not None:

@@ -21,6 +21,7 @@ from .rows import levels as _levels
 from .rows import materials as _materials
 from .rows import rows as _rows
 from .tables import gmean as _gmean
+from .training_verdicts import summarise_training
 
 __all__ = ["summarise"]
 
@@ -209,5 +210,6 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
         "verdict": "supported" if abs(ref["compression_ratio"] - 2122) < 1 else "not supported",
     }
     out.update(summarise_table3(result, mid))
+    out.update(summarise_training(result, levels, mid))  # beyond the paper: issue 34
     return out
 

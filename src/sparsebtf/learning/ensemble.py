@@ -31,13 +31,13 @@ fixed order, so both give the same dictionaries; the SVDs run here.
 
 from __future__ import annotations
 
+import copy
 import functools
 import json
 import math
 import os
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -50,6 +50,7 @@ from ..errors import BTFInputError, FileFormatError
 from ..execution import Executor, InProcess
 from .codes import DTYPES, SparseCodes
 from .coding import reconstruct_points, sparse_code
+from .init import hosvd_bases, preclustered_dictionaries, random_orthonormal
 from .partitions import (
     PARTITION_POINTS,
     ArraySource,
@@ -60,6 +61,7 @@ from .partitions import (
     part_of,
     partition_bounds,
 )
+from .state import TRAIN_FIELDS, TrainState, check_state, keep_current, with_extra
 from .steps import (
     code_step,
     cross_products,
@@ -68,7 +70,7 @@ from .steps import (
     procrustes,
     sparse_cross_products,
 )
-from .tensor import unfold
+from .tau_levels import VALIDATION, check_layout, check_levels, fit_levels
 
 __all__ = [
     "CANDIDATES",
@@ -101,8 +103,9 @@ EXHAUSTIVE_MAX_ENTRIES = 2**29
 
 #: How Z⁽ⁿ'ᵏ⁾ is built: from the codes (fast) or from dense partial projections (reference).
 UPDATES = ("codes", "projections")
-#: How the dictionaries start: from the HOSVD bases of random points, or Haar-random.
-INITS = ("points", "random")
+#: How the dictionaries start (:mod:`.init`): from the HOSVD bases of random points,
+#: Haar-random, or from groups of points with alike sparsity patterns (pre-clustered).
+INITS = ("points", "random", "preclustered")
 
 
 class PointSource(Protocol):
@@ -127,39 +130,8 @@ class PointSource(Protocol):
         ...
 
 
-def random_orthonormal(m: int, rng: np.random.Generator) -> np.ndarray:
-    """Haar-random orthonormal matrix: QR of a Gaussian with column signs fixed by diag(R)."""
-    q, r = np.linalg.qr(rng.standard_normal((m, m)))
-    return q * np.sign(np.where(np.diag(r) == 0, 1, np.diag(r)))
-
-
-def hosvd_bases(point: np.ndarray) -> list[np.ndarray]:
-    """Per-mode left singular vectors of one data point (complete square bases)."""
-    bases = []
-    x = np.asarray(point, dtype=np.float64)
-    for n in range(x.ndim):
-        xn = unfold(x, n)
-        # Eigenvectors of the m×m Gram matrix: the left singular vectors, without the huge V.
-        w, u = np.linalg.eigh(xn @ xn.T)
-        bases.append(u[:, np.argsort(-w, kind="stable")])
-    return bases
-
-
 def _as_source(x: np.ndarray | PointSource) -> PointSource:
     return ArraySource(x) if isinstance(x, np.ndarray) else x
-
-
-@dataclass
-class _State:
-    """What an iteration carries to the next (and a checkpoint stores)."""
-
-    dicts: list[np.ndarray]
-    objective: list[float]
-    passes: list[str]  # "full" or "partial", one per objective value
-    iteration: int
-    ranking: np.ndarray | None = None  # (N, c) candidates from the last full pass
-    reseeded_from: list[int] = field(default_factory=list)
-    converged: bool = False  # met the tolerance: a resumed fit runs no more iterations
 
 
 class DictionaryEnsemble:
@@ -168,12 +140,20 @@ class DictionaryEnsemble:
     Parameters
     ----------
     n_dictionaries : K (paper: 8).
-    tau : training sparsity τ_l (paper: Y 256, U 32, V 32).
+    tau : training sparsity τ_l (paper: Y 256, U 32, V 32); a sequence of several τ_l splits
+        the K dictionaries evenly over them, each trained at its own (:mod:`.tau_levels`).
+    learn_tau : with several ``tau``: they are a candidate grid, and each dictionary's τ_l is
+        chosen by the error on a held-out validation split (:mod:`.tau_levels`).
+    validation : the fraction of the training points held out for ``learn_tau``.
+    validation_taus : the coding τ_t the validation error is measured at for ``learn_tau``
+        (None: the levels of ``tau``); they should be the τ_t the model will be coded at.
     eps : optional training error threshold ε_l (0: membership by least error at τ_l).
     max_iter : maximum number of iterations (update + coding).
     tol : stop when an iteration ending in a full pass lowers the objective by less than
         this fraction.
-    init : "points" (per-mode HOSVD of K random training points) or "random" (Haar-random).
+    init : "points" (per-mode HOSVD of K random training points), "random" (Haar-random) or
+        "preclustered" (per-mode HOSVD of K groups of points with alike sparsity patterns
+        under a DCT basis, :mod:`.init`).
     reseed_empty : re-seed a dictionary left without members from the worst-fitted point.
     candidates : dictionaries tried per point in a partial coding pass: its best ones at the
         last full pass (module docstring). ``>= n_dictionaries``: every pass is full. None
@@ -196,7 +176,9 @@ class DictionaryEnsemble:
     Attributes
     ----------
     dictionaries_ : list over modes of (K, m_n, m_n) float64, ordered by decreasing use.
-    membership_ : (N,) dictionary of each training point (after the final, full, coding).
+    membership_ : (N,) dictionary of each training point (after the final, full, coding);
+        with several τ_l, (N, L): each level's own membership (:mod:`.tau_levels`).
+    taus_ : (K,) the training τ_l of each dictionary.
     counts_ : (K,) members per dictionary (the release's ``EnsHist``).
     objective_ : mean squared error per entry after each coding step (non-increasing).
     passes_ : "full" or "partial" for each coding step of ``objective_``.
@@ -210,7 +192,7 @@ class DictionaryEnsemble:
     def __init__(
         self,
         n_dictionaries: int = 8,
-        tau: int = 32,
+        tau: int | Sequence[int] = 32,
         eps: float = 0.0,
         max_iter: int = 10,
         tol: float = 1e-4,
@@ -225,6 +207,9 @@ class DictionaryEnsemble:
         random_state: int = 0,
         checkpoint: str | os.PathLike[str] | None = None,
         progress: bool | None = None,
+        learn_tau: bool = False,
+        validation: float = VALIDATION,
+        validation_taus: Sequence[int] | None = None,
     ) -> None:
         self.n_dictionaries = n_dictionaries
         self.tau = tau
@@ -242,6 +227,11 @@ class DictionaryEnsemble:
         self.random_state = random_state
         self.checkpoint = checkpoint
         self.progress = progress
+        self.learn_tau = learn_tau
+        self.validation = validation
+        self.validation_taus = validation_taus
+        #: entries added to the checkpoint key (a level of a several-τ_l ensemble)
+        self.key_extra: dict[str, Any] = {}
 
     # -- public API ----------------------------------------------------------------------
     def fit(
@@ -264,6 +254,9 @@ class DictionaryEnsemble:
         """
         self._validate()
         src = _as_source(x)
+        if self.learn_tau or len(self.levels) > 1:
+            return fit_levels(self, src, desc, executor, partition, data_key)
+        check_layout(self.checkpoint, several=False)
         ex = executor if executor is not None else InProcess()
         t0 = time.perf_counter()
         dt = np.dtype(self.dtype).type
@@ -279,7 +272,7 @@ class DictionaryEnsemble:
 
         state = self._resume(src, data_key)
         if state is None:
-            state = _State(self._initialise(src), [], [], 0)
+            state = TrainState(self._initialise(src), [], [], 0)
             coding = code(state.dicts, None, f"{desc} code")
             state.objective.append(float(coding.errors.mean()))
             state.passes.append("full")
@@ -302,10 +295,10 @@ class DictionaryEnsemble:
                 or (self.full_pass_every > 0 and (it + 1) % self.full_pass_every == 0)
             )
             label = f"{desc} it{it + 1} code"
-            cand = None if full else _with_extra(state.ranking, reseeded)
+            cand = None if full else with_extra(state.ranking, reseeded)
             coding = code(state.dicts, cand, label)
             if not full:
-                _keep_current(state.ranking, coding.membership)
+                keep_current(state.ranking, coding.membership)
             done = self._converged(state.objective[-1], coding)
             if done and not full:
                 # Memberships may still move: only a full pass can confirm convergence.
@@ -340,13 +333,15 @@ class DictionaryEnsemble:
         self.candidates_ = n_cand
         self.n_iter_ = state.iteration
         self.mode_sizes_ = src.mode_sizes
+        self.taus_ = [self.levels[0]] * self.n_dictionaries
         self.fit_seconds_ = time.perf_counter() - t0
         return self
 
     def transform(self, x: np.ndarray, tau: int | None = None, eps: float = 0.0) -> SparseCodes:
         """Sparse codes of data points (§3.3 rule; τ defaults to the training τ_l)."""
         self._check_fitted()
-        return sparse_code(x, self.dictionaries_, tau or self.tau, eps, np.dtype(self.dtype).type)
+        tau = tau or max(self.levels)
+        return sparse_code(x, self.dictionaries_, tau, eps, np.dtype(self.dtype).type)
 
     def inverse_transform(self, codes: SparseCodes) -> np.ndarray:
         """Eq. 4: data points back from their codes."""
@@ -364,14 +359,28 @@ class DictionaryEnsemble:
         entries = n_points * k * math.prod(mode_sizes)
         return k if entries <= EXHAUSTIVE_MAX_ENTRIES else min(CANDIDATES, k)
 
+    @property
+    def levels(self) -> list[int]:
+        """The training sparsities τ_l asked for (one, or several levels)."""
+        return [int(self.tau)] if np.ndim(self.tau) == 0 else [int(t) for t in self.tau]
+
+    def level_estimator(
+        self, tau: int, n_dictionaries: int, seed: int, checkpoint: str | None,
+        key: dict[str, Any],
+    ) -> DictionaryEnsemble:  # fmt: skip
+        """This ensemble's parameters at one τ_l (a level of a several-τ_l ensemble)."""
+        sub = copy.copy(self)
+        sub.tau, sub.n_dictionaries, sub.random_state = tau, n_dictionaries, seed
+        sub.learn_tau, sub.checkpoint, sub.key_extra = False, checkpoint, key
+        return sub
+
     # -- steps ------------------------------------------------------------------------------
     def _validate(self) -> None:
         if self.n_dictionaries < 1 or self.n_dictionaries > 255:
             raise BTFInputError(f"n_dictionaries must be in [1, 255], got {self.n_dictionaries}")
-        if self.tau < 1:
-            raise BTFInputError(f"training sparsity tau must be >= 1, got {self.tau}")
+        check_levels(self.levels, self.n_dictionaries, self.learn_tau, self.validation)
         if self.init not in INITS:
-            raise BTFInputError(f"init must be 'points' or 'random', got {self.init!r}")
+            raise BTFInputError(f"init must be one of {INITS}, got {self.init!r}")
         if self.dtype not in DTYPES:
             raise BTFInputError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
         if self.candidates is not None and self.candidates < 1:
@@ -406,6 +415,9 @@ class DictionaryEnsemble:
                 for mode, u in enumerate(bases):
                     dicts[mode][j] = u
             start = n_seed
+        elif self.init == "preclustered":
+            return preclustered_dictionaries(src, k, self.levels[0], self.random_state,
+                                             self.batch_size)  # fmt: skip
         else:
             start = 0
         for j in range(start, k):
@@ -443,7 +455,7 @@ class DictionaryEnsemble:
             for k, u in zip(active, parallel_map(procrustes, list(z[active])), strict=True):
                 dicts[mode][k] = u
 
-    def _reseed(self, src: PointSource, state: _State, codes: Coded) -> list[int]:
+    def _reseed(self, src: PointSource, state: TrainState, codes: Coded) -> list[int]:
         """Give each dictionary left without members the HOSVD bases of the worst-fitted point
         not used before; the re-seeded dictionaries (every point tries them next pass)."""
         if not self.reseed_empty or state.passes[-1] != "full":
@@ -478,9 +490,10 @@ class DictionaryEnsemble:
             "n": src.n_points,
             "shape": list(src.mode_sizes),
             "data": data_key,
+            **self.key_extra,
         }
 
-    def _save_checkpoint(self, state: _State) -> None:
+    def _save_checkpoint(self, state: TrainState) -> None:
         """Write ``state`` (``.npz``) with the SHA-256 of its arrays
         (:func:`~sparsebtf.checkpoints.write_checkpoint`), so a resumed fit can tell a damaged
         checkpoint from a good one."""
@@ -498,7 +511,7 @@ class DictionaryEnsemble:
         }
         write_checkpoint(self.checkpoint, arrays)
 
-    def _resume(self, src: PointSource, data_key: str = "") -> _State | None:
+    def _resume(self, src: PointSource, data_key: str = "") -> TrainState | None:
         self._key = self._params_key(src, data_key)
         if self.checkpoint is None or not Path(self.checkpoint).exists():
             return None
@@ -512,7 +525,7 @@ class DictionaryEnsemble:
                 found = "nothing" if u is None else f"{u.dtype} {u.shape}"
                 raise FileFormatError(f"{where}: mode{n}: expected float {want}, found {found}")
         check_orthonormal(dicts, where)
-        state = _State(
+        state = TrainState(
             [u.copy() for u in dicts],
             [float(v) for v in np.atleast_1d(arrays["objective"])],
             [str(v) for v in np.atleast_1d(arrays["passes"])],
@@ -521,41 +534,8 @@ class DictionaryEnsemble:
             [int(v) for v in np.atleast_1d(arrays["reseeded_from"])],
             bool(arrays["converged"]),
         )
-        _check_state(state, src.n_points, self.n_dictionaries, where)
+        check_state(state, src.n_points, self.n_dictionaries, where)
         return state
-
-
-def _check_state(state: _State, n_points: int, k: int, where: str) -> None:
-    """What a checkpoint's counters must say: one objective value (finite, >= 0) and one
-    pass label per iteration plus the initial coding, candidates and re-seeds in range."""
-    n = len(state.objective)
-    ok_obj = all(np.isfinite(v) and v >= 0 for v in state.objective)
-    if state.iteration < 0 or n != state.iteration + 1 or len(state.passes) != n or not ok_obj:
-        raise FileFormatError(
-            f"{where}: iteration {state.iteration} with {n} objective values "
-            f"{state.objective[:3]} and {len(state.passes)} passes; expected iteration + 1 "
-            "finite objective values >= 0 and as many passes"
-        )
-    if any(p not in ("full", "partial") for p in state.passes):
-        raise FileFormatError(f"{where}: passes {state.passes[:4]}; expected 'full' or 'partial'")
-    r = state.ranking
-    if r is None or r.ndim != 2 or r.shape[0] != n_points or r.dtype.kind not in "iu" or (
-        r.size and (int(r.min()) < 0 or int(r.max()) >= k)
-    ):
-        found = "nothing" if r is None else f"{r.dtype} {r.shape}"
-        raise FileFormatError(
-            f"{where}: ranking is {found}; expected ({n_points}, c) dictionary indices in [0, {k})"
-        )
-    if any(not 0 <= i < n_points for i in state.reseeded_from):
-        raise FileFormatError(
-            f"{where}: reseeded_from {state.reseeded_from[:4]}; expected point indices in "
-            f"[0, {n_points})"
-        )
-
-
-#: The arrays every training checkpoint holds (besides ``sha256`` and the dictionaries).
-TRAIN_FIELDS = ("iteration", "objective", "passes", "ranking", "reseeded_from", "converged",
-                "key")  # fmt: skip
 
 
 def _default_partition(ex: Executor, src: PointSource, batch_size: int, lo: int, hi: int,
@@ -566,18 +546,3 @@ def _default_partition(ex: Executor, src: PointSource, batch_size: int, lo: int,
     if ex.distributed:
         return ex.submit(load_points, part, batch_size, place=slot)
     return ex.constant(part)
-
-
-def _with_extra(ranking: np.ndarray, extra: list[int]) -> np.ndarray:
-    """Each point's candidates plus dictionaries every point must try (re-seeded ones)."""
-    if not extra:
-        return ranking
-    return np.column_stack([ranking, np.broadcast_to(np.array(extra), (len(ranking), len(extra)))])
-
-
-def _keep_current(ranking: np.ndarray, membership: np.ndarray) -> None:
-    """Put a point's dictionary among its candidates when a partial pass moved it to one
-    outside them (a re-seeded one), in place of its last: the current dictionary is always
-    tried, so the objective cannot increase."""
-    missing = ~(ranking == membership[:, None]).any(axis=1)
-    ranking[missing, -1] = membership[missing]

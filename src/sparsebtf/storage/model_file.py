@@ -192,6 +192,7 @@ def load_model(path: str | os.PathLike[str]) -> Model:
             f"file records {stored_hash[:12]}…"
         )
     validate_model_dictionaries(dictionaries, f"{where}/dictionaries", tolerance)
+    _check_tau_dictionaries(params, {ch: m[0].shape[0] for ch, m in dictionaries.items()}, where)
     try:
         model = Model(
             dictionaries=dictionaries, patch=patch, lights=lights, views=views,
@@ -201,6 +202,25 @@ def load_model(path: str | os.PathLike[str]) -> Model:
         raise FileFormatError(f"{where}: {e}") from None
     model.file = str(p.resolve())
     return model
+
+
+def _check_tau_dictionaries(params: dict, ks: dict[str, int], where: str) -> None:
+    """``tau_dictionaries`` (several training levels), when present: per channel one integer
+    >= 1 per dictionary."""
+    value = params.get("tau_dictionaries")
+    if value is None:
+        return
+    ok = isinstance(value, dict) and set(value) == set(ks) and all(
+        isinstance(v, list) and len(v) == ks[ch]
+        and all(isinstance(t, int) and not isinstance(t, bool) and t >= 1 for t in v)
+        for ch, v in value.items()
+    )  # fmt: skip
+    if not ok:
+        want = ", ".join(f"{ch}: {k}" for ch, k in ks.items())
+        raise FileFormatError(
+            f"{where}: attribute 'params_json': 'tau_dictionaries' must map each channel to "
+            f"one integer >= 1 per dictionary ({want}), found {str(value)[:80]}"
+        )
 
 
 def _channel_list(f: h5py.File, root: h5py.Group, where: str) -> list[str]:

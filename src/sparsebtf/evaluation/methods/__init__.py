@@ -34,6 +34,10 @@ _REGISTRY: dict[str, str] = {
     "rate": ".sparse:RateControlMethod",
     "per_channel": ".sparse:PerChannelMethod",
     "raw": ".sparse:MHU19Method",
+    # beyond the paper (issue 34): training variants, not run by default
+    "sparsebtf-multitau": ".beyond:MultiTauMethod",
+    "sparsebtf-learntau": ".beyond:LearnTauMethod",
+    "sparsebtf-precluster": ".beyond:PreclusterMethod",
     "pca_log": ".pca:PCALogMethod",
     "pca_linear": ".pca:PCALinearMethod",
     "rgjw20": "..neural.rgjw20:RGJW20Method",
@@ -45,6 +49,7 @@ _REGISTRY: dict[str, str] = {
 GROUPS: dict[str, tuple[str, ...]] = {
     "mhu19": ("raw",),
     "pca": ("pca_log", "pca_linear"),
+    "training": ("sparsebtf-multitau", "sparsebtf-learntau", "sparsebtf-precluster"),
 }
 
 
