@@ -35,8 +35,8 @@ projections. (2) Per point and level (:func:`joint_choice`): the joint error E o
 channels' residuals at once (E_c with every channel's δ) of the judged codes against the log
 rule's; the lower is kept, and in increasing τ a level keeps a lower level's codes where those
 have the lower E. (3) Level of detail (:func:`walk_order`): a renderer truncates a point's
-codes to their first k coefficients, and in the magnitude order a prefix's error in these objectives can
-rise with k (a highlight overshot before the coefficient that corrects it). So each
+codes to their first k coefficients, and in the magnitude order a prefix's error in these
+objectives can rise with k (a highlight overshot before the coefficient that corrects it). So each
 (point, dictionary) chosen at some level is walked in the magnitude order, keeping a
 coefficient only if it lowers E_c, the others set aside and retried; every level's judged
 code is the walk's first τ and the log rule's code its first n (those are the codes (2)
