@@ -134,9 +134,12 @@ def test_linear_objective_never_worse_with_more_coefficients_on_a_highlight(mode
     log = encode_levels(btf, model, LEVELS, eps=0.0, progress=False)
     mse_lin = np.array([_point_mse(c, btf) for c in lin])  # (levels, P)
     mse_log = np.array([_point_mse(c, btf) for c in log])
-    # every point: no level worse than the one below (the log rule's code is a candidate in
-    # its level-of-detail order, not as is: see test_level_of_detail_order_never_raises_...)
+    # every point: no level worse than the one below (by construction)
     assert (np.diff(mse_lin, axis=0) <= 1e-5 * mse_lin[1:]).all()
+    # and none worse than the log rule's code: measured, not by construction (the log rule's
+    # code is a candidate in the objective's level-of-detail order, not as is; the walk that
+    # set coefficients aside for good was up to 3x worse here at level 64)
+    assert (mse_lin <= mse_log * (1 + 1e-5)).all()
     for ch in "YUV":
         for c_lin, t in zip(lin, LEVELS, strict=True):
             # each channel's stored error is its own error in the objective (the other two
