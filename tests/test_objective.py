@@ -290,10 +290,10 @@ def test_rate_control_codes_for_the_objective(model):
     (lin,) = encode_rate_levels(btf, model, [400], objective="linear", progress=False)
     (log,) = encode_rate_levels(btf, model, [400], progress=False)
     assert lin.objective == "linear" and log.objective == "log"
-    assert lin.params["rate_control"]["weighting"] == "rgb"
+    assert lin.params["rate_control"]["weighting"] == "exact"
     assert abs(lin.params["rate_control"]["material_bytes"] - 400) <= 5
     (disp,) = encode_rate_levels(btf, model, [400], objective="display", progress=False)
-    assert disp.params["rate_control"]["weighting"] == "display"
+    assert disp.params["rate_control"]["weighting"] == "exact"
     with pytest.raises(BTFInputError, match="weighting 'log' applies to the log objective"):
         encode_rate_levels(btf, model, [400], objective="linear", weighting="log",
                            progress=False)  # fmt: skip
@@ -308,3 +308,34 @@ def test_linear_objective_on_a_dask_cluster_equals_one_process(model):
     for w, g in zip(want, got, strict=True):
         _same(_arrays(w), _arrays(g))
         assert g.objective == "linear"
+
+
+def test_rate_control_more_bytes_never_raise_the_objective_error(model):
+    """Rate control under the linear objective spends on exact error curves: at a larger
+    target no point's error in the objective (each channel's, the other two exact) is
+    larger, so neither is the material's; the stored errors are the decoded BTF's."""
+    from sparsebtf.codec.rate import encode_rate_levels
+
+    btf = highlight_btf()
+    coded = encode_rate_levels(btf, model, [260, 400, 700], objective="linear",
+                               progress=False)  # fmt: skip
+    for ch in "YUV":
+        errs = np.array([c.codes[ch].errors for c in coded])  # (targets, P)
+        assert (np.diff(errs, axis=0) <= 1e-9).all(), ch
+        nnz = [c.codes[ch].nnz for c in coded]
+        assert nnz == sorted(nnz)
+        for c in coded:
+            np.testing.assert_allclose(c.codes[ch].errors, _channel_linear_error(c, ch, btf),
+                                       rtol=2e-3, atol=1e-9)  # fmt: skip
+    total = [sum(float(c.codes[ch].errors.sum()) for ch in "YUV") for c in coded]
+    assert total[0] > total[1] > total[2]
+
+
+def test_hull_gains_fall_along_a_point():
+    from sparsebtf.learning.rate_control import hull_gains
+
+    # a curve with a bend the hull skips (1 → 3 falls by 6 in two steps, 0 → 1 by 1)
+    g = hull_gains(np.array([[10.0, 9.0, 8.5, 2.5, 2.0, np.nan]]))
+    # hull: 0, 3, 4 → slopes 7.5/3 = 2.5 on positions 1–3, then 0.5; -inf past the curve
+    np.testing.assert_allclose(g[0, 1:5], [2.5, 2.5, 2.5, 0.5])
+    assert g[0, 5] == -np.inf and (np.diff(g[0, 1:5]) <= 0).all()

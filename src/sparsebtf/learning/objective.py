@@ -86,6 +86,7 @@ __all__ = [
     "prefix_grid",
     "stored_precision",
     "walk_order",
+    "walk_pool",
 ]
 
 #: One level's codes: membership, counts, values, flat indices, errors.
@@ -266,6 +267,18 @@ def walk_order(error: ChannelError, i: int, x: np.ndarray, loc: np.ndarray,
     return np.asarray(kept, dtype=np.int64), np.asarray(errs)
 
 
+def walk_pool(error: ChannelError, i: int, x: np.ndarray, idx: np.ndarray, values: np.ndarray,
+              mats: Sequence[np.ndarray], cap: int
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """:func:`walk_order` of point ``i``'s candidates given as flat indices ``idx`` into the
+    point (by decreasing |value|) and ``values``: (flat indices (a,), values at the file's
+    precision (a,) float32, E_c after 0 … a of them (a + 1,)) in the walk's order."""
+    vals = stored_precision(values)
+    loc = np.stack(np.unravel_index(np.asarray(idx), x.shape), axis=1)
+    pos, errs = walk_order(error, i, x, loc, vals, mats, cap)
+    return np.asarray(idx)[pos], vals[pos], errs
+
+
 def judged_code_levels(
     batch: np.ndarray, dictionaries: Sequence[np.ndarray], levels: Sequence[int], eps: float,
     dtype: type, mask: np.ndarray, error: ChannelError, energy: np.ndarray,
@@ -361,15 +374,9 @@ def _walked(
             need[i, k] = max(need.get((i, k), 0), int(tau))
         for i, (k, n, _) in enumerate(logs[j]):
             need[i, k] = max(need.get((i, k), 0), int(n))
-    shape = x.shape[1:]
-
     def walk(ik: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         i, k = ik
-        idx, vals, _ = found[i, k]
-        vals = stored_precision(vals)
-        loc = np.stack(np.unravel_index(idx, shape), axis=1)
-        pos, errs = walk_order(error, i, x[i], loc, vals, mats64[k], need[i, k])
-        return idx[pos], vals[pos], errs
+        return walk_pool(error, i, x[i], found[i, k][0], found[i, k][1], mats64[k], need[i, k])
 
     keys = sorted(need)
     walks = dict(zip(keys, parallel_map(walk, keys), strict=True))
