@@ -140,6 +140,12 @@ class BenchConfig:
     #: the screening (:func:`~sparsebtf.learning.coding.screen_dictionaries`), or None for
     #: the paper's exhaustive rule (``bench quality --exhaustive``)
     candidates: int | None = DEFAULT_CANDIDATES
+    #: the coding objectives of the SparseBTF encodes (:mod:`sparsebtf.learning.objective`):
+    #: the first codes every SparseBTF method (rows ``sparsebtf``, ``rate``, ...); each
+    #: further one codes the reference and rate control again, rows ``sparsebtf-<objective>``
+    #: and ``rate-<objective>`` (``bench quality --objective log,linear``), and the verdicts
+    #: are read per objective
+    objectives: tuple[str, ...] = ("log",)
     #: true-black, high-dynamic-range materials (class, seed) of ``test_size`` texels, coded at
     #: every level with ``log_offset``, with the release's 1e-5, and as a copy floored at
     #: :data:`FLOOR` (the "Never a firework" check)
