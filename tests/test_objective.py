@@ -192,6 +192,13 @@ def test_level_of_detail_order_never_raises_the_objective_error(model, tmp_path)
         got, full = rt.coded.codes[ch], back.codes[ch]
         for i in range(n):
             assert np.array_equal(got.point(i)[1], full.point(i)[1][:k])
+    # a blend re-cuts the summed coefficients by magnitude: the log rule's order, so recorded
+    from sparsebtf.runtime.blend import blend
+
+    mixed = blend([coded, coded], alpha=0.5, progress=False)
+    assert mixed.objective == "log" and "objective" not in mixed.params
+    save_coded(mixed, tmp_path / "b.h5")
+    assert load_coded(tmp_path / "b.h5").objective == "log"  # its magnitude order checked
     # the paper's magnitude order would not do: on this material it rises somewhere
     log = encode(btf, model, tau=(64, 16, 16), eps=0.0, progress=False)
     codes, xc = log.codes["Y"], np.asarray(x[0], np.float64)
