@@ -39,7 +39,8 @@ codes to their first k coefficients, and in the magnitude order a prefix's error
 objectives can rise with k (a highlight overshot before the coefficient that corrects it). So each
 (point, dictionary) chosen at some level is walked in the magnitude order, keeping a
 coefficient only if it lowers E_c; one that does not is set aside, and after each coefficient
-kept the largest few set aside are tried again (then all of them, once the pool is spent).
+kept the largest set aside is tried again (then all of them, twice at most, once the pool is
+spent).
 Every level's judged code is the walk's first τ and the log rule's code its first n (those
 are the codes (2) compares). The file keeps that order (``rank``, docs/format.md §3). So for
 **every point and channel the error E_c of the first k stored coefficients falls with k**,
@@ -193,9 +194,11 @@ def prefix_grid(levels: Sequence[int], eps: float = 0.0) -> list[int]:
 #: read as a rise.
 WALK_MARGIN = 1e-6
 #: Passes of :func:`walk_order` over the coefficients it set aside.
-WALK_PASSES = 4
-#: After each coefficient kept, :func:`walk_order` retries this many of those set aside.
-WALK_RETRY = 4
+WALK_PASSES = 2
+#: After each coefficient kept, :func:`walk_order` retries this many of those set aside
+#: (measured on the highlight material of tests/test_objective.py: 1 reaches the codes of 4
+#: with 21 % fewer evaluations; 0, no retries, was up to 3.3× above the log rule's code).
+WALK_RETRY = 1
 
 
 def stored_precision(values: np.ndarray) -> np.ndarray:
