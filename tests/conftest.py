@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import ctypes
+import ctypes.util
+import gc
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +29,42 @@ def official() -> Path:
     if d is None:
         pytest.skip("the authors' release (shared/official) is not available; set SPARSEBTF_SHARED")
     return d / "official"
+
+
+def _libc_malloc_trim():
+    name = ctypes.util.find_library("c")
+    try:
+        return ctypes.CDLL(name).malloc_trim if name else None
+    except (OSError, AttributeError):  # not glibc
+        return None
+
+
+_malloc_trim = _libc_malloc_trim()
+
+
+def release_memory() -> None:
+    """Drop what the library keeps per process (opened BTFs, Mitsuba's loaded materials, captured
+    samples' scenes) and hand freed heap pages back to the OS: one pytest process runs every test
+    file, so what one file leaves behind would otherwise add up with the next file's peak."""
+    jobs = sys.modules.get("sparsebtf.codec.jobs")
+    if jobs is not None:
+        jobs._open_path.cache_clear()
+    materials = sys.modules.get("sparsebtf.rendering.mitsuba.materials")
+    if materials is not None:
+        with materials._lock:
+            materials._cache.clear()
+    writer = sys.modules.get("sparsebtf.data.capture.writer")
+    if writer is not None:
+        writer._loaded.clear()
+    gc.collect()
+    if _malloc_trim is not None:
+        _malloc_trim(0)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_memory_after_module():
+    yield
+    release_memory()
 
 
 @pytest.fixture(autouse=True)
