@@ -392,3 +392,61 @@ def test_report_sets_captured_verdicts_beside_the_synthetic_ones(tiny_run, tmp_p
                  "--captured", str(out)]) == 2
     # a captured run's own results.md has no such section
     assert "## On captured" not in regenerate(capdir, tmp_path / "d4").read_text()
+
+
+def _comparable(result, folder):
+    """A results object without what differs between any two runs: measured times and speeds,
+    the date, the resumptions, the output folder."""
+
+    def strip(v):
+        if isinstance(v, dict):
+            return {k: strip(x) for k, x in v.items() if not (
+                "second" in str(k) or str(k).startswith("calls_") or k in ("created", "resumed"))}
+        return [strip(x) for x in v] if isinstance(v, list) else v
+
+    text = json.dumps(strip(result), default=str).replace(str(folder), "OUT")
+    return json.loads(text)
+
+
+def test_interrupted_run_resumes_to_the_uninterrupted_results(tiny_run, tmp_path, monkeypatch,
+                                                              capsys):  # fmt: skip
+    from sparsebtf.errors import SparseBTFError
+    from sparsebtf.evaluation import resume as store
+    from sparsebtf.evaluation.methods.base import Method
+
+    _, full = tiny_run
+    run = tmp_path / "run"
+    saved = store.Progress.save_material
+
+    def interrupt(self, index, *a, **k):  # the first material's checkpoint, then a crash
+        saved(self, index, *a, **k)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(store.Progress, "save_material", interrupt)
+    with pytest.raises(KeyboardInterrupt):
+        run_quality(run, tiny_config(), log=lambda m: None, methods=TINY_METHODS)
+    monkeypatch.undo()
+    partial = run / "partial"
+    assert sorted(p.name for p in partial.iterdir()) == ["material-000.pkl", "methods.pkl",
+                                                         "run.json"]  # fmt: skip
+    # checkpoints need --resume; --resume needs the same settings
+    with pytest.raises(SparseBTFError, match="add --resume"):
+        run_quality(run, tiny_config(), log=lambda m: None, methods=TINY_METHODS)
+    with pytest.raises(SparseBTFError, match=r"other seed, config\.table5_materials"):
+        run_quality(run, tiny_config(), seed=1, log=lambda m: None, methods=TINY_METHODS,
+                    resume=True)  # fmt: skip
+    assert main(["bench", "quality", "--out", str(tmp_path / "none"), "--resume"]) == 2
+    assert "no checkpoint" in capsys.readouterr().err
+    # resumed: no method fitted again, the first material not coded again
+    monkeypatch.setattr(Method, "fit", lambda *a: pytest.fail("fitted again"))
+    lines: list[str] = []
+    result = run_quality(run, tiny_config(), log=lines.append, methods=TINY_METHODS,
+                         resume=True)  # fmt: skip
+    assert any("carpet12: " in m and "(checkpoint)" in m for m in lines)
+    assert not any("carpet12: metrics" in m for m in lines)
+    assert result["resumed"] == 1 and full["resumed"] == 0
+    assert not partial.exists()  # done: the checkpoints are removed
+    assert result["rows"] == full["rows"]
+    assert _comparable(result, run) == _comparable(full, tiny_run[0])
+    written = json.loads((run / "results.json").read_text())
+    assert written["resumed"] == 1 and written["timings_seconds"]["train_sparsebtf"] > 0

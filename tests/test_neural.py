@@ -215,3 +215,18 @@ def test_from_config_picks_the_effort():
         q, f = cls.from_config(quick), cls.from_config(full)
         assert type(q) is cls and type(f) is cls
         assert q.describe() != f.describe()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_a_pickled_fitted_method_codes_the_same(name, test_btf):
+    """What ``bench quality --resume`` relies on: a fitted method's pickle (its checkpoint)
+    codes exactly as the method did."""
+    import pickle
+
+    method = fitted(name, 5)
+    copy = pickle.loads(pickle.dumps(method))
+    a = method.code(test_btf, budgets(name)[:1])[0]
+    b = copy.code(test_btf, budgets(name)[:1])[0]
+    np.testing.assert_array_equal(a.reconstruction.stored()["code"],
+                                  b.reconstruction.stored()["code"])  # fmt: skip
+    assert a.material_bytes == b.material_bytes

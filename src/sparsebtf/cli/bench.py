@@ -41,7 +41,8 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
 
         cfg = replace(cfg, candidates=None)
     result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed,
-                         previous=args.previous, methods=_methods(args), **cluster_options(args))
+                         previous=args.previous, methods=_methods(args), resume=args.resume,
+                         **cluster_options(args))
     if args.docs:
         from ..evaluation.report import regenerate
 
@@ -129,6 +130,10 @@ def register(sub: Any) -> None:
                    help="also write DIR/results.md and DIR/results/*.png from this run")
     q.add_argument("--json", action="store_true", help="print the verdicts as JSON")
     q.add_argument("--previous", metavar="RESULTS_JSON", help=PREVIOUS_HELP)
+    q.add_argument("--resume", action="store_true",
+                   help="continue the interrupted run whose checkpoints OUT/partial holds "
+                   "(fitted methods and finished materials are loaded, not recomputed; the "
+                   "same settings are required)")
     from ._args import add_cluster_options, integer
 
     add_cluster_options(q)

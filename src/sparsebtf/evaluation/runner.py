@@ -181,6 +181,7 @@ def run_quality(
     scheduler: str | None = None,
     workers: int | None = None,
     methods: Sequence[str | type[Method]] | None = None,
+    resume: bool = False,
 ) -> dict[str, Any]:
     """Run the benchmark into folder ``out``; returns (and writes) the results object.
 
@@ -192,11 +193,12 @@ def run_quality(
     Dask cluster (:func:`sparsebtf.execution.executor`; the results do not change).
     ``methods``: registry names, groups, ``"package.module:Class"`` or
     :class:`~.methods.Method` subclasses (default: :func:`~.methods.selection.default_methods`);
-    the reference, SparseBTF, is always run.
+    the reference, SparseBTF, is always run. ``resume``: continue the interrupted run whose
+    checkpoints ``out/partial`` holds (:mod:`.resume`; without it such a folder is refused).
     """
     with executor(client=client, scheduler=scheduler, workers=workers) as ex:
         return _QualityRun(config, seed, log, progress, ex, methods).run(
-            out, materials, previous
+            out, materials, previous, resume
         )
 
 
@@ -213,13 +215,24 @@ class _QualityRun:
         self.ex = ex
         classes = resolve_methods(methods, self.cfg, note=self.say)
         self.methods = [cls.from_config(self.cfg) for cls in classes]
-        self.ref: Any = self.methods[0]
-        self.others = self.methods[1:]
+        self.adopt(self.methods)
         self.rows: list[dict[str, Any]] = []
         self.values: dict[str, dict[str, Any]] = {}
         self.grids: list[str] = []
         self.timings: dict[str, float] = {}
         self.out = Path(".")
+        self.figure5: list[str] = []
+        self.figure8: dict[str, Any] = {}
+        self.speed: dict[str, Any] = {}
+
+    def adopt(self, methods: list[Method]) -> None:
+        """The run's methods (built, or loaded from a checkpoint), the reference first."""
+        self.methods = methods
+        self.ref: Any = methods[0]
+        self.others = methods[1:]
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.t_start
 
     def stage(self, name: str, t0: float) -> None:
         self.timings[name] = self.timings.get(name, 0.0) + time.perf_counter() - t0
@@ -259,12 +272,19 @@ class _QualityRun:
         cfg = self.cfg
         ctx = FitContext(levels=tuple(cfg.levels), level_bytes_per_texel={}, patch=cfg.patch,
                          seed=self.seed, progress=self.progress, executor=self.ex, config=cfg)
-        for m in self.methods:
+        saved = self.store.methods() if self.store.resumed else None
+        if saved is not None:
+            self.adopt(saved["methods"])
+        for i, m in enumerate(self.methods):
             t0 = time.perf_counter()
-            if m.scope == "shared":  # a per-material method is fitted on each material
-                self.say(f"fitting {m.label} on {len(train)} training materials")
-            m.fit(train, ctx)
-            self.stage(f"train_{m.name}", t0)
+            if saved is not None and i < saved["fitted"]:
+                self.say(f"{m.label}: fitted (checkpoint)")
+            else:
+                if m.scope == "shared":  # a per-material method is fitted on each material
+                    self.say(f"fitting {m.label} on {len(train)} training materials")
+                m.fit(train, ctx)
+                self.stage(f"train_{m.name}", t0)
+                self.store.save_methods(self.methods, i + 1, self.timings, self.elapsed())
             if m is self.ref:
                 per_texel = 3 * len(train[0].lights) * len(train[0].views)
                 ctx = replace(ctx, reference=m,
@@ -347,7 +367,7 @@ class _QualityRun:
         self.grids.append(path.name)
         self.stage("figures", t0)
 
-    def figure5(self, label: str, btf: BTF, views: dict) -> str | None:
+    def figure5_grid(self, label: str, btf: BTF, views: dict) -> str | None:
         """Figure 5's image: the reference, SparseBTF(32) and RGJW20(32) (the paper's
         matching where coded under it), when RGJW20 is in the run."""
         lv = reference_level(self.cfg.levels)
@@ -394,48 +414,89 @@ class _QualityRun:
             self.stage("figure8", t0)
 
     # -- the run ------------------------------------------------------------------------------
+    def done(self, index: int) -> bool:
+        """Material ``index`` (of the run's order) restored from its checkpoint, if any."""
+        rec = self.store.material(index) if self.store.resumed else None
+        if rec is None:
+            return False
+        self.rows += rec["rows"]
+        self.values.update(rec["values"])
+        self.grids += rec["grids"]
+        self.figure5, self.figure8, self.speed = rec["figure5"], rec["figure8"], rec["speed"]
+        self.say(f"{rec['label']}: {len(rec['rows'])} rows (checkpoint)")
+        return True
+
+    def checkpoint(self, index: int, label: str, mark: tuple[int, int, int]) -> None:
+        """Save what material ``index`` added since ``mark`` (rows, values, grids)."""
+        rows, values, grids = mark
+        record = {"label": label, "rows": self.rows[rows:],
+                  "values": dict(list(self.values.items())[values:]),
+                  "grids": self.grids[grids:], "figure5": self.figure5,
+                  "figure8": self.figure8, "speed": self.speed}  # fmt: skip
+        self.store.save_material(index, record, self.timings, self.elapsed())
+
+    def mark(self) -> tuple[int, int, int]:
+        return len(self.rows), len(self.values), len(self.grids)
+
+    # -- the run ------------------------------------------------------------------------------
     def run(self, out: str | os.PathLike[str], extra: Sequence[str],
-            previous: str | os.PathLike[str] | None) -> dict[str, Any]:  # fmt: skip
+            previous: str | os.PathLike[str] | None,
+            resume: bool = False) -> dict[str, Any]:  # fmt: skip
         from .report import previous_record, write_report
+        from .resume import PARTIAL, Progress
 
         cfg = self.cfg
         prev = None if previous is None else previous_record(previous)  # fail before the hour
         self.out = out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        t_start = time.perf_counter()
+        self.store = Progress(out / PARTIAL, resume, cfg, self.seed, extra, self.methods)
+        self.t_start = time.perf_counter()
+        if self.store.resumed and (last := self.store.latest()) is not None:
+            self.timings = dict(last["timings"])  # the pieces' times add up
+            self.t_start -= last["seconds"]
+            self.say(f"resuming from {self.store.folder} (resumed {self.store.resumed} times)")
         t0 = time.perf_counter()
         train, tests, table5 = self.materials(extra)
         self.stage("materials", t0)
         self.fit(train)
 
-        figure5: list[str] = []
-        self.figure8: dict[str, Any] = {}
-        self.speed: dict[str, Any] = {}
+        order = itertools.count()
         for label, cls, mseed, btf in tests:
+            if self.done(k := next(order)):
+                continue
+            mark = self.mark()
             pending, recs, views = self.code_set("test", label, cls, mseed, btf, cfg.levels)
             self.say(f"{label}: metrics of {sum(v is not None for _, v in pending)} "
                      "reconstructions")
             self.score(btf, pending)
-            if recs and len(self.grids) - len(figure5) < 2:
+            if recs and len(self.grids) - len(self.figure5) < 2:
                 self.grid(btf, recs, f"grid_{label}.png")
-            if not figure5 and (name := self.figure5(label, btf, views)):
-                figure5.append(name)
+            if not self.figure5 and (name := self.figure5_grid(label, btf, views)):
+                self.figure5 = [name]
             if not self.speed and not self.figure8:
                 self.renders_and_speed(label, btf, views)
+            self.checkpoint(k, label, mark)
 
         t5_levels = tuple(cfg.table5_levels) or tuple(cfg.levels)
         for label, cls, mseed, btf in table5:
+            if self.done(k := next(order)):
+                continue
+            mark = self.mark()
             pending, recs, _ = self.code_set("table5", label, cls, mseed, btf, t5_levels)
             self.say(f"{label}: metrics of {sum(v is not None for _, v in pending)} "
                      "reconstructions")
             self.score(btf, pending)
             if recs:
                 self.grid(btf, recs, f"grid_{label}_table5.png")
+            self.checkpoint(k, label, mark)
 
         for cls, mseed in cfg.black_materials:
-            self.black(cls, mseed)
+            if not self.done(k := next(order)):
+                mark = self.mark()
+                self.black(cls, mseed)
+                self.checkpoint(k, f"{_label(cls, mseed)}+black", mark)
 
-        result = self.result(extra, t_start, figure5)
+        result = self.result(extra, self.figure5)
+        result["resumed"] = self.store.resumed
         if prev is not None:
             result["previous"] = prev
         t0 = time.perf_counter()
@@ -444,6 +505,7 @@ class _QualityRun:
         result["timings_seconds"] = self.timings
         with atomic_output(out / "results.json") as tmp:
             tmp.write_text(json.dumps(result, indent=2, default=json_default))
+        self.store.finish()
         self.say(f"wrote {out / 'results.json'} and {out / 'results.md'} "
                  f"({result['seconds']:.0f} s)")
         return result
@@ -477,7 +539,7 @@ class _QualityRun:
                  "BTF)")
         self.score(btf, pending)
 
-    def result(self, extra: Sequence[str], t_start: float, figure5: list[str]) -> dict[str, Any]:
+    def result(self, extra: Sequence[str], figure5: list[str]) -> dict[str, Any]:
         cfg = self.cfg
         models = {}
         for m in self.methods:
@@ -510,7 +572,7 @@ class _QualityRun:
             "figure8": self.figure8,
             "decode_speed": self.speed,
             "timings_seconds": self.timings,
-            "seconds": time.perf_counter() - t_start,
+            "seconds": self.elapsed(),
             "machine": {
                 "cpus": os.cpu_count(),
                 "platform": platform.platform(),
