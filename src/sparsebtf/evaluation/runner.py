@@ -33,6 +33,7 @@ method, never in the per-material bytes.
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import platform
