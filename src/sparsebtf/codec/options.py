@@ -28,7 +28,7 @@ from ..learning.coding import DEFAULT_CANDIDATES
 from ..learning.ensemble import FULL_PASS_EVERY, INITS
 from ..learning.objective import OBJECTIVES
 from ..learning.partitions import PARTITION_POINTS
-from ..model import CHANNELS, parse_tau
+from ..model import CHANNELS
 from ..points.grid import MAX_PATCH, RELEASE_PATCH
 from ..points.preprocessing import (
     LOG_OFFSET_RULE,
@@ -67,19 +67,6 @@ def _crop(value: Any) -> bool:
 def _split(value: Any) -> bool:
     return (isinstance(value, Sequence) and not isinstance(value, str) and len(value) > 0
             and all(isinstance(x, numbers.Real) and x > 0 for x in value))  # fmt: skip
-
-
-def _tau(value: Any) -> bool:
-    """A τ in the syntax of :func:`~sparsebtf.model.parse_tau`, for Y, U, V or the one channel
-    of the colour mode; else the parser's reason (for Y, U, V)."""
-    try:
-        parse_tau(value, CHANNELS)
-    except BTFInputError as e:
-        try:
-            parse_tau(value, ("YUV",))
-        except BTFInputError:
-            raise e from None
-    return True
 
 
 def _tau_train(value: Any) -> bool:

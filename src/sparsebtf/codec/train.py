@@ -27,6 +27,7 @@ from ..errors import BTFInputError
 from ..execution import Execution, Executor
 from ..learning.ensemble import DictionaryEnsemble, PointSource
 from ..learning.partitions import load_points
+from ..learning.tau_levels import VALIDATION, check_levels
 from ..model import CHANNELS, Model
 from ..points.preprocessing import resolve_log_offset
 from ..points.sources import BTFPointSource, channel_sources, training_points
@@ -180,11 +181,8 @@ def train(
     several = learn or len(next(iter(taus.values()))) > 1
     coding = (None if o.tau_validation is None
               else parse_tau_train(o.tau_validation, channels)[0])  # fmt: skip
-    DictionaryEnsemble(
-        n_dictionaries=o.n_dictionaries, tau=next(iter(taus.values())), learn_tau=learn,
-        init=o.init, candidates=o.candidates, full_pass_every=o.full_pass_every,
-        batch_size=o.batch_size, partition_size=o.partition_size, dtype=o.dtype,
-    )._validate()  # the levels' checks (K a multiple of their number), before any pass
+    for levels in taus.values():  # before any pass: K a multiple of the levels' number
+        check_levels(levels, o.n_dictionaries, learn, VALIDATION)
     t0 = time.perf_counter()
     if o.checkpoint_dir is not None:
         Path(o.checkpoint_dir).mkdir(parents=True, exist_ok=True)
