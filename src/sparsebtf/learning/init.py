@@ -39,6 +39,7 @@ from .tensor import project, unfold
 __all__ = [
     "KMEDOIDS_ITERATIONS",
     "dct_basis",
+    "gram_basis",
     "group_hosvd",
     "hosvd_bases",
     "kmedoids",
@@ -59,16 +60,17 @@ def random_orthonormal(m: int, rng: np.random.Generator) -> np.ndarray:
     return q * np.sign(np.where(np.diag(r) == 0, 1, np.diag(r)))
 
 
+def gram_basis(gram: np.ndarray) -> np.ndarray:
+    """(m, m) eigenvectors of an m×m Gram matrix Σ X_(n) X_(n)ᵀ by decreasing eigenvalue: the
+    left singular vectors of the unfoldings, without their huge right factors."""
+    w, u = np.linalg.eigh(gram)
+    return u[:, np.argsort(-w, kind="stable")]
+
+
 def hosvd_bases(point: np.ndarray) -> list[np.ndarray]:
     """Per-mode left singular vectors of one data point (complete square bases)."""
-    bases = []
     x = np.asarray(point, dtype=np.float64)
-    for n in range(x.ndim):
-        xn = unfold(x, n)
-        # Eigenvectors of the m×m Gram matrix: the left singular vectors, without the huge V.
-        w, u = np.linalg.eigh(xn @ xn.T)
-        bases.append(u[:, np.argsort(-w, kind="stable")])
-    return bases
+    return [gram_basis(xn @ xn.T) for xn in (unfold(x, n) for n in range(x.ndim))]
 
 
 def dct_basis(m: int) -> np.ndarray:
@@ -163,11 +165,7 @@ def group_hosvd(source: Any, groups: np.ndarray, k: int, batch_size: int = 4
         if not np.any(groups == g):
             out.append(None)
             continue
-        bases = []
-        for n in range(len(sizes)):
-            w, u = np.linalg.eigh(grams[n][g])
-            bases.append(u[:, np.argsort(-w, kind="stable")])
-        out.append(bases)
+        out.append([gram_basis(grams[n][g]) for n in range(len(sizes))])
     return out
 
 
