@@ -6,8 +6,8 @@ A run writes, atomically, into ``OUT/partial/``:
   seed, the extra materials, every method's name and class, the library version) and how
   many times the run was resumed;
 * ``methods.pkl``: after each method's fit, the list of all the run's
-  :class:`~.methods.Method` objects (one pickle, so that the objects that refer to each other,
-  an objective variant to its reference, still do) and how many of them are fitted;
+  :class:`~.methods.Method` objects (one pickle, so that objects that refer to each other
+  still do) and how many of them are fitted;
 * ``material-NNN.pkl``: after each material (test, Table 5, true black, in the run's order),
   what it added to the results (rows, material values, grids, Figures 5 and 8, decode speed).
 

@@ -414,7 +414,7 @@ class _QualityRun:
                             "image_size": cfg.render_size, "methods": res}
             self.stage("figure8", t0)
 
-    # -- the run ------------------------------------------------------------------------------
+    # -- checkpoints ----------------------------------------------------------------------------
     def done(self, index: int) -> bool:
         """Material ``index`` (of the run's order) restored from its checkpoint, if any."""
         rec = self.store.material(index) if self.store.resumed else None
