@@ -16,6 +16,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from ..errors import BTFInputError
+from ..learning.codes import RELEASE_TAU, RELEASE_TAU_TRAIN
 from ..model import TauSpec, parse_tau
 
 __all__ = ["LEARN", "LEARN_GRID", "TauTrainSpec", "parse_tau_train"]
@@ -24,7 +25,7 @@ __all__ = ["LEARN", "LEARN_GRID", "TauTrainSpec", "parse_tau_train"]
 LEARN = "learn"
 #: The candidate grid of ``"learn"`` (Y, U, V per level): a quarter of the paper's τ_l, the
 #: paper's τ_l, and the release's coded τ_t 885,64,64.
-LEARN_GRID = ((64, 8, 8), (256, 32, 32), (885, 64, 64))
+LEARN_GRID = (tuple(t // 4 for t in RELEASE_TAU_TRAIN), RELEASE_TAU_TRAIN, RELEASE_TAU)
 
 #: What ``tau_train`` can be: one level (:data:`~sparsebtf.model.TauSpec`), a sequence of
 #: levels, or ``"learn"`` / ``"learn:LEVELS"``.

@@ -14,7 +14,7 @@ accounting); only the training differs:
 * :class:`PreclusterMethod` (``sparsebtf-precluster``): ``init="preclustered"``
   (:mod:`sparsebtf.learning.init`).
 
-The verdicts on them are :mod:`sparsebtf.evaluation.beyond`'s.
+The verdicts on them are :mod:`sparsebtf.evaluation.training_verdicts`'.
 """
 
 from __future__ import annotations
@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from typing import Any, ClassVar
 
 from ...data.btf import BTF
+from ...learning.codes import RELEASE_TAU, RELEASE_TAU_TRAIN
 from ...learning.partitions import PARTITION_POINTS
 from .base import FitContext, Method
 from .sparse import _Ensemble
@@ -33,7 +34,8 @@ __all__ = ["LearnTauMethod", "MultiTauMethod", "PreclusterMethod", "multitau_lev
 def _higher(tau: tuple[int, ...]) -> tuple[int, ...]:
     """The level above τ_l: the release's coded τ 885,64,64 relative to the paper's 256,32,32
     (Y × 885/256, chroma × 2)."""
-    return (round(tau[0] * 885 / 256), *(2 * t for t in tau[1:]))
+    (y, c), (ty, tc) = RELEASE_TAU[:2], RELEASE_TAU_TRAIN[:2]
+    return (round(tau[0] * y / ty), *(round(t * c / tc) for t in tau[1:]))
 
 
 def multitau_levels(tau: tuple[int, ...], k: int) -> list[tuple[int, ...]]:
