@@ -450,3 +450,54 @@ def test_interrupted_run_resumes_to_the_uninterrupted_results(tiny_run, tmp_path
     assert _comparable(result, run) == _comparable(full, tiny_run[0])
     written = json.loads((run / "results.json").read_text())
     assert written["resumed"] == 1 and written["timings_seconds"]["train_sparsebtf"] > 0
+
+
+def test_bench_quality_codes_and_reads_the_verdicts_per_objective(tmp_path, monkeypatch, capsys):
+    """``objectives=("log", "linear")``: the reference and rate control coded under both (the
+    linear rows under ``sparsebtf-linear`` etc. with the same model), every SparseBTF row
+    records its objective, the verdicts are read per objective, results.md says so."""
+    monkeypatch.setenv("SPARSEBTF_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("SPARSEBTF_PROGRESS", "0")
+    cfg = replace(tiny_config(), objectives=("log", "linear"), render_spp=0, speed_seconds=0,
+                  with_per_channel=False, curve_taus=())
+    result = run_quality(tmp_path / "run", cfg, log=lambda m: None,
+                         methods=("sparsebtf", "rate", "raw", "pca"))
+    assert list(result["config"]["objectives"]) == ["log", "linear"]
+    assert json.loads((tmp_path / "run" / "results.json").read_text())["config"][
+        "objectives"] == ["log", "linear"]
+    rows = result["rows"]
+    by = {}
+    for r in rows:
+        by.setdefault(r["method"], []).append(r)
+    for name in ("sparsebtf", "rate", "release", "floored"):
+        assert {r["objective"] for r in by[name]} == {"log"}, name
+        assert {r["objective"] for r in by[f"{name}-linear"]} == {"linear"}, name
+        assert len(by[f"{name}-linear"]) == len(by[name])
+    assert {r["objective"] for r in by["raw"]} == {"log"}  # raw RGB: its rule is linear already
+    # the objective reached the encodes: some linear code differs from the log one
+    key = lambda r: (r["material"], r["set"], r["level"])  # noqa: E731
+    log_mse = {key(r): r["mse_rgb"] for r in by["sparsebtf"]}
+    assert any(r["mse_rgb"] != log_mse[key(r)] for r in by["sparsebtf-linear"])
+    assert set(result["models"]) == {"sparsebtf", "raw"}  # the variants train nothing
+    summary = result["summary"]
+    assert summary["objective"] == "log" and list(summary["by_objective"]) == ["log", "linear"]
+    for o in ("log", "linear"):
+        assert {"table2_processing", "table3_monotone", "table5_pca", "true_black",
+                "rate_control"} <= set(summary["by_objective"][o])  # fmt: skip
+    assert summary["by_objective"]["log"]["table5_pca"] == summary["table5_pca"]
+    lin_t5 = summary["by_objective"]["linear"]["table5_pca"]["per_material"]
+    assert all(v["sparsebtf"] == next(r["mse_rgb"] for r in by["sparsebtf-linear"]
+                                      if r["material"] == m and r["set"] == "table5")
+               for m, v in lin_t5.items())  # fmt: skip
+    md = (tmp_path / "run" / "results.md").read_text()
+    assert "## Verdicts per coding objective" in md and "--objective log,linear" in md
+    assert "Coding objective of every SparseBTF encode: log; also linear" in md
+    # the command line: several objectives, or one clear line
+    from sparsebtf.cli.bench import _objectives
+
+    assert _objectives("log, display") == ("log", "display")
+    for bad, msg in (("lin", "unknown coding objective 'lin'"), ("log,log", "twice")):
+        assert main(["bench", "quality", "--quick", "--objective", bad,
+                     "--out", str(tmp_path / "x")]) == 2  # fmt: skip
+        err = capsys.readouterr().err
+        assert msg in err and "Traceback" not in err and len(err.strip().splitlines()) == 1

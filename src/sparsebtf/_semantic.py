@@ -216,10 +216,14 @@ def _check_range(
 # --------------------------------------------------------------------------- sparse codes
 
 
-def check_codes(codes: SparseCodes, where: str, n_dictionaries: int | None = None) -> None:
+def check_codes(codes: SparseCodes, where: str, n_dictionaries: int | None = None,
+                magnitude_order: bool = True) -> None:  # fmt: skip
     """One channel's codes (in memory, whatever the file's layout): see the module table.
 
-    ``n_dictionaries`` (K), when known, bounds the memberships."""
+    ``n_dictionaries`` (K), when known, bounds the memberships. ``magnitude_order``: each
+    point's values must come by decreasing magnitude (the log objective's level-of-detail
+    order); a linear or display objective's files keep the order of their objective instead
+    (:func:`sparsebtf.learning.objective.walk_order`)."""
     sizes = np.asarray(codes.mode_sizes, dtype=np.int64)
     member = np.asarray(codes.membership)
     counts = np.asarray(codes.counts, dtype=np.int64)
@@ -257,7 +261,8 @@ def check_codes(codes: SparseCodes, where: str, n_dictionaries: int | None = Non
         raise _fail(f"{where}/values", f"value {i} is {float(values[i])}; expected finite values")
     owner = np.repeat(np.arange(counts.size, dtype=np.int64), counts)
     _check_distinct(loc, sizes, owner, f"{where}/locations")
-    _check_order(values, owner, f"{where}/values")
+    if magnitude_order:
+        _check_order(values, owner, f"{where}/values")
     errors = np.asarray(codes.errors, dtype=np.float64)
     with np.errstate(invalid="ignore"):
         bad = np.isinf(errors) | (errors < 0)
@@ -328,8 +333,9 @@ def validate_coded(
     every channel's codes (direction tables are checked where they are read)."""
     check_statistics(coded.stats, f"{where}/stats")
     ks = n_dictionaries or {}
+    by_magnitude = coded.params.get("objective", "log") == "log"
     for ch, c in coded.codes.items():
-        check_codes(c, f"{where}/codes/{ch}", ks.get(ch))
+        check_codes(c, f"{where}/codes/{ch}", ks.get(ch), by_magnitude)
     check_dictionary_rule(coded.params, f"{where}: attribute 'params_json'", ks)
 
 

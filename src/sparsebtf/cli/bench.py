@@ -40,6 +40,10 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
         from dataclasses import replace
 
         cfg = replace(cfg, candidates=None)
+    if args.objective is not None:
+        from dataclasses import replace
+
+        cfg = replace(cfg, objectives=_objectives(args.objective))
     result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed,
                          previous=args.previous, methods=_methods(args), resume=args.resume,
                          **cluster_options(args))
@@ -50,6 +54,25 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(result["summary"], indent=2, default=str))
     return 0
+
+
+def _objectives(text: str) -> tuple[str, ...]:
+    """``--objective a,b,…``: coding objectives, each once, the first the run's own; an
+    unknown or repeated one is one error line."""
+    from ..errors import BTFInputError
+    from ..learning.objective import check_objective
+
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if not names:
+        raise BTFInputError("--objective: name at least one of log, linear, display")
+    for n in names:
+        try:
+            check_objective(n)
+        except BTFInputError as e:
+            raise BTFInputError(f"--objective: {e}") from None
+    if len(set(names)) != len(names):
+        raise BTFInputError(f"--objective: {text!r} names an objective twice")
+    return tuple(names)
 
 
 def _methods(args: argparse.Namespace) -> list[str]:
@@ -117,6 +140,11 @@ def register(sub: Any) -> None:
                    help="every SparseBTF encode projects each data point on every dictionary "
                    "(the paper's rule; default: the encoder's screening, as 'sparsebtf "
                    "encode' does)")
+    q.add_argument("--objective", metavar="log|linear|display[,...]",
+                   help="coding objective of every SparseBTF encode (default log; see "
+                   "'sparsebtf encode --help'); several, comma-separated, code the reference "
+                   "and rate control under each (rows sparsebtf-<objective>, "
+                   "rate-<objective>) and read the verdicts per objective")
     q.add_argument("--methods", metavar="A,B,...",
                    help="the compared methods, by name or group: "
                    + ", ".join(_method_names()) + " (default: sparsebtf, rate, per_channel, "

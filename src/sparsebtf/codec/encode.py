@@ -49,10 +49,14 @@ def coded_btf(
     """The coded BTF of ``btf`` (or its header) on ``model`` (model attached), from its codes
     and statistics; each point's coefficients in the magnitude rule's order (decreasing
     stored magnitude, ties by location: :func:`~sparsebtf.storage.coded_streams.canonical_codes`),
-    the order every coded file gives back."""
+    the order every coded file gives back; under a linear or display objective
+    (``params["objective"]``) in the order the codes come in, the objective's
+    (:func:`~sparsebtf.learning.objective.walk_order`), which the file keeps."""
     from ..storage.coded_streams import canonical_codes
 
-    codes = {ch: canonical_codes(c) for ch, c in codes.items()}
+    if params.get("objective", "log") == "log":
+        codes = {ch: canonical_codes(c) for ch, c in codes.items()}
+    # else the objective's level-of-detail order (learning.objective.walk_order) is kept
     params = {
         **params,
         "std_mode": stats.mode,

@@ -170,7 +170,7 @@ class RateTargets:
     candidates: int | None = None
     #: the coding objective (:mod:`sparsebtf.learning.objective`): with "linear" or "display"
     #: each point's dictionary is the one of least error in it at the reference count, and
-    #: the allocation weighs points by its first-order weights ("rgb", "display")
+    #: the allocation spends on exact error curves (the file records weighting "exact")
     objective: str = "log"
 
     #: The fields that give a size target (the keywords of :func:`encode_to_size`).
@@ -228,9 +228,9 @@ class RateTargets:
 
     @property
     def point_weighting(self) -> str:
-        """The allocation's weighting (:func:`_point_weights`): the objective's first-order
-        weights for "linear" ("rgb") and "display", else :attr:`weighting`."""
-        return "display" if self.objective == "display" else self.weighting
+        """The allocation's weighting under the log objective (:func:`_point_weights`):
+        :attr:`weighting` (a linear or display objective spends on exact error curves)."""
+        return self.weighting
 
     def prepare(self, header: Header, model: Model) -> dict[str, Any]:
         """The BTF's targets, reference counts and candidate counts per level."""
@@ -285,8 +285,10 @@ class RateTargets:
         }  # fmt: skip
         points = np.arange(lo, hi)
         for _, x in stream_points(btf, pre, model.patch, points, batch_size):
-            w = _point_weights(x, pre, stats, channels, self.point_weighting)
             judge = batch_errors(x, pre, self.objective)
+            # an objective's allocation spends on exact error curves: no weights
+            w = (_point_weights(x, pre, stats, channels, self.point_weighting)
+                 if judge is None else np.ones((x.shape[0], len(channels))))  # fmt: skip
             for c, ch in enumerate(channels):
                 xc = np.ascontiguousarray(x[..., c], dtype=dt)
                 flat = xc.reshape(xc.shape[0], -1)
@@ -310,30 +312,48 @@ class RateTargets:
                 res = dict(zip(pairs, parallel_map(task, pairs), strict=True))
                 losses = None if judge is None else _objective_losses(
                     xc, res, pairs, [r[ch] for r in refs], mats[ch], judge[c])
+                picks = []
                 for i in range(xc.shape[0]):
                     ks = [k for k in range(n_k) if mask[i, k]]
-                    opts = {k: res[i, k] for k in ks}
-                    cums = [np.cumsum(opts[k][1].astype(np.float64) ** 2) for k in ks]
+                    cums = [np.cumsum(res[i, k][1].astype(np.float64) ** 2) for k in ks]
                     for lv in range(n_lv):
                         r = refs[lv][ch]
                         # least residual at the reference count (in the objective); ties:
                         # lowest k
-                        k = (ks[int(np.argmax([cs[min(r, cs.size) - 1] for cs in cums]))]
-                             if losses is None else
-                             ks[int(np.argmin([losses[i, k][lv] for k in ks]))])  # fmt: skip
-                        n = ncand[lv][ch]
-                        d = parts[lv][ch]
-                        d["m"].append(k)
-                        d["idx"].append(opts[k][0][:n])
-                        d["val"].append(opts[k][1][:n].astype(np.float32))
-                        d["e"].append(float(energy[i]))
-                        d["w"].append(float(w[i, c]))
+                        # an objective's: one dictionary for every target of the call, of
+                        # least error summed over their reference counts, and one candidate
+                        # pool (the largest), so a larger target keeps a superset
+                        picks.append((i, lv, ks[int(np.argmax([cs[min(r, cs.size) - 1]
+                                                               for cs in cums]))]
+                                      if losses is None else
+                                      ks[int(np.argmin([sum(losses[i, k]) for k in ks]))]))
+                # the objective's candidates: its level-of-detail order with exact error curves
+                pool = max(ncand[lv][ch] for lv in range(n_lv))
+                walks = None if judge is None else _walks(xc, res, picks, pool, mats[ch],
+                                                          judge[c])  # fmt: skip
+                for i, lv, k in picks:
+                    n = ncand[lv][ch] if walks is None else pool
+                    d = parts[lv][ch]
+                    d["m"].append(k)
+                    if walks is None:
+                        d["idx"].append(res[i, k][0][:n])
+                        d["val"].append(res[i, k][1][:n].astype(np.float32))
+                    else:
+                        idx, val, curve = walks[i, k]
+                        a = min(n, idx.size)
+                        d["idx"].append(np.pad(idx[:a], (0, n - a)))
+                        d["val"].append(np.pad(val[:a], (0, n - a)))
+                        d.setdefault("curve", []).append(
+                            np.pad(curve[: a + 1], (0, n - a), constant_values=np.nan))
+                    d["e"].append(float(energy[i]))
+                    d["w"].append(float(w[i, c]))
             if tick is not None:
                 tick(x.shape[0])
         return [
             {ch: {"m": np.asarray(d["m"], dtype=np.int64),
                   "idx": np.stack(d["idx"]).astype(np.int64), "val": np.stack(d["val"]),
-                  "e": np.asarray(d["e"]), "w": np.asarray(d["w"])}
+                  "e": np.asarray(d["e"]), "w": np.asarray(d["w"]),
+                  **({"curve": np.stack(d["curve"])} if "curve" in d else {})}
              for ch, d in lv.items()}
             for lv in parts
         ]  # fmt: skip
@@ -355,6 +375,7 @@ class RateTargets:
                 ch: ChannelCandidates(
                     shape, joined(ch, "m"), joined(ch, "idx"), joined(ch, "val"),
                     joined(ch, "e"), joined(ch, "w"),
+                    joined(ch, "curve") if self.objective != "log" else None,
                 )
                 for ch in channels
             }  # fmt: skip
@@ -364,7 +385,7 @@ class RateTargets:
                     "budget": self.budget,
                     "target_material_bytes": int(t),
                     "material_bytes": summary["bytes"],
-                    "weighting": self.point_weighting,
+                    "weighting": self.point_weighting if self.objective == "log" else "exact",
                     "reference_counts": extra["refs"][lv],
                     "candidates": extra["ncand"][lv],
                     "split": list(extra["split"]),
@@ -415,6 +436,25 @@ def _objective_losses(
         return out
 
     return dict(zip(pairs, parallel_map(task, pairs), strict=True))
+
+
+def _walks(
+    xc: np.ndarray, res: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+    picks: list[tuple[int, int, int]], pool: int, mats: list[list[np.ndarray]], judge: Any,
+) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:  # fmt: skip
+    """Per chosen (point, dictionary) of ``picks`` (point, level, dictionary) its first
+    ``pool`` candidates in the objective's level-of-detail order with their exact error
+    curve (:func:`~sparsebtf.learning.objective.walk_pool`)."""
+    from ..learning.objective import walk_pool
+
+    keys = sorted({(i, k) for i, _, k in picks})
+
+    def task(ik: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        i, k = ik
+        m64 = [m.astype(np.float64) for m in mats[k]]
+        return walk_pool(judge, i, xc[i], res[i, k][0], res[i, k][1], m64, pool)
+
+    return dict(zip(keys, parallel_map(task, keys), strict=True))
 
 
 def _table4_estimate(stored: int, header: Header | BTF, n_points: int, n_channels: int,
@@ -501,9 +541,12 @@ def encode_rate_levels(
     screening, the others ranked by a partial projection
     (:func:`~sparsebtf.learning.coding.screen_dictionaries`); None: every dictionary.
     ``objective`` "linear" or "display" (:mod:`sparsebtf.learning.objective`): each point's
-    dictionary is the one of least error in that objective at its reference count, and the
-    allocation weighs the points by the objective's first-order weights
-    (:attr:`RateTargets.point_weighting`).
+    dictionary is the one of least error in that objective at its reference count; its
+    candidates come in the objective's level-of-detail order
+    (:func:`~sparsebtf.learning.objective.walk_order`, one evaluation of the error per
+    candidate tried: the cost) with their exact error curve, and the allocation spends on
+    those curves (:func:`~sparsebtf.learning.rate_control.allocate`): no point's error in
+    the objective, hence not the material's, grows with the target.
     """
     plan = RateTargets(tuple(int(t) for t in targets))
     (coded,) = run_plan([btf], model, plan, options, execution, **keywords)

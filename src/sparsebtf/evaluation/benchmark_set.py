@@ -38,8 +38,9 @@ __all__ = [
 ]
 
 CLASSES = ("carpet", "fabric", "felt", "leather", "stone", "wallpaper", "wood")
-#: The material classes of ``source="capture"``: built-in samples of ``sparsebtf capture``.
-CAPTURE_CLASSES = ("woven", "pebbles", "leather", "metal")
+#: The material classes of ``source="capture"``: built-in samples of ``sparsebtf capture``
+#: (``copper``: the glossy isotropic metal of issue 32, GGX α 0.15 on a smooth height field).
+CAPTURE_CLASSES = ("woven", "pebbles", "leather", "metal", "copper")
 SOURCES = ("synth", "capture")
 
 #: The floor of the true-black materials' comparison copy (every value at least this).
@@ -141,6 +142,12 @@ class BenchConfig:
     #: the screening (:func:`~sparsebtf.learning.coding.screen_dictionaries`), or None for
     #: the paper's exhaustive rule (``bench quality --exhaustive``)
     candidates: int | None = DEFAULT_CANDIDATES
+    #: the coding objectives of the SparseBTF encodes (:mod:`sparsebtf.learning.objective`):
+    #: the first codes every SparseBTF method (rows ``sparsebtf``, ``rate``, ...); each
+    #: further one codes the reference and rate control again, rows ``sparsebtf-<objective>``
+    #: and ``rate-<objective>`` (``bench quality --objective log,linear``), and the verdicts
+    #: are read per objective
+    objectives: tuple[str, ...] = ("log",)
     #: true-black, high-dynamic-range materials (class, seed) of ``test_size`` texels, coded at
     #: every level with ``log_offset``, with the release's 1e-5, and as a copy floored at
     #: :data:`FLOOR` (the "Never a firework" check)
@@ -196,7 +203,8 @@ class BenchConfig:
         capture`` (true black, high dynamic range) as training, test, Table-5 and
         true-black materials. A capture costs more than a synth (minutes per 30x30 material
         at UBO2014 directions on 2 cores): training materials are captured at the test size
-        and every point of them trains (12 x 9 = 108 points per channel at full size), the
+        and every point of them trains (15 x 9 = 135 points per channel at full size; the
+        quick configuration: 5 x 4 = 20), the
         Table-5 and true-black sets keep one material, and the per-channel standardisation
         model (a release choice, not one of the paper's tables) is left to the synthetic
         run."""

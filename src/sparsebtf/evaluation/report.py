@@ -36,12 +36,26 @@ from .tables import (
 )
 from .tables import markdown_table as _table
 from .training_verdicts import TRAINING_KEYS
-from .verdicts import summarise
+from .verdicts import objective_lines, summarise
 
 __all__ = [
-    "STORAGE_JSON", "figure3", "previous_record", "quality_storage", "regenerate",
-    "render_markdown", "rule_line", "stored_levels", "summarise", "table2", "table3", "table5",
-    "table_black", "table_storage", "table_stored", "write_report",
+    "STORAGE_JSON",
+    "figure3",
+    "objective_line",
+    "previous_record",
+    "quality_storage",
+    "regenerate",
+    "render_markdown",
+    "rule_line",
+    "stored_levels",
+    "summarise",
+    "table2",
+    "table3",
+    "table5",
+    "table_black",
+    "table_storage",
+    "table_stored",
+    "write_report",
 ]  # fmt: skip
 
 
@@ -83,6 +97,23 @@ def rule_line(cfg: dict[str, Any]) -> str:
             "rule among them; `--exhaustive` runs the paper's).")  # fmt: skip
 
 
+def objective_line(cfg: dict[str, Any]) -> str:
+    """The report's line on the coding objectives of a run's encodes (runs before the option
+    existed: log)."""
+    objs = list(cfg.get("objectives") or ["log"])
+    more = ("; also " + ", ".join(f"{o} (rows sparsebtf-{o}, rate-{o})" for o in objs[1:])
+            if len(objs) > 1 else "")  # fmt: skip
+    return (f"- Coding objective of every SparseBTF encode: {objs[0]}{more} "
+            "(`sparsebtf encode --objective`; [MHU19] on raw RGB always minimises its "
+            "linear-RGB error).")
+
+
+def _objective_flag(cfg: dict[str, Any]) -> str:
+    """The ``--objective`` a run was made with, when not the default."""
+    objs = list(cfg.get("objectives") or ["log"])
+    return "" if objs == ["log"] else f" --objective {','.join(objs)}"
+
+
 def _offset_flag(cfg: dict[str, Any]) -> str:
     """The ``--log-offset`` a run was made with, when not the default."""
     rule = cfg.get("log_offset", "auto")
@@ -113,6 +144,7 @@ def render_markdown(
         f"{' --source capture' if cfg.get('source') == 'capture' else ''}"
         f"{''.join(' --materials ' + m for m in result.get('extra_materials', []))}"
         f"{_offset_flag(cfg)}"
+        f"{_objective_flag(cfg)}"
         f"{' --exhaustive' if 'candidates' in cfg and cfg['candidates'] is None else ''} "
         "--out DIR`.",
         f"- Run: configuration **{cfg['name']}**, seed {result['seed']}, created "
@@ -144,6 +176,7 @@ def render_markdown(
            "bound on decoded values kept with the statistics." if "log_offset" in cfg else
            "1e-5 (the release's), no bound (runs before the log offset existed)."),
         rule_line(cfg),
+        objective_line(cfg),
     ]
     for n in cfg.get("notes", []):
         lines.append(f"- Note: {n}")
@@ -218,6 +251,7 @@ def render_markdown(
                 "standardisation", "rate_control", *TRAINING_KEYS):
         if key in summary:
             lines.append(f"- {key}: {summary[key]['rule']}")
+    lines += objective_lines(summary)
     if captured is not None:
         lines += captured_section(result, summary, *captured)
     lines += [

@@ -214,8 +214,14 @@ class _QualityRun:
         self.say = _Log(log)
         self.progress = progress
         self.ex = ex
+        from .methods.sparse import OBJECTIVE_METHODS, objective_variant
+
         classes = resolve_methods(methods, self.cfg, note=self.say)
         self.methods = [cls.from_config(self.cfg) for cls in classes]
+        # each further coding objective codes the reference and rate control again, with
+        # their models (rows sparsebtf-<objective>, rate-<objective>)
+        self.methods += [objective_variant(m, o) for o in tuple(self.cfg.objectives)[1:]
+                         for m in self.methods if m.name in OBJECTIVE_METHODS]  # fmt: skip
         self.adopt(self.methods)
         self.rows: list[dict[str, Any]] = []
         self.values: dict[str, dict[str, Any]] = {}
@@ -230,6 +236,9 @@ class _QualityRun:
         """The run's methods (built, or loaded from a checkpoint), the reference first."""
         self.methods = methods
         self.ref: Any = methods[0]
+        #: the reference and its objective variants, with their rows' name suffix
+        self.coders = [(self.ref, "")] + [(m, f"-{m.objective}") for m in methods
+                                          if getattr(m, "base_", None) is self.ref]
         self.others = methods[1:]
 
     def elapsed(self) -> float:
@@ -527,15 +536,16 @@ class _QualityRun:
         if cfg.log_offset != "release":
             variants.insert(1, ("release", btf, "release"))
         pending: list[tuple[dict[str, Any], BTF | None]] = []
-        for method, src, rule in variants:
-            self.say(f"{label}: {METHODS.get(method, self.ref.label)} at tau "
+        for (coder, suffix), (method, src, rule) in itertools.product(self.coders, variants):
+            self.say(f"{label}: {METHODS.get(method, self.ref.label)}{suffix} at tau "
                      f"{[list(self.ref.level_tau(btf, lv)) for lv in cfg.levels]} (log offset "
                      f"{rule})")  # fmt: skip
             t0 = time.perf_counter()
-            cs = self.ref.code(src, budgets, log_offset=rule)
+            cs = coder.code(src, budgets, log_offset=rule)
             self.stage("encode_black", t0)
             for b, c in zip(budgets, cs, strict=True):
-                pending.append((method_row(base, method, b.level, None, c), c.reconstruction))
+                pending.append((method_row(base, method + suffix, b.level, None, c),
+                                c.reconstruction))  # fmt: skip
         self.say(f"{label}: metrics of {len(pending)} reconstructions (against the unfloored "
                  "BTF)")
         self.score(btf, pending)
@@ -564,7 +574,9 @@ class _QualityRun:
             "extra_materials": list(extra),
             "level_ratios_per_material": {str(k): v for k, v in cfg.ratios().items()},
             "models": models,
-            "methods": {**{m.name: m.label for m in self.methods}, **VARIANTS},
+            "methods": {**{m.name: m.label for m in self.methods}, **VARIANTS,
+                        **{k + suffix: f"{v} [{suffix[1:]}]" for _, suffix in self.coders[1:]
+                           for k, v in VARIANTS.items()}},
             "method_runs": runs,
             "rows": self.rows,
             "material_values": self.values,

@@ -23,7 +23,18 @@ from .rows import rows as _rows
 from .tables import gmean as _gmean
 from .training_verdicts import summarise_training
 
-__all__ = ["summarise"]
+__all__ = ["OBJECTIVE_VERDICTS", "objective_lines", "objective_view", "summarise"]
+
+#: the rows a further coding objective codes again, renamed ``<name>-<objective>`` (runner)
+_OBJECTIVE_ROWS = ("sparsebtf", "rate", "release", "floored")
+#: the verdicts read per coding objective, with how :func:`objective_lines` shows each
+OBJECTIVE_VERDICTS = {
+    "table2_processing": ("Table 2: processing vs [MHU19]", "ratio_geomean"),
+    "table3_monotone": ("Table 3: error falls with tau", "materials_monotone"),
+    "table5_pca": ("Table 5: SparseBTF(32) vs PCA at 2x", "materials_won"),
+    "true_black": ("true black", "materials_ok"),
+    "rate_control": ("rate control vs fixed tau", "gain_geomean"),
+}
 
 
 
@@ -211,5 +222,55 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
     }
     out.update(summarise_table3(result, mid))
     out.update(summarise_training(result, levels, mid))  # beyond the paper: issue 34
+    objectives = list(result["config"].get("objectives") or ["log"])
+    out["objective"] = objectives[0]
+    if len(objectives) > 1:
+        out["by_objective"] = {objectives[0]: {k: out[k] for k in OBJECTIVE_VERDICTS
+                                               if k in out}}  # fmt: skip
+        for o in objectives[1:]:
+            s = summarise(objective_view(result, o))
+            out["by_objective"][o] = {k: s[k] for k in OBJECTIVE_VERDICTS if k in s}
     return out
+
+
+def objective_view(result: dict[str, Any], objective: str) -> dict[str, Any]:
+    """``result`` as a run of one coding objective: the rows ``<name>-<objective>`` (name in
+    sparsebtf, rate, release, floored) under their plain names, the plain ones and those of
+    other objectives dropped, and per-channel standardisation's rows (coded under the first
+    objective only) dropped; the other methods' rows as they are."""
+    objectives = list(result["config"].get("objectives") or ["log"])
+    variant = {f"{x}-{o}": (x, o) for x in _OBJECTIVE_ROWS for o in objectives}
+    rows = []
+    for r in result["rows"]:
+        m = r["method"]
+        if m in variant:
+            if variant[m][1] == objective:
+                rows.append({**r, "method": variant[m][0]})
+        elif m not in _OBJECTIVE_ROWS and m != "per_channel":
+            rows.append(r)
+    return {**result, "rows": rows, "config": {**result["config"], "objectives": [objective]}}
+
+
+def objective_lines(summary: dict[str, Any]) -> list[str]:
+    """results.md's table of the verdicts per coding objective (none for one objective)."""
+    by = summary.get("by_objective")
+    if not by:
+        return []
+    objs = list(by)
+    lines = ["", "## Verdicts per coding objective", "",
+             "Every SparseBTF encode of the run under each objective (`--objective "
+             f"{','.join(objs)}`; rows `sparsebtf-<objective>`, `rate-<objective>` for the "
+             "further ones, with the first objective's model; their Table 3 reads the levels "
+             "only: the extra τ_t of Figure 3 are coded under the first objective).", "",
+             "| verdict | " + " | ".join(objs) + " |", "|---|" + "---|" * len(objs)]
+    for key, (name, field_) in OBJECTIVE_VERDICTS.items():
+        cells = []
+        for o in objs:
+            v = by[o].get(key)
+            fig = None if v is None else v.get(field_)
+            fig_s = f"{fig:.3g}" if isinstance(fig, float) else str(fig)
+            cells.append("—" if v is None else f"**{v['verdict']}** ({fig_s})")
+        if any(c != "—" for c in cells):
+            lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
 

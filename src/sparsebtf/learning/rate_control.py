@@ -23,6 +23,7 @@ BTF through it. Bytes are counted by :mod:`sparsebtf.learning.cost` (Table 4).
 
 from __future__ import annotations
 
+import itertools
 import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -36,6 +37,7 @@ from .cost import coefficient_budget, material_bytes
 __all__ = [
     "ChannelCandidates",
     "allocate",
+    "hull_gains",
     "reference_counts",
 ]
 
@@ -94,6 +96,10 @@ class ChannelCandidates:
     values : (P, N) the coefficients.
     energy : (P,) ‖X‖² of each point (float64).
     weights : (P,) error weight w of each point (see :func:`allocate`).
+    curves : None, or (P, N + 1) each point's exact error after its first 0, 1, …, N
+        candidates (a linear or display objective's, non-increasing: the candidates in its
+        level-of-detail order, :func:`~sparsebtf.learning.objective.walk_order`); NaN past
+        the candidates a point has. Then the allocation spends on these curves, not on w·s².
     """
 
     mode_sizes: tuple[int, ...]
@@ -102,10 +108,36 @@ class ChannelCandidates:
     values: np.ndarray
     energy: np.ndarray
     weights: np.ndarray
+    curves: np.ndarray | None = None
 
     @property
     def n_points(self) -> int:
         return int(self.membership.shape[0])
+
+
+def hull_gains(curves: np.ndarray) -> np.ndarray:
+    """(P, N + 1) error curves (non-increasing, NaN past a point's candidates) → (P, N + 1)
+    the gain of each candidate for the allocation: the slope of the curve's lower convex
+    hull over the segment holding it (column 0: the slope into the first), −inf past the
+    candidates. The gains fall along each point, so the largest ``extra`` of all points are
+    a prefix of each, and the hull errs no more than the curve where they meet."""
+    p, n1 = curves.shape
+    out = np.full((p, n1), -np.inf)
+    for i in range(p):
+        e = curves[i][np.isfinite(curves[i])]
+        hull = [0]  # lower convex hull of (k, e_k), k = 0 … a
+        for k in range(1, e.size):
+            while len(hull) >= 2:
+                a, b = hull[-2], hull[-1]
+                if (e[b] - e[a]) * (k - a) >= (e[k] - e[a]) * (b - a):
+                    hull.pop()  # b on or above the chord from a to k
+                else:
+                    break
+            hull.append(k)
+        for a, b in itertools.pairwise(hull):
+            out[i, a + 1 : b + 1] = (e[a] - e[b]) / (b - a)
+        out[i, 0] = out[i, 1] if e.size > 1 else -np.inf
+    return out
 
 
 def allocate(
@@ -117,6 +149,10 @@ def allocate(
 
     Every point and channel keeps at least one coefficient (as the release's coder does); the
     rest of the budget goes by decreasing gain ``w_{p,c} · s²`` over all points and channels.
+    With exact error curves (``curves``, a linear or display objective) the gains are those
+    curves' (:func:`hull_gains`), in a stable order: a larger budget keeps a superset, so no
+    point's error grows with the budget, nor the material's; a point keeps no coefficient
+    its curve lacks.
     Returns the codes per channel and a summary (``bytes``, ``nnz``, ``exhausted``: whether
     the candidate pool ran out before the budget did, leaving the result below target).
     """
@@ -129,9 +165,13 @@ def allocate(
     c = len(chans)
     budget = _coefficient_budget(target_bytes, p, c, location_bytes)
     extra = budget - p * c
+    exact = candidates[chans[0]].curves is not None
     gains = []
     for ch in chans:
         cand = candidates[ch]
+        if exact:
+            gains.append(hull_gains(cand.curves)[:, 1:].ravel())  # type: ignore[arg-type]
+            continue
         v = cand.values[:, 1:].astype(np.float64)
         gains.append((cand.weights[:, None] * v * v).ravel())
     pool = np.concatenate(gains) if gains else np.empty(0)
@@ -146,7 +186,10 @@ def allocate(
             )
     else:
         chosen = np.zeros(pool.size, dtype=bool)
-        if extra > 0:
+        if extra > 0 and exact:
+            # a stable order: a larger budget keeps a superset (ties by point, then position)
+            chosen[np.argsort(-pool, kind="stable")[:extra]] = True
+        elif extra > 0:
             chosen[np.argpartition(-pool, extra - 1)[:extra]] = True
     codes: dict[str, SparseCodes] = {}
     start = 0
@@ -158,6 +201,8 @@ def allocate(
         start += p * (n - 1)
         # Counts per point; the prefix of that length has gains >= the chosen ones (sorted).
         counts = 1 + sel.sum(axis=1).astype(np.int64)
+        if exact:  # a walk may keep fewer than N candidates (NaN past them)
+            counts = np.minimum(counts, np.isfinite(cand.curves).sum(axis=1) - 1)
         keep = np.arange(n)[None, :] < counts[:, None]
         vals = cand.values[keep].astype(np.float32)
         lin = cand.indices[keep]
@@ -165,6 +210,8 @@ def allocate(
         kept = np.where(keep, cand.values.astype(np.float64) ** 2, 0.0).sum(axis=1)
         size = float(np.prod(cand.mode_sizes))
         errors = np.maximum(cand.energy - kept, 0.0) / size
+        if exact:
+            errors = cand.curves[np.arange(p), counts]  # type: ignore[index]
         codes[ch] = SparseCodes(
             cand.mode_sizes, cand.membership.astype(np.int64), counts, vals, locs, errors
         )

@@ -219,6 +219,9 @@ def blend(
     )
     names = [c.name for c in coded]
     params = dict(first.params)
+    # the blend keeps the largest summed coefficients in magnitude order: the log rule's
+    # order, whatever objective its inputs were coded for
+    params.pop("objective", None)
     params["tau"] = taus
     params["blend"] = {"inputs": names, "weights": w.tolist()}
     label = name or "blend(" + ", ".join(f"{n}:{wj:g}" for n, wj in zip(names, w, strict=True))

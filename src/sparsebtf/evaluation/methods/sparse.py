@@ -17,6 +17,7 @@ the per-material bytes; :meth:`~.base.Method.shared_bytes` reports them once per
 
 from __future__ import annotations
 
+import copy
 import time
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
@@ -33,11 +34,13 @@ from ..benchmark_set import level_tau
 from .base import PER_MATERIAL, Budget, Coding, FitContext, Method
 
 __all__ = [
+    "OBJECTIVE_METHODS",
     "MHU19Method",
     "PerChannelMethod",
     "RateControlMethod",
     "SparseBTFMethod",
     "coded_row",
+    "objective_variant",
 ]
 
 
@@ -71,6 +74,8 @@ class _Ensemble(Method):
     scope = "shared"
     #: training options of this variant's model (beside the configuration's)
     training_options: ClassVar[dict[str, Any]] = {"std_mode": "shared"}
+    #: whether the configured coding objective applies (it weighs log-YUV residuals)
+    weighs_objective: ClassVar[bool] = True
 
     def __init__(
         self,
@@ -84,6 +89,7 @@ class _Ensemble(Method):
         level_ratios: Mapping[int, float] | None = None,
         log_offset: str | float = "auto",
         candidates: int | None = DEFAULT_CANDIDATES,
+        objective: str = "log",
     ) -> None:
         self.n_dictionaries = n_dictionaries
         self.patch = patch
@@ -95,6 +101,10 @@ class _Ensemble(Method):
         self.level_ratios = dict(level_ratios or {})
         self.log_offset = log_offset
         self.candidates = candidates
+        #: the coding objective of its encodes (:mod:`sparsebtf.learning.objective`)
+        self.objective = objective
+        #: the method whose model this one codes with (an objective variant), or None
+        self.base_: _Ensemble | None = None
 
     @classmethod
     def from_config(cls, config: Any) -> Method:
@@ -103,6 +113,8 @@ class _Ensemble(Method):
             iters=config.iters, tol=config.tol, tau_train=tuple(config.tau_train),
             level_ratios=config.ratios(), log_offset=config.log_offset,
             candidates=config.candidates,
+            objective=(tuple(getattr(config, "objectives", ("log",))) or ("log",))[0]
+            if cls.weighs_objective else "log",
         )  # fmt: skip
 
     # -- the model ----------------------------------------------------------------------------
@@ -113,6 +125,9 @@ class _Ensemble(Method):
     def fit(self, train_btfs: Sequence[BTF], context: FitContext) -> Method:
         t0 = time.perf_counter()
         self.context_ = context
+        if self.base_ is not None:  # an objective variant: the objective changes coding only
+            self.model_, self.seconds_ = self.base_.model_, 0.0
+            return self
         self.model_ = train(
             list(train_btfs), n_dictionaries=self.n_dictionaries, patch=self.patch,
             sample=self.sample, max_iter=self.iters, tol=self.tol, seed=context.seed,
@@ -136,8 +151,11 @@ class _Ensemble(Method):
                                       default=0),
         }  # fmt: skip
 
-    def model_record(self) -> dict[str, Any]:
-        """The model's entry in ``results.json``'s ``models`` (hash, parameters, training)."""
+    def model_record(self) -> dict[str, Any] | None:
+        """The model's entry in ``results.json``'s ``models`` (hash, parameters, training);
+        None for an objective variant (its base's model, recorded there)."""
+        if self.base_ is not None:
+            return None
         m = self.model_
         return {"content_hash": m.content_hash, "params": m.params, "training": m.training,
                 "bytes_dictionaries": self.shared_bytes(), "seconds": self.seconds_}
@@ -162,13 +180,15 @@ class _Ensemble(Method):
             btf, self.model_, list(taus), eps=0.0, allow_below_training=True,
             log_offset=self.log_offset if log_offset is None else log_offset,
             candidates=self.candidates, progress=ctx.progress, client=ctx.executor,
+            objective=self.objective,
         )  # fmt: skip
 
     def coding(self, coded: CodedBTF, **info: Any) -> Coding:
         """One coded material as a :class:`~.base.Coding` (its view decodes lazily)."""
         row = coded_row(coded, self.model_)
         return Coding(coded_btf_view(coded), row["material_bytes"], self.shared_bytes(),
-                      info={**info, **row, "log_offset": float(coded.stats.log_offset)})
+                      info={**info, **row, "log_offset": float(coded.stats.log_offset),
+                            "objective": coded.objective})  # fmt: skip
 
     def code(self, btf: BTF, budgets: Sequence[Budget]) -> list[Coding]:
         taus = [self.level_tau(btf, b.level) for b in budgets]  # type: ignore[arg-type]
@@ -177,7 +197,23 @@ class _Ensemble(Method):
 
     def describe(self) -> dict[str, Any]:
         return {**super().describe(), "training_options": dict(self.training_options),
-                "tau_train_used": list(self.train_tau())}
+                "tau_train_used": list(self.train_tau()), "objective": self.objective,
+                **({"model_of": self.base_.name} if self.base_ is not None else {})}
+
+
+#: the methods a further coding objective codes again (``BenchConfig.objectives``)
+OBJECTIVE_METHODS = ("sparsebtf", "rate")
+
+
+def objective_variant(method: _Ensemble, objective: str) -> _Ensemble:
+    """``method`` coding under ``objective`` with ``method``'s model (fitted first): rows
+    ``<name>-<objective>``, e.g. ``sparsebtf-linear``."""
+    v = copy.copy(method)
+    v.objective = objective
+    v.name = f"{method.name}-{objective}"
+    v.label = f"{method.label} [{objective}]"
+    v.base_ = method
+    return v
 
 
 class SparseBTFMethod(_Ensemble):
@@ -265,7 +301,7 @@ class RateControlMethod(_Ensemble):
         targets = [b.material_bytes for b in budgets]
         coded = encode_rate_levels(btf, self.model_, targets, progress=ctx.progress,
                                    log_offset=self.log_offset, candidates=self.candidates,
-                                   client=ctx.executor)  # fmt: skip
+                                   client=ctx.executor, objective=self.objective)  # fmt: skip
         return [self.coding(c, tau=list(c.params["tau"].values()),
                             target_bytes=c.params["rate_control"]["target_material_bytes"])
                 for c in coded]  # fmt: skip
@@ -288,6 +324,9 @@ class MHU19Method(_Ensemble):
     name = "raw"
     label = "[MHU19] (raw RGB)"
     grid = True
+    # raw linear R, G, B: the paper's rule already minimises the linear-RGB error (Parseval
+    # on unstandardised values), and the weighted objectives need log-YUV points
+    weighs_objective = False
     training_options: ClassVar[dict[str, Any]] = {"std_mode": "shared", "preprocessing": "identity"}
 
     def train_tau(self) -> tuple[int, int, int]:
