@@ -20,6 +20,7 @@ from ..errors import BTFInputError
 from ..execution import Execution
 from ..learning.codes import RELEASE_EPS, RELEASE_TAU
 from ..learning.coding import SparseCodes, sparse_code_levels, sparse_code_objective
+from ..learning.lod_order import lod_orders
 from ..learning.objective import ChannelError, check_objective, joint_choice, objective_params
 from ..model import CHANNELS, CodedBTF, Model, TauSpec, parse_tau
 from ..points.grid import stream_points
@@ -51,12 +52,12 @@ def coded_btf(
     stored magnitude, ties by location: :func:`~sparsebtf.storage.coded_streams.canonical_codes`),
     the order every coded file gives back; under a linear or display objective
     (``params["objective"]``) in the order the codes come in, the objective's
-    (:func:`~sparsebtf.learning.objective.walk_order`), which the file keeps."""
+    (:func:`~sparsebtf.learning.lod_order.walk_order`), which the file keeps."""
     from ..storage.coded_streams import canonical_codes
 
     if params.get("objective", "log") == "log":
         codes = {ch: canonical_codes(c) for ch, c in codes.items()}
-    # else the objective's level-of-detail order (learning.objective.walk_order) is kept
+    # else the objective's level-of-detail order (learning.lod_order.walk_order) is kept
     params = {
         **params,
         "std_mode": stats.mode,
@@ -243,7 +244,8 @@ class FixedTau:
         """One batch under a linear or display objective: each channel by its own error
         (:func:`~sparsebtf.learning.coding.sparse_code_objective`), then the three judged
         together against the paper's rule and the lower levels
-        (:func:`~sparsebtf.learning.objective.joint_choice`)."""
+        (:func:`~sparsebtf.learning.objective.joint_choice`), each code in its level-of-detail
+        order (:func:`~sparsebtf.learning.lod_order.lod_orders`)."""
         channels = model.channels
         xs = [np.ascontiguousarray(x[c] if planar else x[..., c]) for c in range(3)]
         taus = [[lv[ch] for lv in self.levels] for ch in channels]
@@ -253,8 +255,9 @@ class FixedTau:
                                          self.candidates, errors[c])  # fmt: skip
             judged.append(j)
             log.append(g)
-        chosen = joint_choice(xs, errors, judged, log,
-                              [model.dictionaries[ch] for ch in channels], taus)  # fmt: skip
+        dicts = [model.dictionaries[ch] for ch in channels]
+        chosen, _ = lod_orders(xs, errors, joint_choice(xs, errors, judged, log, dicts, taus),
+                               dicts, taus)  # fmt: skip
         for c, ch in enumerate(channels):
             for j, sc in enumerate(chosen[c]):
                 parts[j][ch].append(sc)

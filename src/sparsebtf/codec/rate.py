@@ -444,8 +444,8 @@ def _walks(
 ) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:  # fmt: skip
     """Per chosen (point, dictionary) of ``picks`` (point, level, dictionary) its first
     ``pool`` candidates in the objective's level-of-detail order with their exact error
-    curve (:func:`~sparsebtf.learning.objective.walk_pool`)."""
-    from ..learning.objective import walk_pool
+    curve (:func:`~sparsebtf.learning.lod_order.walk_pool`)."""
+    from ..learning.lod_order import walk_pool
 
     keys = sorted({(i, k) for i, _, k in picks})
 
@@ -543,7 +543,7 @@ def encode_rate_levels(
     ``objective`` "linear" or "display" (:mod:`sparsebtf.learning.objective`): each point's
     dictionary is the one of least error in that objective at its reference count; its
     candidates come in the objective's level-of-detail order
-    (:func:`~sparsebtf.learning.objective.walk_order`, one evaluation of the error per
+    (:func:`~sparsebtf.learning.lod_order.walk_order`, one evaluation of the error per
     candidate tried: the cost) with their exact error curve, and the allocation spends on
     those curves (:func:`~sparsebtf.learning.rate_control.allocate`): no point's error in
     the objective, hence not the material's, grows with the target.

@@ -25,7 +25,7 @@ first-order gain S_t(2⟨W X, u_t⟩ − S_t Σ W u_t²), 6.06; refitting the ke
 conjugate-gradient steps of weighted least squares, 13.9 ("Coding
 objectives", docs/benchmarks.md §17).
 
-The rule, in three steps. (1) Per channel (:func:`judged_code_levels`): each candidate
+The rule, in two steps. (1) Per channel (:func:`judged_code_levels`): each candidate
 dictionary's coefficients in the log rule's order (decreasing |S_t|, the order a
 level-of-detail prefix reads), evaluated by E_c at the prefix lengths τ and ⌈τ/2⌉ of every
 level, and with ε > 0 also 1, 2, 4, … (the grid, :func:`prefix_grid`). At each level τ the
@@ -34,31 +34,18 @@ E_c <= ε (then least error) when one exists. The log rule's codes come from the
 projections. (2) Per point and level (:func:`joint_choice`): the joint error E of the three
 channels' residuals at once (E_c with every channel's δ) of the judged codes against the log
 rule's; the lower is kept, and in increasing τ a level keeps a lower level's codes where those
-have the lower E. (3) Level of detail (:func:`walk_order`): a renderer truncates a point's
-codes to their first k coefficients, and in the magnitude order a prefix's error in these
-objectives can rise with k (a highlight overshot before the coefficient that corrects it). So each
-(point, dictionary) chosen at some level is walked in the magnitude order, keeping a
-coefficient only if it lowers E_c; one that does not is set aside, and after each coefficient
-kept the largest set aside is tried again (then all of them, twice at most, once the pool is
-spent).
-Every level's judged code is the walk's first τ and the log rule's code its first n (those
-are the codes (2) compares). The file keeps that order (``rank``, docs/format.md §3). So for
-**every point and channel the error E_c of the first k stored coefficients falls with k**,
-and no point's joint E at a level is above its E at a lower level of the same call
-(:func:`~sparsebtf.codec.encode_levels`; separate calls judge other lengths) nor above the
-log rule's code in the walk's order. The log rule's code as it is (magnitude order, every
-coefficient) is no longer a candidate, so being below it is measured, not built in: on the
-highlight material of tests/test_objective.py no point is above it at any level (a walk that
-set coefficients aside for good was up to 3× above it at τ = 64). ``log`` keeps the
-magnitude order.
+have the lower E. So **no point's error in the objective is above the log rule's** at its
+level, **nor above its error at a lower level** of the same call
+(:func:`~sparsebtf.codec.encode_levels`; separate calls judge other lengths). Level of detail
+truncates the stored (magnitude) order: the error of a prefix below the stored count is not
+guaranteed to fall.
 
 Cost per point and candidate dictionary (10×10 texels × 151 × 151, n = 2.28 M entries): the
 log rule's projection (1.47 GFLOP), one sparse reconstruction of τ_max coefficients split at
-the grid and per grid length one evaluation of E_c (~20 flops, one exp per value and R, G, B:
-~140 M flops and 7 M exp); then per point and chosen dictionary the walk: one rank-1 tensor
-and one evaluation of E_c per coefficient tried (τ_max plus the retries: ~50–70 ms each on
-a full-size point, so ~1 min per point at τ = 885 and ~5 min at 4483); per point and level
-2 × 3 sparse reconstructions and two joint evaluations.
+the grid (at most a dense 1.47 GFLOP, a few percent of it at τ = 885), and per grid length
+one evaluation of E_c (~20 flops, one exp per value and R, G, B: ~140 M flops and 7 M exp; 2
+lengths per level at ε = 0); per point and level 2 × 3 sparse reconstructions and two joint
+evaluations. Measured: 5–8× the log rule's encode time per point (docs/benchmarks.md §17).
 """
 
 from __future__ import annotations
@@ -69,7 +56,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._semantic import stored_dtype
 from .._threads import parallel_map
 from ..errors import BTFInputError
 from .codes import SparseCodes, rule_keys, topk_abs
@@ -82,12 +68,11 @@ __all__ = [
     "ChannelError",
     "check_objective",
     "joint_choice",
+    "joint_error",
+    "joint_sum64",
     "judged_code_levels",
     "objective_params",
     "prefix_grid",
-    "stored_precision",
-    "walk_order",
-    "walk_pool",
 ]
 
 #: One level's codes: membership, counts, values, flat indices, errors.
@@ -147,17 +132,6 @@ class ChannelError:
         b = None if bound is None else np.asarray(bound, dtype=np.float32)
         return cls(objective, log_rgb, scale, b, float(log_offset))
 
-    def sum64(self, i: int, delta: np.ndarray, ref: np.ndarray) -> float:
-        """:meth:`__call__` summed in float64 (the walk compares errors that differ by
-        little; a float32 dot of millions of values is off by ~1e-5 relative)."""
-        y = np.multiply(np.asarray(delta, dtype=np.float32)[..., None], self.scale)
-        y += self.log_rgb[i]
-        if self.bound is not None:
-            np.minimum(y, self.bound[..., None], out=y)
-        d = self._value(y)
-        d -= ref
-        return float(np.einsum("i,i->", d.reshape(-1), d.reshape(-1), dtype=np.float64)) / d.size
-
     def _value(self, y: np.ndarray) -> np.ndarray:
         v = np.exp(y)
         v -= np.float32(self.log_offset)
@@ -179,6 +153,58 @@ class ChannelError:
         flat = d.reshape(-1)
         return float(np.dot(flat, flat)) / flat.size
 
+    def sum64(self, i: int, delta: np.ndarray, ref: np.ndarray) -> float:
+        """:meth:`__call__` as the level-of-detail walk needs it: :func:`joint_sum64` with
+        this channel's residual alone."""
+        return joint_sum64([self], i, [delta], ref)
+
+
+#: Texels per chunk of :func:`joint_sum64` (4 × 151 × 151 × 3 float32: 1 MB).
+_SUM_TEXELS = 4
+
+
+def joint_sum64(errors: Sequence[ChannelError], i: int, residuals: Sequence[np.ndarray],
+                ref: np.ndarray) -> float:  # fmt: skip
+    """:func:`joint_error` of point ``i`` (``ref`` its :meth:`ChannelError.reference`)
+    texel by texel, a few at a time so the temporaries stay in cache (half the time of the
+    whole point at once), each chunk's float32 sum added in float64: the walk compares
+    errors that differ by little, and one float32 dot of millions of values is off by
+    ~1e-5 relative."""
+    e0 = errors[0]
+    t = e0.log_rgb.shape[1] * e0.log_rgb.shape[2]
+    lr = e0.log_rgb[i].reshape(t, *e0.log_rgb.shape[3:])
+    rf = ref.reshape(lr.shape)
+    res = [np.asarray(r, dtype=np.float32).reshape(t, *lr.shape[1:-1]) for r in residuals]
+    total = 0.0
+    for a in range(0, t, _SUM_TEXELS):
+        y = lr[a : a + _SUM_TEXELS].copy()
+        for err, r in zip(errors, res, strict=True):
+            y += r[a : a + _SUM_TEXELS, ..., None] * err.scale
+        if e0.bound is not None:
+            np.minimum(y, e0.bound[..., None], out=y)
+        v = e0._value(y)
+        v -= rf[a : a + _SUM_TEXELS]
+        f = v.reshape(-1)
+        total += float(np.dot(f, f))
+    return total / (t * lr[0].size)
+
+
+def joint_error(errors: Sequence[ChannelError], i: int, residuals: Sequence[np.ndarray]
+                ) -> float:  # fmt: skip
+    """The joint error E of point ``i``: the objective's mean squared error over values and
+    R, G, B with every channel's standardised residual (decoded − true, (p, p, L, V)) at
+    once, clamped to the bound like every decoder."""
+    e0 = errors[0]
+    y = e0.log_rgb[i].copy()
+    for err, r in zip(errors, residuals, strict=True):
+        y += np.asarray(r, dtype=np.float32)[..., None] * err.scale
+    if e0.bound is not None:
+        np.minimum(y, e0.bound[..., None], out=y)
+    d = e0._value(y)
+    d -= e0.reference(i)
+    flat = d.reshape(-1)
+    return float(np.dot(flat, flat)) / flat.size
+
 
 def prefix_grid(levels: Sequence[int], eps: float = 0.0) -> list[int]:
     """The prefix lengths E_c is evaluated at (increasing, distinct): every level τ and its
@@ -190,98 +216,6 @@ def prefix_grid(levels: Sequence[int], eps: float = 0.0) -> list[int]:
         lengths |= {1 << g for g in range(math.ceil(math.log2(top)) + 1) if 1 << g < top}
     return sorted(lengths)
 
-#: A coefficient joins a point's level-of-detail order only if it lowers the error by at
-#: least this fraction: a decoder sums in another order and precision, so a tie must not
-#: read as a rise.
-WALK_MARGIN = 1e-6
-#: Passes of :func:`walk_order` over the coefficients it set aside.
-WALK_PASSES = 2
-#: After each coefficient kept, :func:`walk_order` retries this many of those set aside
-#: (measured on the highlight material of tests/test_objective.py: 1 reaches the codes of 4
-#: with 21 % fewer evaluations; 0, no retries, was up to 3.3× above the log rule's code).
-WALK_RETRY = 1
-
-
-def stored_precision(values: np.ndarray) -> np.ndarray:
-    """``values`` rounded as a coded file stores them (binary16, or float32 when one
-    overflows it: :func:`~sparsebtf._semantic.stored_dtype`), as float32: the walk judges
-    the very values the file keeps."""
-    v = np.asarray(values, dtype=np.float32)
-    return v.astype(stored_dtype(v)).astype(np.float32)
-
-
-def walk_order(error: ChannelError, i: int, x: np.ndarray, loc: np.ndarray,
-               values: np.ndarray, mats: Sequence[np.ndarray], cap: int,
-               passes: int = WALK_PASSES) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """The level-of-detail order of point ``i``'s coefficients under ``error``.
-
-    ``loc`` (n, N), ``values`` (n,) (stored precision) the candidates in the log rule's
-    order (decreasing magnitude), ``x`` the point's standardised values, ``mats`` its
-    dictionary (float64). The candidates are walked in that order; each one is kept if
-    adding it to those kept before lowers E_c (by :data:`WALK_MARGIN`), else set aside;
-    after each one kept the first :data:`WALK_RETRY` set aside are tried again (a highlight
-    overshot by one coefficient is often corrected by the next), and when the candidates
-    are spent all those set aside, at most ``passes`` times; the walk stops when ``cap`` are
-    kept. Returns (positions of the kept
-    candidates in their order (a,) int64, E_c after 0, 1, …, a of them (a + 1,) float64):
-    decreasing by construction, so every prefix of the kept ones, the order a decoder
-    truncates, errs less than a shorter one. Cost: one rank-1 tensor and one evaluation of
-    E_c per candidate tried (the point's values: one exp per value and R, G, B).
-    """
-    ref = error.reference(i)
-    delta = -np.asarray(x, dtype=np.float64)
-    errs = [error.sum64(i, delta, ref)]
-    kept: list[int] = []
-    aside: list[int] = []
-
-    def lowers(m: int) -> bool:
-        nonlocal delta
-        trial = delta + reconstruct_sparse(loc[m : m + 1], values[m : m + 1].astype(np.float64),
-                                           mats)  # fmt: skip
-        e = error.sum64(i, trial, ref)
-        if e > errs[-1] * (1 - WALK_MARGIN):
-            return False
-        kept.append(m)
-        errs.append(e)
-        delta = trial
-        return True
-
-    def retry(limit: int) -> bool:
-        """Retry the first ``limit`` set aside (magnitude order); True if one was kept."""
-        for n, m in enumerate(aside[:limit]):
-            if lowers(m):
-                del aside[n]
-                return True
-        return False
-
-    for m in range(values.size):
-        if len(kept) >= cap:
-            break
-        if not lowers(m):
-            aside.append(m)
-            continue
-        # what the new coefficient changed may let one set aside in: the largest first
-        while len(kept) < cap and retry(WALK_RETRY):
-            pass
-    for _ in range(passes):  # the pool is spent: every one set aside, again
-        if len(kept) >= cap or not retry(len(aside)):
-            break
-        while len(kept) < cap and retry(len(aside)):
-            pass
-    return np.asarray(kept, dtype=np.int64), np.asarray(errs)
-
-
-def walk_pool(error: ChannelError, i: int, x: np.ndarray, idx: np.ndarray, values: np.ndarray,
-              mats: Sequence[np.ndarray], cap: int
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
-    """:func:`walk_order` of point ``i``'s candidates given as flat indices ``idx`` into the
-    point (by decreasing |value|) and ``values``: (flat indices (a,), values at the file's
-    precision (a,) float32, E_c after 0 … a of them (a + 1,)) in the walk's order."""
-    vals = stored_precision(values)
-    loc = np.stack(np.unravel_index(np.asarray(idx), x.shape), axis=1)
-    pos, errs = walk_order(error, i, x, loc, vals, mats, cap)
-    return np.asarray(idx)[pos], vals[pos], errs
-
 
 def judged_code_levels(
     batch: np.ndarray, dictionaries: Sequence[np.ndarray], levels: Sequence[int], eps: float,
@@ -292,9 +226,9 @@ def judged_code_levels(
     ``energy`` (B,) the points' ‖X‖².
 
     Returns (judged, log): per level (membership (B,), counts (B,), values (Σ counts,), flat
-    indices (Σ counts,), errors (B,)), each point's coefficients in the order of
-    :func:`walk_order` (values at the file's precision), errors E_c; the log rule's codes are
-    the paper's choice of dictionary and count from the same projections, in that order.
+    indices (Σ counts,), errors (B,)), each point's coefficients by decreasing |value|; the
+    judged codes' errors are E_c, the log rule's (from the same projections, its codes bit
+    for bit) its mean squared standardised residual.
     """
     x = np.ascontiguousarray(batch, dtype=dtype)
     b = x.shape[0]
@@ -339,7 +273,8 @@ def judged_code_levels(
             key = (int(n[0]), float(e[0]))
             if best_log[i] is None or key < best_log[i][0]:  # type: ignore[index]
                 best_log[i] = (key, k)
-        logs.append([(c[1], c[0][0], c[0][1]) for c in best_log])  # type: ignore[index]
+        chosen_log = [(c[1], c[0][0], c[0][1]) for c in best_log]  # type: ignore[index]
+        logs.append(_assemble(found, chosen_log))
     out = []
     for tau in levels:
         chosen: list[tuple[int, int, float]] = []
@@ -357,57 +292,23 @@ def judged_code_levels(
                     if best is None or key < best[0]:
                         best = (key, (k, n, e))
             chosen.append(best[1])  # type: ignore[index]
-        out.append(chosen)
-    return _walked(x, error, mats64, found, levels, eps, out, logs)
+        out.append(_assemble(found, chosen))
+    return out, logs
 
 
-def _walked(
-    x: np.ndarray, error: ChannelError, mats64: list[list[np.ndarray]],
-    found: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]],
-    levels: Sequence[int], eps: float, judged: list[list[tuple[int, int, float]]],
-    logs: list[list[tuple[int, int, float]]],
-) -> tuple[list[Codes], list[Codes]]:  # fmt: skip
-    """The chosen (dictionary, count) of every level, judged and log, in the level-of-detail
-    order of :func:`walk_order` (one walk per point and dictionary chosen at some level):
-    a judged code at level τ keeps the walk's first τ (with ε > 0 the fewest whose error
-    meets ε, when some do), a log code of n coefficients those of its n that the walk kept;
-    each code's error the walk's E_c."""
-    need: dict[tuple[int, int], int] = {}  # (i, k) → the most its walk must keep
-    for j, tau in enumerate(levels):
-        for i, (k, _, _) in enumerate(judged[j]):
-            need[i, k] = max(need.get((i, k), 0), int(tau))
-        for i, (k, n, _) in enumerate(logs[j]):
-            need[i, k] = max(need.get((i, k), 0), int(n))
-    def walk(ik: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        i, k = ik
-        return walk_pool(error, i, x[i], found[i, k][0], found[i, k][1], mats64[k], need[i, k])
-
-    keys = sorted(need)
-    walks = dict(zip(keys, parallel_map(walk, keys), strict=True))
-
-    def assemble(chosen: list[tuple[int, int]]) -> Codes:
-        b = len(chosen)
-        parts = [(walks[i, k], n) for i, (k, n) in enumerate(chosen)]
-        return (
-            np.array([c[0] for c in chosen], dtype=np.int64),
-            np.array([n for _, n in parts], dtype=np.int64),
-            np.concatenate([w[1][:n] for w, n in parts]) if b else np.empty(0, np.float32),
-            np.concatenate([w[0][:n] for w, n in parts]) if b else np.empty(0, np.int64),
-            np.array([w[2][n] for w, n in parts], dtype=np.float64),
-        )
-
-    out, out_log = [], []
-    for j, tau in enumerate(levels):
-        chosen = []
-        for i, (k, _, _) in enumerate(judged[j]):
-            errs = walks[i, k][2]
-            n = min(int(tau), errs.size - 1)
-            met = np.flatnonzero(errs[: n + 1] <= eps) if eps > 0 else ()
-            chosen.append((k, int(met[0]) if len(met) else n))
-        out.append(assemble(chosen))
-        out_log.append(assemble([(k, min(int(n), walks[i, k][2].size - 1))
-                                 for i, (k, n, _) in enumerate(logs[j])]))  # fmt: skip
-    return out, out_log
+def _assemble(found: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]],
+              chosen: list[tuple[int, int, float]]) -> Codes:  # fmt: skip
+    """Codes of the points' chosen (dictionary, count, error), point i the i-th."""
+    b = len(chosen)
+    idx = [found[i, k][0][:n] for i, (k, n, _) in enumerate(chosen)]
+    vals = [found[i, k][1][:n] for i, (k, n, _) in enumerate(chosen)]
+    return (
+        np.array([c[0] for c in chosen], dtype=np.int64),
+        np.array([c[1] for c in chosen], dtype=np.int64),
+        np.concatenate(vals).astype(np.float32) if b else np.empty(0, np.float32),
+        np.concatenate(idx).astype(np.int64) if b else np.empty(0, np.int64),
+        np.array([c[2] for c in chosen], dtype=np.float64),
+    )
 
 
 def joint_choice(
@@ -430,8 +331,6 @@ def joint_choice(
     """
     n_ch, n_lv = len(x), len(taus[0])
     b = x[0].shape[0]
-    e0 = errors[0]
-    scale = np.stack([e.scale for e in errors])  # (C, L, V, rgb)
 
     def residual(c: int, j: int, src: int, i: int) -> np.ndarray:
         """Decoded minus true standardised values of point i, channel c (not kept: a batch
@@ -445,15 +344,7 @@ def joint_choice(
 
     def joint(ji: tuple[int, int, int]) -> float:
         j, src, i = ji
-        y = e0.log_rgb[i].copy()
-        for c in range(n_ch):
-            y += residual(c, j, src, i)[..., None] * scale[c]
-        if e0.bound is not None:
-            np.minimum(y, e0.bound[..., None], out=y)
-        d = e0._value(y)
-        d -= e0.reference(i)
-        flat = d.reshape(-1)
-        return float(np.dot(flat, flat)) / flat.size
+        return joint_error(errors, i, [residual(c, j, src, i) for c in range(n_ch)])
 
     # the log rule's code is the judged one where every channel has its dictionary and count
     # (both are prefixes of the same order): judged once

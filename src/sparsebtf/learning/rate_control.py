@@ -98,7 +98,7 @@ class ChannelCandidates:
     weights : (P,) error weight w of each point (see :func:`allocate`).
     curves : None, or (P, N + 1) each point's exact error after its first 0, 1, …, N
         candidates (a linear or display objective's, non-increasing: the candidates in its
-        level-of-detail order, :func:`~sparsebtf.learning.objective.walk_order`); NaN past
+        level-of-detail order, :func:`~sparsebtf.learning.lod_order.walk_order`); NaN past
         the candidates a point has. Then the allocation spends on these curves, not on w·s².
     """
 
@@ -116,28 +116,43 @@ class ChannelCandidates:
 
 
 def hull_gains(curves: np.ndarray) -> np.ndarray:
-    """(P, N + 1) error curves (non-increasing, NaN past a point's candidates) → (P, N + 1)
-    the gain of each candidate for the allocation: the slope of the curve's lower convex
-    hull over the segment holding it (column 0: the slope into the first), −inf past the
-    candidates. The gains fall along each point, so the largest ``extra`` of all points are
-    a prefix of each, and the hull errs no more than the curve where they meet."""
+    """(P, N + 1) error curves (non-increasing where known; NaN between the counts a walk
+    evaluated and past a point's candidates) → (P, N + 1) the gain of each candidate for the
+    allocation: the slope of the lower convex hull of the known (k, e_k) over the segment
+    holding it (column 0: the slope into the first), −inf past the last known count. The
+    gains fall along each point, so the largest ``extra`` of all points are a prefix of
+    each, and the hull errs no more than the curve where they meet."""
     p, n1 = curves.shape
     out = np.full((p, n1), -np.inf)
     for i in range(p):
-        e = curves[i][np.isfinite(curves[i])]
-        hull = [0]  # lower convex hull of (k, e_k), k = 0 … a
-        for k in range(1, e.size):
+        ks = np.flatnonzero(np.isfinite(curves[i]))
+        e = curves[i][ks]
+        hull = [0]  # indices into ks of the lower convex hull of (k, e_k)
+        for j in range(1, ks.size):
             while len(hull) >= 2:
                 a, b = hull[-2], hull[-1]
-                if (e[b] - e[a]) * (k - a) >= (e[k] - e[a]) * (b - a):
-                    hull.pop()  # b on or above the chord from a to k
+                if (e[b] - e[a]) * (ks[j] - ks[a]) >= (e[j] - e[a]) * (ks[b] - ks[a]):
+                    hull.pop()  # b on or above the chord from a to j
                 else:
                     break
-            hull.append(k)
+            hull.append(j)
         for a, b in itertools.pairwise(hull):
-            out[i, a + 1 : b + 1] = (e[a] - e[b]) / (b - a)
-        out[i, 0] = out[i, 1] if e.size > 1 else -np.inf
+            out[i, ks[a] + 1 : ks[b] + 1] = (e[a] - e[b]) / (ks[b] - ks[a])
+        out[i, 0] = out[i, 1] if ks.size > 1 else -np.inf
     return out
+
+
+def known_count(curves: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """Each point's ``counts`` rounded down to a count its curve knows (a stop of the walk,
+    :func:`~sparsebtf.learning.lod_order.walk_stops`; 0 where the walk kept none):
+    the allocation's marginal point may end inside a hull segment, where the error between
+    two stops was not evaluated."""
+    known = np.isfinite(curves)
+    known[:, 0] = False
+    idx = np.where(known, np.arange(curves.shape[1])[None, :], 0)
+    best = np.maximum.accumulate(idx, axis=1)  # the largest known count <= each count
+    c = np.minimum(counts, curves.shape[1] - 1)
+    return best[np.arange(curves.shape[0]), c]
 
 
 def allocate(
@@ -201,8 +216,8 @@ def allocate(
         start += p * (n - 1)
         # Counts per point; the prefix of that length has gains >= the chosen ones (sorted).
         counts = 1 + sel.sum(axis=1).astype(np.int64)
-        if exact:  # a walk may keep fewer than N candidates (NaN past them)
-            counts = np.minimum(counts, np.isfinite(cand.curves).sum(axis=1) - 1)
+        if exact:  # where the walk evaluated the error (NaN between stops and past them)
+            counts = known_count(cand.curves, counts)  # type: ignore[arg-type]
         keep = np.arange(n)[None, :] < counts[:, None]
         vals = cand.values[keep].astype(np.float32)
         lin = cand.indices[keep]
