@@ -417,7 +417,8 @@ def test_joint_walk_sets_aside_a_harmful_coefficient(model):
             per_level.append(SparseCodes(c.mode_sizes, c.membership, c.counts, vals,
                                          c.locations, c.errors))  # fmt: skip
         codes.append(per_level)
-    walked, unjudged = lod_orders(xs, errors, codes, dicts, [list(t) for t in zip(*taus, strict=True)])
+    caps = [list(t) for t in zip(*taus, strict=True)]
+    walked, unjudged = lod_orders(xs, errors, codes, dicts, caps)
 
     def joint(cs, j, i, frac):
         res = []
