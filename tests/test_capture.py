@@ -304,6 +304,33 @@ def test_interrupted_capture_resumes_to_the_same_values(tmp_path, monkeypatch, c
     assert np.array_equal(read(out)[0], whole) and not (tmp_path / "cut.h5.partial").exists()
 
 
+def test_interrupted_capture_in_the_cache_is_continued(tmp_path, monkeypatch):
+    """A benchmark killed mid-capture: the next run continues the cached capture (no error
+    asking for a --resume the benchmark does not pass on)."""
+    from sparsebtf.data.capture import cached_capture, writer
+
+    whole = read(capture("pebbles", tmp_path / "whole.h5", size=4, directions="tiny7", spp=2))[0]
+    real = writer.render_block
+    calls = []
+
+    def dies_after_three(spec, view):
+        calls.append(view)
+        if len(calls) > 3:
+            raise KeyboardInterrupt
+        return real(spec, view)
+
+    monkeypatch.setattr(writer, "render_block", dies_after_three)
+    cache = tmp_path / "cache"
+    with pytest.raises(KeyboardInterrupt):
+        cached_capture("pebbles", 4, "tiny7", spp=2, cache_dir=cache)
+    assert len(list(cache.glob("*.partial"))) == 1
+    calls.clear()
+    monkeypatch.setattr(writer, "render_block", lambda spec, v: calls.append(v) or real(spec, v))
+    got = cached_capture("pebbles", 4, "tiny7", spp=2, cache_dir=cache)
+    assert calls == [3, 4, 5, 6] and not list(cache.glob("*.partial"))
+    assert np.array_equal(got.to_array(), whole)
+
+
 def test_bad_scenes_and_options_are_one_line(tmp_path, capsys):
     def err(*argv):
         code, _, e = run(["capture", *argv], capsys)

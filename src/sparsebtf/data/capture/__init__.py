@@ -130,7 +130,8 @@ def cached_capture(
 ) -> Any:
     """A captured built-in sample as a :class:`~sparsebtf.data.dense_file.DenseFileBTF`,
     rendered once into the synthetic-material cache (``$SPARSEBTF_CACHE``) and reused; the
-    file name holds everything that decides its values (and :data:`CAPTURE_VERSION`)."""
+    file name holds everything that decides its values (and :data:`CAPTURE_VERSION`); an
+    interrupted capture there is continued."""
     from ..cache import announce_write, enforce_cap, mark_used, resolve_cache_dir
     from ..dense_file import DenseFileBTF, dense_file_bytes
 
@@ -143,6 +144,11 @@ def cached_capture(
         return DenseFileBTF(path)
     announce_write(path, dense_file_bytes(spec.shape, "float32"))
     path.parent.mkdir(parents=True, exist_ok=True)
-    capture(scene, path, size, directions, spp=spp, seed=seed)
+    # the cache is the library's own: a capture a kill interrupted there is continued (its
+    # key was checked when it was begun, and is again)
+    from .writer import partial_path
+
+    capture(scene, path, size, directions, spp=spp, seed=seed,
+            resume=partial_path(path).exists())  # fmt: skip
     enforce_cap(path)
     return DenseFileBTF(path)
