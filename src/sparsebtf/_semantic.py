@@ -223,7 +223,7 @@ def check_codes(codes: SparseCodes, where: str, n_dictionaries: int | None = Non
     ``n_dictionaries`` (K), when known, bounds the memberships. ``magnitude_order``: each
     point's values must come by decreasing magnitude (the log objective's level-of-detail
     order); a linear or display objective's files keep the order of their objective instead
-    (:func:`sparsebtf.learning.lod_order.walk_order`)."""
+    (:mod:`sparsebtf.learning.lod_order`)."""
     sizes = np.asarray(codes.mode_sizes, dtype=np.int64)
     member = np.asarray(codes.membership)
     counts = np.asarray(codes.counts, dtype=np.int64)

@@ -52,12 +52,12 @@ def coded_btf(
     stored magnitude, ties by location: :func:`~sparsebtf.storage.coded_streams.canonical_codes`),
     the order every coded file gives back; under a linear or display objective
     (``params["objective"]``) in the order the codes come in, the objective's
-    (:func:`~sparsebtf.learning.lod_order.walk_order`), which the file keeps."""
+    (:func:`~sparsebtf.learning.lod_order.lod_orders`), which the file keeps."""
     from ..storage.coded_streams import canonical_codes
 
     if params.get("objective", "log") == "log":
         codes = {ch: canonical_codes(c) for ch, c in codes.items()}
-    # else the objective's level-of-detail order (learning.lod_order.walk_order) is kept
+    # else the objective's level-of-detail order (learning.lod_order) is kept
     params = {
         **params,
         "std_mode": stats.mode,
