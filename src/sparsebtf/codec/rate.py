@@ -542,10 +542,11 @@ def encode_rate_levels(
     (:func:`~sparsebtf.learning.coding.screen_dictionaries`); None: every dictionary.
     ``objective`` "linear" or "display" (:mod:`sparsebtf.learning.objective`): each point's
     dictionary is the one of least error in that objective at its reference count; its
-    candidates come in the objective's order (:func:`~sparsebtf.learning.lod_order.walk_pool`,
-    one evaluation of the error per block tried: the cost) with their exact error at the
-    walk's stops, and the allocation spends on those curves (:func:`~sparsebtf.learning.rate_control.allocate`): no point's error in
-    the objective, hence not the material's, grows with the target.
+    candidates come in the objective's order
+    (:func:`~sparsebtf.learning.lod_order.walk_pool`, one evaluation of the error per block
+    tried: the cost) with their exact error at the walk's stops, and the allocation spends
+    on those curves (:func:`~sparsebtf.learning.rate_control.allocate`): no point's error
+    in the objective, hence not the material's, grows with the target.
     """
     plan = RateTargets(tuple(int(t) for t in targets))
     (coded,) = run_plan([btf], model, plan, options, execution, **keywords)

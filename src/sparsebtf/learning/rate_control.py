@@ -98,8 +98,9 @@ class ChannelCandidates:
     weights : (P,) error weight w of each point (see :func:`allocate`).
     curves : None, or (P, N + 1) each point's exact error after its first 0, 1, …, N
         candidates (a linear or display objective's, non-increasing where known: the
-        candidates in its order, :func:`~sparsebtf.learning.lod_order.walk_pool`); NaN
-        between the walk's stops and past the candidates a point has. Then the allocation spends on these curves, not on w·s².
+        candidates in its order, :func:`~sparsebtf.learning.lod_order.walk_pool`);
+        NaN between the walk's stops and past the candidates a point has. Then the
+        allocation spends on these curves, not on w·s².
     """
 
     mode_sizes: tuple[int, ...]
