@@ -27,11 +27,12 @@ from ..errors import BTFInputError, FileFormatError, SparseBTFError
 from ..execution import Execution, Executor, worker_label
 from ..model import Model
 from ..points.grid import PatchGrid
-from ..points.preprocessing import LogOffset, StdMode
+from ..points.preprocessing import LogOffset, StdMode, resolve_log_offset
 from ..points.statistics import (
-    choose_log_offset,
     combine_statistics,
     gather_statistics,
+    provisional_log_offset,
+    sampled_log_offset,
     statistic_sums,
     warn_negatives,
 )
@@ -181,12 +182,13 @@ def _header(x: Source | BTF) -> Header:
     return Header.of(_as_btf(x))
 
 
-def _sums(x: Source | BTF, views: tuple[int, int], log_offset: float, tick: Any = None) -> Any:
-    return statistic_sums(_as_btf(x), views, log_offset, tick)
+def _sums(x: Source | BTF, views: tuple[int, int], log_offset: float, sample: bool,
+          tick: Any = None) -> Any:  # fmt: skip
+    return statistic_sums(_as_btf(x), views, log_offset, tick, sample)
 
 
 def _log_offset(x: Source | BTF, rule: LogOffset) -> float:
-    return choose_log_offset(_as_btf(x), rule)
+    return provisional_log_offset(_as_btf(x), rule)
 
 
 def _range(
@@ -320,7 +322,9 @@ def _statistics(
     log_offset: LogOffset, progress: bool | None,
 ) -> list[Any]:  # fmt: skip
     """Each BTF's standardisation in the model's preprocessing, from view-range tasks (after
-    one task per BTF that chooses its log offset); log-YUV statistics rounded to binary16
+    one task per BTF that chooses its log offset, provisionally for "auto": the sums tasks
+    then check it, :func:`~sparsebtf.points.statistics.statistics_with_offset`); log-YUV
+    statistics rounded to binary16
     (:func:`~sparsebtf.storage.coded_streams.binary16_statistics`), the precision the coded
     file keeps."""
     if model.transform != "log_yuv":
@@ -328,19 +332,42 @@ def _statistics(
             gather_statistics(h, mode, transform=model.transform)  # type: ignore[arg-type]
             for h in headers
         ]
+    # The "auto" offset: sums on a provisional offset that also histogram the offset's
+    # sample, read again only for a BTF whose sample gives another offset (statistics.py).
+    auto = resolve_log_offset(log_offset) == "auto"
     offsets = ex.gather([ex.submit(_log_offset, o, log_offset) for o in opened])
-    owner, weights, tasks = [], [], []
-    views = sum(len(h.views) for h in headers)
-    for b, (o, h) in enumerate(zip(opened, headers, strict=True)):
-        for lo, hi in ex.chunks(len(h.views), 1, per_worker=2, total=views):
-            tasks.append(ex.submit(_sums, o, (lo, hi), offsets[b], ticks=True))
-            owner.append(b)
-            weights.append(hi - lo)
+    sums = _sum_tasks(ex, opened, headers, offsets, range(len(headers)), auto, progress,
+                      "statistics")  # fmt: skip
+    if auto:
+        exact = [sampled_log_offset(p) for p in sums]
+        again = [b for b, (x, o) in enumerate(zip(exact, offsets, strict=True)) if x != o]
+        offsets = exact
+        if again:
+            redone = _sum_tasks(ex, opened, headers, offsets, again, False, progress,
+                                "statistics (new log offset)")  # fmt: skip
+            for b, parts in zip(again, redone, strict=True):
+                sums[b] = parts
     out: list[Any] = []
-    results = ex.results(tasks, weights=weights, desc="statistics", unit="view", progress=progress)
-    del tasks
-    for b, parts in _by_owner(results, owner):
+    for b, parts in enumerate(sums):
         warn_negatives(headers[b].label, parts)
         # μ, σ as the coded file stores them (binary16), before any point is coded
         out.append(binary16_statistics(combine_statistics(parts, mode, offsets[b])))
     return out
+
+
+def _sum_tasks(
+    ex: Executor, opened: list[Any], headers: list[Header], offsets: list[float],
+    which: Sequence[int], sample: bool, progress: bool | None, desc: str,
+) -> list[list[Any]]:  # fmt: skip
+    """The view-range :class:`~sparsebtf.points.statistics.StatisticSums` of the BTFs
+    ``which``, one list per BTF in view order."""
+    owner, weights, tasks = [], [], []
+    views = sum(len(headers[b].views) for b in which)
+    for b in which:
+        for lo, hi in ex.chunks(len(headers[b].views), 1, per_worker=2, total=views):
+            tasks.append(ex.submit(_sums, opened[b], (lo, hi), offsets[b], sample, ticks=True))
+            owner.append(b)
+            weights.append(hi - lo)
+    results = ex.results(tasks, weights=weights, desc=desc, unit="view", progress=progress)
+    del tasks
+    return [parts for _, parts in _by_owner(results, owner)]

@@ -26,7 +26,7 @@ from ..data.btf import BTF
 from ..errors import BTFInputError, OutputError
 from .grid import PatchGrid, iter_points, sample_points
 from .preprocessing import RELEASE_LOG_OFFSET, LogOffset, Preprocessor, StdMode, Transform
-from .statistics import choose_log_offset, gather_statistics
+from .statistics import gather_statistics, statistics_with_offset
 
 __all__ = [
     "STAGE_LIMIT_BYTES",
@@ -228,12 +228,11 @@ def training_points(
     check_same_directions(btfs)
     grids = [PatchGrid.for_btf(b, patch) for b in btfs]
     pres = [
-        Preprocessor(gather_statistics(
-            b, std_mode,
-            log_offset=(choose_log_offset(b, log_offset) if transform == "log_yuv"
-                        else RELEASE_LOG_OFFSET),
-            progress=progress, transform=transform,
-        ))
+        Preprocessor(
+            statistics_with_offset(b, std_mode, log_offset, progress) if transform == "log_yuv"
+            else gather_statistics(b, std_mode, log_offset=RELEASE_LOG_OFFSET,
+                                   progress=progress, transform=transform)
+        )
         for b in btfs
     ]  # fmt: skip
     samples = sample_points([g.n_points for g in grids], sample, seed)

@@ -4,6 +4,15 @@ angular image, the bound, the per-material log offset.
 Statistics are gathered in one streaming pass over view blocks (:func:`gather_statistics`), or
 by view ranges in separate tasks (:func:`statistic_sums`, :func:`combine_statistics`).
 
+One read for the ``auto`` log offset too (:func:`statistics_with_offset`): the sums need the
+offset, which needs a sample of the data, so the pass runs on a *provisional* offset (the
+sample's first band of rows, :func:`provisional_log_offset`, a few percent of a read) and
+histograms the offset's whole sample from the blocks it reads anyway (``sample=True``). When
+the sample's offset (:func:`sampled_log_offset`) equals the provisional one — the median of a
+material's first rows usually falls in the same 1/64-decade bin — the sums are final, bit for
+bit those of reading the offset first; otherwise the sums are read again with it (the cost of
+two passes, as before).
+
 True black and high dynamic range. ln(x + 1e-5) turns an exact zero (a hard shadow, a masked
 texel) into −11.5 among values near −2: standardisation and the sparse code then chase those
 outliers, and the overshoot they cause comes back through exp() as values thousands of times
@@ -27,6 +36,7 @@ import itertools
 import warnings
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -56,8 +66,11 @@ __all__ = [
     "combine_statistics",
     "gather_statistics",
     "positive_median",
+    "provisional_log_offset",
+    "sampled_log_offset",
     "statistic_bands",
     "statistic_sums",
+    "statistics_with_offset",
     "warn_negatives",
 ]
 
@@ -68,6 +81,7 @@ LOG_OFFSET_FRACTION = 0.01
 _OFFSET_VIEWS = 12
 #: Log-spaced histogram of positive values for the median: 64 bins per decade, 1e-12 … 1e12.
 _HIST_PER_DECADE, _HIST_LOW, _HIST_DECADES = 64, -12, 24
+_N_BINS = _HIST_DECADES * _HIST_PER_DECADE
 #: Texels per view block the median is taken over (a regular subsample of larger tiles).
 _OFFSET_TEXELS = 10_000
 
@@ -88,6 +102,9 @@ class StatisticSums:
     top : (L, v1 − v0) float64: the largest ln(x + offset) over texels and R, G, B.
     n_texels : H·W.
     negatives : values clamped to 0.
+    counts, seen : with ``sample=True``: the log-spaced histogram of the positive values of
+        the ``auto`` log offset's sample (:func:`positive_median`) within these views, and
+        the number of sampled values; otherwise None and 0.
     """
 
     views: tuple[int, int]
@@ -97,6 +114,8 @@ class StatisticSums:
     top: np.ndarray
     n_texels: int
     negatives: int
+    counts: np.ndarray | None = None
+    seen: int = 0
 
 
 #: Bytes of BTF values one statistics read holds (a band of rows of a few views), per thread,
@@ -123,8 +142,11 @@ def statistic_sums(
     views: tuple[int, int] | None = None,
     log_offset: float = RELEASE_LOG_OFFSET,
     tick: Callable[[int], object] | None = None,
+    sample: bool = False,
 ) -> StatisticSums:
-    """The :class:`StatisticSums` of ``btf`` over ``views`` (default: all).
+    """The :class:`StatisticSums` of ``btf`` over ``views`` (default: all); with ``sample``
+    also the ``auto`` log offset's histogram of its sample views in the range, from the same
+    reads (:attr:`StatisticSums.counts`).
 
     Read in bands of rows of a few views (:func:`statistic_bands`; memory: a band per
     thread), the groups of views on the worker threads (:func:`~sparsebtf._threads.
@@ -148,11 +170,14 @@ def statistic_sums(
     shift = np.zeros((nl, v1 - v0, 3))
     top = np.zeros((nl, v1 - v0))
     negatives = 0
+    where = _offset_sample(btf) if sample else None
+    counts = np.zeros(_N_BINS, dtype=np.int64) if sample else None
+    seen = 0
 
-    def group_sums(vs: tuple[int, int]) -> tuple[np.ndarray, ...]:
-        return _group_sums(btf, vs, rows, log_offset)
+    def group_sums(vs: tuple[int, int]) -> tuple[Any, ...]:
+        return _group_sums(btf, vs, rows, log_offset, where)
 
-    for (a, b), (sh, g1, g2, gt, neg) in zip(
+    for (a, b), (sh, g1, g2, gt, neg, gc, gs) in zip(
         groups, ordered_map(group_sums, groups), strict=True
     ):
         shift[:, a - v0 : b - v0] = sh
@@ -160,16 +185,22 @@ def statistic_sums(
         s2[:, a - v0 : b - v0] = g2
         top[:, a - v0 : b - v0] = gt
         negatives += neg
+        if counts is not None:
+            counts += gc
+            seen += gs
         if tick is not None:
             tick(b - a)
-    return StatisticSums((v0, v1), shift, s1, s2, top, n, negatives)
+    return StatisticSums((v0, v1), shift, s1, s2, top, n, negatives, counts, seen)
 
 
 def _group_sums(
-    btf: BTF, views: tuple[int, int], rows: int, offset: float
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    btf: BTF, views: tuple[int, int], rows: int, offset: float,
+    sample: tuple[np.ndarray, int] | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, np.ndarray | None, int]:
     """Shift, Σd, Σd², top ((L, v, 3) or (L, v)) and the negative count of views
-    ``[a, b)``, read in bands of ``rows`` rows; each view's sums in band order."""
+    ``[a, b)``, read in bands of ``rows`` rows; each view's sums in band order. With
+    ``sample`` = (views, step) of :func:`_offset_sample`, also the histogram of those views'
+    subsampled values in the range and their number (else None, 0)."""
     from .kernels import accumulate_sums, log_offset
 
     h, _, nl, _, _ = btf.shape
@@ -180,8 +211,18 @@ def _group_sums(
     s2 = np.zeros((nl * nvg, 3))
     top = np.full(nl * nvg, -np.inf)
     negatives = 0
+    mine = [] if sample is None else [int(v) for v in sample[0] if a <= v < b]
+    counts = None if sample is None else np.zeros(_N_BINS, dtype=np.int64)
+    seen = 0
     for r0 in range(0, h, rows):
         block = btf.read(slice(r0, min(r0 + rows, h)), slice(None), slice(None), slice(a, b))
+        if mine:  # the offset's sample rows (multiples of its step) and columns in this band
+            step = sample[1]  # type: ignore[index]
+            for v in mine:
+                sub = block[(-r0) % step :: step, ::step, :, v - a]
+                if sub.size:
+                    counts += _histogram(sub)  # type: ignore[operator]
+                    seen += sub.size
         # float32 transforms (the release computed its statistics in single precision),
         # float64 accumulators.
         logs, bad, neg = log_offset(block, offset)
@@ -196,6 +237,8 @@ def _group_sums(
         s2.reshape(nl, nvg, 3),
         top.reshape(nl, nvg),
         negatives,
+        counts,
+        seen,
     )
 
 
@@ -244,7 +287,31 @@ def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
         return RELEASE_LOG_OFFSET
     if not isinstance(rule, str):
         return float(rule)
-    median, _ = positive_median(btf)
+    return _offset_of(positive_median(btf)[0])
+
+
+def provisional_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
+    """:func:`choose_log_offset`, for "auto" on the sample's rows within the first band of
+    :func:`statistic_bands` only (all of it when one band holds every row): the offset a
+    statistics pass with ``sample=True`` starts from, checked against
+    :func:`sampled_log_offset` when it ends."""
+    rule = resolve_log_offset(rule)
+    if rule != "auto":
+        return choose_log_offset(btf, rule)
+    return _offset_of(positive_median(btf, rows=statistic_bands(btf)[0])[0])
+
+
+def sampled_log_offset(parts: Sequence[StatisticSums]) -> float:
+    """The "auto" log offset from the histograms of :func:`statistic_sums` with
+    ``sample=True`` over every view: the same as :func:`choose_log_offset`'s."""
+    if any(p.counts is None for p in parts):
+        raise BTFInputError("statistic sums without the log offset's sample (sample=True)")
+    counts = np.sum([p.counts for p in parts], axis=0)
+    return _offset_of(_median(counts, sum(p.seen for p in parts))[0])
+
+
+def _offset_of(median: float | None) -> float:
+    """The "auto" rule's offset for a median positive value (None: no positive value)."""
     if median is None:
         return RELEASE_LOG_OFFSET
     # Round to 3 significant digits: the offset is a recorded parameter, not a measurement.
@@ -252,21 +319,50 @@ def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
     return float(f"{offset:.3g}")
 
 
-def positive_median(btf: BTF) -> tuple[float | None, float]:
+
+def _offset_sample(btf: BTF) -> tuple[np.ndarray, int]:
+    """(views, step) of the "auto" offset's sample: up to :data:`_OFFSET_VIEWS` evenly spaced
+    views, rows and columns that are multiples of ``step``."""
+    h, w, _, nv, _ = btf.shape
+    views = np.unique(np.linspace(0, nv - 1, min(nv, _OFFSET_VIEWS)).round().astype(int))
+    return views, max(1, int(np.sqrt(h * w / _OFFSET_TEXELS)))
+
+
+def _histogram(block: np.ndarray) -> np.ndarray:
+    """Counts of the positive values of ``block`` in the log-spaced bins (order-free: any
+    split of the sample sums to the same counts)."""
+    x = block.ravel()
+    x = x[x > 0].astype(np.float64)
+    # bin = ⌊64·(log10 x + 12)⌋: one pass, no search over the edges
+    b = np.floor((np.log10(x) - _HIST_LOW) * _HIST_PER_DECADE).astype(np.int64)
+    return np.bincount(np.clip(b, 0, _N_BINS - 1), minlength=_N_BINS)
+
+
+def _median(counts: np.ndarray, seen: int) -> tuple[float | None, float]:
+    """(the median bin's geometric centre, share of values <= 0) of a histogram of ``seen``
+    values; None when none is positive."""
+    total = int(counts.sum())
+    zeros = 1.0 - total / seen if seen else 0.0
+    if total == 0:
+        return None, zeros
+    k = int(np.searchsorted(np.cumsum(counts), (total + 1) // 2))
+    return float(10.0 ** (_HIST_LOW + (k + 0.5) / _HIST_PER_DECADE)), zeros  # bin centre
+
+
+def positive_median(btf: BTF, rows: int | None = None) -> tuple[float | None, float]:
     """(median of the positive values, share of values <= 0) of ``btf``, on the sample the
     ``auto`` log offset uses (:func:`choose_log_offset`): up to :data:`_OFFSET_VIEWS` evenly
     spaced view blocks, a regular subsample of about :data:`_OFFSET_TEXELS` texels of each;
     the median is its log-spaced histogram bin's geometric centre (64 bins per decade), None
-    when no value is positive. NaN/Inf abort with their count and a location."""
-    h, w, _, nv, _ = btf.shape
-    views = np.unique(np.linspace(0, nv - 1, min(nv, _OFFSET_VIEWS)).round().astype(int))
-    step = max(1, int(np.sqrt(h * w / _OFFSET_TEXELS)))
-    n_bins = _HIST_DECADES * _HIST_PER_DECADE
-    counts = np.zeros(n_bins, dtype=np.int64)
+    when no value is positive. ``rows``: the sample's rows below this one only. NaN/Inf abort
+    with their count and a location."""
+    h = btf.shape[0]
+    views, step = _offset_sample(btf)
+    counts = np.zeros(_N_BINS, dtype=np.int64)
     sub = slice(None, None, step)
     seen = 0
     for v in views:
-        block = btf.read(sub, sub, slice(None), [int(v)])  # the subsample only
+        block = btf.read(slice(0, min(h, rows or h), step), sub, slice(None), [int(v)])
         bad = ~np.isfinite(block)
         if bad.any():  # located in the whole BTF: rows and cols of the subsample × step
             r, c, li, _, ch = (int(i[0]) for i in np.nonzero(bad))
@@ -276,17 +372,8 @@ def positive_median(btf: BTF) -> tuple[float | None, float]:
                 f"light {li}, view {int(v)}, channel {ch}"
             )
         seen += block.size
-        x = block.ravel()
-        x = x[x > 0].astype(np.float64)
-        # bin = ⌊64·(log10 x + 12)⌋: one pass, no search over the edges
-        b = np.floor((np.log10(x) - _HIST_LOW) * _HIST_PER_DECADE).astype(np.int64)
-        counts += np.bincount(np.clip(b, 0, n_bins - 1), minlength=n_bins)
-    total = int(counts.sum())
-    zeros = 1.0 - total / seen if seen else 0.0
-    if total == 0:
-        return None, zeros
-    k = int(np.searchsorted(np.cumsum(counts), (total + 1) // 2))
-    return float(10.0 ** (_HIST_LOW + (k + 0.5) / _HIST_PER_DECADE)), zeros  # bin centre
+        counts += _histogram(block)
+    return _median(counts, seen)
 
 
 def warn_negatives(name: str, parts: Sequence[StatisticSums]) -> None:
@@ -327,3 +414,24 @@ def gather_statistics(
         sums = statistic_sums(btf, log_offset=log_offset, tick=pb.update)
     warn_negatives(btf.label, [sums])
     return combine_statistics([sums], mode, log_offset)
+
+
+def statistics_with_offset(
+    btf: BTF,
+    mode: StdMode = "shared",
+    rule: LogOffset = "auto",
+    progress: bool | None = None,
+) -> Standardization:
+    """:func:`gather_statistics` at :func:`choose_log_offset`'s offset (log-YUV), the data read
+    once when the provisional offset holds (module docstring): the same values as choosing the
+    offset first."""
+    offset = provisional_log_offset(btf, rule)
+    auto = resolve_log_offset(rule) == "auto"
+    with bar(btf.shape[3], "statistics", "view", progress) as pb:
+        sums = statistic_sums(btf, log_offset=offset, tick=pb.update, sample=auto)
+    if auto and (exact := sampled_log_offset([sums])) != offset:
+        offset = exact
+        with bar(btf.shape[3], "statistics (new log offset)", "view", progress) as pb:
+            sums = statistic_sums(btf, log_offset=offset, tick=pb.update)
+    warn_negatives(btf.label, [sums])
+    return combine_statistics([sums], mode, offset)
