@@ -107,14 +107,14 @@ def instrumented(clock: Clock) -> Iterator[None]:
         clock.wrap_stream(enc, "stream_points", "waiting for data"),
     ]
     # count the exact projections (their time is the coding's less screening and energies)
-    inner_project = coding.project
+    inner_project = coding.project_into
 
     def counted(*args: Any, **kwargs: Any) -> Any:
         clock.add("projections made", 0.0, args[0].shape[0])
         return inner_project(*args, **kwargs)
 
-    coding.project = counted
-    undo.append(lambda: setattr(coding, "project", inner_project))
+    coding.project_into = counted
+    undo.append(lambda: setattr(coding, "project_into", inner_project))
     try:
         yield
     finally:

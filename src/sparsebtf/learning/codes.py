@@ -41,8 +41,10 @@ RELEASE_EPS = 1e-5
 DTYPES = ("float32", "float64")
 
 
-def topk_abs(c: np.ndarray, k: int) -> np.ndarray:
+def topk_abs(c: np.ndarray, k: int, scratch: np.ndarray | None = None) -> np.ndarray:
     """Indices of the ``k`` largest |c| of a 1D array, by decreasing magnitude (ties: lower index).
+    ``scratch``: a flat array of c's dtype and at least its size for |c| (reused by the caller:
+    no fresh pages per call).
 
     Not a full sort of 2.28 M entries: the k-th largest of the maxima of 4k blocks is a lower
     bound of the k-th largest entry (k block maxima are above it), so only the entries above it
@@ -50,7 +52,7 @@ def topk_abs(c: np.ndarray, k: int) -> np.ndarray:
     """
     n = c.size
     k = min(k, n)
-    a = np.abs(c)
+    a = np.abs(c) if scratch is None else np.abs(c, out=scratch[:n])
     if k <= 0:
         return np.empty(0, dtype=np.int64)
     nb = 4 * k

@@ -28,6 +28,7 @@ renderer can truncate τ by reading a prefix; the count rule is :func:`~.codes.r
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Sequence
 
 import numpy as np
@@ -36,7 +37,7 @@ from .._threads import parallel_map
 from ..errors import BTFInputError
 from .codes import SparseCodes, coding_rule, count_and_error, rule_keys, topk_abs
 from .objective import ChannelError, judged_code_levels
-from .tensor import project, reconstruct_sparse, sum_squares
+from .tensor import project_into, reconstruct_sparse, sum_squares
 
 __all__ = [
     "DEFAULT_CANDIDATES",
@@ -95,6 +96,19 @@ def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: int) ->
     y = np.matmul(u1.transpose(0, 2, 1), y.reshape(k, p1, p2 * r3 * r4))  # ×_1
     y = np.matmul(u2.transpose(0, 2, 1)[:, None], y.reshape(k, p1, p2, r3 * r4))  # ×_2
     return np.square(y.reshape(k, -1), dtype=np.float64)
+
+
+#: Per worker thread: the two buffers :func:`~.tensor.project_into` writes a projection's
+#: modes into and :func:`~.codes.topk_abs`'s scratch (3 × 9 MB at 10×10×151×151 float32),
+#: kept from point to point.
+_BUFFERS = threading.local()
+
+
+def _buffers(size: int, dtype: np.dtype) -> list[np.ndarray]:
+    have = getattr(_BUFFERS, "arrays", None)
+    if have is None or have[0].size < size or have[0].dtype != dtype:
+        have = _BUFFERS.arrays = [np.empty(size, dtype=dtype) for _ in range(3)]
+    return have
 
 
 def point_energies(batch: np.ndarray) -> np.ndarray:
@@ -262,8 +276,10 @@ def sparse_code_levels(
 
     def task(ik: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
         i, k = ik
-        s = project(xc[i : i + 1], mats_k[k]).reshape(-1)
-        idx = topk_abs(s, tmax)
+        # :func:`project`'s values, into this thread's buffers: idx and s[idx] are copies
+        buf = _buffers(xc[i].size, xc.dtype)
+        s = project_into(xc[i : i + 1], mats_k[k], buf[:2]).reshape(-1)
+        idx = topk_abs(s, tmax, scratch=buf[2])
         return idx, s[idx]
 
     pairs = [(i, k) for k in range(n_dict) for i in range(b) if mask[i, k]]
