@@ -110,8 +110,11 @@ def instrumented(clock: Clock) -> Iterator[None]:
     inner_project = coding.project_into
 
     def counted(*args: Any, **kwargs: Any) -> Any:
-        clock.add("projections made", 0.0, args[0].shape[0])
-        return inner_project(*args, **kwargs)
+        t = time.thread_time()  # this worker's CPU: robust to other jobs sharing the cores
+        try:
+            return inner_project(*args, **kwargs)
+        finally:
+            clock.add("projections made", time.thread_time() - t, args[0].shape[0])
 
     coding.project_into = counted
     undo.append(lambda: setattr(coding, "project_into", inner_project))
@@ -144,6 +147,77 @@ def shaped_gemm_gflops(rows: int, inner: int) -> float:
             list(parallel_map(lambda i: [a[i] @ b for _ in range(reps)], range(k)))
 
     return 2 * rows * inner * inner * reps * k / best_of(run) / 1e9
+
+
+def shaped_gemm_cpu_gflops(rows: int, inner: int, reps: int = 20) -> float:
+    """The same GEMM's throughput per CPU second of one thread (its thread CPU time: what a
+    core delivers while it runs it, whatever else shares the machine); best of 3."""
+    from sparsebtf._threads import single_threaded_blas
+
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((rows, inner)).astype(np.float32)
+    b = rng.standard_normal((inner, inner)).astype(np.float32)
+    best = math.inf
+    with single_threaded_blas():
+        a @ b
+        for _ in range(3):
+            t = time.thread_time()
+            for _ in range(reps):
+                a @ b
+            best = min(best, time.thread_time() - t)
+    return 2 * rows * inner * inner * reps / best / 1e9
+
+
+def ab_statistics(source: Any) -> dict[str, float]:
+    """Wall and CPU seconds of the statistics as before (the "auto" offset's sample read
+    first, then the sums) and now (one pass on the provisional offset), on ``source``."""
+    from sparsebtf.open import open_btf
+    from sparsebtf.points import statistics as st
+
+    btf = open_btf(source) if isinstance(source, str) else source
+    out = {}
+    for name, fn in (
+        ("two_passes", lambda: st.statistic_sums(btf, log_offset=st.choose_log_offset(btf))),
+        ("one_pass", lambda: st.statistics_with_offset(btf, progress=False)),
+    ):
+        t, c = time.perf_counter(), time.process_time()
+        fn()
+        out[f"{name}_seconds"] = time.perf_counter() - t
+        out[f"{name}_cpu_seconds"] = time.process_time() - c
+    return out
+
+
+def ab_projection(reps: int = 8) -> dict[str, float]:
+    """CPU seconds of one exact projection of a 10×10×151×151 point and its top-885 selection,
+    the way the coder made it before (:func:`project`: a fresh array per mode, a fresh |s|)
+    and now (:func:`project_into` into the worker's buffers), one point per worker thread as
+    the coder runs them, alternated ``reps`` times: the medians."""
+    import statistics
+
+    from sparsebtf._threads import n_workers, parallel_map, single_threaded_blas
+    from sparsebtf.learning.codes import topk_abs
+    from sparsebtf.learning.ensemble import random_orthonormal
+    from sparsebtf.learning.tensor import project, project_into
+
+    rng = np.random.default_rng(0)
+    mats = [random_orthonormal(m, rng).astype(np.float32) for m in (10, 10, 151, 151)]
+    k = n_workers()
+    x = rng.standard_normal((k, 1, 10, 10, 151, 151)).astype(np.float32)
+    bufs = [[np.empty(x[0].size, np.float32) for _ in range(3)] for _ in range(k)]
+
+    def now(i: int) -> np.ndarray:
+        b = bufs[i]  # as the coder's: one set per worker thread, reused
+        return topk_abs(project_into(x[i], mats, b[:2]).reshape(-1), 885, scratch=b[2])
+
+    fns = {"before": lambda i: topk_abs(project(x[i], mats).reshape(-1), 885), "now": now}
+    cpu: dict[str, list[float]] = {name: [] for name in fns}
+    with single_threaded_blas():
+        for _ in range(reps):
+            for name, fn in fns.items():
+                c = time.process_time()
+                list(parallel_map(lambda i, fn=fn: [fn(i) for _ in range(2)], range(k)))
+                cpu[name].append((time.process_time() - c) / (2 * k))
+    return {f"projection_{n}_cpu_seconds": statistics.median(v) for n, v in cpu.items()}
 
 
 def encode_one(label: str, source: Any, workdir: Path, exhaustive: bool) -> dict[str, Any]:
@@ -186,6 +260,7 @@ def encode_one(label: str, source: Any, workdir: Path, exhaustive: bool) -> dict
         "waiting_for_data_seconds": s.get("waiting for data", 0.0),
         "writing_seconds": writing,
         "projections_made": clock.calls.get("projections made", 0),
+        "projections_cpu_seconds": s.get("projections made", 0.0),
         "projection_gflop": projection_flops(sizes) / 1e9,
         "nnz": coded.nnz(),
     }
@@ -199,6 +274,11 @@ def dense_source(material: str, size: int, workdir: Path) -> str:
     return str(cached(material, size, "ubo2014", seed=0, cache_dir=workdir).path)
 
 
+STATS_AB = ("before (offset sample, then the sums) {two_passes_seconds:.2f} s wall, "
+            "{two_passes_cpu_seconds:.2f} s CPU; now (one pass) {one_pass_seconds:.2f} s wall, "
+            "{one_pass_cpu_seconds:.2f} s CPU")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=40, help="texels per side (default 40)")
@@ -210,6 +290,9 @@ def main() -> None:
                     help="folder of the dense file (default: a temporary one, removed)")
     ap.add_argument("--exhaustive", action="store_true",
                     help="project every dictionary (the paper's rule), not the screened two")
+    ap.add_argument("--ab", action="store_true",
+                    help="also, in the same run, the statistics and one projection as the "
+                    "code before issue 36 made them")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     # the rates before and after the encodes (the better of each): the other jobs' load varies
@@ -235,21 +318,40 @@ def main() -> None:
         for label, src in inputs:
             runs.append(encode_one(label.replace(" ", "-"), src, workdir, a.exhaustive))
             runs[-1]["input"] = label
+            if a.ab:
+                runs[-1]["ab_statistics"] = ab_statistics(src)
     square = max(square0, gemm_gflops())
     shaped = max(shaped0, shaped_gemm_gflops(100 * 151, 151))
+    per_core = shaped_gemm_cpu_gflops(100 * 151, 151)
     data = {"machine": machine(), "load_average": os.getloadavg(), "size": a.size,
             "rule": "exhaustive" if a.exhaustive else "screened (default)",
-            "gemm_square_gflops": square, "gemm_projection_shape_gflops": shaped, "runs": runs}
+            "gemm_square_gflops": square, "gemm_projection_shape_gflops": shaped,
+            "gemm_projection_shape_gflops_per_cpu_second": per_core, "runs": runs}
+    if a.ab:
+        data["ab_projection"] = ab_projection()
     rows: list[tuple[str, Any]] = [
         ("machine", f"{data['machine']['cpus']} cores, load average "
                     f"{data['load_average'][0]:.1f} (other jobs share them)"),
         ("GEMM rate", f"{shaped:.0f} GFLOP/s on the projection's shape (15100x151 @ 151x151, "
                       f"one per core); {square:.0f} GFLOP/s square 4096"),
+        ("  per core", f"{per_core:.0f} GFLOP per CPU second of one thread (thread CPU "
+                       "time: robust to the other jobs)"),
         ("model", f"bundled, default tau 885/64/64, {data['rule']}"),
     ]
+    if a.ab:
+        p = data["ab_projection"]
+        floor = 1.4683844e9 / (per_core * 1e9)
+        rows.append(("one projection (CPU)",
+                     f"before {p['projection_before_cpu_seconds'] * 1e3:.1f} ms, now "
+                     f"{p['projection_now_cpu_seconds'] * 1e3:.1f} ms, floor {floor * 1e3:.1f} ms"
+                     f" ({floor / p['projection_now_cpu_seconds']:.0%} of the GEMM rate now, "
+                     f"{floor / p['projection_before_cpu_seconds']:.0%} before)"))
     for r in runs:
         floor = r["projections_made"] * r["projection_gflop"] / shaped
         r["projections_floor_seconds"] = floor
+        cpu = r["projections_cpu_seconds"]
+        cpu_floor = r["projections_made"] * r["projection_gflop"] / per_core
+        r["projections_cpu_floor_seconds"] = cpu_floor
         total = r["startup_seconds"] + r["encode_seconds"] + r["writing_seconds"]
         r["total_seconds"] = total
         other = (r["encode_seconds"] - r["statistics_seconds"] - r["screening_seconds"]
@@ -270,6 +372,11 @@ def main() -> None:
                               f"floor {floor:.2f} s at the shaped GEMM rate, "
                               f"{r['projections_seconds'] / max(floor, 1e-9):.2f}x the floor "
                               f"({floor / max(r['projections_seconds'], 1e-9):.0%} of the rate)"),
+            ("  projections (CPU)", f"{cpu:.2f} s of thread CPU, floor {cpu_floor:.2f} s at "
+                                    f"the per-core rate: {cpu_floor / max(cpu, 1e-9):.0%} "
+                                    "of the GEMM rate"),
+            *([("  statistics A/B", STATS_AB.format(**r["ab_statistics"]))]
+              if "ab_statistics" in r else []),
             ("  rest of encode", f"{other:.2f} s (joining, bookkeeping)"),
             ("  writing", f"{r['writing_seconds']:.2f} s"),
         ]
