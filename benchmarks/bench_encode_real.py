@@ -220,7 +220,8 @@ def ab_projection(reps: int = 8) -> dict[str, float]:
     return {f"projection_{n}_cpu_seconds": statistics.median(v) for n, v in cpu.items()}
 
 
-def encode_one(label: str, source: Any, workdir: Path, exhaustive: bool) -> dict[str, Any]:
+def encode_one(label: str, source: Any, workdir: Path, exhaustive: bool
+               ) -> tuple[Any, dict[str, Any]]:  # fmt: skip
     from sparsebtf.codec import encode
     from sparsebtf.open import open_btf
     from sparsebtf.storage import save_coded
@@ -248,7 +249,7 @@ def encode_one(label: str, source: Any, workdir: Path, exhaustive: bool) -> dict
     coding = s.get("coding", 0.0)
     screening, energies = s.get("screening", 0.0), s.get("energies", 0.0)
     sizes = [int(d.shape[1]) for d in model.dictionaries["Y"]]
-    return {
+    return coded, {
         "input": label,
         "points": coded.n_points,
         "startup_seconds": startup,
@@ -274,9 +275,33 @@ def dense_source(material: str, size: int, workdir: Path) -> str:
     return str(cached(material, size, "ubo2014", seed=0, cache_dir=workdir).path)
 
 
+def compare(screened: Any, full: Any, run: dict[str, Any], ex: dict[str, Any]
+            ) -> dict[str, Any]:  # fmt: skip
+    """The screened encode against the exhaustive one of the same input: points × channels
+    whose dictionary differs, the relative change of the coder's summed error (mean squared
+    residual of the standardised values, what the rule minimises), the coding's time."""
+    changed = sum(int(np.sum(screened.codes[ch].membership != full.codes[ch].membership))
+                  for ch in screened.codes)  # fmt: skip
+    err_s = sum(float(np.sum(screened.codes[ch].errors)) for ch in screened.codes)
+    err_f = sum(float(np.sum(full.codes[ch].errors)) for ch in full.codes)
+
+    def coding(r: dict[str, Any]) -> float:
+        return r["screening_seconds"] + r["energies_seconds"] + r["projections_seconds"]
+
+    return {"point_channels": screened.n_points * len(screened.codes),
+            "point_channels_changed": changed,
+            "error_vs_exhaustive": err_s / err_f - 1 if err_f else 0.0,
+            "coding_seconds": coding(ex), "coding_speedup": coding(ex) / coding(run)}
+
+
 STATS_AB = ("before (offset sample, then the sums) {two_passes_seconds:.2f} s wall, "
             "{two_passes_cpu_seconds:.2f} s CPU; now (one pass) {one_pass_seconds:.2f} s wall, "
             "{one_pass_cpu_seconds:.2f} s CPU")
+
+
+EXHAUSTIVE = ("coding {coding_seconds:.1f} s exhaustive, {coding_speedup:.2f}x faster screened; "
+              "{point_channels_changed} of {point_channels} point x channel changed "
+              "dictionary; summed coding error {error_vs_exhaustive:+.4%}")
 
 
 def main() -> None:
@@ -293,6 +318,9 @@ def main() -> None:
     ap.add_argument("--ab", action="store_true",
                     help="also, in the same run, the statistics and one projection as the "
                     "code before issue 36 made them")
+    ap.add_argument("--compare-exhaustive", action="store_true",
+                    help="also encode each input with the exhaustive rule: the screening's "
+                    "share of the coding, the points whose dictionary differs, the error")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     # the rates before and after the encodes (the better of each): the other jobs' load varies
@@ -316,8 +344,12 @@ def main() -> None:
             inputs.append((f"btf {Path(a.btf).name}", str(Path(a.btf).absolute())))
         runs = []
         for label, src in inputs:
-            runs.append(encode_one(label.replace(" ", "-"), src, workdir, a.exhaustive))
-            runs[-1]["input"] = label
+            coded, run = encode_one(label.replace(" ", "-"), src, workdir, a.exhaustive)
+            runs.append(run)
+            run["input"] = label
+            if a.compare_exhaustive:
+                full, ex = encode_one(label.replace(" ", "-"), src, workdir, True)
+                run["exhaustive"] = compare(coded, full, run, ex)
             if a.ab:
                 runs[-1]["ab_statistics"] = ab_statistics(src)
     square = max(square0, gemm_gflops())
@@ -377,6 +409,8 @@ def main() -> None:
                                     "of the GEMM rate"),
             *([("  statistics A/B", STATS_AB.format(**r["ab_statistics"]))]
               if "ab_statistics" in r else []),
+            *([("  vs exhaustive", EXHAUSTIVE.format(**r["exhaustive"]))]
+              if "exhaustive" in r else []),
             ("  rest of encode", f"{other:.2f} s (joining, bookkeeping)"),
             ("  writing", f"{r['writing_seconds']:.2f} s"),
         ]
