@@ -121,10 +121,10 @@ def project_into(
     """:func:`project` with every intermediate written into ``buffers`` (two flat float arrays
     of at least the batch's size, in its dtype, reused from call to call): the same GEMMs in
     the same order on the same operands, so the same values bit for bit, without a fresh
-    array per mode. A new array's pages are faulted in as it is first written (the size of a
-    10×10×151×151 point: 9 MB, four per projection); reused buffers are already mapped, which
-    measured about 1.5× faster per projection (``benchmarks/bench_encode_real.py``). Returns
-    a view of one buffer: read it before the next call."""
+    array per mode (9 MB each at 10×10×151×151), whose pages the allocator may have to map
+    and zero again (``benchmarks/bench_encode_real.py --ab`` compares both; under load the
+    difference was within the noise). Returns a view of one buffer: read it before the next
+    call."""
     out = np.ascontiguousarray(batch)
     size = out.size
     for i, n in enumerate(projection_order([m.shape[0] for m in matrices])):
