@@ -117,8 +117,10 @@ def register(sub: Any) -> None:
                    help=f"initial dictionaries (default {d.init}): points = the HOSVD of K random "
                    "training points, random, or preclustered (the HOSVD of K groups of points "
                    "with alike sparsity patterns under a DCT basis)")
-    s.add_argument("--patch", type=int, default=d.patch,
-                   help=f"spatial patch size p (default {d.patch})")
+    s.add_argument("--patch", default=str(d.patch), metavar="P[,P...]",
+                   help=f"spatial patch size p (default {d.patch}); several that nest, such as "
+                   "20,10,5 (each divides the next larger), train one ensemble per size into "
+                   "one model, for encode --adaptive-patches")
     s.add_argument("--sample", type=float, default=d.sample,
                    help=f"fraction of each BTF's data points used (default {d.sample:g})")
     s.add_argument("--iters", type=int, default=d.max_iter,
