@@ -195,6 +195,8 @@ def decode(
     encoding); the wrong model is refused (:class:`~sparsebtf.errors.ModelMismatchError`).
     """
     from .model import CodedBTF, Model
+    from .patch_tree import AdaptiveCodedBTF
+    from .runtime.adaptive import decoded_view
     from .runtime.dense import coded_btf_view
     from .storage.bundled import find_model
 
@@ -202,8 +204,16 @@ def decode(
         from .storage import load_coded, load_coded_with_model
 
         if isinstance(model, Model):
-            return coded_btf_view(load_coded(coded).attach(model))
-        return coded_btf_view(load_coded_with_model(coded, model))
+            read = load_coded(coded, adaptive=True).attach(model)
+        else:
+            read = load_coded_with_model(coded, model, adaptive=True)
+        return decoded_view(read) if isinstance(read, AdaptiveCodedBTF) else coded_btf_view(read)
+    if isinstance(coded, AdaptiveCodedBTF):  # adaptive patch sizes: the NumPy reference
+        if model is not None:
+            coded.attach(_model_of(model))
+        elif coded.model is None:
+            coded.attach(find_model(coded, None, coded.label))  # type: ignore[arg-type]
+        return decoded_view(coded)
     if not isinstance(coded, CodedBTF):
         raise BTFInputError(f"decode takes a coded BTF or a coded .h5 file, not a "
                             f"{type(coded).__name__}")  # fmt: skip

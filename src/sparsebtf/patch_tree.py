@@ -261,6 +261,14 @@ class AdaptiveCodedBTF:
         return self.first.channels
 
     @property
+    def dictionary_rule(self) -> tuple[str, int | None]:
+        return self.first.dictionary_rule
+
+    @property
+    def objective(self) -> str:
+        return self.first.objective
+
+    @property
     def n_points(self) -> int:
         """Data points stored: the tree's nodes."""
         return self.tree.n_nodes

@@ -244,7 +244,10 @@ def _read_patches(f: h5py.File, channels: list[str], patch: int, where: str,
     root's ``patch_sizes``; none in a model of one size."""
     if "patches" not in f and "patch_sizes" not in f.attrs:
         return {}
-    sizes = read_json_attr(f, "patch_sizes", where)
+    try:
+        sizes = json.loads(read_str_attr(f, "patch_sizes", where))
+    except (ValueError, RecursionError):
+        sizes = None
     group = require(f, "patches", where)
     if (not isinstance(sizes, list) or patch not in sizes
             or not all(isinstance(p, int) and not isinstance(p, bool) for p in sizes)):
