@@ -191,11 +191,12 @@ def train(
         models.append(_train_one(btfs, replace(o, patch=p, checkpoint_dir=ck), where))
     first = models[0]
     params = {**first.params, "patch": sizes[0], "patch_sizes": list(sizes)}
-    training = {**first.training,
-                "patches": {str(m.patch): m.training for m in models[1:]}}  # fmt: skip
-    return Model(first.dictionaries, sizes[0], first.lights, first.views, params,
-                 first.provenance, training,
-                 patches={m.patch: m.dictionaries for m in models[1:]})  # fmt: skip
+    # ``training`` is per channel (the largest size's); the other sizes' beside the provenance
+    provenance = {**first.provenance,
+                  "seconds": sum(m.provenance["seconds"] for m in models),
+                  "training_by_patch": {str(m.patch): m.training for m in models[1:]}}
+    return Model(first.dictionaries, sizes[0], first.lights, first.views, params, provenance,
+                 first.training, patches={m.patch: m.dictionaries for m in models[1:]})
 
 
 def _train_one(btfs: Sequence[BTF | str | os.PathLike[str]], o: TrainOptions,
