@@ -238,7 +238,8 @@ class Model:
         """Every other size: nested with ``patch``, the same channels, K and angular modes."""
         from .points.grid import check_nested
 
-        check_nested([self.patch, *self.patches], "model patch sizes")
+        sizes = [self.patch, *self.patches]
+        check_nested(sizes, f"model patch sizes {sizes}")
         for p, ens in self.patches.items():
             if set(ens) != set(self.dictionaries):
                 raise BTFInputError(f"patch size {p}: channels {sorted(ens)} differ from the "

@@ -93,6 +93,15 @@ def _report(args: argparse.Namespace, model: Any) -> None:
         print(f"wrote {args.output} (model {model.content_hash[:12]})")
 
 
+def _patches(text: str) -> int | str:
+    """``--patch``: one size as an integer, several ("20,10,5") as given, for the library's
+    one check (:class:`~sparsebtf.codec.options.TrainOptions`)."""
+    try:
+        return int(text)
+    except ValueError:
+        return text
+
+
 def register(sub: Any) -> None:
     d = DEFAULTS
     s = sub.add_parser("train", help="learn a model (three dictionary ensembles) from BTFs")
@@ -117,7 +126,7 @@ def register(sub: Any) -> None:
                    help=f"initial dictionaries (default {d.init}): points = the HOSVD of K random "
                    "training points, random, or preclustered (the HOSVD of K groups of points "
                    "with alike sparsity patterns under a DCT basis)")
-    s.add_argument("--patch", default=str(d.patch), metavar="P[,P...]",
+    s.add_argument("--patch", type=_patches, default=d.patch, metavar="P[,P...]",
                    help=f"spatial patch size p (default {d.patch}); several that nest, such as "
                    "20,10,5 (each divides the next larger), train one ensemble per size into "
                    "one model, for encode --adaptive-patches")
