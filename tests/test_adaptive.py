@@ -290,3 +290,46 @@ def test_library_decode_of_an_adaptive_file(model, mixed):
     ref = _reference(load_coded(path, model, adaptive=True))
     np.testing.assert_allclose(decoded.angular_image(3, 4), ref[:, :, 3, 4], rtol=2e-4,
                                atol=1e-6)  # fmt: skip
+
+
+def test_docs_reader_reads_an_adaptive_file(model, mixed, tmp_path):
+    """docs/format.md's schema-3 and schema-4 blocks, run where sparsebtf cannot be imported,
+    give the tree and each size's codes load_coded gives."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    _, path = mixed
+    text = (Path(__file__).resolve().parents[1] / "docs" / "format.md").read_text()
+    blocks = [re.search(rf"<!-- schema{v}-reader -->\s*```python\n(.*?)```", text, re.S)
+              for v in (3, 4)]  # fmt: skip
+    assert all(blocks), "docs/format.md lost a reader block"
+    out = tmp_path / "out.npz"
+    script = (
+        "import sys\nsys.modules['sparsebtf'] = None  # any import of it fails\n"
+        + blocks[0].group(1) + blocks[1].group(1)
+        + "\nnodes, codes = read_coded_v4(sys.argv[1])\n"
+        "flat = {f'{p}/{ch}/{k}': v for p, c in codes.items() for ch, cc in c.items()"
+        " for k, v in cc.items()}\n"
+        "s, off, k, vals, locs = texel_node(nodes, codes, 5, 2, 'U')\n"
+        "np.savez(sys.argv[2], nodes=nodes, size=s, off=off, k=k, vals=vals, locs=locs, **flat)\n"
+    )
+    r = subprocess.run([sys.executable, "-c", script, str(path), str(out)],
+                       capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    got = np.load(out)
+    back = load_coded(path, model, adaptive=True)
+    np.testing.assert_array_equal(got["nodes"], back.tree.nodes)
+    for p in (4, 2):
+        for ch, c in back.node_codes(p).items():
+            np.testing.assert_array_equal(got[f"{p}/{ch}/counts"], c.counts)
+            np.testing.assert_array_equal(got[f"{p}/{ch}/locations"], c.locations)
+            np.testing.assert_array_equal(got[f"{p}/{ch}/values"].astype(np.float32), c.values)
+    # texel (5, 2) lies in the 2x2 node at (4, 2): point 2 + 4·1 = 6 of the 2x2 grid
+    assert int(got["size"]) == 2 and got["off"].tolist() == [1, 0]
+    layer = back.layers[2].codes["U"]
+    loc, val = layer.point(6)
+    assert int(got["k"]) == int(layer.membership[6])
+    np.testing.assert_array_equal(got["locs"], loc)
+    np.testing.assert_array_equal(got["vals"].astype(np.float32), val)

@@ -219,7 +219,8 @@ def register(sub: Any) -> None:
                    "20,10,5): each block of the largest size is one data point or splits into "
                    "smaller ones, chosen by rate and distortion at the byte budget: --target-size "
                    "/ --target-ratio (Table 4 bytes with the tree), or with --tau the bytes of the "
-                   "fixed code at tau, --eps in blocks of the largest size (docs/format.md §7)")
+                   "fixed code at tau, --eps in blocks of the largest size (docs/format.md §3, "
+                   "adaptive patch sizes)")
     s.add_argument("--eps", type=float, default=DEFAULTS.eps,
                    help="stop adding coefficients to a point once its mean squared residual "
                    "(standardised log-YUV; with --objective linear/display, that objective's "

@@ -1,7 +1,7 @@
 """Encode with adaptive patch sizes (beyond the paper: its §5's future work): a quadtree per
 material, chosen by rate and distortion.
 
-The rule (``docs/format.md`` §7 says it for users):
+The rule (``docs/format.md`` §3, "Adaptive patch sizes", says it for users):
 
 1. **Every node coded.** The material is cut into blocks of the model's largest size P; every
    block, and every block of every smaller size s inside it, is coded as a data point of its

@@ -1,4 +1,4 @@
-"""Coded file of adaptive patch sizes: schema 4 of ``sparsebtf-coded`` (``docs/format.md`` §7).
+"""Coded file of adaptive patch sizes: schema 4 of ``sparsebtf-coded`` (``docs/format.md`` §3).
 
 Layout (what differs from schema 3; root attributes, ``stats``, ``lights`` and ``views`` are
 schema 3's, ``patch`` is the largest size)::
