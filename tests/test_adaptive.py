@@ -333,3 +333,45 @@ def test_docs_reader_reads_an_adaptive_file(model, mixed, tmp_path):
     assert int(got["k"]) == int(layer.membership[6])
     np.testing.assert_array_equal(got["locs"], loc)
     np.testing.assert_array_equal(got["vals"].astype(np.float32), val)
+
+
+def test_library_option_and_refusals(model):
+    import sparsebtf as sb
+    from sparsebtf.codec import encode as encode_fixed
+
+    btf = material(())
+    coded = sb.encode(btf, model, target=(32, 8, 8), adaptive_patches=True, progress=False)
+    assert isinstance(coded, AdaptiveCodedBTF) and coded.tree.counts() == {4: 4, 2: 0}
+    with pytest.raises(BTFInputError) as e:
+        encode_fixed(btf, model, (32, 8, 8), adaptive_patches=True, progress=False)
+    assert "adaptive_patches" in _one_line(e)
+    with pytest.raises(BTFInputError) as e:
+        sb.encode(btf, model, target="2000B", adaptive_patches=True, budget="stored")
+    assert "Table 4" in _one_line(e)
+
+
+def test_cli_encode_info_lookup(model, mixed, tmp_path, capsys, monkeypatch):
+    import json
+
+    import sparsebtf as sb
+    from sparsebtf.cli.main import main
+
+    monkeypatch.chdir(tmp_path)
+    sb.save_btf(material(MIXED), "mixed.h5")
+    save_model(model, "model.h5")
+    assert main(["encode", "mixed.h5", "-m", "model.h5", "-o", "m.coded.h5",
+                 "--adaptive-patches", "--target-size", "1500", "--budget", "paper"]) == 0
+    capsys.readouterr()
+    assert main(["info", "m.coded.h5", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["schema_version"] == 4
+    assert info["tree"]["nodes"] == {"4x4": 2, "2x2": 8}
+    assert main(["lookup", "m.coded.h5", "--texel", "5,2", "--light", "3", "--view", "4",
+                 "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["node_size"] == 2
+    want = decoded_view(load_coded("m.coded.h5", model, adaptive=True)).read([5], [2], [3], [4])
+    np.testing.assert_allclose(out["rgb"], want[0, 0, 0, 0], rtol=1e-5)
+    assert main(["encode", "mixed.h5", "-m", "model.h5", "-o", "x.h5", "--adaptive-patches",
+                 "--target-size", "1500", "--budget", "stored"]) == 2
+    assert len(capsys.readouterr().err.strip().splitlines()) == 1

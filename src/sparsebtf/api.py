@@ -159,6 +159,9 @@ def encode(
             raise BTFInputError(f"encode: give the sparsity as target=..., not {key}= ("
                                 + _SPELLINGS + ")")  # fmt: skip
     the_model = _model_of(model)
+    if keywords.get("adaptive_patches") or (options is not None and options.adaptive_patches):
+        return _encode_adaptive(btf_or_btfs, the_model, kind, value, options, execution,
+                                keywords)  # fmt: skip
     if kind == "tau":
         goal: dict[str, Any] = {"tau": value}
     else:  # the coded file's bytes, unless the caller counts otherwise
@@ -180,6 +183,27 @@ def encode(
     if kind == "tau":
         return encode_tau(btf, the_model, **goal, **settings)
     return encode_to_size(btf, the_model, **goal, **settings)
+
+
+def _encode_adaptive(btf: Any, model: Model, kind: str, value: Any,
+                     options: EncodeOptions | None, execution: Execution | None,
+                     keywords: dict[str, Any]) -> Any:  # fmt: skip
+    """:func:`encode` with ``adaptive_patches`` (:mod:`sparsebtf.codec.adaptive`): one BTF;
+    a size or ratio counts the material's Table 4 bytes with its tree."""
+    from .codec.adaptive import encode_adaptive
+    from .data.btf import BTF
+
+    if not isinstance(btf, BTF | str | os.PathLike):
+        raise BTFInputError("adaptive_patches codes one BTF at a time for now; encode each")
+    budget = keywords.pop("budget", "paper")
+    per_material = keywords.pop("per_material", True)
+    if kind != "tau" and (budget != "paper" or not per_material):
+        raise BTFInputError("adaptive_patches: a size or ratio counts the material's Table 4 "
+                            "bytes with its tree (budget='paper', per_material=True)")
+    goal = ({"tau": value} if kind == "tau" else
+            {"target_bytes" if kind == "bytes" else "target_ratio": value})  # fmt: skip
+    return encode_adaptive(btf, model, **goal, options=options, execution=execution,
+                           **keywords)
 
 
 def decode(

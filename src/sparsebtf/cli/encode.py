@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         candidates=None if args.exhaustive else args.candidates, objective=args.objective,
         allow_below_training=args.allow_below_training, std_mode=args.std_mode,
         log_offset=log_offset(args.log_offset), batch_size=args.batch,
-        crop=parse_crop(args.crop), checkpoint_dir=ck,
+        crop=parse_crop(args.crop), checkpoint_dir=ck, adaptive_patches=args.adaptive_patches,
     )  # fmt: skip
     outputs = output_files(args.btf, args.output, inputs=[args.model])
     check_output_dir(str(ck), "--checkpoint-dir")

@@ -78,6 +78,8 @@ class AdaptivePlan:
     desc: str = "encode (adaptive)"
 
     rule: ClassVar[str] = "rate-distortion quadtree, lambda by bisection"
+    #: what :func:`~.jobs.run_plan` checks the option ``adaptive_patches`` against
+    adaptive: ClassVar[bool] = True
 
     @property
     def kind(self) -> str:

@@ -117,6 +117,10 @@ class EncodeOptions(Options):
       "release" or a number), ``batch_size`` (points read at a time), ``dtype``.
     * ``crop`` (rows, columns) of every input, ``checkpoint_dir`` (resume from the point
       ranges saved there), ``progress`` (bars; None: on a terminal).
+    * ``adaptive_patches`` — adaptive patch sizes on a model of several
+      (:mod:`sparsebtf.codec.adaptive`): :func:`sparsebtf.encode` codes each block of the
+      largest size as one point or smaller ones, by rate and distortion; the fixed-size
+      encoders refuse it.
     """
 
     eps: float = RELEASE_EPS
@@ -133,8 +137,10 @@ class EncodeOptions(Options):
     crop: tuple[slice, slice] | None = None
     checkpoint_dir: str | os.PathLike[str] | None = None
     progress: bool | None = None
+    adaptive_patches: bool = False
 
     constraints: ClassVar[dict[str, list[Any]]] = {
+        "adaptive_patches": [bool],
         "eps": [Interval(float, 0, None, unit="(residual mean squared error, standardised)")],
         "candidates": CANDIDATES,
         "objective": [StrOptions(OBJECTIVES, what="coding objective")],
