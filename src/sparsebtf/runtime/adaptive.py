@@ -21,7 +21,7 @@ from ..errors import BTFInputError
 from ..model import TauSpec
 from ..patch_tree import AdaptiveCodedBTF
 from ..points.preprocessing import Preprocessor
-from .decoder import RuntimeBTF, texels_from_uv
+from .decoder import RuntimeBTF, query_texels
 from .dense import DecodedBTF
 
 __all__ = ["AdaptiveDecodedBTF", "AdaptiveRuntimeBTF", "decoded_view"]
@@ -114,21 +114,7 @@ class AdaptiveRuntimeBTF:
                 "reference only (the numba kernels do not read a patch tree yet)"
             )
         wi, wo = np.asarray(wi), np.asarray(wo)
-        h, w = self.coded.height, self.coded.width
-        if (uv is None) == (texel is None):
-            raise BTFInputError("give exactly one of uv and texel")
-        if uv is not None:
-            row, col = texels_from_uv(uv, h, w)
-        else:
-            t = np.asarray(texel)
-            if t.ndim != 2 or t.shape[1] != 2 or t.dtype.kind not in "iu":
-                raise BTFInputError(f"texel must be (n, 2) integers (row, col), got {t.shape}")
-            row, col = t[:, 0].astype(np.int64), t[:, 1].astype(np.int64)
-            bad = (row < 0) | (row >= h) | (col < 0) | (col >= w)
-            if bad.any():
-                i = int(np.flatnonzero(bad)[0])
-                raise BTFInputError(f"texel {i} = ({row[i]}, {col[i]}) is outside the {h}x{w} "
-                                    "texture")  # fmt: skip
+        row, col = query_texels(uv, texel, self.coded.height, self.coded.width)
         if wi.ndim != 2 or wi.shape != wo.shape or wi.shape[0] != row.size:
             raise BTFInputError(f"wi {wi.shape} and wo {wo.shape} must be (n, 3) with n = "
                                 f"{row.size} texels")  # fmt: skip

@@ -19,7 +19,6 @@ lacks. In memory the codes of each size become a layer on the whole grid of that
 from __future__ import annotations
 
 import io
-import json
 import os
 from pathlib import Path
 from typing import Any
@@ -29,9 +28,8 @@ import numpy as np
 
 from .._atomic import atomic_output
 from .._h5check import read_array, read_int_attr, read_json_attr, read_str_attr, require
-from .._hdf5 import LIBVER, create, create_dataset, write_str_attr
+from .._hdf5 import LIBVER, create, create_dataset
 from .._semantic import validate_coded
-from .._version import library_version
 from ..data.dense_file import read_directions
 from ..errors import BTFInputError, FileFormatError, ModelMismatchError
 from ..learning.cost import channel_storage
@@ -39,12 +37,11 @@ from ..learning.objective import OBJECTIVES
 from ..model import CodedBTF, Model, model_text
 from ..patch_tree import AdaptiveCodedBTF, PatchTree, expand_points
 from ..points.grid import PatchGrid, check_nested
-from ._common import check_geometry, check_str_param, check_tau_param, to_json
+from ._common import check_geometry, check_str_param, check_tau_param
 from .accounting import _combine, _model_file_bytes, stored_bytes
 from .coded_file import (
     ADAPTIVE_IO,
     ADAPTIVE_SCHEMA,
-    CODED_FORMAT,
     _channels,
     _check_coded,
     _file_params,
@@ -52,6 +49,7 @@ from .coded_file import (
     _read_stats,
     _write_codes,
     attach_model,
+    write_root,
     write_shared,
 )
 from .coded_schema import check_required
@@ -70,18 +68,8 @@ def _check(coded: AdaptiveCodedBTF) -> None:
 
 def _write(f: h5py.File, coded: AdaptiveCodedBTF) -> None:
     first = coded.first
-    write_str_attr(f, "format", CODED_FORMAT)
-    f.attrs["schema_version"] = ADAPTIVE_SCHEMA
-    write_str_attr(f, "model_hash", coded.model_hash)
-    write_str_attr(f, "library_version", library_version())
-    write_str_attr(f, "name", coded.name)
-    f.attrs["height"] = int(coded.height)
-    f.attrs["width"] = int(coded.width)
-    f.attrs["patch"] = int(coded.patch)
+    write_root(f, coded, _file_params(first), ADAPTIVE_SCHEMA)
     f.attrs["patch_sizes"] = np.array(coded.tree.sizes, dtype=np.int64)
-    write_str_attr(f, "channels", json.dumps(list(coded.channels)))
-    write_str_attr(f, "params_json", to_json(_file_params(first)))
-    write_str_attr(f, "attrs_json", to_json(coded.attrs))
     nodes = coded.tree.nodes
     wide = nodes.size and int(nodes.max()) > 65535
     create_dataset(f.create_group("tree"), "nodes", data=nodes.astype("<u4" if wide else "<u2"),

@@ -90,8 +90,8 @@ CODED_SCHEMA_VERSION = 3
 #: The schema of a material coded with adaptive patch sizes (:mod:`.adaptive_file`).
 ADAPTIVE_SCHEMA = 4
 _SUPPORTED = (1, 2, 3, ADAPTIVE_SCHEMA)
-#: The reader and writers of schema 4, registered by :mod:`.adaptive_file` when it is
-#: imported (with the package), so that this module does not import the one above it.
+#: Schema 4's reader and writers, registered by :mod:`.adaptive_file` (imported with the
+#: package): this module does not import the one above it.
 ADAPTIVE_IO: dict[str, Callable[..., Any]] = {}
 #: Schemas :func:`save_coded` can write (2: the uncompressed Table 4 layout, for old readers).
 WRITABLE_SCHEMAS = (2, 3)
@@ -259,6 +259,16 @@ def _file_params(coded: CodedBTF) -> dict:
 def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> None:
     """The content of a coded file into the open, empty HDF5 file ``f`` (see
     :func:`save_coded`; also used to measure the stored size without a file)."""
+    write_root(f, coded, params, schema)
+    root = f.create_group("codes")
+    for ch in coded.channels:
+        k = coded.dictionary_count(ch)
+        _write_codes(root.create_group(ch), coded.codes[ch], k, schema, coded.name, ch)
+    write_shared(f, coded, schema)
+
+
+def write_root(f: h5py.File, coded: Any, params: dict, schema: int) -> None:
+    """The root attributes of a coded file (``coded``: a coded BTF, or an adaptive one)."""
     write_str_attr(f, "format", CODED_FORMAT)
     f.attrs["schema_version"] = int(schema)
     write_str_attr(f, "model_hash", coded.model_hash)
@@ -270,11 +280,6 @@ def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> Non
     write_str_attr(f, "channels", json.dumps(list(coded.channels)))
     write_str_attr(f, "params_json", to_json(params))
     write_str_attr(f, "attrs_json", to_json(coded.attrs))
-    root = f.create_group("codes")
-    for ch in coded.channels:
-        k = coded.dictionary_count(ch)
-        _write_codes(root.create_group(ch), coded.codes[ch], k, schema, coded.name, ch)
-    write_shared(f, coded, schema)
 
 
 def write_shared(f: h5py.File, coded: CodedBTF, schema: int) -> None:
@@ -330,9 +335,8 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None, *,
                adaptive: bool = False) -> CodedBTF:  # fmt: skip
     """Read a coded file written by :func:`save_coded`; attach ``model`` if given.
 
-    A file of adaptive patch sizes (schema 4) is read, as an
-    :class:`~sparsebtf.patch_tree.AdaptiveCodedBTF`, only by a caller that decodes it
-    (``adaptive=True``); for any other it is one line that says which readers take it.
+    Schema 4 (adaptive patch sizes) is read, as an :class:`~sparsebtf.patch_tree.
+    AdaptiveCodedBTF`, with ``adaptive=True`` only; else it is one line naming its readers.
 
     Values come back as float32 (the stored binary16 values, exactly), locations as int32
     multi-indices in the stored per-point order (decreasing magnitude), errors as float64.
@@ -575,10 +579,8 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
         raise FileFormatError(f"{where}: {e}") from None
 
 
-def load_coded_with_model(
-    path: str | os.PathLike[str], model_path: str | os.PathLike[str] | None = None, *,
-    adaptive: bool = False,
-) -> CodedBTF:
+def load_coded_with_model(path: str | os.PathLike[str], model_path: str | os.PathLike[str]
+                          | None = None, *, adaptive: bool = False) -> CodedBTF:  # fmt: skip
     """Read a coded file with its model attached.
 
     The model is ``model_path`` (a model file, or the name of a bundled model such as
