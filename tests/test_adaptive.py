@@ -375,3 +375,14 @@ def test_cli_encode_info_lookup(model, mixed, tmp_path, capsys, monkeypatch):
     assert main(["encode", "mixed.h5", "-m", "model.h5", "-o", "x.h5", "--adaptive-patches",
                  "--target-size", "1500", "--budget", "stored"]) == 2
     assert len(capsys.readouterr().err.strip().splitlines()) == 1
+
+
+def test_fixed_size_decoders_refuse_an_adaptive_material(model, mixed):
+    from sparsebtf.runtime import DecodedBTF, blend
+
+    coded = load_coded(mixed[1], model, adaptive=True)
+    for make in (lambda: RuntimeBTF(coded), lambda: DecodedBTF(coded),
+                 lambda: blend([coded, coded], alpha=0.5)):  # fmt: skip
+        with pytest.raises(BTFInputError) as e:
+            make()
+        assert "adaptive patch sizes" in _one_line(e)

@@ -26,7 +26,7 @@ from .learning.coding import SparseCodes
 from .model import CodedBTF, Model, model_text
 from .points.grid import PatchGrid, check_nested
 
-__all__ = ["AdaptiveCodedBTF", "PatchTree", "expand_points", "select_points"]
+__all__ = ["AdaptiveCodedBTF", "PatchTree", "expand_points", "refuse_adaptive", "select_points"]
 
 
 @dataclass(frozen=True)
@@ -307,3 +307,13 @@ class AdaptiveCodedBTF:
                 f"{self.label}: no model attached; load the coded file with its model file"
             )
         return self.model
+
+
+def refuse_adaptive(coded: object, what: str) -> None:
+    """One line where a reader of one patch size (``what``) is given an adaptive material."""
+    if isinstance(coded, AdaptiveCodedBTF):
+        raise BTFInputError(
+            f"{coded.label}: coded with adaptive patch sizes; {what} reads materials of one "
+            "patch size only so far (the NumPy decoders read it: sparsebtf.decode, "
+            "sparsebtf.runtime.AdaptiveRuntimeBTF)"
+        )

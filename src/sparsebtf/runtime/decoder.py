@@ -25,6 +25,7 @@ import numpy as np
 from ..colour import YUV_TO_RGB, yuv_to_rgb
 from ..errors import BTFInputError
 from ..model import CHANNELS, CodedBTF, TauSpec
+from ..patch_tree import refuse_adaptive
 from ..points.grid import PatchGrid
 from ..points.preprocessing import inverse_log_transform
 from . import kernels
@@ -95,6 +96,7 @@ class RuntimeBTF:
     def __init__(
         self, coded: CodedBTF, tau: TauSpec = None, dtype: type = np.float32
     ) -> None:
+        refuse_adaptive(coded, "RuntimeBTF (the renderer arrays, the numba kernels)")
         model = coded.require_model()
         if tuple(coded.channels) != CHANNELS:
             raise BTFInputError(
