@@ -102,8 +102,16 @@ def adaptive_image(coded: AdaptiveCodedBTF) -> bytes:
     return buf.getvalue()
 
 
-def _read(f: h5py.File, where: str, model: Model | None) -> AdaptiveCodedBTF:
-    """Schema 4 from the open file ``f`` (:func:`~.coded_file.load_coded` with ``adaptive``)."""
+def _read(f: h5py.File, where: str, model: Model | None, adaptive: bool) -> AdaptiveCodedBTF:
+    """Schema 4 from the open file ``f`` (:func:`~.coded_file.load_coded`); one line for a
+    reader of one patch size (``adaptive`` False)."""
+    if not adaptive:
+        raise FileFormatError(
+            f"{where}: coded with adaptive patch sizes (schema {ADAPTIVE_SCHEMA}); this "
+            "reader takes one patch size (adaptive files are read by sparsebtf decode, eval, "
+            "lookup and info, and by the NumPy decoders: sparsebtf.decode, "
+            "sparsebtf.runtime.AdaptiveRuntimeBTF.from_file)"
+        )
     check_required(f, ADAPTIVE_SCHEMA, where)
     model_hash = read_str_attr(f, "model_hash", where)
     name = read_str_attr(f, "name", where)

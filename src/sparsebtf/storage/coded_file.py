@@ -43,7 +43,7 @@ import json
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
@@ -73,6 +73,9 @@ from ._common import check_geometry, check_str_param, check_tau_param, open_chec
 from .coded_schema import NO_CLAMP, check_required
 from .coded_streams import read_streams, stored_values, write_streams
 from .model_file import exact_dtype
+
+if TYPE_CHECKING:
+    from ..patch_tree import AdaptiveCodedBTF
 
 __all__ = [
     "CODED_FORMAT",
@@ -332,7 +335,7 @@ def _write_codes(
 
 
 def load_coded(path: str | os.PathLike[str], model: Model | None = None, *,
-               adaptive: bool = False) -> CodedBTF:  # fmt: skip
+               adaptive: bool = False) -> CodedBTF | AdaptiveCodedBTF:  # fmt: skip
     """Read a coded file written by :func:`save_coded`; attach ``model`` if given.
 
     Schema 4 (adaptive patch sizes) is read, as an :class:`~sparsebtf.patch_tree.
@@ -356,15 +359,8 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None, *,
     where = str(p)
     with open_checked(p, CODED_FORMAT, _SUPPORTED) as f:
         schema = read_int_attr(f, "schema_version", where)
-        if schema == ADAPTIVE_SCHEMA:
-            if not adaptive:
-                raise FileFormatError(
-                    f"{where}: coded with adaptive patch sizes (schema {ADAPTIVE_SCHEMA}); this "
-                    f"reader takes one patch size (adaptive files are read by sparsebtf decode, "
-                    "eval, lookup and info, and by the NumPy decoders: sparsebtf.decode, "
-                    "sparsebtf.runtime.AdaptiveRuntimeBTF.from_file)"
-                )
-            return ADAPTIVE_IO["read"](f, where, model)  # type: ignore[no-any-return]
+        if schema == ADAPTIVE_SCHEMA:  # read, or refused in one line, by :mod:`.adaptive_file`
+            return ADAPTIVE_IO["read"](f, where, model, adaptive)  # type: ignore[no-any-return]
         check_required(f, schema, where)  # no field of the schema it claims left to a default
         model_hash = read_str_attr(f, "model_hash", where)
         name = read_str_attr(f, "name", where) if "name" in f.attrs else p.stem
@@ -580,7 +576,8 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
 
 
 def load_coded_with_model(path: str | os.PathLike[str], model_path: str | os.PathLike[str]
-                          | None = None, *, adaptive: bool = False) -> CodedBTF:  # fmt: skip
+                          | None = None, *, adaptive: bool = False
+                          ) -> CodedBTF | AdaptiveCodedBTF:  # fmt: skip
     """Read a coded file with its model attached.
 
     The model is ``model_path`` (a model file, or the name of a bundled model such as
