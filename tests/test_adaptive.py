@@ -386,3 +386,23 @@ def test_fixed_size_decoders_refuse_an_adaptive_material(model, mixed):
         with pytest.raises(BTFInputError) as e:
             make()
         assert "adaptive patch sizes" in _one_line(e)
+
+
+def test_resumed_encode_reads_its_ranges_back(model, tmp_path, monkeypatch):
+    from sparsebtf.codec.adaptive import AdaptivePlan
+    from sparsebtf.codec.options import EncodeOptions
+
+    btf = material(MIXED)
+    opts = EncodeOptions(checkpoint_dir=tmp_path / "ck", progress=False)
+    first = encode_adaptive(btf, model, (64, 16, 16), target_bytes=1500, options=opts)
+    assert list((tmp_path / "ck").iterdir())  # the ranges were saved
+
+    def no_coding(*args, **kwargs):
+        raise AssertionError("a saved range was coded again")
+
+    monkeypatch.setattr(AdaptivePlan, "code_range", no_coding)
+    again = encode_adaptive(btf, model, (64, 16, 16), target_bytes=1500, options=opts)
+    np.testing.assert_array_equal(again.tree.nodes, first.tree.nodes)
+    for p in (4, 2):
+        for ch, c in first.node_codes(p).items():
+            np.testing.assert_array_equal(again.node_codes(p)[ch].values, c.values)
