@@ -54,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
     )  # fmt: skip
     check_output_file(args.output, args.btfs, kind="model")
     check_output_dir(str(ck), "--checkpoint-dir")
-    check_resume(ck, args.resume, Path(checkpoint_path(ck, "*")).name, "train")
+    # several patch sizes checkpoint by size, in subfolders (codec.train)
+    check_resume(ck, args.resume, "**/" + Path(checkpoint_path(ck, "*")).name, "train")
     for s in args.btfs:  # one clear line for a bad input, before any work
         open_source(s, crop=args.crop)
     with resumable(ck):
