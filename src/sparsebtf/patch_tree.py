@@ -302,11 +302,8 @@ class AdaptiveCodedBTF:
         return self
 
     def require_model(self) -> Model:
-        if self.model is None:
-            raise ModelMismatchError(
-                f"{self.label}: no model attached; load the coded file with its model file"
-            )
-        return self.model
+        """The attached model, or the one line a coded BTF without one gives."""
+        return CodedBTF.require_model(self)  # type: ignore[arg-type]
 
 
 def refuse_adaptive(coded: object, what: str) -> None:
