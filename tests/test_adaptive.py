@@ -406,3 +406,13 @@ def test_resumed_encode_reads_its_ranges_back(model, tmp_path, monkeypatch):
     for p in (4, 2):
         for ch, c in first.node_codes(p).items():
             np.testing.assert_array_equal(again.node_codes(p)[ch].values, c.values)
+
+
+def test_model_file_with_a_wrong_size_list_is_one_line(model, tmp_path):
+    path = save_model(model, tmp_path / "m.h5")
+    with h5py.File(path, "r+") as f:
+        del f.attrs["patch_sizes"]
+        f.attrs["patch_sizes"] = np.bytes_(b"[4, 1]")
+    with pytest.raises(FileFormatError) as e:
+        load_model(path)
+    assert "patches" in _one_line(e)
