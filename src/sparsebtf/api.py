@@ -159,6 +159,9 @@ def encode(
             raise BTFInputError(f"encode: give the sparsity as target=..., not {key}= ("
                                 + _SPELLINGS + ")")  # fmt: skip
     the_model = _model_of(model)
+    if keywords.get("adaptive_patches") or (options is not None and options.adaptive_patches):
+        return _encode_adaptive(btf_or_btfs, the_model, kind, value, options, execution,
+                                keywords)  # fmt: skip
     if kind == "tau":
         goal: dict[str, Any] = {"tau": value}
     else:  # the coded file's bytes, unless the caller counts otherwise
@@ -182,6 +185,27 @@ def encode(
     return encode_to_size(btf, the_model, **goal, **settings)
 
 
+def _encode_adaptive(btf: Any, model: Model, kind: str, value: Any,
+                     options: EncodeOptions | None, execution: Execution | None,
+                     keywords: dict[str, Any]) -> Any:  # fmt: skip
+    """:func:`encode` with ``adaptive_patches`` (:mod:`sparsebtf.codec.adaptive`): one BTF;
+    a size or ratio counts the material's Table 4 bytes with its tree."""
+    from .codec.adaptive import encode_adaptive
+    from .data.btf import BTF
+
+    if not isinstance(btf, BTF | str | os.PathLike):
+        raise BTFInputError("adaptive_patches codes one BTF at a time for now; encode each")
+    budget = keywords.pop("budget", "paper")
+    per_material = keywords.pop("per_material", True)
+    if kind != "tau" and (budget != "paper" or not per_material):
+        raise BTFInputError("adaptive_patches: a size or ratio counts the material's Table 4 "
+                            "bytes with its tree (budget='paper', per_material=True)")
+    goal = ({"tau": value} if kind == "tau" else
+            {"target_bytes" if kind == "bytes" else "target_ratio": value})  # fmt: skip
+    return encode_adaptive(btf, model, **goal, options=options, execution=execution,
+                           **keywords)
+
+
 def decode(
     coded: CodedBTF | str | os.PathLike[str], model: Model | str | os.PathLike[str] | None = None
 ) -> DecodedBTF:
@@ -195,6 +219,8 @@ def decode(
     encoding); the wrong model is refused (:class:`~sparsebtf.errors.ModelMismatchError`).
     """
     from .model import CodedBTF, Model
+    from .patch_tree import AdaptiveCodedBTF
+    from .runtime.adaptive import decoded_view
     from .runtime.dense import coded_btf_view
     from .storage.bundled import find_model
 
@@ -202,8 +228,16 @@ def decode(
         from .storage import load_coded, load_coded_with_model
 
         if isinstance(model, Model):
-            return coded_btf_view(load_coded(coded).attach(model))
-        return coded_btf_view(load_coded_with_model(coded, model))
+            read = load_coded(coded, adaptive=True).attach(model)
+        else:
+            read = load_coded_with_model(coded, model, adaptive=True)
+        return decoded_view(read) if isinstance(read, AdaptiveCodedBTF) else coded_btf_view(read)
+    if isinstance(coded, AdaptiveCodedBTF):  # adaptive patch sizes: the NumPy reference
+        if model is not None:
+            coded.attach(_model_of(model))
+        elif coded.model is None:
+            coded.attach(find_model(coded, None, coded.label))  # type: ignore[arg-type]
+        return decoded_view(coded)
     if not isinstance(coded, CodedBTF):
         raise BTFInputError(f"decode takes a coded BTF or a coded .h5 file, not a "
                             f"{type(coded).__name__}")  # fmt: skip

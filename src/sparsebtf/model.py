@@ -200,6 +200,10 @@ class Model:
     params : training parameters (tau_train per channel, n_dictionaries, sample, seed, ...).
     provenance : where it came from (materials, library version, time, release import ...).
     training : per channel diagnostics (objective history, membership histogram, seconds).
+    patches : the ensembles at other patch sizes (adaptive patch sizes, :mod:`sparsebtf.
+        patch_tree`): size → channel → modes, the same channels, K and direction tables;
+        every size nests with ``patch`` (:func:`~sparsebtf.points.grid.check_nested`).
+        Empty for a model of one size (every file before them; the bundled model).
     file : the model file it was last saved to or loaded from (None for a model only in
         memory); not part of its content. Saving a coded BTF records it.
     """
@@ -211,6 +215,7 @@ class Model:
     params: dict[str, Any] = field(default_factory=dict)
     provenance: dict[str, Any] = field(default_factory=dict)
     training: dict[str, dict[str, Any]] = field(default_factory=dict)
+    patches: dict[int, dict[str, list[np.ndarray]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not self.dictionaries:
@@ -224,8 +229,53 @@ class Model:
                     raise BTFInputError(
                         f"channel {ch}, mode {n + 1}: expected (K, m, m), got {m.shape}"
                     )
+        if self.patches:
+            self._check_patches()
         self._hash: str | None = None
         self.file: str | None = None
+
+    def _check_patches(self) -> None:
+        """Every other size: nested with ``patch``, the same channels, K and angular modes."""
+        from .points.grid import check_nested
+
+        sizes = [self.patch, *self.patches]
+        check_nested(sizes, f"model patch sizes {sizes}")
+        for p, ens in self.patches.items():
+            if set(ens) != set(self.dictionaries):
+                raise BTFInputError(f"patch size {p}: channels {sorted(ens)} differ from the "
+                                    f"model's {sorted(self.dictionaries)}")  # fmt: skip
+            for ch, mats in ens.items():
+                main = self.dictionaries[ch]
+                want = (p, p, *(int(m.shape[1]) for m in main[2:]))
+                got = tuple(int(m.shape[1]) for m in mats)
+                ks = {int(m.shape[0]) for m in mats}
+                if got != want or ks != {int(main[0].shape[0])} or any(
+                        m.ndim != 3 or m.shape[1] != m.shape[2] for m in mats):
+                    raise BTFInputError(
+                        f"patch size {p}, channel {ch}: expected {len(want)} modes of sizes "
+                        f"{want} with K = {int(main[0].shape[0])}, got {got} with K {sorted(ks)}"
+                    )
+
+    @property
+    def patch_sizes(self) -> tuple[int, ...]:
+        """Every patch size the model has an ensemble for, largest first (one for most)."""
+        return tuple(sorted({int(self.patch), *map(int, self.patches)}, reverse=True))
+
+    def for_patch(self, patch: int) -> Model:
+        """The model of one of its patch sizes: itself for ``patch``, else a model of the
+        ensembles at that size that keeps this model's content hash and file (codes made on
+        it name this model, the file that holds every size)."""
+        if patch == self.patch:
+            return self
+        if patch not in self.patches:
+            raise ModelMismatchError(f"{model_text(self.content_hash, self.file)} has no "
+                                     f"ensemble for {patch}x{patch} patches (its sizes: "
+                                     f"{', '.join(map(str, self.patch_sizes))})")  # fmt: skip
+        one = Model(self.patches[patch], patch, self.lights, self.views, self.params,
+                    self.provenance, self.training)  # fmt: skip
+        one._hash = self.content_hash
+        one.file = self.file
+        return one
 
     @property
     def channels(self) -> tuple[str, ...]:
@@ -248,6 +298,11 @@ class Model:
     def content_hash(self) -> str:
         if self._hash is None:
             self._hash = dictionaries_hash(self.dictionaries)
+            if self.patches:  # several sizes: every ensemble, by size (one size: unchanged)
+                h = hashlib.sha256(f"patches:{self.patch}:{self._hash}".encode())
+                for p in sorted(self.patches, reverse=True):
+                    h.update(f"|{p}:{dictionaries_hash(self.patches[p])}".encode())
+                self._hash = h.hexdigest()
         return self._hash
 
     def matrices(self, channel: str, k: int, dtype: type = np.float64) -> list[np.ndarray]:

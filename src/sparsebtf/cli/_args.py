@@ -242,7 +242,8 @@ def checkpoint_dir(args: argparse.Namespace) -> Path:
 def check_resume(folder: Path, resume: bool, pattern: str, command: str) -> None:
     """A run starts clean or resumes on purpose, never both by accident: ``--resume`` needs
     checkpoints (files matching ``pattern``) in ``folder``, and checkpoints need ``--resume``."""
-    found = sorted(p.name for p in folder.glob(pattern)) if folder.is_dir() else []
+    found = (sorted(str(p.relative_to(folder)) for p in folder.glob(pattern))
+             if folder.is_dir() else [])  # fmt: skip
     if resume and not found:
         raise SparseBTFError(
             f"--resume: no checkpoint in {folder} (an interrupted 'sparsebtf {command}' with "

@@ -23,7 +23,9 @@ def _parse_pairs(text: str) -> list[tuple[int, int]]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from ..patch_tree import AdaptiveCodedBTF
     from ..runtime import coded_btf_view
+    from ..runtime.adaptive import decoded_view
     from ..storage import load_coded_with_model
 
     if not args.output and not args.images:
@@ -32,9 +34,9 @@ def run(args: argparse.Namespace) -> int:
     check_btf_output(args.output)
     check_output_dir(args.png, "--png")
     pairs = _parse_pairs(args.images) if args.images else []
-    coded = load_coded_with_model(args.coded, args.model)
+    coded = load_coded_with_model(args.coded, args.model, adaptive=True)
     check_output_file(args.output, [coded.model_file])
-    view = coded_btf_view(coded)
+    view = decoded_view(coded) if isinstance(coded, AdaptiveCodedBTF) else coded_btf_view(coded)
     say = Written(args.json)
     if args.images:
         from ..figures import save_angular_images

@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
         candidates=None if args.exhaustive else args.candidates, objective=args.objective,
         allow_below_training=args.allow_below_training, std_mode=args.std_mode,
         log_offset=log_offset(args.log_offset), batch_size=args.batch,
-        crop=parse_crop(args.crop), checkpoint_dir=ck,
+        crop=parse_crop(args.crop), checkpoint_dir=ck, adaptive_patches=args.adaptive_patches,
     )  # fmt: skip
     outputs = output_files(args.btf, args.output, inputs=[args.model])
     check_output_dir(str(ck), "--checkpoint-dir")
@@ -84,6 +84,10 @@ def _encode(args: argparse.Namespace, tau: str | None, options: EncodeOptions,
             )
     per_material = not args.with_dictionaries
     sized = args.target_bytes is not None or args.target_ratio is not None
+    if args.adaptive_patches:
+        _encode_adaptive(args, tau, options, outputs, model, label)
+        return
+    args.budget = args.budget or "stored"
     target = {"target_bytes": args.target_bytes, "target_ratio": args.target_ratio,
               "per_material": per_material, "budget": args.budget} if sized else {"tau": tau}
     coded_all = encode_many(args.btf, model, **target, options=options,
@@ -100,6 +104,45 @@ def _encode(args: argparse.Namespace, tau: str | None, options: EncodeOptions,
             print(f"wrote {output} with {label} ({model.content_hash[:12]}): "
                   f"{coefficients_text(coded)}, file {report['file_bytes']:,} bytes")  # fmt: skip
             print(f"  {ratio_line(report, args.target_ratio, args.budget, per_material)}")
+    if args.json:
+        print_json(reports[0] if len(args.btf) == 1 else {"files": reports})
+
+
+def _encode_adaptive(args: argparse.Namespace, tau: str | None, options: EncodeOptions,
+                     outputs: list[Any], model: Any, label: str) -> None:  # fmt: skip
+    """``--adaptive-patches``: each BTF's quadtree chosen by rate and distortion
+    (:mod:`sparsebtf.codec.adaptive`); a target counts Table 4 bytes with the tree."""
+    from ..codec.adaptive import encode_adaptive
+    from ..execution import Execution
+    from ..learning.codes import RELEASE_TAU
+    from ..storage import save_coded
+    from ..storage.adaptive_file import adaptive_report
+
+    if args.budget == "stored" or args.with_dictionaries:
+        raise SparseBTFError(
+            "--adaptive-patches: a target counts the material's Table 4 bytes with its tree "
+            "(--budget paper, without --with-dictionaries); "
+            + ("--budget stored" if args.budget == "stored" else "--with-dictionaries")
+            + " is not supported with it yet"
+        )
+    reports = []
+    for source, output in zip(args.btf, outputs, strict=True):
+        coded = encode_adaptive(source, model, tau or RELEASE_TAU, target_bytes=args.target_bytes,
+                                target_ratio=args.target_ratio, options=options,
+                                execution=Execution(**cluster_options(args)))  # fmt: skip
+        if model.file:
+            coded.params["model_file"] = model.file
+        save_coded(coded, output)
+        report = adaptive_report(coded, model, output)
+        report["model"] = {"label": label, "content_hash": model.content_hash}
+        reports.append({"input": coded.name, "output": str(output), **report})
+        if not args.json:
+            nodes = ", ".join(f"{n} of {p}x{p}" for p, n in coded.tree.counts().items())
+            print(f"wrote {output} with {label} ({model.content_hash[:12]}): adaptive patch "
+                  f"sizes, nodes {nodes}; coefficients {format_value(coded.nnz())}, file "
+                  f"{report['file_bytes']:,} bytes")  # fmt: skip
+            print(f"  {ratio_line(report, args.target_ratio, 'paper', True)} (tree "
+                  f"{report['bytes_tree']:,} bytes)")  # fmt: skip
     if args.json:
         print_json(reports[0] if len(args.btf) == 1 else {"files": reports})
 
@@ -165,12 +208,19 @@ def register(sub: Any) -> None:
                       default=None, metavar="BYTES",
                       help="rate control: reach this many bytes: the coded file's size "
                       "(--budget stored) or the material's Table 4 bytes (--budget paper)")
-    s.add_argument("--budget", choices=("stored", "paper"), default="stored",
+    s.add_argument("--budget", choices=("stored", "paper"), default=None,
                    help="what a target counts: 'stored', the bytes of the coded file, within "
                    "0.4%% below (default); 'paper', Table 4's bytes, within one coefficient")
     s.add_argument("--with-dictionaries", action="store_true",
                    help="with --budget paper: targets also count the shared dictionaries (K x "
                    "3 channels, about 2.1 MiB for the release model), as Table 4's totals do")
+    s.add_argument("--adaptive-patches", action="store_true",
+                   help="adaptive patch sizes, on a model trained with several (train --patch "
+                   "20,10,5): each block of the largest size is one data point or splits into "
+                   "smaller ones, chosen by rate and distortion at the byte budget: --target-size "
+                   "/ --target-ratio (Table 4 bytes with the tree), or with --tau the bytes of the "
+                   "fixed code at tau, --eps in blocks of the largest size (docs/format.md §3, "
+                   "adaptive patch sizes)")
     s.add_argument("--eps", type=float, default=DEFAULTS.eps,
                    help="stop adding coefficients to a point once its mean squared residual "
                    "(standardised log-YUV; with --objective linear/display, that objective's "

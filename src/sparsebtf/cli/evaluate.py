@@ -47,18 +47,30 @@ _STORAGE_KEYS = (
 
 def run(args: argparse.Namespace) -> int:
     from ..metrics import compare
+    from ..patch_tree import AdaptiveCodedBTF
     from ..runtime import coded_btf_view
+    from ..runtime.adaptive import decoded_view
     from ..storage import load_coded_with_model, storage_report
+    from ..storage.adaptive_file import adaptive_report
 
-    coded = load_coded_with_model(args.coded, args.model)
+    coded = load_coded_with_model(args.coded, args.model, adaptive=True)
+    adaptive = isinstance(coded, AdaptiveCodedBTF)
     reference = open_source(args.reference, crop=args.crop)
-    metrics = compare(
-        reference, coded_btf_view(coded), stats=coded.stats, ssim_images=args.ssim_images
-    )
-    metrics["mse_std_codes"] = float(
-        np.mean([coded.codes[ch].errors.mean() for ch in coded.channels])
-    )
-    report = storage_report(coded, coded.model, args.coded)
+    view = decoded_view(coded) if adaptive else coded_btf_view(coded)
+    metrics = compare(reference, view, stats=coded.stats, ssim_images=args.ssim_images)
+    if adaptive:  # each node's residual per value, weighted by its texels
+        nodes = coded.tree.nodes
+        per = [np.concatenate([layer.codes[ch].errors[coded.tree.points(p)]
+                               for p, layer in coded.layers.items()])
+               for ch in coded.channels]  # fmt: skip
+        area = np.concatenate([nodes[nodes[:, 2] == p, 2] ** 2 for p in coded.layers])
+        metrics["mse_std_codes"] = float(np.mean([np.average(e, weights=area) for e in per]))
+        report = adaptive_report(coded, coded.model, args.coded)
+    else:
+        metrics["mse_std_codes"] = float(
+            np.mean([coded.codes[ch].errors.mean() for ch in coded.channels])
+        )
+        report = storage_report(coded, coded.model, args.coded)
     out = {**metrics, **{k: report[k] for k in _STORAGE_KEYS}}
     identical = ("psnr_rgb",) if out["mse_rgb"] == 0 else ()
     check_finite_result(out, "eval", args.allow_nonfinite, exact=identical)

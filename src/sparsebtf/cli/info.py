@@ -82,6 +82,7 @@ def describe(
             "n_dictionaries": {ch: m.n_dictionaries(ch) for ch in m.channels},
             "mode_sizes": list(m.mode_sizes),
             "patch": m.patch,
+            **({"patch_sizes": list(m.patch_sizes)} if m.patches else {}),
             "directions": {
                 "lights": {"name": m.lights.name, "count": len(m.lights)},
                 "views": {"name": m.views.name, "count": len(m.views)},
@@ -94,28 +95,39 @@ def describe(
         }
     if fmt == "sparsebtf-coded":
         from ..errors import ModelMismatchError
+        from ..patch_tree import AdaptiveCodedBTF
         from ..storage import load_coded, storage_report
         from ..storage.accounting import storage_summary
+        from ..storage.adaptive_file import adaptive_report, attach_adaptive
         from ..storage.bundled import bundled_name, find_model
         from ..storage.coded_file import attach_model
 
-        coded = load_coded(s)
+        coded = load_coded(s, adaptive=True)
+        adaptive = isinstance(coded, AdaptiveCodedBTF)
         model = None
         try:
-            model = find_model(coded, model_path, s)
-            attach_model(coded, model, s)  # the same checks as every reader, directions too
+            model = find_model(coded, model_path, s)  # type: ignore[arg-type]
+            # the same checks as every reader, directions too
+            (attach_adaptive if adaptive else attach_model)(coded, model, s)  # type: ignore[operator]
         except ModelMismatchError:
             if model_path:
                 raise
             model = None  # storage figures from the file's own parameters
-        report = storage_report(coded, model, s)
+        report = (adaptive_report(coded, model, s) if adaptive  # type: ignore[arg-type]
+                  else storage_report(coded, model, s))  # fmt: skip
         schema = _schema(s)
+        tree = {} if not adaptive else {"tree": {
+            "patch_sizes": list(coded.tree.sizes),  # type: ignore[union-attr]
+            "nodes": {f"{p}x{p}": n for p, n in coded.tree.counts().items()},  # type: ignore[union-attr]
+            "bytes_table4": report["bytes_tree"],
+        }}  # fmt: skip
         return {
             "kind": "coded",
             "format": fmt,
             "name": coded.name,
             "shape": [coded.height, coded.width, len(coded.lights), len(coded.views), 3],
             "patch": coded.patch,
+            **tree,
             "channels": list(coded.channels),
             "model_hash": coded.model_hash,
             "model": (f"bundled '{bundled_name(coded.model_hash)}'"

@@ -50,13 +50,18 @@ def lookup(
         file_format(path))  # fmt: skip
     out: dict[str, Any] = {"texel": [row, col], "light": light, "view": view}
     if fmt == "sparsebtf-coded":
+        from ..patch_tree import AdaptiveCodedBTF
         from ..runtime import decode_points_eq5
         from ..storage import load_coded_with_model
 
-        coded = load_coded_with_model(path, model_path)
+        coded = load_coded_with_model(path, model_path, adaptive=True)
         _check(
             row, col, light, view, (coded.height, coded.width, len(coded.lights), len(coded.views))
         )
+        if isinstance(coded, AdaptiveCodedBTF):  # the layer of the node covering the texel
+            size = int(coded.tree.sizes_at(np.array(row), np.array(col)))
+            out["node_size"] = size
+            coded = coded.layers[size]
         grid = PatchGrid(coded.height, coded.width, coded.patch)
         p, i1, i2 = (int(v) for v in grid.locate(row, col))
         mu, sd = coded.stats.select([light], [view])
@@ -116,6 +121,8 @@ def lookup_table(out: dict[str, Any]) -> str:
     channel (``-`` for a channel the file does not code)."""
     where = [("texel (row, col)", format_value(out["texel"])),
              ("light, view (indices)", f"{out['light']}, {out['view']}")]  # fmt: skip
+    if "node_size" in out:
+        where.append(("node (adaptive patch sizes)", f"{out['node_size']}x{out['node_size']}"))
     if "point" in out:
         where.append(("data point", f"{out['point']} (texel {format_value(out['in_patch'])} "
                                     "of its patch)"))  # fmt: skip

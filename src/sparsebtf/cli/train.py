@@ -54,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
     )  # fmt: skip
     check_output_file(args.output, args.btfs, kind="model")
     check_output_dir(str(ck), "--checkpoint-dir")
-    check_resume(ck, args.resume, Path(checkpoint_path(ck, "*")).name, "train")
+    # several patch sizes checkpoint by size, in subfolders (codec.train)
+    check_resume(ck, args.resume, "**/" + Path(checkpoint_path(ck, "*")).name, "train")
     for s in args.btfs:  # one clear line for a bad input, before any work
         open_source(s, crop=args.crop)
     with resumable(ck):
@@ -93,6 +94,15 @@ def _report(args: argparse.Namespace, model: Any) -> None:
         print(f"wrote {args.output} (model {model.content_hash[:12]})")
 
 
+def _patches(text: str) -> int | str:
+    """``--patch``: one size as an integer, several ("20,10,5") as given, for the library's
+    one check (:class:`~sparsebtf.codec.options.TrainOptions`)."""
+    try:
+        return int(text)
+    except ValueError:
+        return text
+
+
 def register(sub: Any) -> None:
     d = DEFAULTS
     s = sub.add_parser("train", help="learn a model (three dictionary ensembles) from BTFs")
@@ -117,8 +127,10 @@ def register(sub: Any) -> None:
                    help=f"initial dictionaries (default {d.init}): points = the HOSVD of K random "
                    "training points, random, or preclustered (the HOSVD of K groups of points "
                    "with alike sparsity patterns under a DCT basis)")
-    s.add_argument("--patch", type=int, default=d.patch,
-                   help=f"spatial patch size p (default {d.patch})")
+    s.add_argument("--patch", type=_patches, default=d.patch, metavar="P[,P...]",
+                   help=f"spatial patch size p (default {d.patch}); several that nest, such as "
+                   "20,10,5 (each divides the next larger), train one ensemble per size into "
+                   "one model, for encode --adaptive-patches")
     s.add_argument("--sample", type=float, default=d.sample,
                    help=f"fraction of each BTF's data points used (default {d.sample:g})")
     s.add_argument("--iters", type=int, default=d.max_iter,

@@ -228,6 +228,10 @@ def run_plan(
     opts, where = encode_settings(options, execution, keywords, kind=plan.kind, many=many)
     if not btfs:
         raise BTFInputError("nothing to encode: give at least one BTF")
+    if opts.adaptive_patches and not getattr(plan, "adaptive", False):
+        raise BTFInputError("option adaptive_patches: this encoder codes one patch size; "
+                            "sparsebtf.encode or sparsebtf.codec.adaptive.encode_adaptive "
+                            "take it")  # fmt: skip
     bound = plan.bind(model, opts)
     sources = [Source.of(b, opts.crop) for b in btfs]
     ck = None if opts.checkpoint_dir is None else EncodeCheckpoint(opts.checkpoint_dir)

@@ -29,7 +29,7 @@ from ..learning.ensemble import FULL_PASS_EVERY, INITS
 from ..learning.objective import OBJECTIVES
 from ..learning.partitions import PARTITION_POINTS
 from ..model import CHANNELS
-from ..points.grid import MAX_PATCH, RELEASE_PATCH
+from ..points.grid import MAX_PATCH, RELEASE_PATCH, parse_patches
 from ..points.preprocessing import (
     LOG_OFFSET_RULE,
     STD_MODES,
@@ -82,6 +82,13 @@ def _tau_train(value: Any) -> bool:
     return True
 
 
+def _patches(value: Any) -> bool:
+    """One patch size, or several that nest (``(20, 10, 5)``, ``"20,10,5"``: one ensemble
+    per size, for adaptive patch sizes; :func:`~sparsebtf.points.grid.parse_patches`)."""
+    parse_patches(value)
+    return True
+
+
 #: Shared entries: the same rule wherever the option is taken.
 CANDIDATES = [Interval(int, 1, None, unit="(dictionaries per data point)"), None]
 BATCH = [Interval(int, 1, 4096, unit="data points per batch")]
@@ -110,6 +117,10 @@ class EncodeOptions(Options):
       "release" or a number), ``batch_size`` (points read at a time), ``dtype``.
     * ``crop`` (rows, columns) of every input, ``checkpoint_dir`` (resume from the point
       ranges saved there), ``progress`` (bars; None: on a terminal).
+    * ``adaptive_patches`` — adaptive patch sizes on a model of several
+      (:mod:`sparsebtf.codec.adaptive`): :func:`sparsebtf.encode` codes each block of the
+      largest size as one point or smaller ones, by rate and distortion; the fixed-size
+      encoders refuse it.
     """
 
     eps: float = RELEASE_EPS
@@ -126,8 +137,10 @@ class EncodeOptions(Options):
     crop: tuple[slice, slice] | None = None
     checkpoint_dir: str | os.PathLike[str] | None = None
     progress: bool | None = None
+    adaptive_patches: bool = False
 
     constraints: ClassVar[dict[str, list[Any]]] = {
+        "adaptive_patches": [bool],
         "eps": [Interval(float, 0, None, unit="(residual mean squared error, standardised)")],
         "candidates": CANDIDATES,
         "objective": [StrOptions(OBJECTIVES, what="coding objective")],
@@ -152,7 +165,9 @@ class TrainOptions(Options):
     * ``n_dictionaries`` K per ensemble, ``tau_train`` τ_l per channel (default the paper's
       256,32,32; several levels ``"64,8,8/256,32,32"``, K split evenly over them; or
       ``"learn"``: each dictionary's τ_l chosen on a validation split), ``tau_validation``
-      (with ``"learn"``: the coding τ_t the validation error is read at), ``patch`` p,
+      (with ``"learn"``: the coding τ_t the validation error is read at), ``patch`` p (or
+      several that nest, ``(20, 10, 5)``: one ensemble per size, trained one after the other
+      on the same materials, for adaptive patch sizes),
       ``sample`` (the fraction of each BTF's points; paper: 10%).
     * ``max_iter``, ``tol`` (stop below this relative decrease of the objective), ``init``
       ("points", "random" or "preclustered"), ``seed``.
@@ -170,7 +185,7 @@ class TrainOptions(Options):
     n_dictionaries: int = 8
     tau_train: TauTrainSpec = RELEASE_TAU_TRAIN
     tau_validation: TauTrainSpec | None = None
-    patch: int = RELEASE_PATCH
+    patch: int | Sequence[int] | str = RELEASE_PATCH
     sample: float = 0.1
     max_iter: int = 10
     tol: float = 1e-4
@@ -197,7 +212,8 @@ class TrainOptions(Options):
                                         "('Y,U,V'); several as 'Y,U,V/Y,U,V'; or 'learn'")],
         "tau_validation": [Rule(_tau_train, "coding taus: 'Y,U,V' or several as "
                                             "'Y,U,V/Y,U,V'"), None],
-        "patch": [Interval(int, 1, MAX_PATCH, unit="texels")],
+        "patch": [Rule(_patches, f"a patch size in texels in [1, {MAX_PATCH}], or several "
+                             "that nest (each divides the next larger) such as 20,10,5")],
         "sample": [Interval(float, 0, 1, closed="right",
                             unit="(fraction of each BTF's data points)")],
         "max_iter": [Interval(int, 1, 10**6, unit="iterations")],

@@ -16,6 +16,7 @@ import math
 import os
 import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,7 @@ from ..learning.ensemble import DictionaryEnsemble, PointSource
 from ..learning.partitions import load_points
 from ..learning.tau_levels import VALIDATION, check_levels
 from ..model import CHANNELS, Model
+from ..points.grid import parse_patches
 from ..points.preprocessing import resolve_log_offset
 from ..points.sources import BTFPointSource, channel_sources, training_points
 from .jobs import Source
@@ -175,6 +177,31 @@ def train(
     o, where = train_settings(options, execution, keywords)
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
+    sizes = parse_patches(o.patch)
+    if len(sizes) == 1:
+        return _train_one(btfs, replace(o, patch=sizes[0]), where)
+    if o.colour_mode:
+        raise BTFInputError("several patch sizes need the 4D Y, U, V ensembles; the colour "
+                            "mode's 5D ensemble takes one --patch")  # fmt: skip
+    # One ensemble per size, one after the other, each on its own sample of the same
+    # materials (a size's points are cut from the same texels); checkpoints by size.
+    models = []
+    for p in sizes:
+        ck = None if o.checkpoint_dir is None else os.path.join(o.checkpoint_dir, f"patch{p}")
+        models.append(_train_one(btfs, replace(o, patch=p, checkpoint_dir=ck), where))
+    first = models[0]
+    params = {**first.params, "patch": sizes[0], "patch_sizes": list(sizes)}
+    # ``training`` is per channel (the largest size's); the other sizes' beside the provenance
+    provenance = {**first.provenance,
+                  "seconds": sum(m.provenance["seconds"] for m in models),
+                  "training_by_patch": {str(m.patch): m.training for m in models[1:]}}
+    return Model(first.dictionaries, sizes[0], first.lights, first.views, params, provenance,
+                 first.training, patches={m.patch: m.dictionaries for m in models[1:]})
+
+
+def _train_one(btfs: Sequence[BTF | str | os.PathLike[str]], o: TrainOptions,
+               where: Execution) -> Model:  # fmt: skip
+    """:func:`train` at one patch size ``o.patch``."""
     rule = resolve_log_offset(o.log_offset)
     channels = ("YUV",) if o.colour_mode else CHANNELS
     taus, learn = parse_tau_train(o.tau_train, channels)

@@ -86,10 +86,13 @@ def _read_dense(path: str, model_path: Any = None) -> Any:
 
 
 def _read_coded(path: str, model_path: Any = None) -> Any:
+    from ..patch_tree import AdaptiveCodedBTF
+    from ..runtime.adaptive import decoded_view
     from ..runtime.dense import coded_btf_view
     from ..storage import load_coded_with_model
 
-    return coded_btf_view(load_coded_with_model(path, model_path))
+    coded = load_coded_with_model(path, model_path, adaptive=True)
+    return decoded_view(coded) if isinstance(coded, AdaptiveCodedBTF) else coded_btf_view(coded)
 
 
 def _read_ubo2014(path: str, model_path: Any = None) -> Any:

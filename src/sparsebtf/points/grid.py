@@ -13,6 +13,7 @@ fraction of the data points of several BTFs (the paper trains on 10% of 18 BTFs)
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 
@@ -28,8 +29,10 @@ __all__ = [
     "RELEASE_PATCH",
     "PatchGrid",
     "assemble",
+    "check_nested",
     "extract",
     "iter_points",
+    "parse_patches",
     "sample_points",
     "stream_points",
 ]
@@ -38,6 +41,44 @@ __all__ = [
 RELEASE_PATCH = 10
 #: The largest patch size any reader accepts (and training takes).
 MAX_PATCH = 4096
+
+
+def check_nested(sizes: Sequence[int], what: str | None = None) -> tuple[int, ...]:
+    """Several patch sizes, largest first, checked to nest: each an integer in [1,
+    :data:`MAX_PATCH`], no repeats, and each dividing the next larger one (a block of one
+    size splits into (big / small)² blocks of the next: four for 20,10,5, the quadtree of
+    adaptive patch sizes). One line names what is wrong."""
+    given = list(sizes)
+    what = what or f"patch sizes {given}"
+    if not given or any(isinstance(p, bool) or not isinstance(p, (int, np.integer))
+                        for p in given):  # fmt: skip
+        raise BTFInputError(f"{what}: expected one or more integers such as 20,10,5")
+    out = tuple(sorted((int(p) for p in given), reverse=True))
+    if len(set(out)) != len(out) or out[-1] < 1 or out[0] > MAX_PATCH:
+        raise BTFInputError(f"{what}: expected distinct integers in [1, {MAX_PATCH}]")
+    for big, small in itertools.pairwise(out):
+        if big % small:
+            raise BTFInputError(
+                f"{what}: sizes must nest, each dividing the next larger (a block "
+                f"splits into smaller ones), but {small} does not divide {big}; e.g. 20,10,5"
+            )
+    return out
+
+
+def parse_patches(value: object) -> tuple[int, ...]:
+    """A patch size or several, largest first: an integer, a sequence of integers, or text
+    ``"10"`` / ``"20,10,5"`` (several must nest, :func:`check_nested`)."""
+    what = f"patch sizes {value!r}"
+    if isinstance(value, str):
+        parts = [v.strip() for v in value.split(",")]
+        if not all(v.isdigit() for v in parts):
+            raise BTFInputError(f"{what}: expected integers such as 10 or 20,10,5")
+        value = [int(v) for v in parts]
+    if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+        value = [int(value)]
+    if not isinstance(value, Sequence):
+        raise BTFInputError(f"{what}: expected integers such as 10 or 20,10,5")
+    return check_nested(value, what)
 
 
 @dataclass(frozen=True)

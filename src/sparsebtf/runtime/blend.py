@@ -27,6 +27,7 @@ from ..errors import BTFInputError, ModelMismatchError
 from ..learning.coding import SparseCodes, topk_abs
 from ..learning.tensor import reconstruct
 from ..model import CodedBTF, TauSpec, model_text, parse_tau
+from ..patch_tree import refuse_adaptive
 from ..points.preprocessing import Standardization, round_up_bound
 from ..storage.coded_streams import canonical_codes
 
@@ -179,6 +180,8 @@ def blend(
     tau : sparsity of the output per channel; default the largest coded τ of the inputs.
     """
     check_blendable(coded)
+    for c in coded:
+        refuse_adaptive(c, "blending")
     if (weights is None) == (alpha is None):
         raise BTFInputError("give either weights or alpha")
     if alpha is not None:

@@ -25,12 +25,13 @@ import numpy as np
 from ..colour import YUV_TO_RGB, yuv_to_rgb
 from ..errors import BTFInputError
 from ..model import CHANNELS, CodedBTF, TauSpec
+from ..patch_tree import refuse_adaptive
 from ..points.grid import PatchGrid
 from ..points.preprocessing import inverse_log_transform
 from . import kernels
 from .angular import SCHEMES, Scheme, angular_weights, neighbour_table
 
-__all__ = ["NO_BOUND", "Domain", "RuntimeBTF", "texels_from_uv"]
+__all__ = ["NO_BOUND", "Domain", "RuntimeBTF", "query_texels", "texels_from_uv"]
 
 #: The bound of a material without one (older files): far above any ln(RGB + offset).
 NO_BOUND = 1e30
@@ -55,6 +56,27 @@ def texels_from_uv(uv: np.ndarray, height: int, width: int) -> tuple[np.ndarray,
     return row, col
 
 
+def query_texels(uv: np.ndarray | None, texel: np.ndarray | None, height: int, width: int
+                 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """(row, col) int64 of a batch of queries given by exactly one of ``uv`` (wrapping,
+    :func:`texels_from_uv`) and ``texel`` ((n, 2) integers inside the texture)."""
+    if (uv is None) == (texel is None):
+        raise BTFInputError("give exactly one of uv and texel")
+    if uv is not None:
+        return texels_from_uv(uv, height, width)
+    t = np.asarray(texel)
+    if t.ndim != 2 or t.shape[1] != 2 or t.dtype.kind not in "iu":
+        raise BTFInputError(f"texel must be (n, 2) integers (row, col), got {t.shape}")
+    row, col = t[:, 0].astype(np.int64), t[:, 1].astype(np.int64)
+    bad = (row < 0) | (row >= height) | (col < 0) | (col >= width)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise BTFInputError(
+            f"texel {i} = ({row[i]}, {col[i]}) is outside the {height}x{width} texture"
+        )
+    return row, col
+
+
 class RuntimeBTF:
     """Local evaluation of a coded BTF for renderers (Eq. 5, Eq. 6).
 
@@ -74,6 +96,7 @@ class RuntimeBTF:
     def __init__(
         self, coded: CodedBTF, tau: TauSpec = None, dtype: type = np.float32
     ) -> None:
+        refuse_adaptive(coded, "RuntimeBTF (the renderer arrays, the numba kernels)")
         model = coded.require_model()
         if tuple(coded.channels) != CHANNELS:
             raise BTFInputError(
@@ -204,21 +227,7 @@ class RuntimeBTF:
     # -- evaluation -----------------------------------------------------------------------------
     def _texels(self, uv: np.ndarray | None, texel: np.ndarray | None, n: int):
         h, w, p = self.coded.height, self.coded.width, self.coded.patch
-        if (uv is None) == (texel is None):
-            raise BTFInputError("give exactly one of uv and texel")
-        if uv is not None:
-            row, col = texels_from_uv(uv, h, w)
-        else:
-            t = np.asarray(texel)
-            if t.ndim != 2 or t.shape[1] != 2 or t.dtype.kind not in "iu":
-                raise BTFInputError(f"texel must be (n, 2) integers (row, col), got {t.shape}")
-            row, col = t[:, 0].astype(np.int64), t[:, 1].astype(np.int64)
-            bad = (row < 0) | (row >= h) | (col < 0) | (col >= w)
-            if bad.any():
-                i = int(np.flatnonzero(bad)[0])
-                raise BTFInputError(
-                    f"texel {i} = ({row[i]}, {col[i]}) is outside the {h}x{w} texture"
-                )
+        row, col = query_texels(uv, texel, h, w)
         if row.shape[0] != n:
             raise BTFInputError(f"{row.shape[0]} texels for {n} direction pairs")
         pts, i1, i2 = PatchGrid(h, w, p).locate(row, col)

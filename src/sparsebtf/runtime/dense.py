@@ -18,6 +18,7 @@ from ..data.btf import BTF, Index, as_index
 from ..errors import BTFInputError
 from ..learning.coding import reconstruct_points
 from ..model import CodedBTF
+from ..patch_tree import refuse_adaptive
 from ..points.grid import PatchGrid
 from ..points.preprocessing import Preprocessor
 from .kernels import gather_terms
@@ -95,6 +96,7 @@ class DecodedBTF(BTF):
     """
 
     def __init__(self, coded: CodedBTF) -> None:
+        refuse_adaptive(coded, "DecodedBTF")
         coded.require_model()
         if "YUV" not in coded.channels and len(coded.channels) < 3:
             raise BTFInputError(

@@ -4,6 +4,8 @@
 * :func:`save_coded` / :func:`load_coded` — one material's sparse codes (binary16 values;
   schema 3: location tables and value byte planes, compressed losslessly; schema 2: 3-byte packed
   locations), statistics and directions; checked against its model's hash.
+* adaptive patch sizes: schema 4 of the coded file (:mod:`.adaptive_file`), written by
+  :func:`save_coded` and read by ``load_coded(path, adaptive=True)``.
 * :func:`storage_report` / :func:`paper_storage` — bytes as counted by ``btf4Dcomp`` (Table 4)
   and, for coded BTFs, the bytes the file stores (:func:`stored_bytes`).
 
@@ -26,6 +28,9 @@ from .coded_file import (
     unpack_locations,
 )
 from .model_file import MODEL_FORMAT, MODEL_SCHEMA_VERSION, load_model, save_model
+
+# registers the reader and writers of adaptive patch sizes (schema 4) with the coded file's
+from . import adaptive_file  # noqa: F401  isort: skip
 
 __all__ = [
     "CODED_FORMAT",

@@ -42,7 +42,9 @@ MIB = float(1 << 20)
 
 
 #: Top-level groups of a coded file → the part of ``bytes_stored`` they count in.
-STORED_PARTS = {"codes": "codes", "stats": "stats", "lights": "directions", "views": "directions"}
+STORED_PARTS = {"codes": "codes", "stats": "stats", "lights": "directions", "views": "directions",
+                # schema 4 (adaptive patch sizes): the codes by size and the tree
+                "sizes": "codes", "tree": "codes"}
 
 
 def stored_bytes(source: str | os.PathLike[str] | bytes) -> dict[str, int]:

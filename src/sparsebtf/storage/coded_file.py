@@ -41,7 +41,9 @@ from __future__ import annotations
 import io
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import h5py
 import numpy as np
@@ -72,6 +74,9 @@ from .coded_schema import NO_CLAMP, check_required
 from .coded_streams import read_streams, stored_values, write_streams
 from .model_file import exact_dtype
 
+if TYPE_CHECKING:
+    from ..patch_tree import AdaptiveCodedBTF
+
 __all__ = [
     "CODED_FORMAT",
     "CODED_SCHEMA_VERSION",
@@ -85,7 +90,12 @@ __all__ = [
 
 CODED_FORMAT = "sparsebtf-coded"
 CODED_SCHEMA_VERSION = 3
-_SUPPORTED = (1, 2, 3)
+#: The schema of a material coded with adaptive patch sizes (:mod:`.adaptive_file`).
+ADAPTIVE_SCHEMA = 4
+_SUPPORTED = (1, 2, 3, ADAPTIVE_SCHEMA)
+#: Schema 4's reader and writers, registered by :mod:`.adaptive_file` (imported with the
+#: package): this module does not import the one above it.
+ADAPTIVE_IO: dict[str, Callable[..., Any]] = {}
 #: Schemas :func:`save_coded` can write (2: the uncompressed Table 4 layout, for old readers).
 WRITABLE_SCHEMAS = (2, 3)
 _MAX_SIDE = 2**20  # texels per side
@@ -210,6 +220,8 @@ def save_coded(
     one) is recorded as ``params["model_file"]`` unless one is set already, so the coded file
     finds its model. Returns the path written.
     """
+    if not isinstance(coded, CodedBTF):  # adaptive patch sizes: schema 4
+        return ADAPTIVE_IO["save"](coded, path)  # type: ignore[no-any-return]
     _check_schema(schema)
     _check_coded(coded)
     target = Path(path)
@@ -221,6 +233,8 @@ def save_coded(
 def coded_image(coded: CodedBTF, schema: int = CODED_SCHEMA_VERSION) -> bytes:
     """The bytes :func:`save_coded` would write for ``coded``, made in memory (to measure the
     stored size without touching the disk)."""
+    if not isinstance(coded, CodedBTF):  # adaptive patch sizes: schema 4
+        return ADAPTIVE_IO["image"](coded)  # type: ignore[no-any-return]
     _check_schema(schema)
     _check_coded(coded)
     buf = io.BytesIO()
@@ -248,6 +262,16 @@ def _file_params(coded: CodedBTF) -> dict:
 def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> None:
     """The content of a coded file into the open, empty HDF5 file ``f`` (see
     :func:`save_coded`; also used to measure the stored size without a file)."""
+    write_root(f, coded, params, schema)
+    root = f.create_group("codes")
+    for ch in coded.channels:
+        k = coded.dictionary_count(ch)
+        _write_codes(root.create_group(ch), coded.codes[ch], k, schema, coded.name, ch)
+    write_shared(f, coded, schema)
+
+
+def write_root(f: h5py.File, coded: Any, params: dict, schema: int) -> None:
+    """The root attributes of a coded file (``coded``: a coded BTF, or an adaptive one)."""
     write_str_attr(f, "format", CODED_FORMAT)
     f.attrs["schema_version"] = int(schema)
     write_str_attr(f, "model_hash", coded.model_hash)
@@ -259,10 +283,10 @@ def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> Non
     write_str_attr(f, "channels", json.dumps(list(coded.channels)))
     write_str_attr(f, "params_json", to_json(params))
     write_str_attr(f, "attrs_json", to_json(coded.attrs))
-    root = f.create_group("codes")
-    for ch in coded.channels:
-        k = coded.dictionary_count(ch)
-        _write_codes(root.create_group(ch), coded.codes[ch], k, schema, coded.name, ch)
+
+
+def write_shared(f: h5py.File, coded: CodedBTF, schema: int) -> None:
+    """The statistics and direction tables of ``coded`` (every schema; 4 as 3)."""
     st = f.create_group("stats")
     if schema >= 3:  # every dataset of the group compressed, whoever adds it
         st = CompressedGroup(st.id)
@@ -310,8 +334,12 @@ def _write_codes(
 # --------------------------------------------------------------------------- reading
 
 
-def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> CodedBTF:
+def load_coded(path: str | os.PathLike[str], model: Model | None = None, *,
+               adaptive: bool = False) -> CodedBTF | AdaptiveCodedBTF:  # fmt: skip
     """Read a coded file written by :func:`save_coded`; attach ``model`` if given.
+
+    Schema 4 (adaptive patch sizes) is read, as an :class:`~sparsebtf.patch_tree.
+    AdaptiveCodedBTF`, with ``adaptive=True`` only; else it is one line naming its readers.
 
     Values come back as float32 (the stored binary16 values, exactly), locations as int32
     multi-indices in the stored per-point order (decreasing magnitude), errors as float64.
@@ -331,6 +359,8 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None) -> Code
     where = str(p)
     with open_checked(p, CODED_FORMAT, _SUPPORTED) as f:
         schema = read_int_attr(f, "schema_version", where)
+        if schema == ADAPTIVE_SCHEMA:  # read, or refused in one line, by :mod:`.adaptive_file`
+            return ADAPTIVE_IO["read"](f, where, model, adaptive)  # type: ignore[no-any-return]
         check_required(f, schema, where)  # no field of the schema it claims left to a default
         model_hash = read_str_attr(f, "model_hash", where)
         name = read_str_attr(f, "name", where) if "name" in f.attrs else p.stem
@@ -545,9 +575,9 @@ def _read_stats(g: h5py.Group, where: str) -> Standardization:
         raise FileFormatError(f"{where}: {e}") from None
 
 
-def load_coded_with_model(
-    path: str | os.PathLike[str], model_path: str | os.PathLike[str] | None = None
-) -> CodedBTF:
+def load_coded_with_model(path: str | os.PathLike[str], model_path: str | os.PathLike[str]
+                          | None = None, *, adaptive: bool = False
+                          ) -> CodedBTF | AdaptiveCodedBTF:  # fmt: skip
     """Read a coded file with its model attached.
 
     The model is ``model_path`` (a model file, or the name of a bundled model such as
@@ -558,6 +588,9 @@ def load_coded_with_model(
     """
     from .bundled import find_model
 
-    coded = load_coded(path)
-    attach_model(coded, find_model(coded, model_path, str(path)), str(path))
+    coded = load_coded(path, adaptive=adaptive)
+    model = find_model(coded, model_path, str(path))
+    if not isinstance(coded, CodedBTF):  # adaptive patch sizes (``adaptive``)
+        return ADAPTIVE_IO["attach"](coded, model, str(path))  # type: ignore[no-any-return]
+    attach_model(coded, model, str(path))
     return coded

@@ -11,6 +11,10 @@ Layout (``format="sparsebtf-model"``, ``schema_version=2``; schema 1 lacks the c
                               [k, row, col]: row = sample index
                               (texel offset or direction), col = atom index (paper Eq. 4/5)
     /lights, /views           direction tables (xyz, theta, phi), as in the dense file
+    /patches/<p>/<CH>/modeN   schema 3 only: the ensemble at another patch size p (adaptive
+                              patch sizes), laid out as /dictionaries/<CH>; root attribute
+                              patch_sizes (JSON list, largest first). A model of one size is
+                              written in schema 2, as before.
 
 Dictionaries are stored so that their float64 values come back bit for bit: in float64, or in
 the narrowest of float16 / float32 that represents every value exactly (a model rounded to
@@ -58,11 +62,14 @@ from ..points.grid import MAX_PATCH
 from ..points.preprocessing import STD_MODES, TRANSFORMS
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 
-__all__ = ["MODEL_FORMAT", "MODEL_SCHEMA_VERSION", "exact_dtype", "load_model", "save_model"]
+__all__ = ["MODEL_FORMAT", "MODEL_SCHEMA_PATCHES", "MODEL_SCHEMA_VERSION", "exact_dtype",
+           "load_model", "save_model"]
 
 MODEL_FORMAT = "sparsebtf-model"
 MODEL_SCHEMA_VERSION = 2
-_SUPPORTED = (1, 2)
+#: The schema of a model with several patch sizes (``/patches``): older readers refuse it.
+MODEL_SCHEMA_PATCHES = 3
+_SUPPORTED = (1, 2, 3)
 
 
 def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
@@ -74,22 +81,22 @@ def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
     has them). Returns the path written; ``model.file`` remembers it.
     """
     target = Path(path)
-    for ch in model.channels:
-        sizes = tuple(int(m.shape[1]) for m in model.dictionaries[ch])
-        check_geometry(
-            sizes, model.patch, len(model.lights), len(model.views), f"model channel {ch}",
-            BTFInputError,
-        )
-        mats = model.dictionaries[ch]
-        half = all(exact_dtype(m) == "<f2" for m in mats)
-        try:  # what load_model refuses is not written
-            check_orthonormal(mats, f"model channel {ch}",
-                              ORTHONORMAL_TOLERANCE_FP16 if half else ORTHONORMAL_TOLERANCE)
-        except FileFormatError as e:
-            raise BTFInputError(str(e)) from None
+    ensembles = {model.patch: model.dictionaries, **model.patches}
+    for p, ens in ensembles.items():
+        for ch in model.channels:
+            sizes = tuple(int(m.shape[1]) for m in ens[ch])
+            what = f"model channel {ch}" + (f", patch {p}" if model.patches else "")
+            check_geometry(sizes, p, len(model.lights), len(model.views), what, BTFInputError)
+            mats = ens[ch]
+            half = all(exact_dtype(m) == "<f2" for m in mats)
+            try:  # what load_model refuses is not written
+                check_orthonormal(mats, what,
+                                  ORTHONORMAL_TOLERANCE_FP16 if half else ORTHONORMAL_TOLERANCE)
+            except FileFormatError as e:
+                raise BTFInputError(str(e)) from None
     with atomic_output(target) as tmp, create(tmp) as f:
         write_str_attr(f, "format", MODEL_FORMAT)
-        f.attrs["schema_version"] = MODEL_SCHEMA_VERSION
+        f.attrs["schema_version"] = MODEL_SCHEMA_PATCHES if model.patches else MODEL_SCHEMA_VERSION
         write_str_attr(f, "content_hash", model.content_hash)
         write_str_attr(f, "library_version", library_version())
         f.attrs["patch"] = int(model.patch)
@@ -97,19 +104,28 @@ def save_model(model: Model, path: str | os.PathLike[str]) -> Path:
         write_str_attr(f, "params_json", to_json(model.params))
         write_str_attr(f, "provenance_json", to_json(model.provenance))
         write_str_attr(f, "training_json", to_json(model.training))
-        root = f.create_group("dictionaries")
-        for ch in model.channels:
-            mats = model.dictionaries[ch]
-            g = root.create_group(ch)
-            g.attrs["n_dictionaries"] = model.n_dictionaries(ch)
-            g.attrs["mode_sizes"] = np.array([m.shape[1] for m in mats], dtype=np.int64)
-            for n, m in enumerate(mats, start=1):
-                a = np.asarray(m, dtype="<f8")
-                create_dataset(g, f"mode{n}", data=a.astype(exact_dtype(a)), compress=True)
+        _write_ensembles(f.create_group("dictionaries"), model.dictionaries, model.channels)
+        if model.patches:
+            write_str_attr(f, "patch_sizes", json.dumps(list(model.patch_sizes)))
+            extra = f.create_group("patches")
+            for p in sorted(model.patches, reverse=True):
+                _write_ensembles(extra.create_group(str(p)), model.patches[p], model.channels)
         write_directions(f.create_group("lights"), model.lights)
         write_directions(f.create_group("views"), model.views)
     model.file = str(target.resolve())
     return target
+
+
+def _write_ensembles(root: h5py.Group, ensembles: dict[str, list[np.ndarray]],
+                     channels: tuple[str, ...]) -> None:  # fmt: skip
+    for ch in channels:
+        mats = ensembles[ch]
+        g = root.create_group(ch)
+        g.attrs["n_dictionaries"] = int(mats[0].shape[0])
+        g.attrs["mode_sizes"] = np.array([m.shape[1] for m in mats], dtype=np.int64)
+        for n, m in enumerate(mats, start=1):
+            a = np.asarray(m, dtype="<f8")
+            create_dataset(g, f"mode{n}", data=a.astype(exact_dtype(a)), compress=True)
 
 
 def exact_dtype(values: np.ndarray) -> str:
@@ -140,37 +156,9 @@ def load_model(path: str | os.PathLike[str]) -> Model:
         patch = read_int_attr(f, "patch", where, 1, MAX_PATCH)
         root = require(f, "dictionaries", where)
         channels = _channel_list(f, root, where)
-        dictionaries: dict[str, list[np.ndarray]] = {}
         tolerance: dict[str, float] = {}
-        for ch in channels:
-            g = require(root, ch, f"{where}/dictionaries")
-            gw = f"{where}/dictionaries/{ch}"
-            if not isinstance(g, h5py.Group):
-                raise FileFormatError(f"{gw}: expected a group of datasets mode1..modeN")
-            names = sorted(
-                (k for k in g if k.startswith("mode") and k[4:].isdigit()), key=lambda k: int(k[4:])
-            )
-            if [int(k[4:]) for k in names] != list(range(1, len(names) + 1)) or not names:
-                raise FileFormatError(
-                    f"{gw}: expected datasets mode1..modeN, found {sorted(g.keys())}"
-                )
-            mats = []
-            tolerance[ch] = ORTHONORMAL_TOLERANCE
-            for k in names:
-                ds = checked_dataset(g, k, gw, kinds="f", shape=(None, None, None))
-                if ds.shape[1] != ds.shape[2] or min(ds.shape) < 1:
-                    raise FileFormatError(
-                        f"{gw}/{k}: expected shape (K, m, m) with K, m >= 1, found {ds.shape}"
-                    )
-                if ds.dtype.itemsize == 2:
-                    tolerance[ch] = ORTHONORMAL_TOLERANCE_FP16
-                mats.append(read_array(g, k, gw, kinds="f", finite=True).astype(np.float64))
-            if len({m.shape[0] for m in mats}) != 1:
-                raise FileFormatError(
-                    f"{gw}: modes disagree on the number of dictionaries "
-                    f"{[m.shape[0] for m in mats]}"
-                )
-            dictionaries[ch] = mats
+        dictionaries = _read_ensembles(root, channels, f"{where}/dictionaries", tolerance)
+        patches = _read_patches(f, channels, patch, where, tolerance)
         lights = read_directions(require(f, "lights", where), f"{where}/lights")
         views = read_directions(require(f, "views", where), f"{where}/views")
         params = read_json_attr(f, "params_json", where)
@@ -180,12 +168,21 @@ def load_model(path: str | os.PathLike[str]) -> Model:
         provenance = read_json_attr(f, "provenance_json", where)
         training = read_json_attr(f, "training_json", where)
 
-    for ch, mats in dictionaries.items():
-        check_geometry(
-            tuple(m.shape[1] for m in mats), patch, len(lights), len(views),
-            f"{where}/dictionaries/{ch}", FileFormatError,
-        )
+    for size, ens, at in ((patch, dictionaries, "dictionaries"),
+                          *((q, e, f"patches/{q}") for q, e in patches.items())):  # fmt: skip
+        for ch, mats in ens.items():
+            check_geometry(
+                tuple(m.shape[1] for m in mats), size, len(lights), len(views),
+                f"{where}/{at}/{ch}", FileFormatError,
+            )
     found = dictionaries_hash(dictionaries)
+    for q, ens in patches.items():
+        validate_model_dictionaries(ens, f"{where}/patches/{q}", tolerance)
+    if patches:
+        try:
+            found = Model(dictionaries, patch, lights, views, patches=patches).content_hash
+        except BTFInputError as e:
+            raise FileFormatError(f"{where}: {e}") from None
     if found != stored_hash:
         raise FileFormatError(
             f"{where}: dictionaries are corrupted: their content hash is {found[:12]}…, but the "
@@ -196,12 +193,73 @@ def load_model(path: str | os.PathLike[str]) -> Model:
     try:
         model = Model(
             dictionaries=dictionaries, patch=patch, lights=lights, views=views,
-            params=params, provenance=provenance, training=training,
+            params=params, provenance=provenance, training=training, patches=patches,
         )
     except BTFInputError as e:
         raise FileFormatError(f"{where}: {e}") from None
     model.file = str(p.resolve())
     return model
+
+
+def _read_ensembles(root: h5py.Group, channels: list[str], where: str,
+                    tolerance: dict[str, float]) -> dict[str, list[np.ndarray]]:  # fmt: skip
+    """One ensemble per channel from ``root``/<CH>/mode1..modeN (float64); ``tolerance``
+    gets each channel's orthonormality tolerance (looser where a mode is stored in fp16)."""
+    dictionaries: dict[str, list[np.ndarray]] = {}
+    for ch in channels:
+        g = require(root, ch, where)
+        gw = f"{where}/{ch}"
+        if not isinstance(g, h5py.Group):
+            raise FileFormatError(f"{gw}: expected a group of datasets mode1..modeN")
+        names = sorted(
+            (k for k in g if k.startswith("mode") and k[4:].isdigit()), key=lambda k: int(k[4:])
+        )
+        if [int(k[4:]) for k in names] != list(range(1, len(names) + 1)) or not names:
+            raise FileFormatError(
+                f"{gw}: expected datasets mode1..modeN, found {sorted(g.keys())}"
+            )
+        mats = []
+        tolerance.setdefault(ch, ORTHONORMAL_TOLERANCE)
+        for k in names:
+            ds = checked_dataset(g, k, gw, kinds="f", shape=(None, None, None))
+            if ds.shape[1] != ds.shape[2] or min(ds.shape) < 1:
+                raise FileFormatError(
+                    f"{gw}/{k}: expected shape (K, m, m) with K, m >= 1, found {ds.shape}"
+                )
+            if ds.dtype.itemsize == 2:
+                tolerance[ch] = ORTHONORMAL_TOLERANCE_FP16
+            mats.append(read_array(g, k, gw, kinds="f", finite=True).astype(np.float64))
+        if len({m.shape[0] for m in mats}) != 1:
+            raise FileFormatError(
+                f"{gw}: modes disagree on the number of dictionaries "
+                f"{[m.shape[0] for m in mats]}"
+            )
+        dictionaries[ch] = mats
+    return dictionaries
+
+
+def _read_patches(f: h5py.File, channels: list[str], patch: int, where: str,
+                  tolerance: dict[str, float]) -> dict[int, dict[str, list[np.ndarray]]]:
+    """The ensembles at other patch sizes (``/patches``, schema 3), checked against the
+    root's ``patch_sizes``; none in a model of one size."""
+    if "patches" not in f and "patch_sizes" not in f.attrs:
+        return {}
+    try:
+        sizes = json.loads(read_str_attr(f, "patch_sizes", where))
+    except (ValueError, RecursionError):
+        sizes = None
+    group = require(f, "patches", where)
+    if (not isinstance(sizes, list) or patch not in sizes
+            or not all(isinstance(p, int) and not isinstance(p, bool) for p in sizes)):
+        raise FileFormatError(f"{where}: attribute 'patch_sizes' must be a JSON list of "
+                              f"integers holding the patch {patch}, found {str(sizes)[:80]}")
+    others = sorted((p for p in sizes if p != patch), reverse=True)
+    if not isinstance(group, h5py.Group) or sorted(group.keys()) != sorted(map(str, others)):
+        found = sorted(group.keys()) if isinstance(group, h5py.Group) else "a dataset"
+        raise FileFormatError(f"{where}/patches: expected one group per other patch size "
+                              f"{others}, found {found}")  # fmt: skip
+    return {p: _read_ensembles(group[str(p)], channels, f"{where}/patches/{p}", tolerance)
+            for p in others}
 
 
 def _check_tau_dictionaries(params: dict, ks: dict[str, int], where: str) -> None:

@@ -131,12 +131,14 @@ def load_runtime(source: tuple, tau: Any = None) -> Any:
     ``tau`` is the plugin's string (or number) as given; :class:`RuntimeBTF` parses it.
     """
     from ...model import CodedBTF
+    from ...patch_tree import refuse_adaptive
     from ...runtime import RuntimeBTF
 
     def make() -> RuntimeBTF:
         if source[0] != "key":
             return RuntimeBTF.from_file(source[1], source[2], tau)
         obj = _materials[source[1]]
+        refuse_adaptive(obj, "the sparsebtf plugin")
         if isinstance(obj, CodedBTF):
             return RuntimeBTF(obj, tau)
         if isinstance(obj, RuntimeBTF):
