@@ -311,6 +311,6 @@ def refuse_adaptive(coded: object, what: str) -> None:
     if isinstance(coded, AdaptiveCodedBTF):
         raise BTFInputError(
             f"{coded.label}: coded with adaptive patch sizes; {what} reads materials of one "
-            "patch size only so far (the NumPy decoders read it: sparsebtf.decode, "
+            "patch size only so far (read it with sparsebtf.decode or "
             "sparsebtf.runtime.AdaptiveRuntimeBTF)"
         )

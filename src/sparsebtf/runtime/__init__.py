@@ -5,7 +5,7 @@
 * :class:`RuntimeBTF` — Eq. 5/6 for batches of (texel or uv, ω_i, ω_o) queries, τ' truncation,
   and the flat arrays a shader needs (:meth:`RuntimeBTF.arrays`).
 * :class:`AdaptiveRuntimeBTF`, :class:`AdaptiveDecodedBTF` — the same for a material coded
-  with adaptive patch sizes (NumPy reference; :mod:`.adaptive`).
+  with adaptive patch sizes (NumPy or numba, layer by layer; :mod:`.adaptive`).
 * :func:`angular_weights` — nearest / linear (release) / barycentric / Gaussian neighbours.
 * :func:`blend` — inter-BTF interpolation in coefficient space (Eq. 7–9).
 """

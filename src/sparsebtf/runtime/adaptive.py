@@ -1,13 +1,15 @@
-"""Decoding adaptive patch sizes (:mod:`sparsebtf.patch_tree`): the NumPy reference.
+"""Decoding adaptive patch sizes (:mod:`sparsebtf.patch_tree`), layer by layer.
 
 A material coded with adaptive patch sizes holds one layer of codes per size, each a fixed-size
 coded BTF that is empty outside the nodes of its size. Every texel is read from the layer of
 the node that covers it, by the fixed-size decoders: :class:`AdaptiveDecodedBTF` (the lazy
 dense decode, Eq. 4 / Eq. 5 per layer) and :class:`AdaptiveRuntimeBTF` (the runtime's
-queries, Eq. 5 / Eq. 6). Cost: a dense read decodes the requested block once per size that has
-nodes in it (up to the number of sizes times a fixed-size read); a query costs what it costs
-in the layer of its node. The renderer arrays (Mitsuba plugin, WebGL viewer) and the numba
-kernels do not carry the tree yet: both refuse adaptive materials in one line.
+queries, Eq. 5 / Eq. 6, by either backend: a layer is an ordinary fixed-size coded BTF, so
+its NumPy reference and its numba kernels serve the queries routed to it as they are). Cost: a
+dense read decodes the requested block once per size that has nodes in it (up to the number
+of sizes times a fixed-size read); a query costs what it costs in the layer of its node. The
+renderer arrays (Mitsuba plugin, WebGL viewer) do not carry the tree yet: they refuse
+adaptive materials in one line.
 """
 
 from __future__ import annotations
@@ -74,8 +76,8 @@ def decoded_view(coded: AdaptiveCodedBTF) -> AdaptiveDecodedBTF:
 
 class AdaptiveRuntimeBTF:
     """:class:`~sparsebtf.runtime.decoder.RuntimeBTF`'s queries on an adaptive material: each
-    query answered by the runtime of its node's layer (NumPy path; ``tau`` per channel applies
-    to every node, a fraction to each size's coded τ)."""
+    query answered by the runtime of its node's layer, on the backend asked for (``tau`` per
+    channel applies to every node, a fraction to each size's coded τ)."""
 
     def __init__(self, coded: AdaptiveCodedBTF, tau: TauSpec = None,
                  dtype: type = np.float32) -> None:  # fmt: skip
@@ -106,13 +108,12 @@ class AdaptiveRuntimeBTF:
 
     def evaluate(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None = None,
                  texel: np.ndarray | None = None, *, tau: TauSpec | np.ndarray = None,
-                 backend: str = "numpy", **kwargs: Any) -> np.ndarray:  # fmt: skip
-        """:meth:`RuntimeBTF.evaluate` (same arguments), each query in its node's layer."""
-        if backend not in ("numpy", "auto"):
-            raise BTFInputError(
-                f"backend {backend!r}: adaptive patch sizes are evaluated by the NumPy "
-                "reference only (the numba kernels do not read a patch tree yet)"
-            )
+                 backend: str = "auto", **kwargs: Any) -> np.ndarray:  # fmt: skip
+        """:meth:`RuntimeBTF.evaluate` (same arguments), each query in its node's layer:
+        the queries of one size go to that layer's runtime together, in one batch (angular
+        weights, kernels and the inverse preprocessing as for a fixed-size material)."""
+        # checked here, not only in the layers that get queries: one answer for any batch
+        backend = self.layers[self.coded.tree.sizes[0]]._select_backend(backend)
         wi, wo = np.asarray(wi), np.asarray(wo)
         row, col = query_texels(uv, texel, self.coded.height, self.coded.width)
         if wi.ndim != 2 or wi.shape != wo.shape or wi.shape[0] != row.size:
@@ -127,5 +128,6 @@ class AdaptiveRuntimeBTF:
                 continue
             t = tau[m] if isinstance(tau, np.ndarray) else tau
             texels = np.stack([row[m], col[m]], axis=1)
-            out[m] = rt.evaluate(wi[m], wo[m], texel=texels, tau=t, backend="numpy", **kwargs)
+            out[m] = rt.evaluate(wi[m], wo[m], texel=texels, tau=t, backend=backend,
+                                 **kwargs)  # fmt: skip
         return out

@@ -96,7 +96,7 @@ class RuntimeBTF:
     def __init__(
         self, coded: CodedBTF, tau: TauSpec = None, dtype: type = np.float32
     ) -> None:
-        refuse_adaptive(coded, "RuntimeBTF (the renderer arrays, the numba kernels)")
+        refuse_adaptive(coded, "RuntimeBTF")
         model = coded.require_model()
         if tuple(coded.channels) != CHANNELS:
             raise BTFInputError(
