@@ -26,7 +26,10 @@ from .learning.coding import SparseCodes
 from .model import CodedBTF, Model, model_text
 from .points.grid import PatchGrid, check_nested
 
-__all__ = ["AdaptiveCodedBTF", "PatchTree", "expand_points", "refuse_adaptive", "select_points"]
+__all__ = [
+    "AdaptiveCodedBTF", "PatchTree", "expand_points", "node_taus", "refuse_adaptive",
+    "select_points",
+]  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -147,6 +150,16 @@ class PatchTree:
     def tree_bytes(self) -> int:
         """Table 4-style bytes of the tree: its split flags, one bit each."""
         return math.ceil(self.flags() / 8)
+
+
+def node_taus(tau: dict[str, int], model: Model, size: int) -> dict[str, int]:
+    """The cap of a node of ``size``: τ (per point of the model's largest size P) scaled to
+    the node's texels, ⌈τ·(size/P)²⌉, at least 1 and at most the point's coefficients."""
+    big = model.patch_sizes[0]
+    one = model.for_patch(size)
+    return {ch: min(math.prod(int(d.shape[1]) for d in one.dictionaries[ch]),
+                    max(1, math.ceil(t * size * size / (big * big))))
+            for ch, t in tau.items()}  # fmt: skip
 
 
 def select_points(codes: SparseCodes, points: np.ndarray) -> SparseCodes:

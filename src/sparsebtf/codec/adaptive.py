@@ -40,7 +40,7 @@ from ..learning.codes import RELEASE_EPS, RELEASE_TAU, count_and_error
 from ..learning.coding import SparseCodes, sparse_code_levels
 from ..learning.cost import POINT_BYTES, VALUE_BYTES, location_width, raw_bytes
 from ..model import CHANNELS, Model, TauSpec, model_text, parse_tau
-from ..patch_tree import AdaptiveCodedBTF, PatchTree, expand_points, select_points
+from ..patch_tree import AdaptiveCodedBTF, PatchTree, expand_points, node_taus, select_points
 from ..points.grid import PatchGrid, stream_points
 from ..points.preprocessing import Preprocessor, Standardization
 from .encode import _check_levels, coded_btf, plan_candidates, rule_params
@@ -51,16 +51,6 @@ __all__ = ["AdaptivePlan", "encode_adaptive", "node_taus"]
 
 #: Halvings of log λ in the bisection (far below one coefficient's bytes at the end).
 BISECTIONS = 60
-
-
-def node_taus(tau: dict[str, int], model: Model, size: int) -> dict[str, int]:
-    """The cap of a node of ``size``: τ (per point of the model's largest size P) scaled to
-    the node's texels, ⌈τ·(size/P)²⌉, at least 1 and at most the point's coefficients."""
-    big = model.patch_sizes[0]
-    one = model.for_patch(size)
-    return {ch: min(math.prod(int(d.shape[1]) for d in one.dictionaries[ch]),
-                    max(1, math.ceil(t * size * size / (big * big))))
-            for ch, t in tau.items()}  # fmt: skip
 
 
 @dataclass(frozen=True)
