@@ -419,14 +419,78 @@ def test_cli_encode_info_lookup(model, mixed, tmp_path, capsys, monkeypatch):
 
 
 def test_fixed_size_decoders_refuse_an_adaptive_material(model, mixed):
-    from sparsebtf.runtime import DecodedBTF, blend
+    from sparsebtf.runtime import DecodedBTF
 
     coded = load_coded(mixed[1], model, adaptive=True)
-    for make in (lambda: RuntimeBTF(coded), lambda: DecodedBTF(coded),
-                 lambda: blend([coded, coded], alpha=0.5)):  # fmt: skip
+    for make in (lambda: RuntimeBTF(coded), lambda: DecodedBTF(coded)):
         with pytest.raises(BTFInputError) as e:
             make()
         assert "adaptive patch sizes" in _one_line(e)
+
+
+# -- blending materials with different trees ------------------------------------------------
+
+FULL = 4 * 4 * 13 * 13  # every coefficient of a 4x4 point: no node is re-sparsified
+
+
+@pytest.fixture(scope="module")
+def other(model):
+    """A material busy in block (0, 0) only: its tree differs from the mixed one's."""
+    return encode_adaptive(material(((0, 0),), seed=11), model, (64, 16, 16),
+                           target_bytes=1500, progress=False)  # fmt: skip
+
+
+def test_blend_of_different_trees_equals_the_blend_of_decoded_values(model, mixed, other):
+    """On the common refinement of the trees, each coarse node re-expressed at the finer
+    size: before re-sparsification the blend's standardised values are the α-blend of the
+    inputs' standardised decoded values (the domain blending works in, as Eq. 7)."""
+    from sparsebtf.runtime import blend
+    from sparsebtf.runtime.blend_adaptive import union_tree
+
+    a = load_coded(mixed[1], model, adaptive=True)
+    b = other
+    sa, sb = a.tree.size_map(), b.tree.size_map()
+    assert ((sa > sb).any() and (sb > sa).any()), "each tree must be coarser somewhere"
+    out = blend([a, b], alpha=0.3, tau=FULL, progress=False)
+    assert isinstance(out, AdaptiveCodedBTF)
+    np.testing.assert_array_equal(out.tree.size_map(), np.minimum(sa, sb))
+    assert out.tree.n_nodes == union_tree([a.tree, b.tree]).n_nodes
+    everything = (slice(None),) * 4
+    za, zb, zo = (decoded_view(c).read_standardised(*everything) for c in (a, b, out))
+    # float32 coefficients through four change-of-basis products: rounding, ~1e-6 of values
+    # of order 1 (a dropped or misplaced sub-block would be off by the values themselves)
+    np.testing.assert_allclose(zo, 0.7 * za + 0.3 * zb, atol=2e-5)
+    for ch in out.channels:  # nothing dropped but rounding
+        assert all(np.all(layer.codes[ch].errors < 1e-12) for layer in out.layers.values())
+    # re-sparsified to the default caps: every node within its size's cap, errors recorded
+    cut = blend([a, b], alpha=0.3, progress=False)
+    np.testing.assert_array_equal(cut.tree.nodes, out.tree.nodes)
+    for p, layer in cut.layers.items():
+        cap = -(-64 * p * p // 16)  # ⌈τ·(p/4)²⌉ on Y at τ = 64
+        assert layer.codes["Y"].counts.max() <= cap
+    # a weight of zero does not refine the tree: α = 0 is the first input, tree and codes
+    same = blend([a, b], alpha=0.0, progress=False)
+    np.testing.assert_array_equal(same.tree.nodes, a.tree.nodes)
+    for p in a.tree.sizes:
+        for ch in a.channels:
+            x, y = a.node_codes(p)[ch], same.node_codes(p)[ch]
+            np.testing.assert_array_equal(x.counts, y.counts)
+            np.testing.assert_array_equal(x.values, y.values)
+
+
+def test_blend_of_adaptive_materials_saves_and_refuses_a_mix(model, mixed, other, tmp_path):
+    from sparsebtf.runtime import blend
+
+    a = load_coded(mixed[1], model, adaptive=True)
+    out = blend([a, other], weights=[0.5, 0.5], progress=False)
+    path = save_coded(out, tmp_path / "blend.coded.h5")
+    back = load_coded(path, model, adaptive=True)
+    np.testing.assert_array_equal(back.tree.nodes, out.tree.nodes)
+    assert back.params["blend"]["weights"] == [0.5, 0.5] and "adaptive" not in back.params
+    fixed = a.layers[4]  # a fixed-size coded BTF of the same model
+    with pytest.raises(BTFInputError) as e:
+        blend([fixed, a], alpha=0.5)
+    assert "coded one way" in _one_line(e)
 
 
 def test_resumed_encode_reads_its_ranges_back(model, tmp_path, monkeypatch):

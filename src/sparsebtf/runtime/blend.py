@@ -23,9 +23,10 @@ import numpy as np
 
 from ..errors import BTFInputError, ModelMismatchError
 from ..model import CodedBTF, TauSpec, model_text, parse_tau
-from ..patch_tree import refuse_adaptive
+from ..patch_tree import AdaptiveCodedBTF
 from ..points.preprocessing import Standardization, round_up_bound
 from ..storage.coded_streams import canonical_codes
+from .blend_adaptive import blend_trees
 from .blend_codes import blend_channel
 
 __all__ = ["blend", "check_blendable"]
@@ -64,25 +65,39 @@ def check_blendable(coded: Sequence[CodedBTF]) -> None:
 
 
 def blend(
-    coded: Sequence[CodedBTF],
+    coded: Sequence[CodedBTF] | Sequence[AdaptiveCodedBTF],
     weights: Sequence[float] | None = None,
     alpha: float | None = None,
     tau: TauSpec = None,
     name: str | None = None,
     progress: bool | None = None,
-) -> CodedBTF:
+) -> CodedBTF | AdaptiveCodedBTF:
     """Blend coded BTFs in coefficient space (Eq. 7–9) and re-sparsify to ``tau``.
+
+    Materials coded with adaptive patch sizes (all inputs, one model) blend on the common
+    refinement of their trees, coarse nodes re-expressed at the finer size
+    (:mod:`.blend_adaptive`); the result is an :class:`~sparsebtf.patch_tree.AdaptiveCodedBTF`.
 
     Parameters
     ----------
     coded : two or more coded BTFs of one model, sizes and direction tables.
     weights : one weight per input, summing to 1 (negative or > 1 extrapolates).
     alpha : shorthand for two inputs: weights (1 − α, α) as in Eq. 7.
-    tau : sparsity of the output per channel; default the largest coded τ of the inputs.
+    tau : sparsity of the output per channel; default the largest coded τ of the inputs
+        (adaptive: per point of the largest size, each node's cap scaled to its texels).
     """
-    check_blendable(coded)
-    for c in coded:
-        refuse_adaptive(c, "blending")
+    kinds = {isinstance(c, AdaptiveCodedBTF) for c in coded}
+    if len(kinds) > 1:
+        one = next(c for c in coded if not isinstance(c, AdaptiveCodedBTF))
+        many = next(c for c in coded if isinstance(c, AdaptiveCodedBTF))
+        raise BTFInputError(
+            f"{one.label} is coded with one patch size, {many.label} with adaptive patch "
+            "sizes: blending needs all inputs coded one way"
+        )
+    adaptive = kinds == {True}
+    # the largest size's layers carry what every layer shares (model, directions, stats)
+    plain: list[CodedBTF] = [c.first if isinstance(c, AdaptiveCodedBTF) else c for c in coded]
+    check_blendable(plain)
     if (weights is None) == (alpha is None):
         raise BTFInputError("give either weights or alpha")
     if alpha is not None:
@@ -94,44 +109,56 @@ def blend(
         raise BTFInputError(f"need {len(coded)} finite weights, got {weights}")
     if abs(w.sum() - 1.0) > 1e-9:
         raise BTFInputError(f"weights must sum to 1, got {w.tolist()} (sum {w.sum():g})")
-    first = coded[0]
-    model = first.require_model()
+    first = plain[0]
+    model = coded[0].require_model()
     channels = first.channels
-    widest = {ch: max(c.coded_tau[ch] for c in coded) for ch in channels}
+    widest = {ch: max(c.coded_tau[ch] for c in plain) for ch in channels}
     taus = parse_tau(tau, channels, full=widest)
-    # in the coded files' magnitude order (ties of stored magnitude by location), so a saved
-    # blend needs no explicit order (storage.coded_streams)
-    codes = {
-        ch: canonical_codes(blend_channel(
-            [c.codes[ch] for c in coded], w, model.dictionaries[ch], taus[ch], progress,
-            f"blend {ch}",
-        ))
-        for ch in channels
-    }  # fmt: skip
     st = first.stats
-    pairs = list(zip(w, coded, strict=True))
-    bounded = all(c.stats.bound is not None for c in coded)
+    pairs = list(zip(w, plain, strict=True))
+    bounded = all(c.stats.bound is not None for c in plain)
     offset = float(sum(wj * c.stats.log_offset for wj, c in pairs))
     stats = Standardization(
         st.mode,
         sum(wj * c.stats.mean for wj, c in pairs),
         sum(wj * c.stats.std for wj, c in pairs),
-        offset if len({c.stats.log_offset for c in coded}) > 1 else st.log_offset,
+        offset if len({c.stats.log_offset for c in plain}) > 1 else st.log_offset,
         st.transform,
         round_up_bound(sum(wj * c.stats.bound.astype(np.float64) for wj, c in pairs))
         if bounded else None,
     )
-    names = [c.name for c in coded]
+    names = [c.name for c in plain]
     params = dict(first.params)
     # the blend keeps the largest summed coefficients in magnitude order: the log rule's
     # order, whatever objective its inputs were coded for
     params.pop("objective", None)
+    # an adaptive input's tree choice (λ, budget) does not describe the blend's tree
+    params.pop("adaptive", None)
     params["tau"] = taus
     params["blend"] = {"inputs": names, "weights": w.tolist()}
     label = name or "blend(" + ", ".join(f"{n}:{wj:g}" for n, wj in zip(names, w, strict=True))
     if name is None:
         label += ")"
+    attrs = {"blend_of": names, "weights": w.tolist()}
+    if adaptive:
+        tree, layer_codes = blend_trees(coded, w, taus, progress)  # type: ignore[arg-type]
+        layers = {
+            s: CodedBTF({ch: canonical_codes(c) for ch, c in per.items()}, stats, first.height,
+                        first.width, s, first.lights, first.views, first.model_hash,
+                        dict(params), label, dict(attrs), model.for_patch(s))
+            for s, per in layer_codes.items()
+        }  # fmt: skip
+        return AdaptiveCodedBTF(tree, layers, model)
+    # in the coded files' magnitude order (ties of stored magnitude by location), so a saved
+    # blend needs no explicit order (storage.coded_streams)
+    codes = {
+        ch: canonical_codes(blend_channel(
+            [c.codes[ch] for c in plain], w, model.dictionaries[ch], taus[ch], progress,
+            f"blend {ch}",
+        ))
+        for ch in channels
+    }  # fmt: skip
     return CodedBTF(
         codes, stats, first.height, first.width, first.patch, first.lights, first.views,
-        first.model_hash, params, label, {"blend_of": names, "weights": w.tolist()}, model,
+        first.model_hash, params, label, attrs, model,
     )  # fmt: skip
