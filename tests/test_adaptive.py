@@ -521,3 +521,31 @@ def test_model_file_with_a_wrong_size_list_is_one_line(model, tmp_path):
     with pytest.raises(FileFormatError) as e:
         load_model(path)
     assert "patches" in _one_line(e)
+
+
+def test_cli_blend_of_adaptive_files(model, mixed, other, tmp_path, capsys):
+    import json
+
+    from sparsebtf.cli.main import main
+    from sparsebtf.runtime import blend
+
+    save_model(model, tmp_path / "model.h5")
+    b = save_coded(other, tmp_path / "other.coded.h5")
+    out = tmp_path / "mix.coded.h5"
+    assert main(["blend", str(mixed[1]), str(b), "--alpha", "0.3", "-o", str(out), "-m",
+                 str(tmp_path / "model.h5"), "--sweep", "2", "--png", str(tmp_path / "strip"),
+                 "--json"]) == 0  # fmt: skip
+    report = json.loads(capsys.readouterr().out)
+    assert len(report["sweep"]) == 2
+    back = load_coded(out, model, adaptive=True)
+    want = blend([load_coded(mixed[1], model, adaptive=True), load_coded(b, model, adaptive=True)],
+                 alpha=0.3, progress=False)  # fmt: skip
+    np.testing.assert_array_equal(back.tree.nodes, want.tree.nodes)
+    # the sweep's α = 0 render is the first material's image at the Figure 6 directions
+    from sparsebtf.cli.blend import FIGURE6_LIGHT, FIGURE6_VIEW, direction
+
+    rt = AdaptiveRuntimeBTF(load_coded(mixed[1], model, adaptive=True))
+    img = rt.image(direction(FIGURE6_LIGHT, "l"), direction(FIGURE6_VIEW, "v"))
+    assert img.shape == (8, 8, 3)
+    np.testing.assert_allclose(report["sweep"][0]["mean_rgb"], img.reshape(-1, 3).mean(axis=0),
+                               rtol=1e-5)  # fmt: skip

@@ -95,7 +95,8 @@ def alpha_strip(tiles: list[np.ndarray], alphas: list[float], path: Path) -> Pat
 def cmd_blend(args: argparse.Namespace) -> int:
     from ..display import tone_map
     from ..figures import save_png
-    from ..runtime import RuntimeBTF, blend
+    from ..patch_tree import AdaptiveCodedBTF
+    from ..runtime import AdaptiveRuntimeBTF, RuntimeBTF, blend
     from ..storage import load_coded_with_model, save_coded
 
     if len(args.inputs) < 2:
@@ -110,7 +111,7 @@ def cmd_blend(args: argparse.Namespace) -> int:
         raise BTFInputError("--sweep runs α from 0 to 1 between two inputs")
     check_output_file(args.output, [*args.inputs, args.model], kind="coded")
     check_output_dir(args.png, "--png")
-    coded = [load_coded_with_model(p, args.model) for p in args.inputs]
+    coded = [load_coded_with_model(p, args.model, adaptive=True) for p in args.inputs]
     report: dict[str, Any] = {"inputs": [str(p) for p in args.inputs]}
     if weights:
         out = blend(coded, weights=weights, tau=tau)
@@ -127,7 +128,9 @@ def cmd_blend(args: argparse.Namespace) -> int:
         tiles, frames = [], []
         for alpha in np.linspace(0.0, 1.0, args.sweep):
             mixed = blend(coded, alpha=float(alpha), tau=tau, progress=False)
-            img = RuntimeBTF(mixed).image(light, view, interpolation=args.interpolation)
+            rt = (AdaptiveRuntimeBTF(mixed) if isinstance(mixed, AdaptiveCodedBTF)
+                  else RuntimeBTF(mixed))  # fmt: skip
+            img = rt.image(light, view, interpolation=args.interpolation)
             tile = tone_map(img)
             path = save_png(folder / f"blend_alpha_{alpha:.2f}.png", tile)
             tiles.append(tile)
@@ -153,7 +156,8 @@ def register(sub: Any) -> None:
         help="blend coded BTFs in coefficient space (Eq. 7-9); --sweep renders a strip",
         description="Blend coded BTFs of one model in coefficient space (paper §3.5, "
         "Eq. 7-9): a new material between them, or with --sweep a strip of renders from α = 0 "
-        "(the first input) to 1 (the second), labelled with α.",
+        "(the first input) to 1 (the second), labelled with α. Materials coded with adaptive "
+        "patch sizes blend on the common refinement of their trees.",
         epilog="examples:\n"
         "  sparsebtf blend A.coded.h5 B.coded.h5 --alpha 0.3 -o mix.h5\n"
         "  sparsebtf blend A.coded.h5 B.coded.h5 --sweep 11 --png strip/   # Figure 6\n"

@@ -131,3 +131,8 @@ class AdaptiveRuntimeBTF:
             out[m] = rt.evaluate(wi[m], wo[m], texel=texels, tau=t, backend=backend,
                                  **kwargs)  # fmt: skip
         return out
+
+    def image(self, light: np.ndarray, view: np.ndarray, size: tuple[int, int] | None = None,
+              **kwargs: Any) -> np.ndarray:  # fmt: skip
+        """:meth:`RuntimeBTF.image`: an (H, W, 3) image at one light and view direction."""
+        return RuntimeBTF.image(self, light, view, size, **kwargs)  # type: ignore[arg-type]
