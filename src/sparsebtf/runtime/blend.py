@@ -13,6 +13,9 @@ it is then cut back to the τ largest coefficients per point (the output's spars
 The blend lives in each material's standardised domain; the output's statistics μ, σ, its log
 offset and its bound on ln(RGB + offset) are the same weighted sums of the inputs' (so α = 0 and
 1 return the inputs exactly; the bound is rounded up to 1/32 like every stored bound).
+
+Materials coded with adaptive patch sizes blend on the common refinement of their trees, each
+coarse node re-expressed exactly at the finer size (:mod:`.blend_adaptive`).
 """
 
 from __future__ import annotations
