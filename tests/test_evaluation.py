@@ -165,6 +165,10 @@ def test_bench_renders_figure8_and_measures_decode_speed(tiny_run):
     assert {"SparseBTF(32)", "[MHU19] (raw RGB)(32)"} <= labels
     for r in f8["methods"].values():
         assert r["image_mse"] > 0 and r["flip"] > 0
+        # each method's PNG by its name in the run's figure8 folder: a results.json copied
+        # into docs names no machine's folder
+        assert "/" not in r["png"] and (out / "figure8" / r["png"]).exists()
+    assert str(out) not in json.dumps(result, default=str)
     assert (out / "figure8" / "figure8.png").stat().st_size > 0
     speed = result["decode_speed"]["methods"]
     assert set(speed) == labels

@@ -159,7 +159,7 @@ def render_methods(
     ``reconstructions``: {label: BTF} of the reference's shape and directions. Returns
     {label: {"image_mse", "image_mse_display", "flip", "png"}} — the MSE of the linear
     (H, W, 3) renders, the MSE of the display-mapped renders, the mean HDR-ꟻLIP and the
-    path of that method's display-mapped PNG.
+    name of that method's display-mapped PNG in ``out_dir``.
     """
     for label, rec in reconstructions.items():
         if rec.shape != reference.shape:
@@ -191,7 +191,7 @@ def render_methods(
             "image_mse_display": float(np.mean(np.square(
                 display_values(img).astype(np.float64) - ref_shown))),
             "flip": mean_flip,
-            "png": str(png),
+            "png": png.name,  # in out_dir: a results.json copied elsewhere names no folder
         }  # fmt: skip
         images[label], maps[label] = img, err
     _save_png(out / "reference.png", ref_shown)
