@@ -67,7 +67,7 @@ def _encode(args: argparse.Namespace, tau: str | None, options: EncodeOptions,
             outputs: list[Any]) -> None:  # fmt: skip
     from ..codec import encode_many
     from ..execution import Execution
-    from ..storage import save_coded, storage_report
+    from ..storage import storage_report
 
     model = open_model_arg(args.model)
     label = model_label(args.model, model)
@@ -94,12 +94,7 @@ def _encode(args: argparse.Namespace, tau: str | None, options: EncodeOptions,
                             execution=Execution(**cluster_options(args)))  # fmt: skip
     reports = []
     for coded, output in zip(coded_all, outputs, strict=True):
-        if model.file:
-            coded.params["model_file"] = model.file
-        save_coded(coded, output)
-        report = storage_report(coded, model, output)
-        report["model"] = {"label": label, "content_hash": model.content_hash}
-        reports.append({"input": coded.name, "output": str(output), **report})
+        report = _save(coded, output, model, label, storage_report, reports)
         if not args.json:
             print(f"wrote {output} with {label} ({model.content_hash[:12]}): "
                   f"{coefficients_text(coded)}, file {report['file_bytes']:,} bytes")  # fmt: skip
@@ -115,7 +110,6 @@ def _encode_adaptive(args: argparse.Namespace, tau: str | None, options: EncodeO
     from ..codec.adaptive import encode_adaptive
     from ..execution import Execution
     from ..learning.codes import RELEASE_TAU
-    from ..storage import save_coded
     from ..storage.adaptive_file import adaptive_report
 
     if args.budget == "stored" or args.with_dictionaries:
@@ -130,12 +124,7 @@ def _encode_adaptive(args: argparse.Namespace, tau: str | None, options: EncodeO
         coded = encode_adaptive(source, model, tau or RELEASE_TAU, target_bytes=args.target_bytes,
                                 target_ratio=args.target_ratio, options=options,
                                 execution=Execution(**cluster_options(args)))  # fmt: skip
-        if model.file:
-            coded.params["model_file"] = model.file
-        save_coded(coded, output)
-        report = adaptive_report(coded, model, output)
-        report["model"] = {"label": label, "content_hash": model.content_hash}
-        reports.append({"input": coded.name, "output": str(output), **report})
+        report = _save(coded, output, model, label, adaptive_report, reports)
         if not args.json:
             nodes = ", ".join(f"{n} of {p}x{p}" for p, n in coded.tree.counts().items())
             print(f"wrote {output} with {label} ({model.content_hash[:12]}): adaptive patch "
@@ -145,6 +134,21 @@ def _encode_adaptive(args: argparse.Namespace, tau: str | None, options: EncodeO
                   f"{report['bytes_tree']:,} bytes)")  # fmt: skip
     if args.json:
         print_json(reports[0] if len(args.btf) == 1 else {"files": reports})
+
+
+def _save(coded: Any, output: Any, model: Any, label: str, report_of: Any,
+          reports: list[dict[str, Any]]) -> dict[str, Any]:  # fmt: skip
+    """Write ``coded`` (naming its model file) and append its storage report to ``reports``
+    (``report_of``: the fixed-size or the adaptive accounting); the report."""
+    from ..storage import save_coded
+
+    if model.file:
+        coded.params["model_file"] = model.file
+    save_coded(coded, output)
+    report = report_of(coded, model, output)
+    report["model"] = {"label": label, "content_hash": model.content_hash}
+    reports.append({"input": coded.name, "output": str(output), **report})
+    return report
 
 
 def coefficients_text(coded: Any) -> str:
