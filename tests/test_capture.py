@@ -273,6 +273,19 @@ def test_crop_renders_a_window_of_the_full_capture(tmp_path):
     assert np.allclose(part, full[2:6, 3:8], rtol=1e-6, atol=1e-7)
 
 
+def _dies_after_three(writer, calls):
+    """A render_block that records each view and is interrupted at the fourth (a kill)."""
+    real = writer.render_block
+
+    def render(spec, view):
+        calls.append(view)
+        if len(calls) > 3:
+            raise KeyboardInterrupt
+        return real(spec, view)
+
+    return render
+
+
 def test_interrupted_capture_resumes_to_the_same_values(tmp_path, monkeypatch, capsys):
     from sparsebtf.data.capture import writer
 
@@ -280,14 +293,7 @@ def test_interrupted_capture_resumes_to_the_same_values(tmp_path, monkeypatch, c
     out = tmp_path / "cut.h5"
     real = writer.render_block
     calls = []
-
-    def dies_after_three(spec, view):
-        calls.append(view)
-        if len(calls) > 3:
-            raise KeyboardInterrupt
-        return real(spec, view)
-
-    monkeypatch.setattr(writer, "render_block", dies_after_three)
+    monkeypatch.setattr(writer, "render_block", _dies_after_three(writer, calls))
     with pytest.raises(KeyboardInterrupt):
         capture("pebbles", out, size=4, directions="tiny7", spp=2)
     assert not out.exists() and (tmp_path / "cut.h5.partial").exists()
@@ -312,14 +318,7 @@ def test_interrupted_capture_in_the_cache_is_continued(tmp_path, monkeypatch):
     whole = read(capture("pebbles", tmp_path / "whole.h5", size=4, directions="tiny7", spp=2))[0]
     real = writer.render_block
     calls = []
-
-    def dies_after_three(spec, view):
-        calls.append(view)
-        if len(calls) > 3:
-            raise KeyboardInterrupt
-        return real(spec, view)
-
-    monkeypatch.setattr(writer, "render_block", dies_after_three)
+    monkeypatch.setattr(writer, "render_block", _dies_after_three(writer, calls))
     cache = tmp_path / "cache"
     with pytest.raises(KeyboardInterrupt):
         cached_capture("pebbles", 4, "tiny7", spp=2, cache_dir=cache)
