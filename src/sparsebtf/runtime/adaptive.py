@@ -8,8 +8,8 @@ queries, Eq. 5 / Eq. 6, by either backend: a layer is an ordinary fixed-size cod
 its NumPy reference and its numba kernels serve the queries routed to it as they are). Cost: a
 dense read decodes the requested block once per size that has nodes in it (up to the number
 of sizes times a fixed-size read); a query costs what it costs in the layer of its node. The
-renderer arrays (Mitsuba plugin, WebGL viewer) do not carry the tree yet: they refuse
-adaptive materials in one line.
+renderer arrays (:meth:`AdaptiveRuntimeBTF.arrays`, for the Mitsuba plugin and the WebGL
+viewer) hold every node in one set of flat arrays, with a table from texel to node.
 """
 
 from __future__ import annotations
@@ -100,11 +100,88 @@ class AdaptiveRuntimeBTF:
         return cls(coded, tau, dtype)
 
     def arrays(self, neighbours: bool = True) -> dict[str, np.ndarray]:
-        raise BTFInputError(
-            f"{self.coded.label}: coded with adaptive patch sizes; the renderer arrays (Mitsuba "
-            "plugin, WebGL viewer) do not carry a patch tree yet: render a material coded with "
-            "one patch size"
-        )
+        """The flat renderer arrays of :meth:`RuntimeBTF.arrays` for the whole tree, so a
+        shader reads an adaptive material as it reads a fixed-size one, with one more step:
+        the texel's node comes from a table, not from arithmetic.
+
+        The data points are the tree's nodes, in the tree's order (largest size first).
+        ``cells`` (H/s · W/s,) int32, s the smallest size: the node of each cell of the finest
+        grid, in the release's order (cell ``row // s + (H / s)·(col // s)``);
+        ``node_patch`` (N,) int32: each node's size p (the texel's i1, i2 are row % p,
+        col % p: nodes lie on their size's grid). Per channel, the dictionaries of every size
+        are stacked, ``membership_c`` numbering them across sizes (largest size's first);
+        ``dict1_c``/``dict2_c`` are zero-padded to the largest size P, (K_total, P, P), so one
+        stride serves every node (a location never reaches the padding);
+        ``tau_c`` (N,) int32: the loaded τ of each node's size (what a level-of-detail
+        fraction multiplies). Everything else (statistics, bound, directions, neighbours) as
+        for a fixed-size material; :attr:`meta` adds ``adaptive``, ``smallest`` and sets
+        ``patch`` to P and ``n_points`` to N."""
+        tree = self.coded.tree
+        big, small = tree.sizes[0], tree.sizes[-1]
+        out = self.layers[big].arrays(neighbours)
+        nodes = {p: tree.points(p) for p in tree.sizes}
+        first = {}  # global number of each size's first node
+        n = 0
+        for p in tree.sizes:
+            first[p], n = n, n + nodes[p].size
+        cells = np.empty((tree.height // small, tree.width // small), dtype=np.int32)
+        for p in tree.sizes:
+            k = p // small
+            rb = nodes[p] % (tree.height // p)
+            cb = nodes[p] // (tree.height // p)
+            ids = first[p] + np.arange(nodes[p].size, dtype=np.int32)
+            for dr in range(k):  # each node paints its k x k cells
+                for dc in range(k):
+                    cells[rb * k + dr, cb * k + dc] = ids
+        out["cells"] = np.ascontiguousarray(cells.T).ravel()  # release order: row fastest
+        out["node_patch"] = np.concatenate(
+            [np.full(nodes[p].size, p, dtype=np.int32) for p in tree.sizes])
+        for ch in ("Y", "U", "V"):
+            member, offsets, values, locations, tau = [], [np.zeros(1, np.int64)], [], [], []
+            dicts: list[list[np.ndarray]] = [[], [], [], []]
+            n_dict = nnz = 0
+            for p in tree.sizes:
+                a = self.layers[p].arrays(neighbours=False)
+                o = a[f"offsets_{ch}"].astype(np.int64)
+                take = nodes[p]
+                member.append(a[f"membership_{ch}"][take] + n_dict)
+                counts = o[take + 1] - o[take]
+                offsets.append(nnz + np.cumsum(counts))
+                nnz += int(counts.sum())
+                idx = (np.concatenate([np.arange(o[i], o[i + 1]) for i in take])
+                       if take.size else np.empty(0, dtype=np.int64))  # fmt: skip
+                values.append(a[f"values_{ch}"][idx])
+                locations.append(a[f"locations_{ch}"][idx])
+                tau.append(np.full(take.size, self.layers[p].tau[ch], dtype=np.int32))
+                for j in range(4):
+                    d = a[f"dict{j + 1}_{ch}"]
+                    if j < 2:  # pad the spatial modes to the largest size
+                        d = np.pad(d, ((0, 0), (0, big - p), (0, big - p)))
+                    dicts[j].append(d)
+                n_dict += a[f"dict1_{ch}"].shape[0]
+            if nnz >= 2**31:
+                raise BTFInputError(f"channel {ch}: {nnz} coefficients exceed int32 offsets")
+            out[f"membership_{ch}"] = np.concatenate(member).astype(np.int32)
+            out[f"offsets_{ch}"] = np.concatenate(offsets).astype(np.int32)
+            out[f"values_{ch}"] = np.concatenate(values).astype(np.float32)
+            out[f"locations_{ch}"] = np.concatenate(locations).astype(np.uint32)
+            out[f"tau_{ch}"] = np.concatenate(tau)
+            for j in range(4):
+                out[f"dict{j + 1}_{ch}"] = np.ascontiguousarray(
+                    np.concatenate(dicts[j]), dtype=np.float32)
+        return out
+
+    @property
+    def flat_meta(self) -> dict[str, Any]:
+        """:attr:`meta` for :meth:`arrays`: ``patch`` the largest size (the stride of the
+        padded spatial dictionaries), ``n_points`` the nodes, ``adaptive`` True,
+        ``smallest`` the size of the cells."""
+        tree = self.coded.tree
+        return {**self.meta, "patch": tree.sizes[0], "n_rb": tree.height // tree.sizes[0],
+                "n_points": tree.n_nodes, "adaptive": True, "smallest": tree.sizes[-1],
+                "n_dictionaries": {ch: sum(rt.meta["n_dictionaries"][ch]
+                                           for rt in self.layers.values())
+                                   for ch in ("Y", "U", "V")}}  # fmt: skip
 
     def evaluate(self, wi: np.ndarray, wo: np.ndarray, uv: np.ndarray | None = None,
                  texel: np.ndarray | None = None, *, tau: TauSpec | np.ndarray = None,
