@@ -5,7 +5,8 @@
     sparsebtf view stone.coded.h5 --export site/   # a static page + data, for any HTTP server
 
 The page needs WebGL2 with 32-bit float and integer textures (every desktop browser since
-2021, and headless Chromium on SwiftShader).
+2021, and headless Chromium on SwiftShader). Files coded with one patch size and with adaptive
+patch sizes (``encode --adaptive-patches``) are both shown.
 """
 
 from __future__ import annotations
@@ -21,12 +22,18 @@ __all__ = ["register"]
 
 
 def cmd_view(args: argparse.Namespace) -> int:
+    from ..patch_tree import AdaptiveCodedBTF
     from ..rendering.viewer import build_bundle, export, serve
-    from ..runtime import RuntimeBTF
+    from ..runtime import AdaptiveRuntimeBTF, RuntimeBTF
+    from ..storage import load_coded_with_model
 
     tau = check_tau(args.tau)
     check_output_dir(args.export, "--export")
-    rt = RuntimeBTF.from_file(args.coded, args.model, tau)
+    coded = load_coded_with_model(args.coded, args.model, adaptive=True)
+    # adaptive patch sizes: the nodes of the tree are the points (a fraction --tau applies to
+    # each size's coded tau, an integer one caps every node)
+    rt = (AdaptiveRuntimeBTF(coded, tau) if isinstance(coded, AdaptiveCodedBTF)
+          else RuntimeBTF(coded, tau))  # fmt: skip
     bundle = build_bundle(rt, neighbours=not args.no_neighbours)
     mib = bundle.manifest["bytes"] / 2**20
     if args.export:

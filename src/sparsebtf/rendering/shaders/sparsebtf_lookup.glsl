@@ -21,11 +21,22 @@
 //            the texels per pixel side from the screen-space derivatives of uv
 //            (runtime/lod.py: lod_tau, footprint_fraction)
 //
+// Adaptive patch sizes (sb_adaptive.x == 1; runtime/adaptive.py, AdaptiveRuntimeBTF.arrays):
+// the points are the nodes of the material's quadtree. The node of a texel comes from a table,
+// node = sb_tree[row/s + (H/s)(col/s)] with s = sb_adaptive.y the smallest size, not from
+// arithmetic; its class j = sb_points[node].w gives its size p = sb_class[j].x, so i1 = row % p,
+// i2 = col % p. The spatial dictionaries are zero-padded to the largest size P = sb_size.z, one
+// stride for every node. The cap of a node's channel c is sb_class[j][1 + c], which the page sets
+// to max(1, ceil(f tau_node)) for the slider's fraction f (the runtime's per-query tau), and the
+// footprint's fraction applies to that cap as above. With sb_adaptive.x == 0 (one patch size)
+// none of this runs and the cap is sb_tau.
+//
 // Texture layout (built by sparsebtf.rendering.viewer.pack_textures): every 1D array of n
 // entries lies in a SB_TEX_WIDTH-wide 2D texture, entry i at texel (i % W, i / W).
 //   sb_values     R32F     values_Y | values_U | values_V
 //   sb_locations  R32UI    packed l1 | l2<<8 | l3<<16 | l4<<24, same order
-//   sb_points     RGBA32I  at c*P + p: (first coefficient in sb_values, count, dictionary k, 0)
+//   sb_points     RGBA32I  at c*P + p: (first coefficient in sb_values, count, dictionary k,
+//                          0; adaptive: the node's class)
 //   sb_dicts      R32F     per channel dict1, dict2, dict3, dict4 (K, m, m) C order;
 //                          sb_dictBase[c] = their four start offsets
 //   sb_stats      R32F     mean (S, L, V), std (S, L, V), bound (L, V); std starts at
@@ -33,6 +44,7 @@
 //   sb_dirs       RGBA32F  lights (xyz) then views
 //   sb_neigh      R32I     optional candidate tables (64 elevation x 256 azimuth x 8), lights
 //                          then views (runtime.angular.neighbour_table)
+//   sb_tree       R32I     adaptive only: the node of each cell of the smallest size's grid
 
 #define SB_TEX_WIDTH 4096
 #define SB_TEX_SHIFT 12
@@ -40,6 +52,7 @@
 #define SB_NEIGH_ELEV 64
 #define SB_NEIGH_PHI 256
 #define SB_NEIGH_K 8
+#define SB_MAX_CLASSES 16
 
 #define SB_NEAREST 0
 #define SB_LINEAR 1
@@ -53,6 +66,7 @@ uniform sampler2D sb_dicts;
 uniform sampler2D sb_stats;
 uniform sampler2D sb_dirs;
 uniform isampler2D sb_neigh;
+uniform isampler2D sb_tree;
 
 uniform ivec4 sb_size;        // H, W, patch P, n_rb = H / P
 uniform ivec4 sb_counts;      // n_points, n_lights, n_views, S (1 shared or 3 per-channel stats)
@@ -69,6 +83,8 @@ uniform int sb_knn;           // neighbours of the gaussian scheme (1..SB_MAX_NN
 uniform float sb_beta;        // gaussian sharpness
 uniform int sb_domain;        // 0 standardized (Eq. 6), 1 log (release)
 uniform int sb_useNeigh;      // 1: rank the 8 candidates of sb_neigh instead of all directions
+uniform ivec4 sb_adaptive;    // adaptive patch sizes: (1, smallest size s, H / s, classes); 0: one size
+uniform ivec4 sb_class[SB_MAX_CLASSES]; // adaptive: (size p, tau'_Y, tau'_U, tau'_V) per class
 
 ivec2 sb_coord(int i) {
     return ivec2(i & (SB_TEX_WIDTH - 1), i >> SB_TEX_SHIFT);
@@ -183,13 +199,31 @@ int sb_weights(vec3 q, int base, int n, int table, out int idx[SB_MAX_NN],
     return k;
 }
 
-// Data point, in-patch row and column of a texture coordinate (wrapping).
-ivec3 sb_texel(vec2 uv) {
+// Data point (node), in-patch row and column of a texture coordinate (wrapping), and the
+// node's class (adaptive; 0 for one patch size).
+ivec4 sb_node(vec2 uv) {
     vec2 f = uv - floor(uv);
     int col = min(int(f.x * float(sb_size.y)), sb_size.y - 1);
     int row = min(int(f.y * float(sb_size.x)), sb_size.x - 1);
-    int P = sb_size.z;
-    return ivec3(row / P + sb_size.w * (col / P), row % P, col % P);
+    if (sb_adaptive.x == 0) {
+        int P = sb_size.z;
+        return ivec4(row / P + sb_size.w * (col / P), row % P, col % P, 0);
+    }
+    int s = sb_adaptive.y;
+    int node = texelFetch(sb_tree, sb_coord(row / s + sb_adaptive.z * (col / s)), 0).r;
+    int cls = texelFetch(sb_points, sb_coord(node), 0).w;
+    int p = sb_class[cls].x;
+    return ivec4(node, row % p, col % p, cls);
+}
+
+// Data point, in-patch row and column of a texture coordinate (wrapping).
+ivec3 sb_texel(vec2 uv) {
+    return sb_node(uv).xyz;
+}
+
+// Per-channel cap of class `cls` (adaptive: the node's, set by the page) or sb_tau.
+vec3 sb_cap(int cls) {
+    return sb_adaptive.x == 0 ? vec3(sb_tau) : vec3(sb_class[cls].yzw);
 }
 
 // Coefficient i: its value times its two spatial dictionary entries (rows b1, b2 already
@@ -306,12 +340,11 @@ vec3 sb_lod_tau(float f) {
     return max(f * t, min(vec3(1.0), t));
 }
 
-// Linear RGB of the BTF at texture coordinate uv for light wi and view wo, both in the local
-// frame (z = normal, x = +u / texture columns, y = +v / texture rows), at level of detail tau
-// (Y, U, V; fractional). Eq. 5 at sampled directions, Eq. 6 between them. Masking below the
-// horizon is the caller's business.
-vec3 sb_evaluate_tau(vec2 uv, vec3 wi, vec3 wo, vec3 tau) {
-    ivec3 t = sb_texel(uv);
+// Linear RGB of the BTF at point/in-patch texel t (sb_texel) for light wi and view wo, both in
+// the local frame (z = normal, x = +u / texture columns, y = +v / texture rows), at level of
+// detail tau (Y, U, V; fractional). Eq. 5 at sampled directions, Eq. 6 between them. Masking
+// below the horizon is the caller's business.
+vec3 sb_evaluate_at(ivec3 t, vec3 wi, vec3 wo, vec3 tau) {
     int il[SB_MAX_NN], iv[SB_MAX_NN];
     float wl[SB_MAX_NN], wv[SB_MAX_NN];
     int nl = sb_weights(wi, 0, sb_counts.y, 0, il, wl);
@@ -332,7 +365,19 @@ vec3 sb_evaluate_tau(vec2 uv, vec3 wi, vec3 wo, vec3 tau) {
     return exp(min(ln, vec3(bound))) - sb_eps;
 }
 
-// The same at the cap sb_tau.
+// The same at texture coordinate uv (wrapping), tau the same for every point.
+vec3 sb_evaluate_tau(vec2 uv, vec3 wi, vec3 wo, vec3 tau) {
+    return sb_evaluate_at(sb_texel(uv), wi, wo, tau);
+}
+
+// The same at a fraction f of the point's cap (sb_lod_tau of its cap; runtime.lod.lod_tau).
+vec3 sb_evaluate_lod(vec2 uv, vec3 wi, vec3 wo, float f) {
+    ivec4 t = sb_node(uv);
+    vec3 cap = sb_cap(t.w);
+    return sb_evaluate_at(t.xyz, wi, wo, max(f * cap, min(vec3(1.0), cap)));
+}
+
+// The same at the cap (sb_tau, or the node's for adaptive patch sizes).
 vec3 sb_evaluate(vec2 uv, vec3 wi, vec3 wo) {
-    return sb_evaluate_tau(uv, wi, wo, vec3(sb_tau));
+    return sb_evaluate_lod(uv, wi, wo, 1.0);
 }

@@ -6,9 +6,10 @@
 // (z = normal, azimuth from +u toward +v). Plane: z = 0, |x|, |y| <= 1.5, x = +u, y = +v.
 // Test scene (u_scene == 2): the whole viewport is the texture, uv = gl_FragCoord.xy / size
 // · u_testZoom (v grows upward: readPixels row j has v = (j + 0.5) / height · zoom), with fixed
-// local wi and wo; u_testRamp = 1 sets tau' per fragment to sb_lod_tau((x + 0.5) / width).
-// Level of detail (u_footprint = 1): tau' per fragment from its footprint (sb_lod_tau of
-// sb_footprint_fraction of sb_texels_per_pixel of the uv derivatives), else the cap sb_tau.
+// local wi and wo; u_testRamp = 1 sets tau' per fragment to the fraction (x + 0.5) / width of
+// the cap. Level of detail (u_footprint = 1): tau' per fragment from its footprint (the
+// fraction sb_footprint_fraction of sb_texels_per_pixel of the uv derivatives), else the cap
+// (sb_tau, or a node's for adaptive patch sizes; sb_evaluate_lod applies the fraction to it).
 
 uniform vec2 u_resolution;
 uniform int u_scene;          // 0 sphere, 1 plane, 2 test plane
@@ -53,7 +54,7 @@ float footprint(vec2 uv, float period) {
 }
 
 vec3 shade(vec2 uv, vec3 wi, vec3 wo, float rho) {
-    return sb_evaluate_tau(uv, wi, wo, sb_lod_tau(sb_footprint_fraction(rho)));
+    return sb_evaluate_lod(uv, wi, wo, sb_footprint_fraction(rho));
 }
 #endif
 
@@ -92,8 +93,8 @@ void main() {
         float rho = footprint(uv, 0.0);
 #ifndef SB_TRIVIAL
         if (u_testRamp == 1) {
-            vec3 tau = sb_lod_tau(gl_FragCoord.x / u_resolution.x);
-            fragColor = vec4(sb_evaluate_tau(uv, u_testWi, u_testWo, tau), 1.0);
+            float f = gl_FragCoord.x / u_resolution.x;
+            fragColor = vec4(sb_evaluate_lod(uv, u_testWi, u_testWo, f), 1.0);
             return;
         }
 #endif

@@ -39,9 +39,10 @@ from ..._json import json_default
 from ...errors import BTFInputError, FileFormatError, SparseBTFError
 from ...runtime.decoder import NO_BOUND
 from ...runtime.lod import MIN_FRACTION
+from .tree import pack_tree
 
 if TYPE_CHECKING:
-    from ...runtime import RuntimeBTF
+    from ...runtime import AdaptiveRuntimeBTF, RuntimeBTF
 
 __all__ = [
     "HEADLESS_CHROMIUM_FLAGS",
@@ -119,6 +120,10 @@ def pack_textures(
 
     Returns the manifest part ``{"textures": {...}, "uniforms": {...}, "tau_max": [...],
     "has_neighbours": bool}`` and the binary holding every texture (offsets in the manifest).
+    With ``meta["adaptive"]`` (:meth:`AdaptiveRuntimeBTF.arrays` and its ``flat_meta``) the
+    points are the tree's nodes, and the texture ``sb_tree``, the uniform ``sb_adaptive``,
+    each node's class in ``sb_points`` and the manifest's ``adaptive`` entry are added
+    (:mod:`.tree`); a fixed-size material's part is unchanged.
     Raises :class:`~sparsebtf.errors.BTFInputError` naming the channel or texture when an
     array is missing or a texture would exceed :data:`MAX_TEX_HEIGHT` rows.
     """
@@ -148,6 +153,12 @@ def pack_textures(
     n_points = int(arrays["membership_Y"].shape[0])
     n_l, n_v = int(arrays["lights_xyz"].shape[0]), int(arrays["views_xyz"].shape[0])
     sizes = [int(arrays[f"dict{n}_Y"].shape[1]) for n in (1, 2, 3, 4)]
+    if sizes[:2] != [int(meta["patch"])] * 2:  # the shader's stride of the spatial modes
+        raise BTFInputError(f"{where}: spatial dictionaries of {sizes[0]}x{sizes[1]} rows, "
+                            f"expected the patch {meta['patch']}")  # fmt: skip
+    adaptive = bool(meta.get("adaptive"))
+    if adaptive:
+        cells, classes, tree_uniforms, tree_part = pack_tree(arrays, meta, n_points, where)
 
     # coefficient values / locations and per-point records (start, count, dictionary, 0)
     values, locations, points, dict_parts, dict_base = [], [], [], [], []
@@ -164,6 +175,8 @@ def pack_textures(
         rec[:, 0] = off[:-1] + vbase
         rec[:, 1] = counts
         rec[:, 2] = memb
+        if adaptive:
+            rec[:, 3] = classes
         points.append(rec)
         values.append(arrays[f"values_{c}"].astype(np.float32))
         locations.append(arrays[f"locations_{c}"].astype(np.uint32))
@@ -212,6 +225,8 @@ def pack_textures(
                 "(64, 256, 8)"
             )
         spec.append(("sb_neigh", "R32I", np.concatenate([nl.ravel(), nv.ravel()])))
+    if adaptive:
+        spec.append(("sb_tree", "R32I", cells))
 
     textures: dict[str, Any] = {}
     chunks: list[bytes] = []
@@ -238,12 +253,15 @@ def pack_textures(
         "sb_eps": float(meta["eps"]),
         "sb_lodMin": MIN_FRACTION,
     }
-    part = {
+    part: dict[str, Any] = {
         "textures": textures,
         "uniforms": uniforms,
         "tau_max": tau_max,
         "has_neighbours": has_neigh,
     }
+    if adaptive:
+        uniforms.update(tree_uniforms)
+        part["adaptive"] = tree_part
     return part, b"".join(chunks)
 
 
@@ -267,20 +285,28 @@ def _json_meta(meta: dict[str, Any]) -> dict[str, Any]:
     return json.loads(json.dumps(meta, default=json_default))
 
 
-def build_bundle(rt: RuntimeBTF, neighbours: bool = True) -> ViewerBundle:
-    """The page's manifest and texture binary for a :class:`~sparsebtf.runtime.RuntimeBTF`.
+def build_bundle(rt: RuntimeBTF | AdaptiveRuntimeBTF, neighbours: bool = True) -> ViewerBundle:
+    """The page's manifest and texture binary for a :class:`~sparsebtf.runtime.RuntimeBTF`,
+    or an :class:`~sparsebtf.runtime.AdaptiveRuntimeBTF` (adaptive patch sizes: the nodes of
+    its tree are the points, :meth:`~sparsebtf.runtime.AdaptiveRuntimeBTF.arrays`).
 
     ``neighbours`` adds the candidate tables (``runtime.angular.neighbour_table``) so that the
     shader ranks 8 candidates per direction instead of scanning all of them.
     """
-    meta = rt.meta
+    from ...runtime.adaptive import AdaptiveRuntimeBTF
+
+    meta = rt.flat_meta if isinstance(rt, AdaptiveRuntimeBTF) else rt.meta
     where = str(meta.get("name", "coded BTF"))
     transform = meta.get("transform", "log_yuv")
     if transform != "log_yuv":
         raise BTFInputError(
             f"{where}: the viewer decodes log-YUV codes, this file uses {transform}"
         )
-    part, data = pack_textures(rt.arrays(neighbours=neighbours), meta, where)
+    arrays = rt.arrays(neighbours=neighbours)
+    if isinstance(rt, AdaptiveRuntimeBTF):  # the whole tree's counts, not the largest size's
+        meta = {**meta, "nnz": {c: int(arrays[f"values_{c}"].size) for c in _CHANNELS},
+                "tau": {str(p): layer.tau for p, layer in rt.layers.items()}}  # fmt: skip
+    part, data = pack_textures(arrays, meta, where)
     manifest = {
         "format": MANIFEST_FORMAT,
         "version": 1,

@@ -12,6 +12,9 @@
 // domain=standardized|log, wi=x,y,z and wo=x,y,z (local directions of the test scene),
 // animate=0|1, neigh=0|1 (candidate tables), exposure=e, repeat=r, footprint=0|1 (tau' per
 // fragment by its screen-space footprint, default 1), zoom=z and ramp=0|1 (test scene).
+// A material coded with adaptive patch sizes (manifest.adaptive) has one cap per node class
+// (size, tau): the level of detail is a fraction f of each, max(1, ceil(f tau)), set as the
+// uniform sb_class; tau=a,b,c then caps every node besides.
 // Script API: window.sparsebtf = {ready, error, info, set(state), readFloat(), benchmark(opts)}.
 "use strict";
 
@@ -168,6 +171,27 @@
     }
 
     const progs = { lookup: program(false), trivial: program(true) };
+    // A sampler with no texture in this export (sb_tree of a fixed-size material, sb_neigh
+    // without tables) still needs a texture of its type on a unit of its own: WebGL refuses to
+    // draw when samplers of different types share a unit, even where the branch never reads it.
+    const DUMMY = {
+      [gl.SAMPLER_2D]: [gl.R32F, gl.RED, gl.FLOAT, new Float32Array(1)],
+      [gl.INT_SAMPLER_2D]: [gl.R32I, gl.RED_INTEGER, gl.INT, new Int32Array(1)],
+      [gl.UNSIGNED_INT_SAMPLER_2D]: [gl.R32UI, gl.RED_INTEGER, gl.UNSIGNED_INT, new Uint32Array(1)],
+    };
+    for (const prog of Object.values(progs)) {
+      for (const [name, u] of Object.entries(prog.uni)) {
+        const d = DUMMY[u.type];
+        if (!d || name in units) continue;
+        const tex = gl.createTexture();
+        gl.activeTexture(gl.TEXTURE0 + unit);
+        gl.bindTexture(gl.TEXTURE_2D, tex);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+        gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+        gl.texImage2D(gl.TEXTURE_2D, 0, d[0], 1, 1, 0, d[1], d[2], d[3]);
+        units[name] = unit++;
+      }
+    }
     for (const prog of Object.values(progs)) {
       gl.useProgram(prog.p);
       for (const [name, u] of Object.entries(units)) setUniform(prog, name, u);
@@ -177,6 +201,7 @@
 
     // -- state ---------------------------------------------------------------------------------
     const tauMax = manifest.tau_max;
+    const adaptive = manifest.adaptive || null; // {sizes, smallest, nodes, classes}
     const state = {
       scene: q.get("scene") || "sphere",
       interp: q.get("interp") || "linear",
@@ -202,12 +227,21 @@
     if (q.has("wo")) state.wo = parseVec(q.get("wo"), 3);
     if (q.has("lod")) setLod(parseFloat(q.get("lod")));
     if (q.has("tau")) state.tau = parseVec(q.get("tau"), 3).map((x) => Math.round(x));
+    if (adaptive && adaptive.classes.length > 16) fail("more node classes than the shader holds");
     if (state.neigh && !manifest.has_neighbours) fail("this export has no neighbour tables");
 
     function setLod(f) {
-      // the runtime's fractional tau: max(1, ceil(f * tau)) per channel
+      // the runtime's fractional tau: max(1, ceil(f * tau)) per channel (adaptive: of each
+      // node's tau, classCaps; state.tau stays the cap of every node)
       state.lod = Math.min(Math.max(f, 0.001), 1.0);
-      state.tau = tauMax.map((t) => Math.max(1, Math.ceil(state.lod * t - 1e-9)));
+      if (!adaptive) state.tau = tauMax.map((t) => Math.max(1, Math.ceil(state.lod * t - 1e-9)));
+    }
+
+    // Adaptive: (size, tau'_Y, tau'_U, tau'_V) of each node class at the slider's fraction,
+    // in double precision so that the shader's integers are the runtime's ceil(f tau).
+    function classCaps() {
+      return adaptive.classes.map(([p, ...tau]) => [p, ...tau.map((t, c) =>
+        Math.min(state.tau[c], Math.max(1, Math.ceil(state.lod * t - 1e-9))))]);
     }
 
     function camera() {
@@ -246,6 +280,7 @@
         // the tables hold 8 candidates that provably contain the 3 nearest: not for gaussian (4)
         sb_useNeigh: state.neigh && state.interp !== "gaussian" ? 1 : 0,
       };
+      if (adaptive) uniforms.sb_class = classCaps();
       for (const [name, v] of Object.entries(uniforms)) setUniform(prog, name, v);
       gl.bindFramebuffer(gl.FRAMEBUFFER, target || null);
       gl.viewport(0, 0, canvas.width, canvas.height);
@@ -322,7 +357,10 @@
     // -- controls ------------------------------------------------------------------------------
     function syncControls() {
       $("tau").value = Math.round(state.lod * 1000);
-      $("tauText").textContent = `${state.tau.join(", ")} of ${tauMax.join(", ")} (Y, U, V)`;
+      $("tauText").textContent = adaptive
+        ? `${Math.round(state.lod * 100)} % of each node's: ` +
+          classCaps().map(([p, ...t]) => `${p}×${p} ${t.join(", ")}`).join("; ") + " (Y, U, V)"
+        : `${state.tau.join(", ")} of ${tauMax.join(", ")} (Y, U, V)`;
       $("interp").value = state.interp;
       $("domain").value = state.domain;
       if (state.scene !== "test") $("scene").value = state.scene;
@@ -408,8 +446,11 @@
       textures: Object.keys(units),
       meta: m,
     };
+    const patch = adaptive
+      ? `adaptive patches ${adaptive.sizes.map((p) => `${adaptive.nodes[p]} of ${p}x${p}`).join(", ")}`
+      : `patch ${m.patch}`;
     $("info").textContent =
-      `${m.name}: ${m.height}x${m.width} texels, patch ${m.patch}, ` +
+      `${m.name}: ${m.height}x${m.width} texels, ${patch}, ` +
       `${m.n_lights} lights x ${m.n_views} views\n` +
       `coefficients ${Object.values(m.nnz).join(" / ")} (Y/U/V)\n` +
       `${(manifest.bytes / 1048576).toFixed(1)} MiB of textures\n${api.info.renderer}`;
