@@ -4,7 +4,9 @@ The page (``static/index.html`` + ``static/viewer.js``) evaluates the paper's Eq
 value from the sparse codes) and Eq. 6 (coefficient-space angular interpolation) per fragment
 with ``shaders/sparsebtf_lookup.glsl``, the GLSL ES 3.00 twin of
 :meth:`sparsebtf.runtime.RuntimeBTF.evaluate`. This module turns a
-:class:`~sparsebtf.runtime.RuntimeBTF` into what the page loads:
+:class:`~sparsebtf.runtime.RuntimeBTF`, or an :class:`~sparsebtf.runtime.AdaptiveRuntimeBTF`
+(a material coded with adaptive patch sizes: its tree's nodes are the points, found per texel
+in a table, :mod:`.tree`), into what the page loads:
 
 * ``manifest.json`` — sizes, uniforms, and for every texture its format, width, height and
   byte offset in the binary;
