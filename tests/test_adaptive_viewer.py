@@ -10,11 +10,7 @@ the runtime within ``test_viewer``'s tolerance. Browser tests skip as ``test_vie
 
 from __future__ import annotations
 
-import contextlib
-import functools
-import http.server
 import json
-import threading
 
 import numpy as np
 import pytest
@@ -30,14 +26,17 @@ from sparsebtf.storage import save_coded, save_model
 from .test_adaptive import MIXED, _rewrite_nodes, material
 from .test_adaptive import model as model  # the module's fixtures, reused
 from .test_viewer import (
+    PAGE_CASES,
     SIZE,
     WI,
     WO,
     _vec,
     assert_close,
+    check_page,
     open_page,
     read_image,
     reference,
+    static_server,
 )
 from .test_viewer import browser as browser
 
@@ -175,21 +174,9 @@ def test_page(browser, rt):
         page.close()
 
 
-@pytest.mark.parametrize(
-    ("interp", "domain", "neigh"),
-    [
-        ("nearest", "standardized", True),
-        ("linear", "standardized", True),
-        ("linear", "log", False),
-        ("barycentric", "standardized", True),
-        ("gaussian", "log", False),
-    ],
-)
+@pytest.mark.parametrize(("interp", "domain", "neigh"), PAGE_CASES)
 def test_page_matches_the_adaptive_runtime(test_page, rt, interp, domain, neigh):
-    gl = read_image(test_page, interp=interp, domain=domain, neigh=neigh, lod=1.0)
-    py = reference(rt, interpolation=interp, domain=domain)
-    assert py.std() > 0.05 * py.mean()  # a textured image, not a constant
-    assert_close(gl, py)
+    check_page(test_page, rt, interp, domain, neigh)
 
 
 def test_lod_is_a_fraction_of_each_nodes_tau(test_page, rt):
@@ -238,22 +225,9 @@ def test_view_export_of_an_adaptive_file_loads_from_plain_http(browser, files, t
                  "--export", str(out)]) == 0  # fmt: skip
     assert f"wrote {out}/" in capsys.readouterr().out
     assert json.loads((out / "manifest.json").read_text())["adaptive"]["nodes"] == {"4": 2, "2": 8}
-
-    class Quiet(http.server.SimpleHTTPRequestHandler):
-        def log_message(self, *args):
-            pass
-
-    httpd = http.server.ThreadingHTTPServer(
-        ("127.0.0.1", 0), functools.partial(Quiet, directory=str(out)))
-    threading.Thread(target=httpd.serve_forever, daemon=True).start()
-    try:
-        url = f"http://127.0.0.1:{httpd.server_address[1]}/index.html"
+    with static_server(out) as url:
         page = open_page(browser, f"{url}?scene=test&size={SIZE}&wi={_vec(WI)}&wo={_vec(WO)}")
         assert "adaptive patches 2 of 4x4, 8 of 2x2" in page.locator("#info").inner_text()
         back = AdaptiveRuntimeBTF.from_file(files / "coded.h5", files / "model.h5")  # float16
         assert_close(read_image(page, interp="nearest"), reference(back, interpolation="nearest"))
         page.close()
-    finally:
-        with contextlib.suppress(Exception):
-            httpd.shutdown()
-            httpd.server_close()

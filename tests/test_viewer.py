@@ -134,6 +134,45 @@ def assert_close(gl: np.ndarray, py: np.ndarray) -> None:
     )
 
 
+#: (interpolation, domain, candidate tables) of the page's checks against the runtime
+PAGE_CASES = [
+    ("nearest", "standardized", True),
+    ("linear", "standardized", True),
+    ("linear", "standardized", False),
+    ("linear", "log", True),
+    ("barycentric", "standardized", True),
+    ("gaussian", "log", False),
+]
+
+
+def check_page(page, rt, interp: str, domain: str, neigh: bool) -> None:
+    """The test scene at full τ equals ``rt.evaluate`` (a RuntimeBTF or AdaptiveRuntimeBTF)."""
+    gl = read_image(page, interp=interp, domain=domain, neigh=neigh, lod=1.0)
+    py = reference(rt, interpolation=interp, domain=domain)
+    assert py.std() > 0.05 * py.mean()  # a textured image, not a constant
+    assert_close(gl, py)
+
+
+@contextlib.contextmanager
+def static_server(folder: Path):
+    """A plain ``http.server`` of ``folder`` on a free port; yields its ``index.html`` URL."""
+
+    class Quiet(http.server.SimpleHTTPRequestHandler):
+        def log_message(self, *args):
+            pass
+
+    handler = functools.partial(Quiet, directory=str(folder))
+    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
+    t = threading.Thread(target=httpd.serve_forever, daemon=True)
+    t.start()
+    try:
+        yield f"http://127.0.0.1:{httpd.server_address[1]}/index.html"
+    finally:
+        with contextlib.suppress(Exception):
+            httpd.shutdown()
+            httpd.server_close()
+
+
 # -- packing, export and server (no browser) ----------------------------------------------------
 def test_textures_hold_the_runtime_arrays(rt):
     arr = rt.arrays()
@@ -234,22 +273,9 @@ def test_view_command_errors(files, tmp_path, capsys):
 
 
 # -- the page in headless Chromium --------------------------------------------------------------
-@pytest.mark.parametrize(
-    ("interp", "domain", "neigh"),
-    [
-        ("nearest", "standardized", True),
-        ("linear", "standardized", True),
-        ("linear", "standardized", False),
-        ("linear", "log", True),
-        ("barycentric", "standardized", True),
-        ("gaussian", "log", False),
-    ],
-)
+@pytest.mark.parametrize(("interp", "domain", "neigh"), PAGE_CASES)
 def test_page_matches_runtime_decoder(test_page, rt, interp, domain, neigh):
-    gl = read_image(test_page, interp=interp, domain=domain, neigh=neigh, lod=1.0)
-    py = reference(rt, interpolation=interp, domain=domain)
-    assert py.std() > 0.05 * py.mean()  # a textured image, not a constant
-    assert_close(gl, py)
+    check_page(test_page, rt, interp, domain, neigh)
 
 
 @pytest.mark.parametrize("domain", ["standardized", "log"])
@@ -329,21 +355,7 @@ def test_sphere_view_and_benchmark_api(browser, rt):
 
 def test_static_export_loads_from_a_plain_http_server(browser, rt, tmp_path):
     out = export(build_bundle(rt), tmp_path / "site")
-
-    class Quiet(http.server.SimpleHTTPRequestHandler):
-        def log_message(self, *args):
-            pass
-
-    handler = functools.partial(Quiet, directory=str(out))
-    httpd = http.server.ThreadingHTTPServer(("127.0.0.1", 0), handler)
-    t = threading.Thread(target=httpd.serve_forever, daemon=True)
-    t.start()
-    try:
-        url = f"http://127.0.0.1:{httpd.server_address[1]}/index.html"
+    with static_server(out) as url:
         page = open_page(browser, f"{url}?scene=test&size={SIZE}&wi={_vec(WI)}&wo={_vec(WO)}")
         assert_close(read_image(page, interp="nearest"), reference(rt, interpolation="nearest"))
         page.close()
-    finally:
-        with contextlib.suppress(Exception):
-            httpd.shutdown()
-            httpd.server_close()
