@@ -180,19 +180,20 @@ def test_page_matches_the_adaptive_runtime(test_page, rt, interp, domain, neigh)
 
 
 def test_lod_is_a_fraction_of_each_nodes_tau(test_page, rt):
-    """The slider at 50 % caps each node at ⌈0.5·τ_node⌉ (the runtime's per-query τ), the ramp
-    and the footprint take their fraction of that cap, as sparsebtf.runtime.lod does."""
+    """The slider at 30 % caps each node at ⌈0.3·τ_node⌉ (the runtime's per-query τ; 0.3 makes
+    no product an integer, so rounding down would show), the ramp and the footprint take their
+    fraction of that cap, as sparsebtf.runtime.lod does."""
     caps = _node_caps(rt)
     full = read_image(test_page, interp="linear", domain="standardized", lod=1.0, ramp=False,
                       footprint=True, zoom=1.0)  # fmt: skip
-    test_page.locator("#tau").fill("500")  # the slider, as a user drags it
-    assert test_page.evaluate("window.sparsebtf.state.lod") == 0.5
-    half = np.ceil(0.5 * caps)
-    assert {tuple(r) for r in half} == {(11, 8, 8), (8, 2, 2)}  # both sizes in the image
+    test_page.locator("#tau").fill("300")  # the slider, as a user drags it
+    assert test_page.evaluate("window.sparsebtf.state.lod") == 0.3
+    cap30 = np.ceil(0.3 * caps)  # τ (22, 16, 16) of the 4x4 nodes, (16, 4, 4) of the 2x2 ones
+    assert {tuple(r) for r in cap30} == {(7, 5, 5), (5, 2, 2)}  # both sizes in the image
     text = test_page.locator("#tauText").inner_text()
-    assert "4×4 11, 8, 8" in text and "2×2 8, 2, 2" in text
+    assert "4×4 7, 5, 5" in text and "2×2 5, 2, 2" in text
     low = read_image(test_page)
-    py = reference(rt, interpolation="linear", tau=half)
+    py = reference(rt, interpolation="linear", tau=cap30)
     assert np.abs(py - full).max() > 0.01 * np.abs(full).max()
     assert_close(low, py)
     # fractional tau' per fragment: (x + 0.5) / 64 of each node's cap across the image
@@ -200,7 +201,7 @@ def test_lod_is_a_fraction_of_each_nodes_tau(test_page, rt):
     f = ((i + 0.5) / SIZE).ravel()[:, None]
     ramp = read_image(test_page, ramp=True)
     assert_close(ramp, reference(rt, interpolation="linear",
-                                 tau=np.maximum(f * half, np.minimum(1.0, half))))  # fmt: skip
+                                 tau=np.maximum(f * cap30, np.minimum(1.0, cap30))))  # fmt: skip
     # the footprint: the texture zoomed 11x, rho = 11·8/64 texels per pixel side
     zoom = 11.0
     shot = read_image(test_page, ramp=False, zoom=zoom, footprint=True)
@@ -208,7 +209,7 @@ def test_lod_is_a_fraction_of_each_nodes_tau(test_page, rt):
     row, col = (np.floor(uv[:, 1] * 8) % 8).astype(int), (np.floor(uv[:, 0] * 8) % 8).astype(int)
     a = rt.arrays(neighbours=False)
     node = a["cells"][row // 2 + 4 * (col // 2)]
-    cap = np.ceil(0.5 * np.stack([a[f"tau_{c}"][node] for c in "YUV"], axis=1))
+    cap = np.ceil(0.3 * np.stack([a[f"tau_{c}"][node] for c in "YUV"], axis=1))
     ff = footprint_fraction(zoom * 8 / SIZE)
     n = uv.shape[0]
     want = rt.evaluate(np.tile(WI, (n, 1)), np.tile(WO, (n, 1)), uv=uv,
