@@ -18,7 +18,7 @@ import pytest
 from sparsebtf.codec.adaptive import encode_adaptive
 from sparsebtf.errors import BTFInputError
 from sparsebtf.rendering import viewer
-from sparsebtf.rendering.viewer import build_bundle, pack_textures, serve
+from sparsebtf.rendering.viewer import ViewerBundle, build_bundle, pack_textures, serve
 from sparsebtf.runtime import AdaptiveRuntimeBTF, RuntimeBTF
 from sparsebtf.runtime.lod import footprint_fraction
 from sparsebtf.storage import save_coded, save_model
@@ -99,6 +99,14 @@ def test_manifest_holds_the_tree(rt, coded):
         np.testing.assert_array_equal(rec[c, :, 3], rec[0, :, 3])
         np.testing.assert_array_equal(classes[:, 1 + c], a[f"tau_{ch}"])
         np.testing.assert_array_equal(rec[c, :, 2], a[f"membership_{ch}"])
+
+
+def test_page_and_shader_hold_as_many_classes_as_the_packing():
+    from sparsebtf.rendering.viewer.tree import MAX_CLASSES
+
+    files = ViewerBundle({"data": "data.bin"}, b"").files()  # the page's static files
+    assert f"#define SB_MAX_CLASSES {MAX_CLASSES}\n" in files["sparsebtf_lookup.glsl"].decode()
+    assert f"const MAX_CLASSES = {MAX_CLASSES};" in files["viewer.js"].decode()
 
 
 def test_fixed_size_manifest_has_no_tree(rt):

@@ -227,7 +227,10 @@
     if (q.has("wo")) state.wo = parseVec(q.get("wo"), 3);
     if (q.has("lod")) setLod(parseFloat(q.get("lod")));
     if (q.has("tau")) state.tau = parseVec(q.get("tau"), 3).map((x) => Math.round(x));
-    if (adaptive && adaptive.classes.length > 16) fail("more node classes than the shader holds");
+    const MAX_CLASSES = 16; // the shader's SB_MAX_CLASSES
+    if (adaptive && adaptive.classes.length > MAX_CLASSES) {
+      fail(`${adaptive.classes.length} node classes, the shader holds ${MAX_CLASSES}`);
+    }
     if (state.neigh && !manifest.has_neighbours) fail("this export has no neighbour tables");
 
     function setLod(f) {
