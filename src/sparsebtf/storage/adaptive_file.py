@@ -109,7 +109,7 @@ def _read(f: h5py.File, where: str, model: Model | None, adaptive: bool) -> Adap
         raise FileFormatError(
             f"{where}: coded with adaptive patch sizes (schema {ADAPTIVE_SCHEMA}); this "
             "reader takes one patch size (adaptive files are read by sparsebtf decode, eval, "
-            "lookup and info, and by sparsebtf.decode and "
+            "lookup, info and view, and by sparsebtf.decode and "
             "sparsebtf.runtime.AdaptiveRuntimeBTF.from_file)"
         )
     check_required(f, ADAPTIVE_SCHEMA, where)
