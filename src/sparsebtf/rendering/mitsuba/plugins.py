@@ -318,7 +318,8 @@ class SparseBTFBSDF(_Base):
     ``key``, ``tau``, ``uv_scale``, ``interpolation``, ``domain``, ``k``, ``beta``,
     ``two_sided``, ``sampling``, ``sampling_tables``, ``sampling_grid``, ``sampling_mix``. The
     material and its sampling tables are loaded once per process (:mod:`.materials`), their
-    Dr.Jit arrays once per variant.
+    Dr.Jit arrays once per variant. A material coded with adaptive patch sizes is read through
+    its :class:`~sparsebtf.runtime.AdaptiveRuntimeBTF` (its nodes are the data points).
     """
 
     def __init__(self, props: Any) -> None:
