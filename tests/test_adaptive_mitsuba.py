@@ -33,6 +33,8 @@ import mitsuba as mi  # noqa: E402
 import sparsebtf.mitsuba as sbm  # noqa: E402
 from sparsebtf.rendering.mitsuba.materials import BSDF_PER_BTF_VALUE  # noqa: E402
 
+from .test_mitsuba import _dirs, _eval, _np, _si  # noqa: E402  (its shading points and views)
+
 #: Texels (row, col) in 4x4 nodes, in 2x2 nodes and on both sides of the borders between
 #: them (the mixed material splits blocks (0, 1) and (1, 0), rows 0-3 x cols 4-7 and the
 #: mirror, into 2x2 nodes).
@@ -64,12 +66,6 @@ def key(rt):
     return sbm.add_material(rt, "test-adaptive")
 
 
-def _dirs(rng, n, lo=0.1):
-    v = rng.normal(size=(n, 3))
-    v[:, 2] = np.abs(v[:, 2]) + lo
-    return (v / np.linalg.norm(v, axis=1, keepdims=True)).astype(np.float32)
-
-
 def _queries(seed, reps=8):
     """Each texel of :data:`TEXELS` ``reps`` times, at uv inside it (away from its borders:
     float32 against float64 floor), with random directions."""
@@ -78,31 +74,7 @@ def _queries(seed, reps=8):
     n = tex.shape[0]
     # uv: u along columns, v along rows (8x8 texels)
     uv = ((tex[:, ::-1] + rng.uniform(0.2, 0.8, (n, 2))) / 8).astype(np.float32)
-    return _dirs(rng, n), _dirs(rng, n), uv, tex
-
-
-def _si(wi, uv, p=None, t=None):
-    n = wi.shape[0]
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(wi.T)
-    si.uv = mi.Point2f(uv.T)
-    si.sh_frame = mi.Frame3f(mi.Vector3f(1, 0, 0), mi.Vector3f(0, 1, 0), mi.Vector3f(0, 0, 1))
-    si.dp_du = mi.Vector3f(1, 0, 0)
-    si.dp_dv = mi.Vector3f(0, 1, 0)
-    if p is not None:
-        si.p, si.t = mi.Point3f(p.T), mi.Float(t)
-    return si
-
-
-def _eval(bsdf, si, wo):
-    """The BTF value the plugin's eval stands for (eval / BSDF_PER_BTF_VALUE)."""
-    out = np.array(bsdf.eval(mi.BSDFContext(), si, mi.Vector3f(wo.T)))
-    return (out if out.shape[-1] == 3 else out.T) / np.float32(BSDF_PER_BTF_VALUE)
-
-
-def _np(x):
-    a = np.array(x)
-    return a.T if a.ndim == 2 and a.shape[0] in (2, 3) and a.shape[1] not in (2, 3) else a
+    return _dirs(rng, n, 0.1), _dirs(rng, n, 0.1), uv, tex
 
 
 @pytest.mark.parametrize("domain", ["standardized", "log"])
@@ -145,7 +117,9 @@ def test_file_tau_and_lod_fraction_of_each_nodes_tau(model, coded, rt, tmp_path)
     f = 0.45
     bsdf = mi.load_dict({**d, "lod_camera": ",".join(map(str, cam)), "lod_later": f,
                          "lod_stats": True})  # fmt: skip
-    got = _eval(bsdf, _si(wi, uv, p, np.full(n, 2.0, np.float32)), wo)
+    si = _si(wi, uv)
+    si.p, si.t = mi.Point3f(p.T), mi.Float(np.full(n, 2.0, np.float32))
+    got = _eval(bsdf, si, wo)
     sizes = full.coded.tree.sizes_at(tex[:, 0], tex[:, 1])
     cap = np.array([[full.layers[s].tau[ch] for ch in "YUV"] for s in sizes], np.float64)
     assert len({tuple(c) for c in cap}) == 2  # the sizes' loaded τ differ
