@@ -281,3 +281,25 @@ def test_cli_render_of_an_adaptive_file_matches_its_dense_decode(model, coded, t
     # measured: 1.4e-14 against the decode, 1.1e-3 against the source material
     assert mse["decoded"] < 1e-10, mse
     assert mse["source"] > 1e-5, mse
+
+
+def test_added_materials_and_their_tau(coded, rt, key):
+    """By key: an AdaptiveCodedBTF loads at the plugin's tau; an AdaptiveRuntimeBTF is cut to
+    it (never raised above its loaded τ: one line), as a RuntimeBTF is."""
+    from sparsebtf.errors import BTFInputError
+    from sparsebtf.rendering.mitsuba import load_runtime, preload
+
+    low = load_runtime(("key", key), "8,2,2")
+    assert isinstance(low, AdaptiveRuntimeBTF)
+    assert {p: r.tau for p, r in low.layers.items()} == {p: {"Y": 8, "U": 2, "V": 2}
+                                                          for p in (4, 2)}  # fmt: skip
+    assert rt.layers[4].tau["Y"] > 8  # the added runtime itself is unchanged
+    ck = sbm.add_material(coded, "test-adaptive-coded")
+    same = preload({"type": "sparsebtf", "key": ck, "tau": "8,2,2"})
+    wi, wo, uv, _ = _queries(7, 1)
+    np.testing.assert_allclose(same.evaluate(wo, wi, uv=uv), low.evaluate(wo, wi, uv=uv),
+                               rtol=1e-6)  # fmt: skip
+    cut = sbm.add_material(low, "test-adaptive-low")
+    with pytest.raises(BTFInputError, match="cannot raise tau above the loaded level") as e:
+        preload({"type": "sparsebtf", "key": cut, "tau": "20,2,2"})
+    assert "\n" not in str(e.value)
