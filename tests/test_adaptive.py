@@ -163,7 +163,7 @@ def test_file_round_trip(model, mixed):
 def test_fixed_size_readers_refuse_adaptive_files(mixed, model):
     _, path = mixed
     with pytest.raises(FileFormatError) as e:
-        load_coded(path)  # what the plugins, blend and render read with
+        load_coded(path)  # what the readers of one patch size read with
     assert "adaptive patch sizes" in _one_line(e)
     with pytest.raises(FileFormatError):
         RuntimeBTF.from_file(path)

@@ -64,6 +64,7 @@ def _refuse_slow_scalar(args: argparse.Namespace, size: tuple[int, int]) -> None
 
 def cmd_render(args: argparse.Namespace) -> int:
     from ..rendering.mitsuba import add_material, dense_table
+    from ..rendering.mitsuba.materials import runtime_for
     from ..rendering.render import (
         compare_renders,
         render_material,
@@ -105,7 +106,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         from ..storage import load_coded_with_model
 
         ref_btf = open_btf(args.reference)
-        coded = load_coded_with_model(args.coded, args.model)
+        coded = load_coded_with_model(args.coded, args.model, adaptive=True)
         if (ref_btf.height, ref_btf.width) != (coded.height, coded.width) or not (
             ref_btf.lights.equals(coded.lights) and ref_btf.views.equals(coded.views)
         ):
@@ -122,9 +123,7 @@ def cmd_render(args: argparse.Namespace) -> int:
         reference = {"type": "sparsebtf_dense", "key": key, "max_gib": float(args.max_gib),
                      **common}  # fmt: skip
         if args.sampling == "btf":  # sample as the coded render does: correlated noise
-            from ..runtime import RuntimeBTF
-
-            reference["sampling_key"] = add_material(RuntimeBTF(coded, args.tau),
+            reference["sampling_key"] = add_material(runtime_for(coded, args.tau),
                                                      f"cli-sampling:{args.coded}")  # fmt: skip
     opts = {
         "scene": args.scene,
@@ -206,7 +205,8 @@ def register(sub: Any) -> None:
         "map. With --reference, also render the uncompressed BTF and write a side-by-side PNG "
         "with MSE/PSNR/SSIM (paper Figures 7/8).",
     )
-    s.add_argument("coded", help="coded file (.h5 from 'sparsebtf encode' or 'import-release')")
+    s.add_argument("coded", help="coded file (.h5 from 'sparsebtf encode', with fixed or adaptive "
+                   "patch sizes, or 'import-release')")
     s.add_argument("-o", "--output", required=True, help="PNG to write")
     s.add_argument("-m", "--model", help="model file or bundled model name (default: the one "
                    "the coded file names)")

@@ -14,6 +14,7 @@ viewer) hold every node in one set of flat arrays, with a table from texel to no
 
 from __future__ import annotations
 
+import copy
 from typing import Any
 
 import numpy as np
@@ -98,6 +99,15 @@ class AdaptiveRuntimeBTF:
         if not isinstance(coded, AdaptiveCodedBTF):
             raise BTFInputError(f"{path}: coded with one patch size; use RuntimeBTF")
         return cls(coded, tau, dtype)
+
+    def with_tau(self, tau: TauSpec) -> AdaptiveRuntimeBTF:
+        """A copy truncated to τ' ≤ the loaded τ of every size (:meth:`RuntimeBTF.with_tau`
+        layer by layer: a fraction is of each size's coded τ)."""
+        out = copy.copy(self)
+        out.layers = {p: rt.with_tau(tau) for p, rt in self.layers.items()}
+        out.meta = {**out.layers[self.coded.tree.sizes[0]].meta,
+                    "patch_sizes": self.meta["patch_sizes"], "nodes": self.meta["nodes"]}
+        return out
 
     def arrays(self, neighbours: bool = True) -> dict[str, np.ndarray]:
         """The flat renderer arrays of :meth:`RuntimeBTF.arrays` for the whole tree, so a

@@ -16,6 +16,11 @@ geometric mean of the point's texels. :func:`angular_response` returns the lumin
 per point or averaged over the points (an arithmetic mean across patches). Cost per point and
 channel: 2·τ·L flops for the sparse step and 2·L·m4·V for one dense product (7 MFLOP at UBO2014
 directions), done as one GEMM per dictionary.
+
+A material coded with adaptive patch sizes (:class:`~sparsebtf.runtime.AdaptiveRuntimeBTF`):
+the points are its nodes (:meth:`~sparsebtf.runtime.AdaptiveRuntimeBTF.arrays`), a node of
+size p takes the mean of its p rows of the (zero-padded) spatial dictionaries, and the mean
+over the material weighs each node by its p² texels: the mean over texels, as for one size.
 """
 
 from __future__ import annotations
@@ -50,7 +55,11 @@ def _spatial_means(arr: dict[str, np.ndarray], ch: str, pts: np.ndarray) -> np.n
     off = arr[f"offsets_{ch}"].astype(np.int64)
     memb = arr[f"membership_{ch}"].astype(np.int64)
     d = [arr[f"dict{n}_{ch}"].astype(np.float64) for n in (1, 2, 3, 4)]
-    m1, m2 = d[0].mean(axis=1), d[1].mean(axis=1)  # (K, m): mean over rows
+    adaptive = "node_patch" in arr
+    if adaptive:  # padded to the largest size with zero rows: a node of size p sums its p rows
+        m1, m2 = d[0].sum(axis=1), d[1].sum(axis=1)
+    else:
+        m1, m2 = d[0].mean(axis=1), d[1].mean(axis=1)  # (K, m): mean over rows
     n_l, m4, n_v = d[2].shape[1], d[3].shape[2], d[3].shape[1]
     start, stop = off[pts], off[pts + 1]
     cnt = stop - start
@@ -60,6 +69,8 @@ def _spatial_means(arr: dict[str, np.ndarray], ch: str, pts: np.ndarray) -> np.n
     kp = memb[pts]
     k = kp[owner]
     a = arr[f"values_{ch}"][pos].astype(np.float64) * m1[k, loc[:, 0]] * m2[k, loc[:, 1]]
+    if adaptive:
+        a /= np.square(arr["node_patch"][pts].astype(np.float64))[owner]
     scatter = sparse.csr_matrix((a, (owner * m4 + loc[:, 3], np.arange(a.size))),
                                 shape=(pts.size * m4, a.size))  # fmt: skip
     u3t = np.ascontiguousarray(np.swapaxes(d[2], 1, 2))  # (K, m3, L): columns as rows
@@ -75,10 +86,12 @@ def _spatial_means(arr: dict[str, np.ndarray], ch: str, pts: np.ndarray) -> np.n
 def mean_log_yuv(rt: Any, points: np.ndarray | None = None) -> np.ndarray:
     """Spatial mean of each data point's de-standardised log-YUV values, (n, L, V, 3) float64.
 
-    ``rt``: a :class:`~sparsebtf.runtime.RuntimeBTF` (its loaded τ); ``points``: the data point
-    indices (default all).
+    ``rt``: a :class:`~sparsebtf.runtime.RuntimeBTF` (its loaded τ) or an
+    :class:`~sparsebtf.runtime.AdaptiveRuntimeBTF` (its points are its nodes); ``points``: the
+    data point indices (default all).
     """
-    pts = np.arange(rt.meta["n_points"]) if points is None else np.asarray(points, np.int64)
+    n = int(_meta(rt)["n_points"])
+    pts = np.arange(n) if points is None else np.asarray(points, np.int64)
     return _mean_log_yuv(rt.arrays(neighbours=False), pts)
 
 
@@ -94,23 +107,34 @@ def _mean_log_yuv(arr: dict[str, np.ndarray], pts: np.ndarray) -> np.ndarray:
 def angular_response(rt: Any, per_point: bool = False, chunk: int = 32) -> np.ndarray:
     """Luminance of each data point's geometric-mean RGB at every (light, view) bin, ≥ 0.
 
-    Returns (P, L, V) float32 with ``per_point``, else its mean over the P points (L, V).
+    Returns (P, L, V) float32 with ``per_point``, else its mean over the P points (L, V):
+    over the texels (an adaptive material's P nodes weighted by their sizes²).
     Computed ``chunk`` points at a time (memory: about chunk·L·V·40 bytes).
     """
-    n = int(rt.meta["n_points"])
+    meta = _meta(rt)
+    n = int(meta["n_points"])
     arr = rt.arrays(neighbours=False)
+    weights = None
+    if "node_patch" in arr:  # each node by its texels
+        weights = np.square(arr["node_patch"].astype(np.float64))
+        weights /= weights.sum()
     total = None
     rows = []
     for s in range(0, n, chunk):
         pts = np.arange(s, min(n, s + chunk))
         log_rgb = np.minimum(yuv_to_rgb(_mean_log_yuv(arr, pts)), arr["bound"][..., None])
-        rgb = inverse_log_transform(log_rgb, rt.log_offset)
+        rgb = inverse_log_transform(log_rgb, float(meta["eps"]))
         lum = np.maximum(rgb @ LUMINANCE, 0.0)
         if per_point:
             rows.append(lum.astype(np.float32))
         else:
-            part = lum.sum(axis=0)
+            part = lum.sum(axis=0) if weights is None else np.tensordot(weights[pts], lum, 1)
             total = part if total is None else total + part
     if per_point:
         return np.concatenate(rows, axis=0)
-    return (total / n).astype(np.float32)
+    return (total if weights is not None else total / n).astype(np.float32)
+
+
+def _meta(rt: Any) -> dict[str, Any]:
+    """The meta of ``rt``'s renderer arrays (an adaptive material's ``flat_meta``)."""
+    return rt.flat_meta if hasattr(rt, "flat_meta") else rt.meta

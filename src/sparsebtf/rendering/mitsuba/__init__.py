@@ -31,6 +31,16 @@ of the query's grid cell (k-nearest by chord distance, as
 :func:`sparsebtf.runtime.angular.candidate_lists` are provably complete). On ``scalar_rgb``
 the lookup calls :meth:`RuntimeBTF.evaluate` per ray (tiny renders only).
 
+A material coded with adaptive patch sizes (``sparsebtf encode --adaptive-patches``; a
+:class:`sparsebtf.runtime.AdaptiveRuntimeBTF`) renders the same way: its data points are the
+tree's nodes (:meth:`AdaptiveRuntimeBTF.arrays`), the texel's node comes from a table of the
+finest grid's cells and (i1, i2) from the node's own size p (row % p, col % p); the spatial
+dictionaries of every size are padded to the largest, so the lookup is the one above with one
+more gather. A level-of-detail fraction multiplies the loaded τ of each node's own size;
+the sampling response is per node (``sampling_tables = "patch"``: one table per node), and
+its mean over the material weighs each node by its texels. On ``scalar_rgb`` the lookup is
+:meth:`AdaptiveRuntimeBTF.evaluate`.
+
 Convention (what ``eval`` returns). Mitsuba calls ``eval(ctx, si, wo)`` with ``si.wi`` towards
 the camera (the previous path vertex) and ``wo`` towards the light, both in the local shading
 frame, and expects f·cos θ_o. A BTF value is reflected radiance times π per unit irradiance,
@@ -62,11 +72,13 @@ equal-area cells, mixed over the known direction's angular neighbours, with a sh
 Parameters (``mi.load_dict({"type": "sparsebtf", ...})``):
 
 ================ ========= ==============================================================
-filename         string    coded file (``sparsebtf encode`` / ``import-release``)
+filename         string    coded file (``sparsebtf encode``, fixed or adaptive patch sizes,
+                           / ``import-release``)
 model            string    model file or bundled model name; default: the coded file's
                            (a bundled model by hash, else the model file it recorded)
 key              string    instead of ``filename``: a material added with
-                           :func:`sparsebtf.mitsuba.add_material` (a RuntimeBTF/CodedBTF)
+                           :func:`sparsebtf.mitsuba.add_material` (a RuntimeBTF/CodedBTF
+                           or an AdaptiveRuntimeBTF/AdaptiveCodedBTF)
 tau              string    level of detail τ' at load time: "885,64,64", "32" or a fraction
                            "0.25" of the coded τ (default: every stored coefficient)
 uv_scale         float     texture tiling: uv ↦ uv·uv_scale (default 1; wraps)
@@ -76,7 +88,8 @@ k                integer   neighbours of the gaussian scheme (default 4)
 beta             float     gaussian sharpness β in exp(−β d²) (default 20)
 two_sided        boolean   shade back faces like front faces (default false)
 sampling         string    btf (default) | cosine
-sampling_tables  string    material (default: one table) | patch (one per data point)
+sampling_tables  string    material (default: one table) | patch (one per data point, per
+                           node of an adaptive material)
 sampling_grid    integer   cells per side of the equal-area grid (32; 16 for patch tables)
 sampling_mix     float     share of cosine sampling in the mixture (default 0.2)
 lod              string    auto (default: τ' per lookup from the path depth and the pixel

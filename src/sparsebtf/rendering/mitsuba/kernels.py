@@ -193,14 +193,28 @@ class CodedArrays:
 
     Per channel: ``packed`` interleaves each coefficient's value (float32 bits) and packed
     location, so one 8-byte gather reads both; ``d12`` = U1[k, i1, l1]·U2[k, i2, l2] at
-    [k, i1, i2, l1, l2] (K·p⁴ floats, when at most :data:`D12_MAX`) replaces two gathers by one.
+    [k, i1, i2, l1, l2] (K·p⁴ floats, when at most :data:`D12_MAX`) replaces two gathers by one;
+    ``tau`` the loaded τ (what a level-of-detail fraction multiplies).
+
+    A material coded with adaptive patch sizes (an
+    :class:`~sparsebtf.runtime.AdaptiveRuntimeBTF`, ``adaptive``): the data points are its
+    nodes (:meth:`~sparsebtf.runtime.AdaptiveRuntimeBTF.arrays`), ``cells`` gives the node of
+    each cell of the finest grid and ``node_patch`` its size; the spatial dictionaries are
+    padded to the largest size P, so ``p`` (the stride, and ``d12``'s) is P; ``tau`` is per
+    node (the loaded τ of its size). The fixed-size path is unchanged: :func:`point_of` and
+    :func:`coded_lookup` branch in Python on ``adaptive``, so its kernels are traced as before.
     """
 
     def __init__(self, mi: Any, rt: Any) -> None:
         a = rt.arrays(neighbours=False)
-        m = rt.meta
+        self.adaptive = hasattr(rt, "flat_meta")
+        m = rt.flat_meta if self.adaptive else rt.meta
         self.height, self.width, self.patch = int(m["height"]), int(m["width"]), int(m["patch"])
         self.n_rb = int(m["n_rb"])
+        if self.adaptive:
+            self.smallest = int(m["smallest"])
+            self.cells = mi.UInt32(a["cells"].astype(np.uint32))
+            self.node_patch = mi.UInt32(a["node_patch"].astype(np.uint32))
         self.n_lights, self.n_views = int(m["n_lights"]), int(m["n_views"])
         self.log_offset = float(m["eps"])
         self.n_stats = int(a["mean"].shape[0])
@@ -220,6 +234,8 @@ class CodedArrays:
             if k * p**4 <= D12_MAX:
                 d12 = np.einsum("kax,kby->kabxy", d1.astype(np.float64), d2.astype(np.float64))
                 d12 = mi.Float(d12.astype(np.float32).ravel())
+            tau = (mi.Float(a[f"tau_{ch}"].astype(np.float32)) if self.adaptive
+                   else float(rt.tau[ch]))  # fmt: skip
             self.channels.append(
                 {
                     "membership": mi.UInt32(a[f"membership_{ch}"].astype(np.uint32)),
@@ -233,20 +249,29 @@ class CodedArrays:
                     "p": int(p),
                     "L": int(a[f"dict3_{ch}"].shape[1]),
                     "V": int(a[f"dict4_{ch}"].shape[1]),
+                    "tau": tau,
                 }
             )
 
 
 def point_of(mi: Any, dr: Any, data: CodedArrays, uv: Any) -> tuple[Any, Any, Any]:
-    """(data point, i1, i2) of the texel under ``uv`` (the release's point order)."""
+    """(data point, i1, i2) of the texel under ``uv`` (the release's point order); for an
+    adaptive material (node, row % p, col % p), the node from ``cells`` and p its size."""
     row, col = texel(mi, dr, uv, data.height, data.width)
+    if data.adaptive:
+        s = data.smallest
+        node = dr.gather(mi.UInt32, data.cells, row // s + (data.height // s) * (col // s))
+        # at least 1: the masked tail lanes of an LLVM packet gather 0, and an integer
+        # division by 0 traps (SIGFPE) even where its result is unused
+        p = dr.maximum(dr.gather(mi.UInt32, data.node_patch, node), 1)
+        return node, row % p, col % p
     p = data.patch
     return row // p + data.n_rb * (col // p), row % p, col % p
 
 
 def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: Any,
                  light_nb: tuple[list, list], view_nb: tuple[list, list], active: Any,
-                 tau: list | None = None, stats: tuple | None = None) -> Any:
+                 fraction: Any = None, stats: tuple | None = None) -> Any:
     """Eq. 5/6 for a wavefront of queries: linear RGB (Color3f), Dr.Jit variants.
 
     ``uv`` (tiled, wraps); ``light_nb``/``view_nb``: the (indices, weights) of
@@ -254,8 +279,10 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
     the plugin clamps to 0. The log-RGB values are clamped to the material's bound interpolated
     with the angular weights, as :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate` does.
 
-    ``tau``: None (every loaded coefficient), or per channel a Float of per-query levels τ'
-    (fractional: the first ⌊τ'⌋ coefficients count fully, the next with weight τ' − ⌊τ'⌋, as
+    ``fraction``: None (every loaded coefficient), or a Float of per-query fractions f of the
+    loaded τ: channel c reads τ'_c = max(f·τ_c, min(1, τ_c)) (:func:`sparsebtf.runtime.lod.
+    lod_tau`; τ_c per node for an adaptive material), fractional: the first ⌊τ'⌋ coefficients
+    count fully, the next with weight τ' − ⌊τ'⌋ (as
     :func:`sparsebtf.runtime.kernels.prefix_weights`). ``stats``: (UInt32 buffer, class index)
     to count lookups and loop iterations per channel at ``4·class + (0, 1, 2, 3)``.
 
@@ -278,7 +305,14 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
         kk = dr.gather(mi.UInt32, ch["membership"], pt, active)
         s0 = dr.gather(mi.UInt32, ch["offsets"], pt, active)
         s1 = dr.select(active, dr.gather(mi.UInt32, ch["offsets"], pt + 1, active), s0)
-        t = None if tau is None else mi.Float(tau[c])
+        t = None
+        if fraction is not None:
+            if data.adaptive:  # the loaded τ of the node's size
+                cap = dr.gather(mi.Float, ch["tau"], pt, active)
+                t = dr.maximum(fraction * cap, dr.minimum(cap, 1.0))
+            else:
+                cap = ch["tau"]
+                t = mi.Float(dr.maximum(fraction * cap, min(1.0, cap)))
         if t is not None:  # a last coefficient of weight < 1e-4 (float32 f·τ rounding) unread
             s1 = dr.minimum(s1, s0 + mi.UInt32(dr.ceil(t - 1e-4)))
         if stats is not None:

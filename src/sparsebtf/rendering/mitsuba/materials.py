@@ -40,10 +40,12 @@ __all__ = [
     "common_params",
     "dense_sampling",
     "dense_table",
+    "flat_meta",
     "load_dense",
     "load_runtime",
     "preload",
     "remove_material",
+    "runtime_for",
     "sampling_params",
     "sampling_tables",
     "source_id",
@@ -72,8 +74,10 @@ def add_material(obj: Any, key: str | None = None) -> str:
     """Make an in-memory material available to the plugins under ``key`` (returned).
 
     ``obj``: a :class:`~sparsebtf.runtime.RuntimeBTF` or a :class:`~sparsebtf.model.CodedBTF`
-    with its model (for ``sparsebtf``), or a :class:`~sparsebtf.data.btf.BTF` (for
-    ``sparsebtf_dense``). Adding under an existing key replaces that material.
+    with its model, or their adaptive twins (:class:`~sparsebtf.runtime.AdaptiveRuntimeBTF`,
+    :class:`~sparsebtf.patch_tree.AdaptiveCodedBTF`), for ``sparsebtf``; or a
+    :class:`~sparsebtf.data.btf.BTF`, for ``sparsebtf_dense``. Adding under an existing key
+    replaces that material.
     """
     with _lock:
         key = key or f"mem{len(_materials)}-{id(obj):x}"
@@ -125,27 +129,51 @@ def cached(ck: tuple, make: Callable[[], Any]) -> Any:
         return _cache.setdefault(ck, value)
 
 
-def load_runtime(source: tuple, tau: Any = None) -> Any:
-    """A :class:`~sparsebtf.runtime.RuntimeBTF` for a plugin source (cached per process).
+def runtime_for(coded: Any, tau: Any = None) -> Any:
+    """The runtime of a coded material: a :class:`~sparsebtf.runtime.RuntimeBTF`, or an
+    :class:`~sparsebtf.runtime.AdaptiveRuntimeBTF` for one coded with adaptive patch sizes
+    (both parse ``tau`` alike)."""
+    from ...patch_tree import AdaptiveCodedBTF
+    from ...runtime import AdaptiveRuntimeBTF, RuntimeBTF
 
-    ``tau`` is the plugin's string (or number) as given; :class:`RuntimeBTF` parses it.
+    if isinstance(coded, AdaptiveCodedBTF):
+        return AdaptiveRuntimeBTF(coded, tau)
+    return RuntimeBTF(coded, tau)
+
+
+def flat_meta(rt: Any) -> dict[str, Any]:
+    """The meta of ``rt``'s renderer arrays (:meth:`~sparsebtf.runtime.RuntimeBTF.arrays`):
+    for an adaptive material its ``flat_meta`` (the data points are its nodes)."""
+    from ...runtime import AdaptiveRuntimeBTF
+
+    return rt.flat_meta if isinstance(rt, AdaptiveRuntimeBTF) else rt.meta
+
+
+def load_runtime(source: tuple, tau: Any = None) -> Any:
+    """The runtime of a plugin source (cached per process): a
+    :class:`~sparsebtf.runtime.RuntimeBTF`, or an :class:`~sparsebtf.runtime.AdaptiveRuntimeBTF`
+    for a material coded with adaptive patch sizes.
+
+    ``tau`` is the plugin's string (or number) as given; the runtime parses it.
     """
     from ...model import CodedBTF
-    from ...patch_tree import refuse_adaptive
-    from ...runtime import RuntimeBTF
+    from ...patch_tree import AdaptiveCodedBTF
+    from ...runtime import AdaptiveRuntimeBTF, RuntimeBTF
 
-    def make() -> RuntimeBTF:
+    def make() -> Any:
         if source[0] != "key":
-            return RuntimeBTF.from_file(source[1], source[2], tau)
+            from ...storage import load_coded_with_model
+
+            return runtime_for(load_coded_with_model(source[1], source[2], adaptive=True), tau)
         obj = _materials[source[1]]
-        refuse_adaptive(obj, "the sparsebtf plugin")
-        if isinstance(obj, CodedBTF):
-            return RuntimeBTF(obj, tau)
-        if isinstance(obj, RuntimeBTF):
+        if isinstance(obj, (CodedBTF, AdaptiveCodedBTF)):
+            return runtime_for(obj, tau)
+        if isinstance(obj, (RuntimeBTF, AdaptiveRuntimeBTF)):
             return obj if tau is None else obj.with_tau(tau)
         raise BTFInputError(
             f"material {source[1]!r} is a {type(obj).__name__}; the sparsebtf plugin needs "
-            "a RuntimeBTF or a CodedBTF (use sparsebtf_dense for dense BTFs)"
+            "a RuntimeBTF or a CodedBTF, or their adaptive twins (use sparsebtf_dense for "
+            "dense BTFs)"
         )
 
     return cached(("runtime", source, str(tau)), make)
@@ -316,13 +344,14 @@ def lod_params(props: Any) -> dict[str, Any]:
 
 def coded_sampling(prm: dict[str, Any], source: tuple, tau: Any, rt: Any) -> Any:
     """:func:`sampling_tables` of a coded material: the response of its codes
-    (:func:`sparsebtf.runtime.response.angular_response`, per point for per-patch tables)."""
+    (:func:`sparsebtf.runtime.response.angular_response`, per point for per-patch tables:
+    per node for a material coded with adaptive patch sizes)."""
     from ...runtime.response import angular_response
 
     per_point = prm["sampling_tables"] == "patch"
     return sampling_tables(
         prm, ("coded", source, str(tau)), lambda: angular_response(rt, per_point),
-        rt.coded.lights.xyz, rt.coded.views.xyz, int(rt.meta["n_points"]), PLUGIN,
+        rt.coded.lights.xyz, rt.coded.views.xyz, int(flat_meta(rt)["n_points"]), PLUGIN,
     )  # fmt: skip
 
 
@@ -355,8 +384,8 @@ def preload(bsdf: dict[str, Any]) -> Any:
     """Load what a plugin dict needs, outside Mitsuba, so errors surface as themselves.
 
     (An exception inside a plugin constructor reaches the caller as Mitsuba's RuntimeError.)
-    Returns the RuntimeBTF (``sparsebtf``), the dense (log table, light xyz, view xyz)
-    (``sparsebtf_dense``, as :func:`load_dense`) or None for any other plugin type.
+    Returns the RuntimeBTF or AdaptiveRuntimeBTF (``sparsebtf``), the dense (log table, light
+    xyz, view xyz) (``sparsebtf_dense``, as :func:`load_dense`) or None for any other plugin type.
     """
     kind = bsdf.get("type")
     if kind == PLUGIN:

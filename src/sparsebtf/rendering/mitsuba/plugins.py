@@ -47,6 +47,7 @@ from .materials import (
     coded_sampling,
     common_params,
     dense_sampling,
+    flat_meta,
     load_dense,
     load_runtime,
     source_id,
@@ -317,7 +318,8 @@ class SparseBTFBSDF(_Base):
     ``key``, ``tau``, ``uv_scale``, ``interpolation``, ``domain``, ``k``, ``beta``,
     ``two_sided``, ``sampling``, ``sampling_tables``, ``sampling_grid``, ``sampling_mix``. The
     material and its sampling tables are loaded once per process (:mod:`.materials`), their
-    Dr.Jit arrays once per variant.
+    Dr.Jit arrays once per variant. A material coded with adaptive patch sizes is read through
+    its :class:`~sparsebtf.runtime.AdaptiveRuntimeBTF` (its nodes are the data points).
     """
 
     def __init__(self, props: Any) -> None:
@@ -329,8 +331,9 @@ class SparseBTFBSDF(_Base):
         self.meta = dict(self.rt.meta)
         self.np_dirs = {"lights": self.rt.coded.lights.xyz.astype(np.float32),
                         "views": self.rt.coded.views.xyz.astype(np.float32)}  # fmt: skip
+        #: the renderer arrays' meta: for an adaptive material, its nodes are the data points
+        self.flat = flat_meta(self.rt)
         tables = coded_sampling(self.prm, source, tau, self.rt)
-        self.tau = [float(self.rt.tau[ch]) for ch in ("Y", "U", "V")]
         us = self.prm["uv_scale"]
         self.texel_area = 1.0 / (self.meta["height"] * self.meta["width"] * us * us)
         if self._scalar:
@@ -347,10 +350,9 @@ class SparseBTFBSDF(_Base):
         if level is None:
             return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active)
         fraction, cls = level
-        tau = [dr.maximum(fraction * self.tau[c], min(1.0, self.tau[c])) for c in range(3)]
         stats = (self.lod_counts, cls) if self.prm["lod_stats"] else None
         return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active,
-                            tau, stats)  # fmt: skip
+                            fraction, stats)  # fmt: skip
 
     def _level(self, si: Any, known: Any, active: Any, sampled: bool) -> Any:
         """(τ fraction, class index in :data:`LOD_CLASSES`) per query
@@ -391,6 +393,11 @@ class SparseBTFBSDF(_Base):
         from ...runtime import texels_from_uv
 
         row, col = texels_from_uv(uv[None, :], self.meta["height"], self.meta["width"])
+        if self.flat.get("adaptive"):  # per node: the node of the texel's cell
+            s = self.flat["smallest"]
+            if getattr(self, "_cells", None) is None:  # built on the first scalar lookup
+                self._cells = self.rt.arrays(neighbours=False)["cells"]
+            return int(self._cells[row[0] // s + (self.meta["height"] // s) * (col[0] // s)])
         p = self.meta["patch"]
         return int(row[0] // p + self.meta["n_rb"] * (col[0] // p))
 
@@ -399,8 +406,12 @@ class SparseBTFBSDF(_Base):
 
     def to_string(self) -> str:
         m = self.meta
+        tau = m["tau"]
+        if self.flat.get("adaptive"):  # the loaded τ of each patch size
+            tau = ", ".join(f"{p}x{p}: {rt.meta['tau']}" for p, rt in self.rt.layers.items())
+            tau = f"adaptive {{{tau}}}"
         return (
-            f"SparseBTF[{m['name']}, {m['height']}x{m['width']}, tau={m['tau']}, "
+            f"SparseBTF[{m['name']}, {m['height']}x{m['width']}, tau={tau}, "
             f"{self.prm['interpolation']}/{self.prm['domain']}, "
             f"uv_scale={self.prm['uv_scale']}, sampling={self._sampling_text()}, "
             f"lod={self._lod_text()}]"
