@@ -81,3 +81,28 @@ def test_flat_arrays_reproduce_the_runtime_in_nodes_of_each_size(rt):
                            tau=np.ceil(frac * caps)[None, :])  # fmt: skip
         np.testing.assert_allclose(_by_hand(a, meta, wi, wo, row, col, frac), want[0],
                                    rtol=1e-5)  # fmt: skip
+
+
+def test_a_tau_fraction_is_of_each_sizes_own_cap(rt):
+    """``tau="0.5"`` halves every size's cap (the coded τ scaled to the node's texels), so the
+    small nodes lose coefficients too; counts cap every size alike."""
+    import math
+
+    from sparsebtf.patch_tree import node_taus
+
+    coded = rt.coded
+    half = AdaptiveRuntimeBTF(coded, "0.5")
+    for p, layer in half.layers.items():
+        cap = node_taus(coded.first.coded_tau, coded.model, p)
+        assert layer.tau == {ch: math.ceil(0.5 * t) for ch, t in cap.items()}
+    assert half.layers[2].tau["Y"] < half.layers[4].tau["Y"]
+    # with_tau takes the fraction of the same caps (not of the loaded, already halved τ),
+    # kept within what each layer stores: the same coefficients as loading at "0.5"
+    full = AdaptiveRuntimeBTF(coded)
+    cut = full.with_tau("0.5")
+    for p, layer in cut.layers.items():
+        assert layer.tau == {ch: min(v, full.layers[p].tau[ch])
+                             for ch, v in half.layers[p].tau.items()}  # fmt: skip
+        assert layer.meta["nnz"] == half.layers[p].meta["nnz"]
+    three = AdaptiveRuntimeBTF(coded, 3)
+    assert all(layer.tau == {"Y": 3, "U": 3, "V": 3} for layer in three.layers.values())

@@ -21,8 +21,8 @@ import numpy as np
 
 from ..data.btf import BTF, Index
 from ..errors import BTFInputError
-from ..model import TauSpec
-from ..patch_tree import AdaptiveCodedBTF
+from ..model import TauSpec, parse_tau
+from ..patch_tree import AdaptiveCodedBTF, node_taus
 from ..points.preprocessing import Preprocessor
 from .decoder import RuntimeBTF, query_texels
 from .dense import DecodedBTF
@@ -75,20 +75,41 @@ def decoded_view(coded: AdaptiveCodedBTF) -> AdaptiveDecodedBTF:
     return AdaptiveDecodedBTF(coded)
 
 
+def _is_fraction(tau: TauSpec) -> bool:
+    """Whether ``tau`` is the τ syntax's fraction (a number or string in (0, 1))."""
+    try:
+        return 0.0 < float(tau) < 1.0  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        return False
+
+
 class AdaptiveRuntimeBTF:
     """:class:`~sparsebtf.runtime.decoder.RuntimeBTF`'s queries on an adaptive material: each
-    query answered by the runtime of its node's layer, on the backend asked for (``tau`` per
-    channel applies to every node, a fraction to each size's coded τ)."""
+    query answered by the runtime of its node's layer, on the backend asked for (``tau``: counts
+    per channel cap every node alike; a fraction is of each size's own cap, the coded τ scaled
+    to the node's texels as the encoder capped it, :func:`~sparsebtf.patch_tree.node_taus`)."""
 
     def __init__(self, coded: AdaptiveCodedBTF, tau: TauSpec = None,
                  dtype: type = np.float32) -> None:  # fmt: skip
         coded.require_model()
         self.coded = coded
-        self.layers = {p: RuntimeBTF(layer, tau, dtype) for p, layer in coded.layers.items()}
+        self.layers = {p: RuntimeBTF(layer, t, dtype) for p, layer, t in self._layer_taus(tau)}
         self.sizes = coded.tree.size_map()
         first = self.layers[coded.tree.sizes[0]]
         self.meta: dict[str, Any] = {**first.meta, "patch_sizes": list(coded.tree.sizes),
                                      "nodes": coded.tree.counts()}  # fmt: skip
+
+    def _layer_taus(self, tau: TauSpec) -> list[tuple[int, Any, TauSpec]]:
+        """(size, layer, τ' of that size): a fraction of the size's own cap (a layer's
+        ``params["tau"]`` is the material's, per point of the largest size), anything else
+        as given."""
+        coded = self.coded
+        if tau is None:
+            return [(p, layer, None) for p, layer in coded.layers.items()]
+        model, nominal = coded.require_model(), coded.first.coded_tau
+        return [(p, layer, parse_tau(tau, coded.channels, full=layer.stored_tau,
+                                     nominal=node_taus(nominal, model, p)))
+                for p, layer in coded.layers.items()]  # fmt: skip
 
     @classmethod
     def from_file(cls, path: Any, model: Any = None, tau: TauSpec = None,
@@ -104,7 +125,11 @@ class AdaptiveRuntimeBTF:
         """A copy truncated to τ' ≤ the loaded τ of every size (:meth:`RuntimeBTF.with_tau`
         layer by layer: a fraction is of each size's coded τ)."""
         out = copy.copy(self)
-        out.layers = {p: rt.with_tau(tau) for p, rt in self.layers.items()}
+        out.layers = {}
+        for p, layer, t in self._layer_taus(tau):
+            if _is_fraction(tau):  # of a size's cap, which a sparse layer may not fill
+                t = {ch: min(v, self.layers[p].tau[ch]) for ch, v in layer.resolve_tau(t).items()}
+            out.layers[p] = self.layers[p].with_tau(t)
         out.meta = {**out.layers[self.coded.tree.sizes[0]].meta,
                     "patch_sizes": self.meta["patch_sizes"], "nodes": self.meta["nodes"]}
         return out
