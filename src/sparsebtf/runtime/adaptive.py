@@ -210,10 +210,14 @@ class AdaptiveRuntimeBTF:
     def flat_meta(self) -> dict[str, Any]:
         """:attr:`meta` for :meth:`arrays`: ``patch`` the largest size (the stride of the
         padded spatial dictionaries), ``n_points`` the nodes, ``adaptive`` True,
-        ``smallest`` the size of the cells."""
+        ``smallest`` the size of the cells, ``nnz`` the whole tree's coefficients,
+        ``tau_by_size`` each size's loaded τ (``tau`` stays the largest size's)."""
         tree = self.coded.tree
         return {**self.meta, "patch": tree.sizes[0], "n_rb": tree.height // tree.sizes[0],
                 "n_points": tree.n_nodes, "adaptive": True, "smallest": tree.sizes[-1],
+                "nnz": {ch: sum(rt.meta["nnz"][ch] for rt in self.layers.values())
+                        for ch in ("Y", "U", "V")},
+                "tau_by_size": {p: dict(rt.tau) for p, rt in self.layers.items()},
                 "n_dictionaries": {ch: sum(rt.meta["n_dictionaries"][ch]
                                            for rt in self.layers.values())
                                    for ch in ("Y", "U", "V")}}  # fmt: skip
