@@ -14,6 +14,7 @@ import itertools
 from typing import Any
 
 from ..storage.accounting import paper_storage
+from .adaptive_verdicts import summarise_adaptive
 from .benchmark_set import reference_level
 from .claims3 import summarise_table3
 from .rows import get as _get
@@ -222,6 +223,7 @@ def summarise(result: dict[str, Any]) -> dict[str, Any]:
     }
     out.update(summarise_table3(result, mid))
     out.update(summarise_training(result, levels, mid))  # beyond the paper: issue 34
+    out.update(summarise_adaptive(result, levels, mid))  # beyond the paper: issue 35
     objectives = list(result["config"].get("objectives") or ["log"])
     out["objective"] = objectives[0]
     if len(objectives) > 1:
