@@ -10,6 +10,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from sparsebtf.codec import train
+from sparsebtf.codec.train import join_patch_sizes
 from sparsebtf.errors import BTFInputError
 from sparsebtf.evaluation.adaptive_verdicts import adaptive_verdict, summarise_adaptive
 from sparsebtf.evaluation.methods.adaptive import adaptive_sizes
@@ -17,6 +19,7 @@ from sparsebtf.evaluation.methods.selection import parse_methods
 from sparsebtf.evaluation.plots import tree_figure
 from sparsebtf.evaluation.report import regenerate
 
+from .conftest import smooth_btf
 from .test_evaluation import tiny_config
 
 METHOD = "sparsebtf-adaptive"
@@ -63,9 +66,9 @@ def test_coded_at_the_reference_bytes_never_above(adaptive_run):
         assert set(r["nodes"]) == {"4", "2"} and 0 <= r["small_texel_share"] <= 1
     model = data["models"][METHOD]
     assert model["params"]["patch_sizes"] == [4, 2]
-    # the 4x4 ensemble is trained as the reference's: same settings, same seed
-    assert model["training"]["Y"]["objective"] == data["models"]["sparsebtf"]["training"]["Y"][
-        "objective"]
+    # the 4x4 ensemble is the reference's (same settings and seed): only 2x2 was trained
+    assert data["method_runs"][METHOD]["params"]["reuses_reference_ensemble"] is True
+    assert model["training"] == data["models"]["sparsebtf"]["training"]
     assert data["method_runs"][METHOD]["shared_bytes"] > data["method_runs"]["sparsebtf"][
         "shared_bytes"]
 
@@ -137,3 +140,16 @@ def test_tree_figure_is_written(tmp_path):
                       [6, 6, 2]])  # fmt: skip
     path = tree_figure(texture, nodes, (4, 2), tmp_path / "tree.png", "a tree")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_joined_sizes_equal_training_them_together():
+    """Reusing the reference's ensemble is what train(patch=(P, P/2)) would have made."""
+    btfs = [smooth_btf(s) for s in range(2)]
+    kw = {"n_dictionaries": 2, "tau_train": (16, 4, 4), "sample": 1.0, "max_iter": 1,
+          "progress": False}
+    both = train(btfs, patch=(4, 2), **kw)
+    joined = join_patch_sizes([train(btfs, patch=4, **kw), train(btfs, patch=2, **kw)])
+    assert joined.content_hash == both.content_hash
+    assert joined.patch_sizes == (4, 2) and joined.params == both.params
+    with pytest.raises(BTFInputError, match="largest first"):
+        join_patch_sizes([train(btfs, patch=2, **kw), train(btfs, patch=4, **kw)])

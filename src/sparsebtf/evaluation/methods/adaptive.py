@@ -40,6 +40,7 @@ from typing import Any
 import numpy as np
 
 from ...codec.adaptive import encode_adaptive
+from ...codec.train import join_patch_sizes
 from ...data.btf import BTF
 from ...display import tone_map
 from ...errors import BTFInputError, UnreachableTargetError
@@ -76,12 +77,44 @@ class AdaptiveMethod(_Ensemble):
     # the tree is chosen by the log objective (encode_adaptive refuses the others)
     weighs_objective = False
 
-    def train_patch(self) -> tuple[int, ...]:  # type: ignore[override]
-        return adaptive_sizes(self.patch)
+    #: while fitting beside the reference: train the smaller size only
+    small_only_ = False
+
+    def train_patch(self) -> int | tuple[int, ...]:
+        sizes = adaptive_sizes(self.patch)
+        return sizes[1] if self.small_only_ else sizes
 
     def fit(self, train_btfs: Sequence[BTF], context: FitContext) -> Method:
         adaptive_sizes(self.patch)  # one line before any training
-        return super().fit(train_btfs, context)
+        ref = context.reference
+        if not self._same_training(ref):
+            return super().fit(train_btfs, context)
+        # The P x P ensemble is the reference's: trained alone with the same settings and
+        # seed it comes out the same (a size's ensemble does not depend on the others), so
+        # only the P/2 one is trained; the training seconds count the reference's too.
+        self.small_only_ = True
+        try:
+            super().fit(train_btfs, context)
+        finally:
+            self.small_only_ = False
+        self.model_ = join_patch_sizes([ref.model_, self.model_])
+        self.seconds_ += ref.seconds_
+        self.reused_reference_ = True
+        return self
+
+    def _same_training(self, ref: Any) -> bool:
+        """Whether the fitted reference ``ref`` trained its ensemble as this method would
+        train its P x P one (then it is reused)."""
+        keys = ("n_dictionaries", "patch", "sample", "iters", "tol", "log_offset")
+        return (isinstance(ref, _Ensemble) and getattr(ref, "model_", None) is not None
+                and ref.base_ is None and not ref.model_.patches
+                and all(getattr(ref, k) == getattr(self, k) for k in keys)
+                and tuple(ref.train_tau()) == tuple(self.train_tau())
+                and ref.training_options == self.training_options)  # fmt: skip
+
+    def describe(self) -> dict[str, Any]:
+        return {**super().describe(), "patch_sizes": list(adaptive_sizes(self.patch)),
+                "reuses_reference_ensemble": bool(getattr(self, "reused_reference_", False))}
 
     def shared_bytes(self) -> int:
         """Every size's dictionaries in binary16 (every material shares them)."""
