@@ -64,6 +64,9 @@ def test_coded_at_the_reference_bytes_never_above(adaptive_run):
         assert r["material_bytes"] > 0.9 * budget  # the budget is spent, not left over
         assert r["mse_rgb"] > 0 and r["encode_seconds"] > 0 and r["fixed_encode_seconds"] > 0
         assert set(r["nodes"]) == {"4", "2"} and 0 <= r["small_texel_share"] <= 1
+        # the fixed code timed beside it is the reference's own (its error, from the codes)
+        assert r["mse_std_fixed"] == pytest.approx(ref[(r["material"], r["level"])]["mse_std"])
+        assert r["mse_std_coded"] > 0 and r["mse_std_small"] > 0
     model = data["models"][METHOD]
     assert model["params"]["patch_sizes"] == [4, 2]
     # the 4x4 ensemble is the reference's (same settings and seed): only 2x2 was trained
@@ -77,8 +80,12 @@ def test_verdict_picture_and_report(adaptive_run, tmp_path):
     out, _ = adaptive_run
     data = json.loads((out / "results.json").read_text())
     s = data["summary"]["adaptive_patches"]
+    rated = [r["mse_rgb"] / next(x["mse_rgb"] for x in data["rows"] if x["method"] == "rate"
+                                 and (x["material"], x["level"]) == (r["material"], r["level"]))
+             for r in data["rows"] if r["method"] == METHOD]  # fmt: skip
     assert s["verdict"] == adaptive_verdict(
-        [v for m in s["per_material"].values() for v in m["per_level"].values()], True)
+        [v for m in s["per_material"].values() for v in m["per_level"].values()], True, rated)
+    assert s["small_std_ratio_geomean"] > 0
     assert s["rule"] and s["bytes_max_fraction"] <= 1 and s["encode_time_ratio"] > 0
     assert set(s["per_material"]) == {"carpet12", "stone12"}
     assert s["vs_rate_geomean"] > 0
@@ -94,12 +101,15 @@ def test_verdict_picture_and_report(adaptive_run, tmp_path):
     assert f"](results/{name})" in text and (tmp_path / "docs" / "results" / name).exists()
 
 
-def _result(adaptive: list[float], fixed: list[float], spent: float = 1.0) -> dict:
+def _result(adaptive: list[float], fixed: list[float], spent: float = 1.0,
+            rate: list[float] | None = None) -> dict:  # fmt: skip
     """A results object of two materials at levels 16 and 32 with the given MSEs."""
     rows = []
     for i, (a, f) in enumerate(zip(adaptive, fixed, strict=True)):
         base = {"material": f"m{i // 2}", "level": (16, 32)[i % 2], "set": "test"}
         rows.append({**base, "method": "sparsebtf", "mse_rgb": f, "material_bytes": 1000})
+        if rate is not None:
+            rows.append({**base, "method": "rate", "mse_rgb": rate[i], "material_bytes": 1000})
         rows.append({**base, "method": METHOD, "mse_rgb": a, "budget_bytes": 1000,
                      "material_bytes": int(1000 * spent), "small_texel_share": 0.25 * i,
                      "nodes": {"10": 3, "5": 4}, "encode_seconds": 3.0,
@@ -129,6 +139,15 @@ def test_verdict_rule_mixed_and_over_budget():
     assert s["verdict"] == "no clear difference" and s["pairs_lower"] == "2/4"
     assert s["per_material"]["m0"]["ratio_geomean"] == pytest.approx(0.5)
     assert s["per_material"]["m1"]["ratio_geomean"] == pytest.approx(2.0)
+    # lower than fixed tau: whether also lower than rate control says where the gain is
+    s = summarise_adaptive(_result([0.9] * 4, [1.0] * 4, rate=[0.9] * 4), [16, 32], 32)
+    assert s["adaptive_patches"]["verdict"].startswith("supported against fixed tau only: no "
+                                                       "lower than rate control")
+    s = summarise_adaptive(_result([0.9] * 4, [1.0] * 4, rate=[0.85] * 4), [16, 32], 32)
+    assert "only: higher than rate control" in s["adaptive_patches"]["verdict"]
+    s = summarise_adaptive(_result([0.8] * 4, [1.0] * 4, rate=[0.9] * 4), [16, 32], 32)
+    assert s["adaptive_patches"]["verdict"] == "supported, and lower than rate control too"
+    assert s["adaptive_patches"]["pairs_lower_than_rate"] == "4/4"
     over = summarise_adaptive(_result([0.5] * 4, [1.0] * 4, spent=1.01), [16, 32], 32)
     assert over["adaptive_patches"]["verdict"].startswith("not measured")
     assert summarise_adaptive({"rows": [], "config": {"levels": [16]}}, [16], 16) == {}

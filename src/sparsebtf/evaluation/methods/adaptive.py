@@ -39,15 +39,18 @@ from typing import Any
 
 import numpy as np
 
+from ...codec import encode_levels
 from ...codec.adaptive import encode_adaptive
 from ...codec.train import join_patch_sizes
 from ...data.btf import BTF
 from ...display import tone_map
 from ...errors import BTFInputError, UnreachableTargetError
-from ...patch_tree import AdaptiveCodedBTF
+from ...model import CodedBTF
+from ...patch_tree import AdaptiveCodedBTF, node_taus
 from ...runtime.adaptive import decoded_view
 from ...storage.adaptive_file import adaptive_report
 from ..benchmark_set import reference_level
+from ..scoring import coded_mse_std
 from .base import PER_MATERIAL, Budget, Coding, FitContext, Method
 from .sparse import _Ensemble
 
@@ -137,10 +140,11 @@ class AdaptiveMethod(_Ensemble):
                 continue
             seconds = time.perf_counter() - t0
             t0 = time.perf_counter()
-            self.encode(btf, [tau])  # the reference's fixed-τ coding of the level, timed
-            fixed = time.perf_counter() - t0
+            (fixed,) = self.encode(btf, [tau])  # the reference's fixed-τ coding, timed
+            fixed_s = time.perf_counter() - t0
             info = {"tau": list(tau), "cap_tau": list(cap), "encode_seconds": seconds,
-                    "fixed_encode_seconds": fixed, **self._row(coded)}  # fmt: skip
+                    "fixed_encode_seconds": fixed_s, **self._row(coded),
+                    **self._std_errors(btf, coded, fixed, tau)}  # fmt: skip
             if b.level == reference_level(self.context_.levels):
                 info["tree_figure"] = self._figure(btf, coded, b.level)
             out.append(Coding(decoded_view(coded), info["material_bytes"], self.shared_bytes(),
@@ -152,6 +156,24 @@ class AdaptiveMethod(_Ensemble):
         return {"log_offset": self.log_offset,
                 "candidates": self.candidates, "progress": ctx.progress,
                 "client": ctx.executor}  # fmt: skip
+
+    def _std_errors(self, btf: BTF, coded: AdaptiveCodedBTF, fixed: CodedBTF,
+                    tau: tuple[int, ...]) -> dict[str, float]:  # fmt: skip
+        """The coder's own error (standardised log-YUV MSE per value, by Parseval from the
+        codes) of the adaptive code, of the fixed P x P code at τ, and of every point coded at
+        the smaller size with the same coefficients per texel (τ·(s/P)², the tree's caps):
+        whether smaller patches alone cost or save error at equal coefficients, which is
+        what the tree weighs."""
+        small = self.model_.patch_sizes[-1]
+        taus = node_taus(dict(zip(fixed.channels, tau, strict=True)), self.model_, small)
+        ctx = self.context_
+        (all_small,) = encode_levels(
+            btf, self.model_.for_patch(small), [taus], eps=0.0, allow_below_training=True,
+            log_offset=self.log_offset, candidates=self.candidates, progress=ctx.progress,
+            client=ctx.executor)  # fmt: skip
+        return {"mse_std_coded": sum(coded_mse_std(v) for v in coded.layers.values()),
+                "mse_std_fixed": coded_mse_std(fixed),
+                "mse_std_small": coded_mse_std(all_small)}
 
     def _row(self, coded: AdaptiveCodedBTF) -> dict[str, Any]:
         """Its row's fields: Table 4 bytes with the tree, stored bytes, nodes per size, the
