@@ -20,26 +20,18 @@ from sparsebtf.evaluation.plots import tree_figure
 from sparsebtf.evaluation.report import regenerate
 
 from .conftest import smooth_btf
-from .test_evaluation import tiny_config
+from .test_evaluation import tiny_bench, tiny_config
 
 METHOD = "sparsebtf-adaptive"
 
 
 @pytest.fixture(scope="module")
 def adaptive_run(tmp_path_factory):
-    import os
-
-    from sparsebtf.evaluation.runner import run_quality
-
     out = tmp_path_factory.mktemp("adaptive")
-    os.environ["SPARSEBTF_CACHE"] = str(out / "cache")
-    os.environ["SPARSEBTF_PROGRESS"] = "0"
     cfg = replace(tiny_config(), with_per_channel=False, with_raw=False, pca_domains=(),
                   table5_materials=(), black_materials=(), render_spp=0,
                   speed_seconds=0.0)  # fmt: skip
-    result = run_quality(out / "run", cfg, log=lambda m: None,
-                         methods=["sparsebtf", "rate", METHOD])  # fmt: skip
-    return out / "run", result
+    return out / "run", tiny_bench(out, ["sparsebtf", "rate", METHOD], cfg)
 
 
 def test_methods_option_takes_it_and_an_odd_patch_is_one_line():
