@@ -87,6 +87,7 @@ def test_verdict_picture_and_report(adaptive_run, tmp_path):
     assert s["tree_figure"] in drawn
     md = (out / "results.md").read_text()
     assert "## Adaptive patch sizes" in md and f"]({s['tree_figure']})" in md
+    assert f"--methods sparsebtf,rate,{METHOD} --out DIR`" in md  # the command it was run by
     assert "adaptive patch sizes (a rate-distortion quadtree of 4x4 and 2x2 nodes)" in md
     text = regenerate(out, tmp_path / "docs").read_text()
     name = s["tree_figure"].rsplit("/", 1)[-1]

@@ -115,6 +115,22 @@ def _objective_flag(cfg: dict[str, Any]) -> str:
     return "" if objs == ["log"] else f" --objective {','.join(objs)}"
 
 
+def _methods_flag(result: dict[str, Any]) -> str:
+    """The ``--methods`` / ``--method`` a run was made with when it compared a method the
+    defaults do not run (one beyond the paper, a user's own); '' otherwise, and for runs
+    before methods were recorded. Objective variants come from ``--objective``."""
+    from .methods import available_methods
+    from .methods.selection import BASELINE_METHODS, NEURAL_METHODS
+
+    runs = {k: v for k, v in (result.get("method_runs") or {}).items()
+            if "model_of" not in (v.get("params") or {})}  # fmt: skip
+    if set(runs) <= {*BASELINE_METHODS, *NEURAL_METHODS}:
+        return ""
+    known = [k for k in runs if k in available_methods()]
+    own = "".join(f" --method {v['class']}" for k, v in runs.items() if k not in known)
+    return f" --methods {','.join(known)}{own}"
+
+
 def _offset_flag(cfg: dict[str, Any]) -> str:
     """The ``--log-offset`` a run was made with, when not the default."""
     rule = cfg.get("log_offset", "auto")
@@ -146,6 +162,7 @@ def render_markdown(
         f"{''.join(' --materials ' + m for m in result.get('extra_materials', []))}"
         f"{_offset_flag(cfg)}"
         f"{_objective_flag(cfg)}"
+        f"{_methods_flag(result)}"
         f"{' --exhaustive' if 'candidates' in cfg and cfg['candidates'] is None else ''} "
         "--out DIR`.",
         f"- Run: configuration **{cfg['name']}**, seed {result['seed']}, created "
