@@ -29,8 +29,7 @@ METHOD = "sparsebtf-adaptive"
 def adaptive_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("adaptive")
     cfg = replace(tiny_config(), with_per_channel=False, with_raw=False, pca_domains=(),
-                  table5_materials=(), black_materials=(), render_spp=0,
-                  speed_seconds=0.0)  # fmt: skip
+                  black_materials=(), render_spp=0, speed_seconds=0.0)  # fmt: skip
     return out / "run", tiny_bench(out, ["sparsebtf", "rate", METHOD], cfg)
 
 
@@ -72,6 +71,8 @@ def test_verdict_picture_and_report(adaptive_run, tmp_path):
     out, _ = adaptive_run
     data = json.loads((out / "results.json").read_text())
     s = data["summary"]["adaptive_patches"]
+    # no PCA in this run: no Table 5 verdict (not a "not supported" over nothing)
+    assert "table5_pca" not in data["summary"]
     rated = [r["mse_rgb"] / next(x["mse_rgb"] for x in data["rows"] if x["method"] == "rate"
                                  and (x["material"], x["level"]) == (r["material"], r["level"]))
              for r in data["rows"] if r["method"] == METHOD]  # fmt: skip
