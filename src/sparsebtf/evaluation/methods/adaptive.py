@@ -3,9 +3,10 @@
 
 :class:`AdaptiveMethod` trains one model of two nested patch sizes, (P, P/2) — P the
 benchmark's patch, 10×10 by default, so (10, 5) — on the benchmark's training materials with
-the reference's K, sample, iterations, tolerance and τ_l (``sparsebtf train --patch 10,5``:
-each size's ensemble trained as the reference's, the P×P one with the reference's very
-settings and seed), and codes every test material adaptively
+the reference's K, sample, iterations, tolerance, τ_l and seed (what ``sparsebtf train
+--patch 10,5`` makes: the same τ_l per point at every size; the P×P ensemble is the
+reference's own, reused when it was trained alike, since training it again gives the same:
+:func:`~sparsebtf.codec.train.join_patch_sizes`), and codes every test material adaptively
 (:func:`~sparsebtf.codec.adaptive.encode_adaptive`: a rate–distortion quadtree) at each
 level's budget: the reference's own Table 4 bytes on that material, which the adaptive code's
 Table 4 bytes — tree bits included — never exceed. So the comparison is at equal bytes.
@@ -22,7 +23,10 @@ node's texels): the tree's λ then moves bytes between nodes, up to that many co
 busy one (rate control keeps a like pool of candidates, 4× its mean count + 16). The
 encode's cost is measured beside a fixed-τ encode of the same level on the same model's P×P
 ensemble (the reference's coding), both timed here, one level at a time: each row's
-``encode_seconds`` and ``fixed_encode_seconds``. Every test material's tree at the
+``encode_seconds`` and ``fixed_encode_seconds``. Beside them, the coder's own error
+(standardised, by Parseval from the codes) of the tree, of the fixed code and of every point
+coded at P/2 with the same coefficients per texel: whether smaller patches alone cost error
+(``mse_std_coded``, ``mse_std_fixed``, ``mse_std_small``). Every test material's tree at the
 reference level is drawn over its texture (:func:`~sparsebtf.evaluation.plots.tree_figure`)
 into ``adaptive/`` of the run's folder, named in its row's ``tree_figure``.
 
