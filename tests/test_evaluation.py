@@ -126,15 +126,21 @@ def tiny_config() -> BenchConfig:
 TINY_METHODS = ("sparsebtf", "rate", "per_channel", "raw", "pca")
 
 
-@pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):
+def tiny_bench(out, methods, config=None):
+    """A quiet ``bench quality`` run of ``methods`` into ``out / "run"`` (materials cached in
+    ``out / "cache"``; default: the tiny configuration); its results."""
     import os
 
-    out = tmp_path_factory.mktemp("bench")
     os.environ["SPARSEBTF_CACHE"] = str(out / "cache")
     os.environ["SPARSEBTF_PROGRESS"] = "0"
-    result = run_quality(out / "run", tiny_config(), log=lambda m: None, methods=TINY_METHODS)
-    return out / "run", result
+    return run_quality(out / "run", config or tiny_config(), log=lambda m: None,
+                       methods=methods)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    return out / "run", tiny_bench(out, TINY_METHODS)
 
 
 def test_bench_writes_json_tables_and_figures(tiny_run):

@@ -30,14 +30,14 @@ from ..learning.ensemble import DictionaryEnsemble, PointSource
 from ..learning.partitions import load_points
 from ..learning.tau_levels import VALIDATION, check_levels
 from ..model import CHANNELS, Model
-from ..points.grid import parse_patches
+from ..points.grid import check_nested, parse_patches
 from ..points.preprocessing import resolve_log_offset
 from ..points.sources import BTFPointSource, channel_sources, training_points
 from .jobs import Source
 from .levels import parse_tau_train
 from .options import TrainOptions, train_settings
 
-__all__ = ["train"]
+__all__ = ["join_patch_sizes", "train"]
 
 
 def _train_channel(
@@ -189,7 +189,20 @@ def train(
     for p in sizes:
         ck = None if o.checkpoint_dir is None else os.path.join(o.checkpoint_dir, f"patch{p}")
         models.append(_train_one(btfs, replace(o, patch=p, checkpoint_dir=ck), where))
+    return join_patch_sizes(models)
+
+
+def join_patch_sizes(models: Sequence[Model]) -> Model:
+    """One model of several patch sizes from models of one size each, largest first, as
+    :func:`train` with several sizes makes it (each size trained alone with the same options
+    gives the same model: a size's ensemble does not depend on the others)."""
     first = models[0]
+    sizes = check_nested([m.patch for m in models], "join_patch_sizes")
+    if sizes != tuple(m.patch for m in models) or any(
+            m.patches or m.channels != first.channels or not m.lights.equals(first.lights)
+            or not m.views.equals(first.views) for m in models):  # fmt: skip
+        raise BTFInputError("join_patch_sizes: give models of one patch size each, largest "
+                            "first, with the same channels and directions")
     params = {**first.params, "patch": sizes[0], "patch_sizes": list(sizes)}
     # ``training`` is per channel (the largest size's); the other sizes' beside the provenance
     provenance = {**first.provenance,

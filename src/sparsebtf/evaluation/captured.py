@@ -22,7 +22,7 @@ __all__ = ["captured_section", "dynamic_range_rows", "range_trend"]
 
 #: the verdicts compared, in results.md's order
 VERDICT_KEYS = ("table2_processing", "table3_monotone", "table5_pca", "true_black",
-                "standardisation", "rate_control")  # fmt: skip
+                "standardisation", "rate_control", "adaptive_patches")  # fmt: skip
 
 #: figure of each verdict: FIGURES' (the "moved from the previous run" column) and true black's
 _FIGURE = {**FIGURES, "true_black": ("materials_ok", "{}")}

@@ -23,6 +23,7 @@ FIGURES: dict[str, tuple[str, str]] = {
     "table3_vs_rgjw20": ("cells_won", "{}"),
     "table3_rgjw20_stalls": ("rgjw20_gain_geomean", "{:.2f}x"),
     "table3_rjgw19_lowest": ("cells_lowest", "{}"),
+    "adaptive_patches": ("ratio_geomean", "{:.3f}"),
 }
 
 

@@ -18,7 +18,7 @@ from .rows import rows as _rows
 from .tables import gmean as _gmean
 from .tables import label_with_matching, method_matchings
 
-__all__ = ["figure3", "quality_storage"]
+__all__ = ["figure3", "quality_storage", "tree_figure"]
 
 
 def figure3(result: dict[str, Any], path: Path) -> Path:
@@ -69,3 +69,33 @@ def quality_storage(result: dict[str, Any], path: Path) -> Path:
         ax.legend(fontsize=7)
     return save_figure(fig, path, dpi=110)
 
+
+
+#: border colour of each node size in :func:`tree_figure`, largest size first
+TREE_COLOURS = ("tab:cyan", "tab:orange", "tab:red", "tab:green")
+
+
+def tree_figure(texture: np.ndarray, nodes: np.ndarray, sizes: tuple[int, ...], path: Path,
+                title: str) -> Path:  # fmt: skip
+    """An adaptive material's tree over its texture: ``texture`` (H, W, 3) display values in
+    [0, 1], ``nodes`` (N, 3) rows (row, col, size) in texels, each node's border coloured by
+    its size (:data:`TREE_COLOURS`, in the order of ``sizes``, largest first)."""
+    from matplotlib.patches import Patch, Rectangle
+
+    h, w = texture.shape[:2]
+    fig, ax = plt.subplots(figsize=(4.6, 4.6 * h / w + 0.6))
+    ax.imshow(np.clip(texture, 0, 1), interpolation="nearest")
+    colour = {int(s): TREE_COLOURS[i % len(TREE_COLOURS)] for i, s in enumerate(sizes)}
+    # smallest first, so the larger nodes' borders are drawn over the finer ones
+    for r, c, s in sorted((tuple(map(int, n)) for n in nodes), key=lambda n: n[2]):
+        ax.add_patch(Rectangle((c - 0.5, r - 0.5), s, s, fill=False, lw=1.6,
+                               edgecolor=colour[s]))  # fmt: skip
+    counts = {s: int((np.asarray(nodes)[:, 2] == s).sum()) for s in colour}
+    ax.legend(handles=[Patch(facecolor="none", edgecolor=colour[s],
+                             label=f"{s}x{s}: {counts[s]} nodes") for s in colour],
+              loc="upper center", bbox_to_anchor=(0.5, -0.02), ncol=len(colour), fontsize=7,
+              frameon=False)  # fmt: skip
+    ax.set_xticks([])
+    ax.set_yticks([])
+    ax.set_title(title, fontsize=8)
+    return save_figure(fig, path, dpi=110)

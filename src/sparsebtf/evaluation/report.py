@@ -18,6 +18,7 @@ from typing import Any
 from .._atomic import atomic_output
 from .._json import json_default
 from ..errors import BTFInputError
+from .adaptive_verdicts import ADAPTIVE_KEYS, adaptive_figures, adaptive_section
 from .captured import captured_section
 from .claims3 import table3_comparison
 from .history import describe, moved, record
@@ -114,6 +115,22 @@ def _objective_flag(cfg: dict[str, Any]) -> str:
     return "" if objs == ["log"] else f" --objective {','.join(objs)}"
 
 
+def _methods_flag(result: dict[str, Any]) -> str:
+    """The ``--methods`` / ``--method`` a run was made with when it compared a method the
+    defaults do not run (one beyond the paper, a user's own); '' otherwise, and for runs
+    before methods were recorded. Objective variants come from ``--objective``."""
+    from .methods import available_methods
+    from .methods.selection import BASELINE_METHODS, NEURAL_METHODS
+
+    runs = {k: v for k, v in (result.get("method_runs") or {}).items()
+            if "model_of" not in (v.get("params") or {})}  # fmt: skip
+    if set(runs) <= {*BASELINE_METHODS, *NEURAL_METHODS}:
+        return ""
+    known = [k for k in runs if k in available_methods()]
+    own = "".join(f" --method {v['class']}" for k, v in runs.items() if k not in known)
+    return f" --methods {','.join(known)}{own}"
+
+
 def _offset_flag(cfg: dict[str, Any]) -> str:
     """The ``--log-offset`` a run was made with, when not the default."""
     rule = cfg.get("log_offset", "auto")
@@ -145,6 +162,7 @@ def render_markdown(
         f"{''.join(' --materials ' + m for m in result.get('extra_materials', []))}"
         f"{_offset_flag(cfg)}"
         f"{_objective_flag(cfg)}"
+        f"{_methods_flag(result)}"
         f"{' --exhaustive' if 'candidates' in cfg and cfg['candidates'] is None else ''} "
         "--out DIR`.",
         f"- Run: configuration **{cfg['name']}**, seed {result['seed']}, created "
@@ -221,7 +239,8 @@ def render_markdown(
                     f"gain {_pct(s['gain_geomean'])} (per level "
                     f"{_per_level(s, 'per_level_geomean')}); better on "
                     f"{s['materials_better']}; bytes within {(dev or 0) * 100:.3f}% of target")
-    for key in TRAINING_KEYS:  # beyond the paper: training variants (issue 34)
+    # beyond the paper: training variants (issue 34), adaptive patch sizes (issue 35)
+    for key in (*TRAINING_KEYS, *ADAPTIVE_KEYS):
         if key in summary:
             verdict_row(key, summary[key]["claim"], summary[key]["figure"])
     if "table2_metrics" in summary:
@@ -248,10 +267,11 @@ def render_markdown(
     lines += ["", "Rules behind the verdicts:", ""]
     for key in ("table2_processing", "table2_metrics", "table3_monotone", "table3_vs_rgjw20",
                 "table3_rgjw20_stalls", "table3_rjgw19_lowest", "table5_pca", "true_black",
-                "standardisation", "rate_control", *TRAINING_KEYS):
+                "standardisation", "rate_control", *TRAINING_KEYS, *ADAPTIVE_KEYS):
         if key in summary:
             lines.append(f"- {key}: {summary[key]['rule']}")
     lines += objective_lines(summary)
+    lines += adaptive_section(result, summary, img)
     if captured is not None:
         lines += captured_section(result, summary, *captured)
     lines += [
@@ -515,7 +535,7 @@ def regenerate(
     figure3(result, img_dir / "figure3.png")
     quality_storage(result, img_dir / "quality_storage.png")
     figure8 = ["figure8/figure8.png"] if (result.get("figure8") or {}).get("methods") else []
-    for g in [*result.get("grids", []), *figure8]:
+    for g in [*result.get("grids", []), *figure8, *adaptive_figures(result)]:
         src, dst = run / g, img_dir / Path(g).name
         if src.exists() and not (dst.exists() and src.samefile(dst)):
             shutil.copyfile(src, dst)

@@ -281,7 +281,8 @@ class _QualityRun:
     def fit(self, train: list[BTF]) -> None:
         cfg = self.cfg
         ctx = FitContext(levels=tuple(cfg.levels), level_bytes_per_texel={}, patch=cfg.patch,
-                         seed=self.seed, progress=self.progress, executor=self.ex, config=cfg)
+                         seed=self.seed, progress=self.progress, executor=self.ex, config=cfg,
+                         out=self.out)
         saved = self.store.methods() if self.store.resumed else None
         if saved is not None:
             self.adopt(saved["methods"])

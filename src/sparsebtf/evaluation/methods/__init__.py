@@ -38,6 +38,8 @@ _REGISTRY: dict[str, str] = {
     "sparsebtf-multitau": ".beyond:MultiTauMethod",
     "sparsebtf-learntau": ".beyond:LearnTauMethod",
     "sparsebtf-precluster": ".beyond:PreclusterMethod",
+    # beyond the paper (issue 35): adaptive patch sizes, not run by default
+    "sparsebtf-adaptive": ".adaptive:AdaptiveMethod",
     "pca_log": ".pca:PCALogMethod",
     "pca_linear": ".pca:PCALinearMethod",
     "rgjw20": "..neural.rgjw20:RGJW20Method",

@@ -116,6 +116,8 @@ class FitContext:
     #: the fitted reference method (SparseBTF) when fitting any other: a variant of it (rate
     #: control) codes with its model instead of training its own
     reference: Any = None
+    #: the run's folder: pictures a method draws go under it (None: it draws none)
+    out: Any = None
 
 
 class Method(abc.ABC):

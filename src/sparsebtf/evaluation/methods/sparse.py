@@ -122,6 +122,10 @@ class _Ensemble(Method):
         """τ_l of this variant's training."""
         return self.tau_train
 
+    def train_patch(self) -> int | tuple[int, ...]:
+        """The patch size (or nested sizes, largest first) of this variant's training."""
+        return self.patch
+
     def fit(self, train_btfs: Sequence[BTF], context: FitContext) -> Method:
         t0 = time.perf_counter()
         self.context_ = context
@@ -129,7 +133,7 @@ class _Ensemble(Method):
             self.model_, self.seconds_ = self.base_.model_, 0.0
             return self
         self.model_ = train(
-            list(train_btfs), n_dictionaries=self.n_dictionaries, patch=self.patch,
+            list(train_btfs), n_dictionaries=self.n_dictionaries, patch=self.train_patch(),
             sample=self.sample, max_iter=self.iters, tol=self.tol, seed=context.seed,
             progress=context.progress, client=context.executor, tau_train=self.train_tau(),
             **self.training_options,
