@@ -24,6 +24,7 @@ from .claims3 import table3_comparison
 from .history import describe, moved, record
 from .plots import figure3, quality_storage
 from .rows import materials as _materials
+from .side_runs import side_runs_section
 from .tables import (
     STORAGE_JSON,
     stored_levels,
@@ -143,11 +144,13 @@ def render_markdown(
     img: str = "",
     previous: dict[str, Any] | None = None,
     captured: tuple[dict[str, Any], dict[str, Any], str | None] | None = None,
+    side_runs: list[str] | None = None,
 ) -> str:
     """results.md text; ``img`` is the prefix of image links (folder of the PNGs);
     ``previous`` (a :func:`~.history.record`) adds how each verdict moved from that run;
     ``captured`` (a captured run's results, its summary, a link to its results.md) adds its
-    verdicts beside these (:func:`~.captured.captured_section`)."""
+    verdicts beside these (:func:`~.captured.captured_section`); ``side_runs`` (markdown
+    lines, :func:`~.side_runs.side_runs_section`) the verdicts of runs of their own."""
     cfg = result["config"]
     mach = result["machine"]
     lines = [
@@ -274,6 +277,7 @@ def render_markdown(
     lines += adaptive_section(result, summary, img)
     if captured is not None:
         lines += captured_section(result, summary, *captured)
+    lines += side_runs or []
     lines += [
         "", "## Table 2 shape: BTF-specific processing vs [MHU19], equal storage",
         "", "MSE x 1e-4, linear RGB. [MHU19] = the same ensemble training and coding on raw "
@@ -544,7 +548,8 @@ def regenerate(
         tmp.write_text(json.dumps(kept, indent=2, default=json_default))
     target = docs / "results.md"
     text = render_markdown(result, summary, img="results/", previous=result.get("previous"),
-                           captured=_captured_run(result, docs, captured))
+                           captured=_captured_run(result, docs, captured),
+                           side_runs=side_runs_section(docs))
     text = text.replace(
         "from `results.json`;",
         f"from `results.json` (regenerate: `sparsebtf bench report {img_dir} --docs {docs}`);",

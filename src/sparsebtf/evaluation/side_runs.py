@@ -1,0 +1,78 @@
+"""The beyond-the-paper verdicts measured by runs of their own, in ``docs/results.md``.
+
+The training variants (issue 34, ``docs/training-variants``) and adaptive patch sizes (issue
+35, ``docs/adaptive-patches``) are benchmark methods the default run does not include; their
+runs (``bench quality --methods …``, synthetic and ``--source capture``) are regenerated into
+folders of their own by ``sparsebtf bench report RUN --docs docs/<name>[/capture]``. This
+module collects their verdict rows (from each run's stored ``summary``) into one table of the
+main page, with each run's configuration and a link to its page, so the page carries every
+verdict the project has measured.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+from .adaptive_verdicts import ADAPTIVE_KEYS
+from .training_verdicts import TRAINING_KEYS
+
+__all__ = ["SIDE_RUNS", "side_runs_section"]
+
+#: (docs sub-folder, the verdict keys its runs carry)
+SIDE_RUNS: tuple[tuple[str, tuple[str, ...]], ...] = (
+    ("training-variants", TRAINING_KEYS),
+    ("adaptive-patches", ADAPTIVE_KEYS),
+)
+
+
+def _read(folder: Path) -> dict[str, Any] | None:
+    """A regenerated run's results.json (with its ``summary``), or None where there is none
+    or it is not readable as one."""
+    try:
+        run = json.loads((folder / "results" / "results.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return run if isinstance(run, dict) and isinstance(run.get("summary"), dict) else None
+
+
+def _cell(run: dict[str, Any] | None, key: str) -> str:
+    if run is None or key not in run["summary"]:
+        return "not run"
+    s = run["summary"][key]
+    return f"{s.get('figure', '')}: **{s['verdict']}**".lstrip(": ")
+
+
+def _run_text(run: dict[str, Any], page: str) -> str:
+    cfg = run.get("config", {})
+    minutes = float(run.get("seconds", 0.0)) / 60
+    return (f"[{cfg.get('name', '?')} configuration, {cfg.get('source', 'synth')}]({page}), "
+            f"created {run.get('created', '?')}, {minutes:.0f} min")  # fmt: skip
+
+
+def side_runs_section(docs: str | os.PathLike[str]) -> list[str]:
+    """Markdown lines: per side run found under ``docs``, its verdicts on synthetic and on
+    captured materials (``docs/<name>/results`` and ``docs/<name>/capture/results``); none
+    found, no lines."""
+    docs = Path(docs)
+    rows, runs_text = [], []
+    for name, keys in SIDE_RUNS:
+        synth, cap = _read(docs / name), _read(docs / name / "capture")
+        for run, sub in ((synth, name), (cap, f"{name}/capture")):
+            if run is not None:
+                runs_text.append(f"- `{name}`: " + _run_text(run, f"{sub}/results.md"))
+        for key in keys:
+            found = [r for r in (synth, cap) if r is not None and key in r["summary"]]
+            if found:
+                claim = found[0]["summary"][key].get("claim", key)
+                rows.append(f"| {claim} | {_cell(synth, key)} | {_cell(cap, key)} |")
+    if not rows:
+        return []
+    return ["", "## Beyond the paper: methods measured in runs of their own", "",
+            "Methods the default run does not include, measured beside the reference by "
+            "`sparsebtf bench quality --methods …` (each run's page has every table, its "
+            "command and its rules):", "", *runs_text, "",
+            "| claim | synthetic materials | captured materials |", "|---|---|---|",
+            *rows]  # fmt: skip

@@ -1,0 +1,40 @@
+"""docs/results.md carries the verdicts of the beyond-the-paper runs kept in folders of their
+own (evaluation/side_runs.py)."""
+
+from __future__ import annotations
+
+import json
+
+from sparsebtf.evaluation.side_runs import side_runs_section
+
+
+def _run(folder, source, verdicts):
+    (folder / "results").mkdir(parents=True)
+    run = {"config": {"name": "quick", "source": source}, "created": "2026-01-01T00:00:00Z",
+           "seconds": 600.0,
+           "summary": {k: {"claim": f"claim {k}", "figure": f"ratio {v}", "verdict": v}
+                       for k, v in verdicts.items()}}  # fmt: skip
+    (folder / "results" / "results.json").write_text(json.dumps(run))
+
+
+def test_side_runs_section_lists_each_runs_verdicts(tmp_path):
+    assert side_runs_section(tmp_path) == []  # no side run: nothing added
+    _run(tmp_path / "adaptive-patches", "synth", {"adaptive_patches": "supported"})
+    _run(tmp_path / "adaptive-patches" / "capture", "capture",
+         {"adaptive_patches": "no clear difference"})  # fmt: skip
+    _run(tmp_path / "training-variants", "synth", {"training_multitau": "not supported"})
+    (tmp_path / "broken" / "results").mkdir(parents=True)
+    text = "\n".join(side_runs_section(tmp_path))
+    assert "| claim adaptive_patches | ratio supported: **supported** | ratio no clear " \
+           "difference: **no clear difference** |" in text
+    assert "| claim training_multitau | ratio not supported: **not supported** | not run |" \
+        in text
+    assert "(adaptive-patches/capture/results.md)" in text
+    assert "training_learntau" not in text  # a key no run carries has no row
+
+
+def test_an_unreadable_side_run_is_left_out(tmp_path):
+    folder = tmp_path / "training-variants" / "results"
+    folder.mkdir(parents=True)
+    (folder / "results.json").write_text("{not json")
+    assert side_runs_section(tmp_path) == []
