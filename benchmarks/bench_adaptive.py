@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from typing import Any
 
 import numpy as np
 
@@ -37,18 +38,28 @@ def _mse(ref: np.ndarray, view) -> float:
     return float(np.mean((view.to_array().astype(np.float64) - ref) ** 2))
 
 
-def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def model_arguments(ap: argparse.ArgumentParser) -> None:
+    """The options of the small model and its materials (shared with bench_adaptive_lookup)."""
     ap.add_argument("--size", type=int, default=20)
     ap.add_argument("--patches", default="10,5")
     ap.add_argument("--directions", default="tiny13")
     ap.add_argument("--tau", default="64,16,16", help="per point of the largest size")
+
+
+def small_model(a: argparse.Namespace) -> Any:
+    """K = 2, every point, 3 iterations, on :data:`TRAIN` at ``a.patches``."""
+    return train([cached(c, a.size, a.directions, 1) for c in TRAIN], n_dictionaries=2,
+                 tau_train=(16, 4, 4), patch=parse_patches(a.patches), sample=1.0, max_iter=3,
+                 progress=False)  # fmt: skip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    model_arguments(ap)
     a = ap.parse_args()
     sizes = parse_patches(a.patches)
     t = time.perf_counter()
-    model = train([cached(c, a.size, a.directions, 1) for c in TRAIN], n_dictionaries=2,
-                  tau_train=(16, 4, 4), patch=sizes, sample=1.0, max_iter=3,
-                  progress=False)  # fmt: skip
+    model = small_model(a)
     print(json.dumps({"train_seconds": round(time.perf_counter() - t, 1),
                       "patch_sizes": list(sizes)}))  # fmt: skip
     tau = [int(v) for v in a.tau.split(",")]

@@ -21,21 +21,17 @@ import time
 
 import numpy as np
 
-from sparsebtf.codec import encode, train
+from bench_adaptive import model_arguments, small_model
+from sparsebtf.codec import encode
 from sparsebtf.codec.adaptive import encode_adaptive
 from sparsebtf.data.synth import cached
 from sparsebtf.points.grid import parse_patches
 from sparsebtf.runtime import AdaptiveRuntimeBTF, RuntimeBTF
 
-TRAIN = ("carpet", "fabric", "wood")
-
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--size", type=int, default=20)
-    ap.add_argument("--patches", default="10,5")
-    ap.add_argument("--directions", default="tiny13")
-    ap.add_argument("--tau", default="64,16,16", help="per point of the largest size")
+    model_arguments(ap)
     ap.add_argument("--material", default="wallpaper")
     ap.add_argument("--queries", type=int, default=1 << 18)
     ap.add_argument("--repeat", type=int, default=5)
@@ -47,9 +43,7 @@ def main() -> None:
     import mitsuba as mi
 
     sizes = parse_patches(a.patches)
-    model = train([cached(c, a.size, a.directions, 1) for c in TRAIN], n_dictionaries=2,
-                  tau_train=(16, 4, 4), patch=sizes, sample=1.0, max_iter=3,
-                  progress=False)  # fmt: skip
+    model = small_model(a)
     tau = [int(v) for v in a.tau.split(",")]
     btf = cached(a.material, a.size, a.directions, 7)
     ways = {"fixed": RuntimeBTF(encode(btf, model, tau, progress=False)),
