@@ -58,11 +58,17 @@ def material(busy: tuple[tuple[int, int], ...], seed: int = 3) -> ArrayBTF:
     return ArrayBTF(data, d, d, name="busy" if busy else "smooth")
 
 
+def code_mixed(model: Model) -> AdaptiveCodedBTF:
+    """The mixed material coded adaptively at 1500 Table 4 bytes (nodes of both sizes); the
+    adaptive test files share it."""
+    return encode_adaptive(material(MIXED), model, (64, 16, 16), target_bytes=1500,
+                           progress=False)  # fmt: skip
+
+
 @pytest.fixture(scope="module")
 def mixed(model, tmp_path_factory):
-    """The mixed material coded adaptively at 1500 Table 4 bytes, saved and read back."""
-    coded = encode_adaptive(material(MIXED), model, (64, 16, 16), target_bytes=1500,
-                            progress=False)  # fmt: skip
+    """The mixed material coded adaptively (:func:`code_mixed`), saved and read back."""
+    coded = code_mixed(model)
     folder = tmp_path_factory.mktemp("adaptive")
     save_model(model, folder / "model.h5")  # the coded file records it and finds it again
     path = folder / "mixed.coded.h5"

@@ -6,17 +6,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from sparsebtf.codec.adaptive import encode_adaptive
 from sparsebtf.runtime import AdaptiveRuntimeBTF, angular_weights
 
-from .test_adaptive import MIXED, material
+from .test_adaptive import code_mixed
 from .test_adaptive import model as model  # the module's fixture, reused
 
 
 @pytest.fixture(scope="module")
 def rt(model):
-    coded = encode_adaptive(material(MIXED), model, (64, 16, 16), target_bytes=1500,
-                            progress=False)  # fmt: skip
+    coded = code_mixed(model)
     return AdaptiveRuntimeBTF(coded)
 
 

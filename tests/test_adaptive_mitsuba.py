@@ -15,10 +15,9 @@ import numpy as np
 import pytest
 
 from sparsebtf import llvm
-from sparsebtf.codec.adaptive import encode_adaptive
 from sparsebtf.runtime import AdaptiveRuntimeBTF
 
-from .test_adaptive import MIXED, material
+from .test_adaptive import MIXED, code_mixed, material
 from .test_adaptive import model as model  # the module's fixture, reused
 
 if importlib.util.find_spec("mitsuba") is None or importlib.util.find_spec("drjit") is None:
@@ -50,8 +49,7 @@ def _llvm_variant():
 
 @pytest.fixture(scope="module")
 def coded(model):
-    return encode_adaptive(material(MIXED), model, (64, 16, 16), target_bytes=1500,
-                           progress=False)  # fmt: skip
+    return code_mixed(model)
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,6 @@ import json
 import numpy as np
 import pytest
 
-from sparsebtf.codec.adaptive import encode_adaptive
 from sparsebtf.errors import BTFInputError
 from sparsebtf.rendering import viewer
 from sparsebtf.rendering.viewer import ViewerBundle, build_bundle, pack_textures, serve
@@ -23,7 +22,7 @@ from sparsebtf.runtime import AdaptiveRuntimeBTF, RuntimeBTF
 from sparsebtf.runtime.lod import footprint_fraction
 from sparsebtf.storage import save_coded, save_model
 
-from .test_adaptive import MIXED, _rewrite_nodes, material
+from .test_adaptive import _rewrite_nodes, code_mixed
 from .test_adaptive import model as model  # the module's fixtures, reused
 from .test_viewer import (
     PAGE_CASES,
@@ -45,8 +44,7 @@ TREE_RECORD = 4  # int32 components of an sb_points record
 
 @pytest.fixture(scope="module")
 def coded(model):
-    return encode_adaptive(material(MIXED), model, (64, 16, 16), target_bytes=1500,
-                           progress=False)  # fmt: skip
+    return code_mixed(model)
 
 
 @pytest.fixture(scope="module")
