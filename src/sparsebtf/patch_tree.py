@@ -27,8 +27,8 @@ from .model import CodedBTF, Model, model_text
 from .points.grid import PatchGrid, check_nested
 
 __all__ = [
-    "AdaptiveCodedBTF", "PatchTree", "expand_points", "node_taus", "refuse_adaptive",
-    "select_points",
+    "AdaptiveCodedBTF", "PatchTree", "coefficient_indices", "expand_points", "node_taus",
+    "refuse_adaptive", "select_points",
 ]  # fmt: skip
 
 
@@ -162,12 +162,19 @@ def node_taus(tau: dict[str, int], model: Model, size: int) -> dict[str, int]:
             for ch, t in tau.items()}  # fmt: skip
 
 
+def coefficient_indices(starts: np.ndarray, counts: np.ndarray) -> np.ndarray:
+    """The runs start_i, start_i + 1, …, start_i + count_i − 1 of every i, concatenated
+    (int64): the coefficients of some points, by their first coefficient and count."""
+    counts = np.asarray(counts, dtype=np.int64)
+    shift = np.asarray(starts, dtype=np.int64) - (np.cumsum(counts) - counts)
+    return np.arange(int(counts.sum()), dtype=np.int64) + np.repeat(shift, counts)
+
+
 def select_points(codes: SparseCodes, points: np.ndarray) -> SparseCodes:
     """The codes of ``points`` (in that order), each point's coefficients as they are."""
     idx = np.asarray(points, dtype=np.int64)
     o = codes.offsets
-    take = (np.concatenate([np.arange(o[i], o[i + 1]) for i in idx]) if idx.size
-            else np.empty(0, dtype=np.int64))  # fmt: skip
+    take = coefficient_indices(o[idx], o[idx + 1] - o[idx])
     return SparseCodes(codes.mode_sizes, codes.membership[idx], codes.counts[idx],
                        codes.values[take], codes.locations[take], codes.errors[idx])  # fmt: skip
 

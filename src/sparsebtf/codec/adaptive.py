@@ -40,7 +40,14 @@ from ..learning.codes import RELEASE_EPS, RELEASE_TAU, count_and_error
 from ..learning.coding import SparseCodes, sparse_code_levels
 from ..learning.cost import POINT_BYTES, VALUE_BYTES, location_width, raw_bytes
 from ..model import CHANNELS, Model, TauSpec, model_text, parse_tau
-from ..patch_tree import AdaptiveCodedBTF, PatchTree, expand_points, node_taus, select_points
+from ..patch_tree import (
+    AdaptiveCodedBTF,
+    PatchTree,
+    coefficient_indices,
+    expand_points,
+    node_taus,
+    select_points,
+)
 from ..points.grid import PatchGrid, stream_points
 from ..points.preprocessing import Preprocessor, Standardization
 from .encode import _check_levels, coded_btf, plan_candidates, rule_params
@@ -228,8 +235,7 @@ class _NodeCurves:
         k = self.kept(ch, lam)[points]
         sel = select_points(c, points)
         o = sel.offsets
-        take = (np.concatenate([np.arange(o[i], o[i] + k[i]) for i in range(points.size)])
-                if points.size else np.empty(0, dtype=np.int64))  # fmt: skip
+        take = coefficient_indices(o[:-1], k)
         size = float(np.prod(c.mode_sizes))
         d = self._base[ch][points] + (self._cum[ch][c.offsets[points + 1]]
                                       - self._cum[ch][c.offsets[points] + k])  # fmt: skip

@@ -22,7 +22,7 @@ import numpy as np
 from ..data.btf import BTF, Index
 from ..errors import BTFInputError
 from ..model import TauSpec, parse_tau
-from ..patch_tree import AdaptiveCodedBTF, node_taus
+from ..patch_tree import AdaptiveCodedBTF, coefficient_indices, node_taus
 from ..points.preprocessing import Preprocessor
 from .decoder import RuntimeBTF, query_texels
 from .dense import DecodedBTF
@@ -171,20 +171,21 @@ class AdaptiveRuntimeBTF:
         out["cells"] = np.ascontiguousarray(cells.T).ravel()  # release order: row fastest
         out["node_patch"] = np.concatenate(
             [np.full(nodes[p].size, p, dtype=np.int32) for p in tree.sizes])
+        layer_arrays = {p: dict(out) if p == big else self.layers[p].arrays(neighbours=False)
+                        for p in tree.sizes}  # fmt: skip
         for ch in ("Y", "U", "V"):
             member, offsets, values, locations, tau = [], [np.zeros(1, np.int64)], [], [], []
             dicts: list[list[np.ndarray]] = [[], [], [], []]
             n_dict = nnz = 0
             for p in tree.sizes:
-                a = self.layers[p].arrays(neighbours=False)
+                a = layer_arrays[p]
                 o = a[f"offsets_{ch}"].astype(np.int64)
                 take = nodes[p]
                 member.append(a[f"membership_{ch}"][take] + n_dict)
                 counts = o[take + 1] - o[take]
                 offsets.append(nnz + np.cumsum(counts))
                 nnz += int(counts.sum())
-                idx = (np.concatenate([np.arange(o[i], o[i + 1]) for i in take])
-                       if take.size else np.empty(0, dtype=np.int64))  # fmt: skip
+                idx = coefficient_indices(o[take], counts)
                 values.append(a[f"values_{ch}"][idx])
                 locations.append(a[f"locations_{ch}"][idx])
                 tau.append(np.full(take.size, self.layers[p].tau[ch], dtype=np.int32))
