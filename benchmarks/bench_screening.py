@@ -37,7 +37,7 @@ from bench_storage import LEVELS, level_taus
 from sparsebtf.codec import encode_levels
 from sparsebtf.data.synth import cached
 from sparsebtf.evaluation.benchmark_set import BenchConfig
-from sparsebtf.learning.coding import DEFAULT_CANDIDATES, screen_columns
+from sparsebtf.learning.coding import DEFAULT_CANDIDATES, partial_flops, screen_columns
 from sparsebtf.metrics import compare
 from sparsebtf.runtime import coded_btf_view
 from sparsebtf.storage.bundled import load_bundled
@@ -85,8 +85,8 @@ def _neighbour_agreement(coded: Any) -> float:
 
 def _flops(model: Any, n_points: int, candidates: int | None, tau: dict[str, int]) -> float:
     """FLOPs of the exact projections (Eq. 3, 2·Σ_n m_n·∏m) and of the screening's partial
-    projections (:func:`~sparsebtf.learning.coding._partial_squares`, r columns per angular
-    mode from :func:`~sparsebtf.learning.coding.screen_columns` of each channel's τ)."""
+    projections (:func:`~sparsebtf.learning.coding.partial_flops`, light and view columns from
+    :func:`~sparsebtf.learning.coding.screen_columns` of each channel's τ)."""
     p1, p2, n_l, n_v = model.mode_sizes
     size = p1 * p2 * n_l * n_v
     exact = 2 * size * (p1 + p2 + n_l + n_v)
@@ -96,9 +96,7 @@ def _flops(model: Any, n_points: int, candidates: int | None, tau: dict[str, int
         if candidates is None:
             total += k * exact
             continue
-        r = min(screen_columns(tau[ch], p1 * p2), n_l, n_v)
-        partial = (2 * (n_l * n_l * n_v + n_l * n_v * n_v) + 2 * p1 * p2 * n_l * n_v * r
-                   + 2 * p1 * p2 * n_l * r * r + 2 * (p1 + p2) * p1 * p2 * r * r)  # fmt: skip
+        partial = partial_flops(model.mode_sizes, screen_columns(tau[ch], p1 * p2, n_l))
         total += k * partial + candidates * exact
     return n_points * total
 

@@ -5,6 +5,7 @@ candidates; the coded file, ``info``, the CLI and the checkpoints know which rul
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import replace
 from pathlib import Path
 
@@ -31,15 +32,23 @@ FIELDS = ("membership", "counts", "values", "locations", "errors")
 
 @pytest.fixture(autouse=True)
 def _partial(monkeypatch):
-    """8 of the 20 angular columns: the screening's projection is partial on these shapes."""
+    """r = 8: 16 of the 20 light and 4 of the 20 view columns, so the screening's projection is
+    partial on these shapes."""
     monkeypatch.setattr(coding, "SCREEN_COLUMNS", 8)
     monkeypatch.setattr(coding, "SCREEN_DEPTH", 1)
 
 
 def test_screening_width_grows_with_tau(monkeypatch):
     monkeypatch.undo()
-    assert coding.screen_columns(64, 100) == coding.SCREEN_COLUMNS == 24
-    assert [coding.screen_columns(t, 100) for t in (885, 2003, 4483)] == [24, 36, 54]
+    assert coding.SCREEN_COLUMNS == 24 and coding.SCREEN_ASPECT == 2
+    # (light, view) columns: r·2 and r/2 of the square rule's r (24, 24, 36, 54)
+    assert [coding.screen_columns(t, 100) for t in (64, 885, 2003, 4483)] == [
+        (48, 12), (48, 12), (72, 18), (108, 27)]
+    # fewer light columns than asked: the view mode takes more, the count r² stays
+    r3, r4 = coding.screen_columns(4483, 100, n_light=90)
+    assert r3 == 90 and r4 == 33 and r3 * r4 >= 54 * 54
+    assert coding.partial_flops((10, 10, 151, 151), (48, 12)) < 0.65 * coding.partial_flops(
+        (10, 10, 151, 151), (24, 24))
 
 
 def _ensemble(seed: int = 0) -> list[np.ndarray]:
@@ -84,8 +93,10 @@ def test_screened_follows_the_rule_among_its_candidates(c):
     dicts = _ensemble()
     x, planted = _points(dicts, n=8)
     eps = 1e-4
+    wide = screen_dictionaries(x, dicts, LEVELS, eps, c, margin=math.inf)
+    assert (wide.sum(axis=1) >= c).all() and (wide.sum(axis=1) <= c * len(LEVELS)).all()
     mask = screen_dictionaries(x, dicts, LEVELS, eps, c)
-    assert (mask.sum(axis=1) >= c).all() and (mask.sum(axis=1) <= c * len(LEVELS)).all()
+    assert (mask <= wide).all() and (mask.sum(axis=1) >= 1).all()
     assert mask[np.arange(len(x)), planted].all()  # the planted dictionary always survives
     got = sparse_code_levels(x, dicts, LEVELS, eps, candidates=c)
     single = [sparse_code_levels(x, [d[k : k + 1] for d in dicts], LEVELS, eps) for k in range(K)]
@@ -99,6 +110,19 @@ def test_screened_follows_the_rule_among_its_candidates(c):
             assert got[j].errors[i] == single[best][j].errors[i]
             for a, b in zip(got[j].point(i), single[best][j].point(i), strict=True):
                 assert np.array_equal(a, b)
+
+
+def test_margin_keeps_a_close_second_only():
+    """A second candidate far behind the first (a point planted on one dictionary) is dropped;
+    one within the margin (a copy of the planted dictionary: the same partial error) stays."""
+    dicts = _ensemble()
+    x, planted = _points(dicts, n=8)
+    mask = screen_dictionaries(x, dicts, [40], 0.0, 2)
+    assert (mask.sum(axis=1) == 1).all() and mask[np.arange(len(x)), planted].all()
+    assert (screen_dictionaries(x, dicts, [40], 0.0, 2, margin=math.inf).sum(axis=1) == 2).all()
+    twins = [np.concatenate([d, d[planted[0]][None]]) for d in dicts]
+    mask = screen_dictionaries(x[:1], twins, [40], 0.0, 2)
+    assert mask[0, planted[0]] and mask[0, K] and mask.sum() == 2
 
 
 def test_candidates_below_one_refused():

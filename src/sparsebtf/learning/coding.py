@@ -16,9 +16,10 @@ K × 1.47 GFLOP per point at 10×10×151×151, and most points use one or two di
 their material. :func:`screen_dictionaries` ranks the K dictionaries of each point by the same
 rule applied to a *partial* projection — every spatial column, and the angular columns of
 each angular mode that carry the most energy of the point's spatial mean, more for a larger τ
-(:func:`screen_columns`) — and only the best ``candidates`` are projected exactly; the paper's rule
-then chooses among them. With ``candidates`` >= K (or None) every dictionary is projected
-(the exhaustive rule, bit for bit).
+and more on the light mode than on the view mode (:func:`screen_columns`) — and only the best
+``candidates`` are projected exactly (fewer where the first is ahead by more than
+:data:`SCREEN_MARGIN`); the paper's rule then chooses among them. With ``candidates`` >= K
+(or None) every dictionary is projected (the exhaustive rule, bit for bit).
 
 :class:`~.codes.SparseCodes` stores the result: per point its dictionary (membership m), its
 count (z), and its values and multi-index locations **sorted by decreasing magnitude**, so a
@@ -41,10 +42,12 @@ from .tensor import project_into, reconstruct_sparse, sum_squares
 
 __all__ = [
     "DEFAULT_CANDIDATES",
+    "SCREEN_ASPECT",
     "SCREEN_COLUMNS",
     "SCREEN_DEPTH",
     "SparseCodes",
     "coding_rule",
+    "partial_flops",
     "reconstruct_points",
     "screen_columns",
     "screen_dictionaries",
@@ -57,28 +60,44 @@ __all__ = [
 #: Dictionaries projected exactly per point and channel after screening, by default (measured
 #: in ``benchmarks/bench_screening.py``, docs/benchmarks.md).
 DEFAULT_CANDIDATES = 2
-#: Fewest angular columns per angular mode in the screening's partial projection (16 missed
-#: the exhaustive choice of a felt point at τ = 308, docs/benchmarks.md §14).
+#: Fewest angular columns per angular mode in the screening's partial projection, before the
+#: light/view split of :data:`SCREEN_ASPECT` (16 missed the exhaustive choice of a felt point
+#: at τ = 308, docs/benchmarks.md §14).
 SCREEN_COLUMNS = 24
 #: The partial projection holds at least this many coefficients per coefficient kept (τ): with
 #: fewer (16 columns at τ = 885, 32 at τ = 4483) the ranking missed the exhaustive choice on
 #: the benchmark's felt and wood (docs/benchmarks.md §14).
 SCREEN_DEPTH = 64
+#: Light columns per view column of the partial projection (r·a light, r/a view columns for
+#: the r of :func:`screen_columns`: the same count of coefficients). The view mode is
+#: contracted first, over the whole point, so its columns set most of the cost; given more
+#: of the count, the light mode keeps the ranking: on 504 point × channel × level choices of
+#: felt, wood, fabric, leather and carpet the split 48 × 12 missed no exhaustive choice that
+#: 24 × 24 kept, at 0.62x the FLOPs (docs/benchmarks.md §14).
+SCREEN_ASPECT = 2.0
+#: A candidate after the screening's first is dropped when its partial error is more than this
+#: fraction above the first's at the same count: the first was then the exhaustive choice on
+#: every one of 567 point × channel × level choices of the bundled model (top-1 wrong only
+#: below a gap of 0.06), and 19–30 % of the second projections go (docs/benchmarks.md §14).
+SCREEN_MARGIN = 0.1
 
 
-def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: int) -> np.ndarray:
-    """(K, p1·p2·r·r) squared coefficients of one point x (p1, p2, L, V) on the K dictionaries
-    ``mats`` (four stacked (K, m, m)), restricted on each angular mode to the r = ``columns``
-    columns with the most energy in A_k = U3ᵀ X̄ U4 (X̄: x averaged over its texels).
+def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: tuple[int, int]
+                     ) -> np.ndarray:  # fmt: skip
+    """(K, p1·p2·r3·r4) squared coefficients of one point x (p1, p2, L, V) on the K
+    dictionaries ``mats`` (four stacked (K, m, m)), restricted on the light and view modes to
+    the (r3, r4) = ``columns`` columns with the most energy in A_k = U3ᵀ X̄ U4 (X̄: x averaged
+    over its texels).
 
-    They are exact entries of S_k (Eq. 3). Cost per dictionary (p = 10, L = V = 151, r = 24):
-    2(L²V + LV²) for A_k, 2p²LVr + 2p²Lr² + 4p³r² for the partial projection: 143 MFLOP,
-    9.7 % of the exact 1.47 GFLOP.
+    They are exact entries of S_k (Eq. 3). Cost per dictionary (p = 10, L = V = 151, r3 = 48,
+    r4 = 12): 2(L²V + LV²) for A_k, 2p²LV·r4 for ×_4 over the whole point, 2p²L·r3·r4 for ×_3
+    and 4p³·r3·r4 for the spatial modes: 88 MFLOP, 6.0 % of the exact 1.47 GFLOP (24 × 24
+    columns: 143 MFLOP).
     """
     u1, u2, u3, u4 = mats
     p1, p2, n_l, n_v = x.shape
     k = u1.shape[0]
-    r3, r4 = min(columns, n_l), min(columns, n_v)
+    r3, r4 = min(columns[0], n_l), min(columns[1], n_v)
     a = np.matmul(np.matmul(u3.transpose(0, 2, 1), x.mean(axis=(0, 1))), u4)  # (K, L, V)
     a *= a
     # stable: ties to the lower column, whatever the platform
@@ -120,11 +139,28 @@ def point_energies(batch: np.ndarray) -> np.ndarray:
                     dtype=np.float64).reshape(b)  # fmt: skip
 
 
-def screen_columns(tau: int, spatial: int) -> int:
-    """Angular columns r per angular mode for a cap τ on points of ``spatial`` = p1·p2 texels:
-    the smallest r >= :data:`SCREEN_COLUMNS` with p1·p2·r² >= :data:`SCREEN_DEPTH` · τ
-    (10×10 patches: 24 up to τ = 900, 36 at τ = 2003, 54 at τ = 4483)."""
-    return max(SCREEN_COLUMNS, math.ceil(math.sqrt(SCREEN_DEPTH * tau / spatial)))
+def screen_columns(tau: int, spatial: int, n_light: int | None = None) -> tuple[int, int]:
+    """(light, view) columns (r3, r4) of the screening's partial projection for a cap τ on
+    points of ``spatial`` = p1·p2 texels: r the smallest >= :data:`SCREEN_COLUMNS` with
+    p1·p2·r² >= :data:`SCREEN_DEPTH` · τ, split r3 = ⌈a·r⌉, r4 = ⌈r/a⌉ by
+    :data:`SCREEN_ASPECT` a (10×10 patches: 48 × 12 up to τ = 900, 72 × 18 at τ = 2003,
+    108 × 27 at τ = 4483). With ``n_light`` light columns at most, r4 grows so that r3·r4 >= r²
+    still holds."""
+    r = max(SCREEN_COLUMNS, math.ceil(math.sqrt(SCREEN_DEPTH * tau / spatial)))
+    r3 = math.ceil(SCREEN_ASPECT * r)
+    if n_light is not None:
+        r3 = min(r3, n_light)
+    return r3, max(math.ceil(r / SCREEN_ASPECT), math.ceil(r * r / r3))
+
+
+def partial_flops(shape: Sequence[int], columns: tuple[int, int]) -> int:
+    """FLOPs of :func:`_partial_squares` per point and dictionary on points of ``shape``
+    (p1, p2, L, V) and (r3, r4) = ``columns``: 2(L²V + LV²) + 2p1p2LV·r4 + 2p1p2L·r3·r4 +
+    2(p1 + p2)p1p2·r3·r4."""
+    p1, p2, n_l, n_v = (int(m) for m in shape)
+    r3, r4 = min(columns[0], n_l), min(columns[1], n_v)
+    return (2 * (n_l * n_l * n_v + n_l * n_v * n_v) + 2 * p1 * p2 * n_l * n_v * r4
+            + 2 * p1 * p2 * n_l * r3 * r4 + 2 * (p1 + p2) * p1 * p2 * r3 * r4)  # fmt: skip
 
 
 def screen_dictionaries(
@@ -133,14 +169,17 @@ def screen_dictionaries(
     taus: Sequence[int],
     eps: float,
     candidates: int,
-    columns: int | None = None,
+    columns: tuple[int, int] | None = None,
     dtype: type = np.float32,
     energy: np.ndarray | None = None,
+    margin: float | None = None,
 ) -> np.ndarray:
     """(B, K) mask of the dictionaries each point is projected on exactly: at every level τ of
     ``taus``, the ``candidates`` best by the coding rule (sparsest, then least error, ties to
-    the lower k) applied to the partial projection of :func:`_partial_squares` on ``columns``
-    angular columns (default :func:`screen_columns` of the largest τ).
+    the lower k) applied to the partial projection of :func:`_partial_squares` on ``columns`` =
+    (light, view) columns (default :func:`screen_columns` of the largest τ), less those whose
+    partial error at the first's count is more than ``margin`` (:data:`SCREEN_MARGIN`) above
+    the first's: the first is then kept alone.
 
     The partial coefficients are a subset of S_k's, so their count and residual bound the
     exact ones from above; the ranking they give is what matters. Only for 4D data points
@@ -159,7 +198,9 @@ def screen_dictionaries(
     if energy is None:
         energy = point_energies(x)
     if columns is None:
-        columns = screen_columns(levels[-1], x.shape[1] * x.shape[2])
+        columns = screen_columns(levels[-1], x.shape[1] * x.shape[2], x.shape[3])
+    if margin is None:
+        margin = SCREEN_MARGIN
 
     def task(i: int) -> np.ndarray:
         sq = _partial_squares(x[i], mats, columns)
@@ -169,7 +210,13 @@ def screen_dictionaries(
         keep = np.zeros(n_dict, dtype=bool)
         for tau in levels:
             n, err = rule_keys(sq, float(energy[i]), size, tau, eps)
-            keep[np.lexsort((err, n))[:candidates]] = True
+            best = np.lexsort((err, n))[:candidates]
+            if math.isinf(margin):
+                keep[best] = True
+                continue
+            # a sparser first, or an error within the margin, leaves the choice open
+            close = (n[best] != n[best[0]]) | (err[best] <= (1.0 + margin) * err[best[0]])
+            keep[best[close]] = True
         return keep
 
     for i, keep in enumerate(parallel_map(task, range(b))):
