@@ -11,6 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from sparsebtf.cli.main import main
 from sparsebtf.codec import checkpoint as ckmod
@@ -265,3 +267,15 @@ def test_bench_quality_runs_either_rule(tmp_path, monkeypatch, flag, want):
     line = report.rule_line({"candidates": want})
     assert ("exhaustive (every point" if want is None else "screened (the 2 best") in line
     assert "exhaustive (every point" in report.rule_line({})  # runs before the screening
+
+
+@settings(max_examples=60, deadline=None)
+@given(k=st.integers(1, 4), n=st.integers(1, 400), top=st.integers(1, 400),
+       levels=st.integers(1, 50), seed=st.integers(0, 2**16))
+def test_top_squares_is_the_sorted_partition(k, n, top, levels, seed):
+    """The blocked pre-filter keeps every one of the ``top`` largest, ties included (few
+    distinct values: ``levels``), and falls back where there are fewer blocks than ``top``."""
+    top = min(top, n)
+    sq = np.random.default_rng(seed).integers(0, levels, (k, n)).astype(np.float64) ** 2
+    want = -np.sort(-np.partition(sq, n - top, axis=1)[:, n - top :])
+    assert np.array_equal(coding._top_squares(sq, top), want)

@@ -8,10 +8,10 @@ import json
 from sparsebtf.evaluation.side_runs import side_runs_section
 
 
-def _run(folder, source, verdicts):
+def _run(folder, source, verdicts, seed=0):
     (folder / "results").mkdir(parents=True)
     run = {"config": {"name": "quick", "source": source}, "created": "2026-01-01T00:00:00Z",
-           "seconds": 600.0,
+           "seconds": 600.0, "seed": seed,
            "summary": {k: {"claim": f"claim {k}", "figure": f"ratio {v}", "verdict": v}
                        for k, v in verdicts.items()}}  # fmt: skip
     (folder / "results" / "results.json").write_text(json.dumps(run))
@@ -31,6 +31,22 @@ def test_side_runs_section_lists_each_runs_verdicts(tmp_path):
         in text
     assert "(adaptive-patches/capture/results.md)" in text
     assert "training_learntau" not in text  # a key no run carries has no row
+
+
+def test_reruns_at_other_seeds_share_a_cell(tmp_path):
+    _run(tmp_path / "training-variants", "synth", {"training_multitau": "supported"})
+    _run(tmp_path / "training-variants" / "seed1", "synth",
+         {"training_multitau": "not supported"}, seed=1)  # fmt: skip
+    _run(tmp_path / "training-variants" / "capture" / "seed2", "capture",
+         {"training_multitau": "no clear difference"}, seed=2)  # fmt: skip
+    (tmp_path / "training-variants" / "seedling" / "results").mkdir(parents=True)
+    text = "\n".join(side_runs_section(tmp_path))
+    assert ("| claim training_multitau | seed 0: ratio supported: **supported**<br>seed 1: "
+            "ratio not supported: **not supported** | seed 2: ratio no clear difference: **no "
+            "clear difference** |") in text
+    assert "(training-variants/seed1/results.md)" in text
+    assert "(training-variants/capture/seed2/results.md)" in text
+    assert "seedling" not in text
 
 
 def test_an_unreadable_side_run_is_left_out(tmp_path):

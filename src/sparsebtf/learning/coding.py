@@ -117,6 +117,32 @@ def _partial_squares(x: np.ndarray, mats: Sequence[np.ndarray], columns: tuple[i
     return np.square(y.reshape(k, -1), dtype=np.float64)
 
 
+#: Squares per block of :func:`_top_squares`' pre-filter.
+_TOP_BLOCK = 32
+
+
+def _top_squares(sq: np.ndarray, top: int) -> np.ndarray:
+    """(K, top) the ``top`` largest entries of each row of ``sq`` (K, n), by decreasing value:
+    what ``-np.sort(-np.partition(sq, n - top)[:, n - top:])`` gives, in about half its time.
+
+    The rows' blocks of :data:`_TOP_BLOCK` entries each have a maximum; the ``top``-th largest
+    of these maxima is ``top`` distinct entries' lower bound, so it bounds the row's ``top``-th
+    largest entry from below and every entry above it survives the filter. The selection then
+    runs on the few survivors (2–4 × ``top``) instead of the whole row (a partition of 8 ×
+    57,600 squares took 4 ms, a third of a point's screening)."""
+    k, n = sq.shape
+    blocks = n // _TOP_BLOCK
+    if blocks < top or top >= n:
+        return -np.sort(-np.partition(sq, n - top, axis=1)[:, n - top :])
+    maxima = sq[:, : blocks * _TOP_BLOCK].reshape(k, blocks, _TOP_BLOCK).max(axis=2)
+    floor = np.partition(maxima, blocks - top, axis=1)[:, blocks - top]
+    out = np.empty((k, top), dtype=sq.dtype)
+    for i in range(k):
+        kept = sq[i][sq[i] >= floor[i]]
+        out[i] = np.partition(kept, kept.size - top)[kept.size - top :]
+    return -np.sort(-out, axis=1)
+
+
 #: Per worker thread: the two buffers :func:`~.tensor.project_into` writes a projection's
 #: modes into and :func:`~.codes.topk_abs`'s scratch (3 × 9 MB at 10×10×151×151 float32),
 #: kept from point to point.
@@ -205,8 +231,7 @@ def screen_dictionaries(
     def task(i: int) -> np.ndarray:
         sq = _partial_squares(x[i], mats, columns)
         top = min(levels[-1], sq.shape[1])
-        # the largest ``top`` squares of each dictionary, by decreasing magnitude
-        sq = -np.sort(-np.partition(sq, sq.shape[1] - top, axis=1)[:, sq.shape[1] - top :])
+        sq = _top_squares(sq, top)  # the largest ``top`` of each dictionary, decreasing
         keep = np.zeros(n_dict, dtype=bool)
         for tau in levels:
             n, err = rule_keys(sq, float(energy[i]), size, tau, eps)

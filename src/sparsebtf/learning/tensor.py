@@ -184,9 +184,15 @@ def sum_squares(rows: np.ndarray, chunk: int = 1 << 15) -> np.ndarray:
 
     BLAS dot products on chunks of ``chunk`` entries, summed in float64: five times faster
     than a float64 einsum on float32 data and as accurate for a Parseval difference (each
-    chunk's float32 sum carries ~1e-7 relative error, far below the coding errors).
+    chunk's float32 sum carries ~1e-7 relative error, far below the coding errors). The
+    whole chunks of a row go to BLAS in one batched call, which lets go of the GIL once per
+    row, not once per chunk: with a reader thread running beside it, 70 calls per data point
+    waited for the GIL in turn.
     """
     out = np.empty(rows.shape[0])
     for i, r in enumerate(rows):
-        out[i] = sum(float(np.dot(c, c)) for c in np.split(r, range(chunk, r.size, chunk)))
+        m = r.size // chunk * chunk
+        head = r[:m].reshape(-1, chunk)
+        whole = np.matmul(head[:, None, :], head[:, :, None]).sum(dtype=np.float64)
+        out[i] = float(whole) + float(np.dot(r[m:], r[m:]))
     return out
