@@ -4,7 +4,9 @@ inputs a user has, with the time split by step beside the floor of its projectio
 Inputs (``--inputs``, comma-separated): ``dense``, a synthetic material (``--material``,
 default leather) rendered once into a dense float32 file (the ``synth:`` cache format, in
 ``--workdir``); ``lazy``, the 400×400-style lazy low-rank source of ``bench_encode.py`` (never
-materialised); ``--btf FILE`` adds a UBO2014 ``.btf``. Each input is encoded with the bundled
+materialised); ``dfmf`` and ``fmf``, that source's factors written once as a UBO2014 ``.btf``
+(DFMF binary16 per channel, FMF float shared; in ``--workdir``), read as a user's file is;
+``--btf FILE`` adds a UBO2014 ``.btf`` of your own. Each input is encoded with the bundled
 model at its defaults (τ = 885/64/64, ε = 1e-5, screening), as ``sparsebtf encode`` does,
 then written to a coded file. Printed per input:
 
@@ -17,7 +19,13 @@ then written to a coded file. Printed per input:
   projections / floor is how far the projections are from the machine's rate.
 
     python benchmarks/bench_encode_real.py [--size 40] [--inputs dense,lazy] [--btf FILE]
-        [--exhaustive] [--json]
+        [--exhaustive] [--revision SRC] [--json]
+
+``--revision SRC`` (a checkout's ``src`` folder, e.g. of f6f8cea, the revision before
+screening: ``git worktree add /tmp/f6f8cea f6f8cea``) also times the whole command ``sparsebtf
+encode FILE -o OUT`` on each file input (dense, ``.btf``) with this source tree and with SRC,
+in turns (this, SRC, this, SRC), each the faster of its two runs: the ratio to that revision
+on the same input, measured in one run.
 
 The default (40×40, 16 data points per input) runs in about two minutes on 2 cores; ``--size
 100`` is the issue's 100×100 (a 2.8 GB dense file in ``--workdir``); ``--size 400`` the
@@ -31,6 +39,8 @@ import argparse
 import contextlib
 import math
 import os
+import subprocess
+import sys
 import tempfile
 import threading
 import time
@@ -275,6 +285,57 @@ def dense_source(material: str, size: int, workdir: Path) -> str:
     return str(cached(material, size, "ubo2014", seed=0, cache_dir=workdir).path)
 
 
+SRC = Path(__file__).resolve().parents[1] / "src"
+#: ``sparsebtf`` from the source tree in argv[1], with the rest of argv as its arguments
+CLI = ("import sys; sys.path.insert(0, sys.argv[1]); from sparsebtf.cli.main import main; "
+       "sys.exit(main(sys.argv[2:]))")
+
+
+def whole_commands(path: str, revision: str, workdir: Path, runs: int = 2) -> dict[str, Any]:
+    """Wall seconds of ``sparsebtf encode PATH -o OUT`` (bundled model, defaults) from this
+    source tree and from ``revision``'s, alternated, the faster of ``runs`` each."""
+    times: dict[str, list[float]] = {"now": [], "revision": []}
+    out = workdir / "whole-command.sbtf"
+    for _ in range(runs):
+        for key, src in (("now", SRC), ("revision", Path(revision).resolve())):
+            t = time.perf_counter()
+            subprocess.run([sys.executable, "-c", CLI, str(src), "encode", path, "-o",
+                            str(out)], check=True, stdout=subprocess.DEVNULL,
+                           env={**os.environ, "SPARSEBTF_PROGRESS": "0"})  # fmt: skip
+            times[key].append(time.perf_counter() - t)
+            out.unlink(missing_ok=True)
+    now, rev = min(times["now"]), min(times["revision"])
+    return {"revision": str(revision), "now_seconds": now, "revision_seconds": rev,
+            "speedup": rev / now, "runs": times, "n_runs": runs}
+
+
+def btf_source(size: int, rank: int, layout: str, workdir: Path) -> str:
+    """The lazy source's factors (``bench_encode.lazy_source``) written once as a UBO2014
+    ``.btf`` in ``workdir``: DFMF (binary16, per-channel factors, colour model 12: each
+    channel in the log domain) or FMF (float, channel 0's spatial factor shared by the three
+    channels, DRR: the log domain) of rank ``rank``; the reader decodes the factors per
+    patch, as it does a user's file."""
+    from bench_encode import lazy_source
+    from sparsebtf.formats.ubo2014_write import write_ubo2014
+
+    path = workdir / f"lazy{size}r{rank}-{layout.lower()}.btf"
+    if path.exists():
+        return str(path)
+    src = lazy_source(size, rank)
+    n_l, n_v = len(src.lights), len(src.views)
+    # the file's angular rows are view·nL + light; the source's light·nV + view
+    ang = [a.reshape(n_l, n_v, rank).transpose(1, 0, 2).reshape(n_l * n_v, rank)
+           for a in src.angular]  # fmt: skip
+    if layout == "DFMF":
+        write_ubo2014(path, list(src.spatial), ang, size, size, src.lights, src.views,
+                      layout="DFMF", dtype="half", rotations=False, color_model=12)
+    else:  # FMF: one angular matrix, rows lv·3 + c
+        write_ubo2014(path, src.spatial[0], np.stack(ang, axis=1).reshape(-1, rank), size,
+                      size, src.lights, src.views, layout="FMF", dtype="float",
+                      rotations=False, drr=True)  # fmt: skip
+    return str(path)
+
+
 def compare(screened: Any, full: Any, run: dict[str, Any], ex: dict[str, Any]
             ) -> dict[str, Any]:  # fmt: skip
     """The screened encode against the exhaustive one of the same input: points × channels
@@ -299,6 +360,8 @@ STATS_AB = ("before (offset sample, then the sums) {two_passes_seconds:.2f} s wa
             "{one_pass_cpu_seconds:.2f} s CPU")
 
 
+REVISION = ("sparsebtf encode: {now_seconds:.1f} s now, {revision_seconds:.1f} s with "
+            "{revision}: {speedup:.2f}x faster (the faster of {n_runs} run(s) each, in turns)")
 EXHAUSTIVE = ("coding {coding_seconds:.1f} s exhaustive, {coding_speedup:.2f}x faster screened; "
               "{point_channels_changed} of {point_channels} point x channel changed "
               "dictionary; summed coding error {error_vs_exhaustive:+.4%}")
@@ -308,7 +371,9 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=40, help="texels per side (default 40)")
     ap.add_argument("--material", default="leather")
-    ap.add_argument("--inputs", default="dense,lazy", help="dense, lazy (comma-separated)")
+    ap.add_argument("--inputs", default="dense,lazy",
+                    help="dense, lazy, dfmf, fmf (comma-separated; dfmf and fmf: the lazy "
+                    "source written as a UBO2014 .btf)")
     ap.add_argument("--btf", default=None, help="also this UBO2014 .btf file")
     ap.add_argument("--rank", type=int, default=100, help="the lazy source's rank")
     ap.add_argument("--workdir", default=None,
@@ -321,6 +386,12 @@ def main() -> None:
     ap.add_argument("--compare-exhaustive", action="store_true",
                     help="also encode each input with the exhaustive rule: the screening's "
                     "share of the coding, the points whose dictionary differs, the error")
+    ap.add_argument("--revision", metavar="SRC", default=None,
+                    help="also time the whole encode command of each file input with the "
+                    "source tree SRC (e.g. a checkout of f6f8cea's src), in turns with this one")
+    ap.add_argument("--revision-runs", type=int, default=2, metavar="N",
+                    help="runs of each whole command for --revision (default 2; the faster "
+                    "counts)")
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     # the rates before and after the encodes (the better of each): the other jobs' load varies
@@ -338,8 +409,11 @@ def main() -> None:
                 from bench_encode import lazy_source
 
                 inputs.append((f"lazy rank {a.rank} {a.size}", lazy_source(a.size, a.rank)))
+            elif name in ("dfmf", "fmf"):
+                inputs.append((f"btf {name.upper()} rank {a.rank} {a.size}",
+                               btf_source(a.size, a.rank, name.upper(), workdir)))
             else:
-                ap.error(f"--inputs: unknown input {name!r} (dense, lazy)")
+                ap.error(f"--inputs: unknown input {name!r} (dense, lazy, dfmf, fmf)")
         if a.btf:
             inputs.append((f"btf {Path(a.btf).name}", str(Path(a.btf).absolute())))
         runs = []
@@ -352,6 +426,9 @@ def main() -> None:
                 run["exhaustive"] = compare(coded, full, run, ex)
             if a.ab:
                 runs[-1]["ab_statistics"] = ab_statistics(src)
+            if a.revision and isinstance(src, str):
+                run["whole_commands"] = whole_commands(src, a.revision, workdir,
+                                                       a.revision_runs)
     square = max(square0, gemm_gflops())
     shaped = max(shaped0, shaped_gemm_gflops(100 * 151, 151))
     per_core = shaped_gemm_cpu_gflops(100 * 151, 151)
@@ -399,7 +476,9 @@ def main() -> None:
                                    "preprocessing not hidden behind the coding)"),
             ("  screening", f"{r['screening_seconds']:.2f} s "
                             f"({r['screening_seconds'] / max(1e-9, coding):.0%} of coding)"),
-            ("  energies", f"{r['energies_seconds']:.2f} s"),
+            ("  energies", f"{r['energies_seconds']:.2f} s (the points' ||X||^2; the wall time "
+                           "includes waiting for the worker threads, which read the next "
+                           "batch meanwhile)"),
             ("  projections", f"{r['projections_seconds']:.2f} s: {r['projections_made']} made, "
                               f"floor {floor:.2f} s at the shaped GEMM rate, "
                               f"{r['projections_seconds'] / max(floor, 1e-9):.2f}x the floor "
@@ -411,6 +490,8 @@ def main() -> None:
               if "ab_statistics" in r else []),
             *([("  vs exhaustive", EXHAUSTIVE.format(**r["exhaustive"]))]
               if "exhaustive" in r else []),
+            *([("  whole command", REVISION.format(**r["whole_commands"]))]
+              if "whole_commands" in r else []),
             ("  rest of encode", f"{other:.2f} s (joining, bookkeeping)"),
             ("  writing", f"{r['writing_seconds']:.2f} s"),
         ]

@@ -189,6 +189,25 @@ def partial_flops(shape: Sequence[int], columns: tuple[int, int]) -> int:
             + 2 * p1 * p2 * n_l * r3 * r4 + 2 * (p1 + p2) * p1 * p2 * r3 * r4)  # fmt: skip
 
 
+def _kept(sq: np.ndarray, energy: float, size: int, levels: Sequence[int], eps: float,
+          candidates: int, margin: float) -> np.ndarray:  # fmt: skip
+    """(K,) the dictionaries one point keeps, from its partial squares ``sq`` (K, n) by
+    decreasing value (:func:`_top_squares`): at each level, the ``candidates`` best by the
+    coding rule, less those whose partial error at the first's count is more than ``margin``
+    above the first's."""
+    keep = np.zeros(sq.shape[0], dtype=bool)
+    for tau in levels:
+        n, err = rule_keys(sq, energy, size, tau, eps)
+        best = np.lexsort((err, n))[:candidates]
+        if math.isinf(margin):
+            keep[best] = True
+            continue
+        # a sparser first, or an error within the margin, leaves the choice open
+        close = (n[best] != n[best[0]]) | (err[best] <= (1.0 + margin) * err[best[0]])
+        keep[best[close]] = True
+    return keep
+
+
 def screen_dictionaries(
     batch: np.ndarray,
     dictionaries: Sequence[np.ndarray],
@@ -232,17 +251,7 @@ def screen_dictionaries(
         sq = _partial_squares(x[i], mats, columns)
         top = min(levels[-1], sq.shape[1])
         sq = _top_squares(sq, top)  # the largest ``top`` of each dictionary, decreasing
-        keep = np.zeros(n_dict, dtype=bool)
-        for tau in levels:
-            n, err = rule_keys(sq, float(energy[i]), size, tau, eps)
-            best = np.lexsort((err, n))[:candidates]
-            if math.isinf(margin):
-                keep[best] = True
-                continue
-            # a sparser first, or an error within the margin, leaves the choice open
-            close = (n[best] != n[best[0]]) | (err[best] <= (1.0 + margin) * err[best[0]])
-            keep[best[close]] = True
-        return keep
+        return _kept(sq, float(energy[i]), size, levels, eps, candidates, margin)
 
     for i, keep in enumerate(parallel_map(task, range(b))):
         mask[i] = keep
