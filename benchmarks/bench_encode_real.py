@@ -295,13 +295,16 @@ def whole_commands(path: str, revision: str, workdir: Path, runs: int = 2) -> di
     """Wall seconds of ``sparsebtf encode PATH -o OUT`` (bundled model, defaults) from this
     source tree and from ``revision``'s, alternated, the faster of ``runs`` each."""
     times: dict[str, list[float]] = {"now": [], "revision": []}
-    out = workdir / "whole-command.sbtf"
+    out = workdir / "whole-command.coded.h5"
     for _ in range(runs):
         for key, src in (("now", SRC), ("revision", Path(revision).resolve())):
             t = time.perf_counter()
-            subprocess.run([sys.executable, "-c", CLI, str(src), "encode", path, "-o",
-                            str(out)], check=True, stdout=subprocess.DEVNULL,
-                           env={**os.environ, "SPARSEBTF_PROGRESS": "0"})  # fmt: skip
+            done = subprocess.run([sys.executable, "-c", CLI, str(src), "encode", path, "-o",
+                                   str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                                  text=True, env={**os.environ, "SPARSEBTF_PROGRESS": "0"})
+            if done.returncode:
+                raise SystemExit(f"sparsebtf encode {path} from {src} failed: "
+                                 f"{done.stderr.strip()[-500:]}")
             times[key].append(time.perf_counter() - t)
             out.unlink(missing_ok=True)
     now, rev = min(times["now"]), min(times["revision"])
