@@ -128,6 +128,20 @@ def instrumented(clock: Clock) -> Iterator[None]:
 
     coding.project_into = counted
     undo.append(lambda: setattr(coding, "project_into", inner_project))
+    # the screening's own work in thread CPU time (its wall time also holds the waits for
+    # the worker threads, which read the next batch meanwhile)
+    for name in ("_partial_squares", "_top_squares", "_kept"):
+        kernel = getattr(coding, name)
+
+        def cpu_timed(*args: Any, _kernel: Any = kernel, **kwargs: Any) -> Any:
+            t = time.thread_time()
+            try:
+                return _kernel(*args, **kwargs)
+            finally:
+                clock.add("screening cpu", time.thread_time() - t, 0)
+
+        setattr(coding, name, cpu_timed)
+        undo.append(lambda name=name, kernel=kernel: setattr(coding, name, kernel))
     try:
         yield
     finally:
@@ -272,6 +286,7 @@ def encode_one(label: str, source: Any, workdir: Path, exhaustive: bool
         "writing_seconds": writing,
         "projections_made": clock.calls.get("projections made", 0),
         "projections_cpu_seconds": s.get("projections made", 0.0),
+        "screening_cpu_seconds": s.get("screening cpu", 0.0),
         "projection_gflop": projection_flops(sizes) / 1e9,
         "nnz": coded.nnz(),
     }
@@ -461,7 +476,7 @@ def main() -> None:
     for r in runs:
         floor = r["projections_made"] * r["projection_gflop"] / shaped
         r["projections_floor_seconds"] = floor
-        cpu = r["projections_cpu_seconds"]
+        cpu, screen_cpu = r["projections_cpu_seconds"], r["screening_cpu_seconds"]
         cpu_floor = r["projections_made"] * r["projection_gflop"] / per_core
         r["projections_cpu_floor_seconds"] = cpu_floor
         total = r["startup_seconds"] + r["encode_seconds"] + r["writing_seconds"]
@@ -489,6 +504,9 @@ def main() -> None:
             ("  projections (CPU)", f"{cpu:.2f} s of thread CPU, floor {cpu_floor:.2f} s at "
                                     f"the per-core rate: {cpu_floor / max(cpu, 1e-9):.0%} "
                                     "of the GEMM rate"),
+            ("  screening (CPU)", f"{screen_cpu:.2f} s of thread CPU: "
+                                  f"{screen_cpu / max(1e-9, cpu + screen_cpu):.0%} of the "
+                                  "coding's CPU (screening + projections)"),
             *([("  statistics A/B", STATS_AB.format(**r["ab_statistics"]))]
               if "ab_statistics" in r else []),
             *([("  vs exhaustive", EXHAUSTIVE.format(**r["exhaustive"]))]
