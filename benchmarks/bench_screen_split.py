@@ -23,7 +23,8 @@ channel (2 with no margin; fewer when a margin drops second candidates).
     python benchmarks/bench_screen_split.py [--aspects 1 2 3] [--margins 0.05 0.1 inf]
         [--materials felt12 wood12] [--json]
 
-About 6 minutes on 2 cores (the exhaustive projections: 8 × 1.47 GFLOP per point and channel).
+About 5 minutes on 2 cores for the default aspects and margins (the exhaustive projections: 8 ×
+1.47 GFLOP per point and channel).
 """
 
 from __future__ import annotations

@@ -41,8 +41,8 @@ def _read(folder: Path) -> dict[str, Any] | None:
 
 
 def _runs(folder: Path) -> list[tuple[str, dict[str, Any]]]:
-    """(sub-folder relative to ``folder``'s parent side run, run) of the run in ``folder`` and
-    of its reruns in ``folder/seed<N>`` (by N), the readable ones."""
+    """(its sub-folder of ``folder``: "" or "seed<N>/", run) for the run in ``folder`` and its
+    reruns in ``folder/seed<N>`` (by N); unreadable ones are left out."""
     found = [("", _read(folder))]
     seeds = [p for p in folder.glob("seed*") if p.name[4:].isdigit()] if folder.is_dir() else []
     found += [(f"{p.name}/", _read(p)) for p in sorted(seeds, key=lambda p: int(p.name[4:]))]
