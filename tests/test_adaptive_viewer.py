@@ -17,10 +17,9 @@ import pytest
 
 from sparsebtf.errors import BTFInputError
 from sparsebtf.rendering import viewer
-from sparsebtf.rendering.viewer import ViewerBundle, build_bundle, pack_textures, serve
+from sparsebtf.rendering.viewer import ViewerBundle, build_bundle, pack_textures
 from sparsebtf.runtime import AdaptiveRuntimeBTF, RuntimeBTF
 from sparsebtf.runtime.lod import footprint_fraction
-from sparsebtf.storage import save_coded, save_model
 
 from .test_adaptive import _rewrite_nodes, code_mixed
 from .test_adaptive import model as model  # the module's fixtures, reused
@@ -29,12 +28,13 @@ from .test_viewer import (
     SIZE,
     WI,
     WO,
-    _vec,
     assert_close,
     check_page,
-    open_page,
+    open_test_scene,
     read_image,
     reference,
+    saved,
+    served_test_scene,
     static_server,
 )
 from .test_viewer import browser as browser
@@ -54,10 +54,7 @@ def rt(coded):
 
 @pytest.fixture(scope="module")
 def files(model, coded, tmp_path_factory):
-    d = tmp_path_factory.mktemp("adaptive_viewer")
-    save_model(model, d / "model.h5")
-    save_coded(coded, d / "coded.h5")
-    return d
+    return saved(tmp_path_factory.mktemp("adaptive_viewer"), model, coded)
 
 
 def _texture(bundle, name: str, dtype: str, comps: int = 1) -> np.ndarray:
@@ -174,10 +171,7 @@ def test_view_command_refuses_a_hostile_tree_in_one_line(files, tmp_path, capsys
 # -- the page in headless Chromium --------------------------------------------------------------
 @pytest.fixture(scope="module")
 def test_page(browser, rt):
-    with serve(build_bundle(rt)) as srv:
-        page = open_page(browser, f"{srv.url}?scene=test&size={SIZE}&wi={_vec(WI)}&wo={_vec(WO)}")
-        yield page
-        page.close()
+    yield from served_test_scene(browser, rt)
 
 
 @pytest.mark.parametrize(("interp", "domain", "neigh"), PAGE_CASES)
@@ -233,7 +227,7 @@ def test_view_export_of_an_adaptive_file_loads_from_plain_http(browser, files, t
     assert f"wrote {out}/" in capsys.readouterr().out
     assert json.loads((out / "manifest.json").read_text())["adaptive"]["nodes"] == {"4": 2, "2": 8}
     with static_server(out) as url:
-        page = open_page(browser, f"{url}?scene=test&size={SIZE}&wi={_vec(WI)}&wo={_vec(WO)}")
+        page = open_test_scene(browser, url)
         assert "adaptive patches 2 of 4x4, 8 of 2x2" in page.locator("#info").inner_text()
         back = AdaptiveRuntimeBTF.from_file(files / "coded.h5", files / "model.h5")  # float16
         assert_close(read_image(page, interp="nearest"), reference(back, interpolation="nearest"))

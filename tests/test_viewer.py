@@ -65,12 +65,16 @@ def rt(coded):
     return RuntimeBTF(coded)
 
 
+def saved(folder: Path, model, coded) -> Path:
+    """``folder`` holding ``model.h5`` and ``coded.h5``: what the ``view`` command reads."""
+    save_model(model, folder / "model.h5")
+    save_coded(coded, folder / "coded.h5")
+    return folder
+
+
 @pytest.fixture(scope="module")
 def files(model, coded, tmp_path_factory):
-    d = tmp_path_factory.mktemp("viewer")
-    save_model(model, d / "model.h5")
-    save_coded(coded, d / "coded.h5")
-    return d
+    return saved(tmp_path_factory.mktemp("viewer"), model, coded)
 
 
 @pytest.fixture(scope="module")
@@ -102,12 +106,23 @@ def _vec(v: np.ndarray) -> str:
     return ",".join(f"{x:.9f}" for x in v)
 
 
-@pytest.fixture(scope="module")
-def test_page(browser, rt):
+def open_test_scene(browser, url: str):
+    """The page at ``url`` in its SIZE×SIZE test scene at the fixed directions WI, WO."""
+    return open_page(browser, f"{url}?scene=test&size={SIZE}&wi={_vec(WI)}&wo={_vec(WO)}")
+
+
+def served_test_scene(browser, rt):
+    """The test scene of ``rt``'s bundle, served for as long as the generator runs (the body
+    of a ``test_page`` fixture)."""
     with serve(build_bundle(rt)) as srv:
-        page = open_page(browser, f"{srv.url}?scene=test&size={SIZE}&wi={_vec(WI)}&wo={_vec(WO)}")
+        page = open_test_scene(browser, srv.url)
         yield page
         page.close()
+
+
+@pytest.fixture(scope="module")
+def test_page(browser, rt):
+    yield from served_test_scene(browser, rt)
 
 
 def read_image(page, **state) -> np.ndarray:
@@ -282,7 +297,7 @@ def test_page_matches_runtime_decoder(test_page, rt, interp, domain, neigh):
 def test_page_clamps_to_the_bound_like_the_runtime_decoder(browser, rt, domain):
     tight = RuntimeBTF(tight_bound(rt.coded))
     with serve(build_bundle(tight)) as srv:
-        page = open_page(browser, f"{srv.url}?scene=test&size={SIZE}&wi={_vec(WI)}&wo={_vec(WO)}")
+        page = open_test_scene(browser, srv.url)
         gl = read_image(page, interp="linear", domain=domain, neigh=True, lod=1.0)
         page.close()
     py = reference(tight, interpolation="linear", domain=domain)
@@ -356,6 +371,6 @@ def test_sphere_view_and_benchmark_api(browser, rt):
 def test_static_export_loads_from_a_plain_http_server(browser, rt, tmp_path):
     out = export(build_bundle(rt), tmp_path / "site")
     with static_server(out) as url:
-        page = open_page(browser, f"{url}?scene=test&size={SIZE}&wi={_vec(WI)}&wo={_vec(WO)}")
+        page = open_test_scene(browser, url)
         assert_close(read_image(page, interp="nearest"), reference(rt, interpolation="nearest"))
         page.close()
