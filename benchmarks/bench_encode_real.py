@@ -24,8 +24,8 @@ then written to a coded file. Printed per input:
 ``--revision SRC`` (a checkout's ``src`` folder, e.g. of f6f8cea, the revision before
 screening: ``git worktree add /tmp/f6f8cea f6f8cea``) also times the whole command ``sparsebtf
 encode FILE -o OUT`` on each file input (dense, ``.btf``) with this source tree and with SRC,
-in turns (this, SRC, this, SRC), each the faster of its two runs: the ratio to that revision
-on the same input, measured in one run.
+in turns (this, SRC, this, SRC), each the faster of its ``--revision-runs`` runs (default 2):
+the ratio to that revision on the same input, measured in one run.
 
 The default (40×40, 16 data points per input) runs in about two minutes on 2 cores; ``--size
 100`` is the issue's 100×100 (a 2.8 GB dense file in ``--workdir``); ``--size 400`` the
@@ -55,8 +55,8 @@ from _common import best_of, gemm_gflops, machine, report
 
 
 class Clock:
-    """Wall seconds spent inside wrapped functions (outermost calls on the calling thread),
-    and calls counted."""
+    """Seconds spent inside wrapped functions (wall time of the outermost calls on the calling
+    thread, or another ``timer``), and calls counted."""
 
     def __init__(self) -> None:
         self.seconds: dict[str, float] = {}
@@ -68,15 +68,19 @@ class Clock:
             self.seconds[name] = self.seconds.get(name, 0.0) + sec
             self.calls[name] = self.calls.get(name, 0) + calls
 
-    def wrap(self, module: Any, attr: str, name: str) -> Callable[[], None]:
+    def wrap(self, module: Any, attr: str, name: str,
+             timer: Callable[[], float] = time.perf_counter,
+             calls: Callable[[tuple[Any, ...]], int] = lambda args: 1) -> Callable[[], None]:
+        """Time ``module.attr`` under ``name`` by ``timer``, each call counted as
+        ``calls(args)``; returns what undoes it."""
         inner = getattr(module, attr)
 
         def timed(*args: Any, **kwargs: Any) -> Any:
-            t = time.perf_counter()
+            t = timer()
             try:
                 return inner(*args, **kwargs)
             finally:
-                self.add(name, time.perf_counter() - t)
+                self.add(name, timer() - t, calls(args))
 
         setattr(module, attr, timed)
         return lambda: setattr(module, attr, inner)
@@ -116,32 +120,15 @@ def instrumented(clock: Clock) -> Iterator[None]:
         clock.wrap(enc, "sparse_code_levels", "coding"),
         clock.wrap_stream(enc, "stream_points", "waiting for data"),
     ]
-    # count the exact projections (their time is the coding's less screening and energies)
-    inner_project = coding.project_into
-
-    def counted(*args: Any, **kwargs: Any) -> Any:
-        t = time.thread_time()  # this worker's CPU: robust to other jobs sharing the cores
-        try:
-            return inner_project(*args, **kwargs)
-        finally:
-            clock.add("projections made", time.thread_time() - t, args[0].shape[0])
-
-    coding.project_into = counted
-    undo.append(lambda: setattr(coding, "project_into", inner_project))
+    # the exact projections counted, in this worker's CPU time (robust to other jobs sharing
+    # the cores; their wall time is the coding's less screening and energies)
+    undo.append(clock.wrap(coding, "project_into", "projections made", timer=time.thread_time,
+                           calls=lambda args: args[0].shape[0]))  # fmt: skip
     # the screening's own work in thread CPU time (its wall time also holds the waits for
     # the worker threads, which read the next batch meanwhile)
-    for name in ("_partial_squares", "_top_squares", "_kept"):
-        kernel = getattr(coding, name)
-
-        def cpu_timed(*args: Any, _kernel: Any = kernel, **kwargs: Any) -> Any:
-            t = time.thread_time()
-            try:
-                return _kernel(*args, **kwargs)
-            finally:
-                clock.add("screening cpu", time.thread_time() - t, 0)
-
-        setattr(coding, name, cpu_timed)
-        undo.append(lambda name=name, kernel=kernel: setattr(coding, name, kernel))
+    undo += [clock.wrap(coding, kernel, "screening cpu", timer=time.thread_time,
+                        calls=lambda args: 0)
+             for kernel in ("_partial_squares", "_top_squares", "_kept")]  # fmt: skip
     try:
         yield
     finally:
