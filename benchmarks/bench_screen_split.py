@@ -84,6 +84,19 @@ def _workloads(model: Any) -> dict[str, tuple[list[list[int]], float]]:
             "default": ([[list(DEFAULT_TAU)]], 1e-5)}  # fmt: skip
 
 
+def _misses(kept: np.ndarray, truth: list[tuple[np.ndarray, np.ndarray]], win: list[int]
+            ) -> list[float]:  # fmt: skip
+    """Per level whose exhaustive dictionary ``win`` was not ``kept``: the relative error of
+    the best kept one (the coding rule among them) against it."""
+    ks = np.flatnonzero(kept)
+    out = []
+    for (n, e), w in zip(truth, win, strict=True):
+        got = int(ks[np.lexsort((e[ks], n[ks]))[0]])
+        if got != w:
+            out.append(e[got] / max(e[w], 1e-300) - 1)
+    return out
+
+
 def split(aspects: list[float], margins: list[float], names: list[str] | None
           ) -> dict[str, Any]:  # fmt: skip
     model = load_bundled()
@@ -92,7 +105,7 @@ def split(aspects: list[float], margins: list[float], names: list[str] | None
     work = _workloads(model)
     tmax = {ch: max(max(t[i] for enc in w for t in enc) for w, _ in work.values())
             for i, ch in enumerate(model.channels)}  # fmt: skip
-    # per (aspect, margin, workload): misses, worst relative error, kept, choices
+    # per (aspect, margin, workload): misses, worst relative error, kept, point × channel, choices
     tally: dict[tuple[float, float, str], list[float]] = {}
     for cls, seed in mats:
         print(f"split: {cls}{seed}", file=sys.stderr, flush=True)
@@ -100,38 +113,31 @@ def split(aspects: list[float], margins: list[float], names: list[str] | None
         for ch, batch in _points(btf, model):
             c = model.channels.index(ch)
             dicts = [np.asarray(d, np.float32) for d in model.dictionaries[ch]]
+            p1, p2, n_l = batch.shape[1:4]
             size = int(np.prod(batch.shape[1:]))
             for x in batch:
                 energy = float(sum_squares(x.reshape(1, -1))[0])
                 exact = _exact(x, dicts, tmax[ch])
                 for name, (encodes, eps) in work.items():
-                    for enc in encodes:
-                        levels = sorted({min(t[c], size) for t in enc})
+                    for levels in (sorted({min(t[c], size) for t in enc}) for enc in encodes):
                         truth = [rule_keys(exact, energy, size, t, eps) for t in levels]
                         win = [int(np.lexsort((e, n))[0]) for n, e in truth]
                         for a in aspects:
-                            with mock.patch.object(coding, "SCREEN_ASPECT", a):
-                                cols = coding.screen_columns(levels[-1], x.shape[0] * x.shape[1],
-                                                             x.shape[2])  # fmt: skip
-                            part = coding._partial_squares(x, dicts, cols)
-                            part = coding._top_squares(part, min(levels[-1], part.shape[1]))
+                            cols = coding.screen_columns(levels[-1], p1 * p2, n_l, aspect=a)
+                            part = coding._partial_top(x, dicts, cols, levels[-1])
                             for m in margins:
                                 kept = coding._kept(part, energy, size, levels, eps, 2, m)
-                                t = tally.setdefault((a, m, name), [0, 0.0, 0, 0])
+                                missed = _misses(kept, truth, win)
+                                t = tally.setdefault((a, m, name), [0, 0.0, 0, 0, 0])
+                                t[0] += len(missed)
+                                t[1] = max([t[1], *missed])
                                 t[2] += int(kept.sum())
                                 t[3] += 1
-                                ks = np.flatnonzero(kept)
-                                for (n, e), w in zip(truth, win, strict=True):
-                                    got = int(ks[np.lexsort((e[ks], n[ks]))[0]])
-                                    if got != w:
-                                        t[0] += 1
-                                        t[1] = max(t[1], e[got] / max(e[w], 1e-300) - 1)
+                                t[4] += len(levels)
     shape = model.mode_sizes
     rows = []
-    for (a, m, name), (miss, worst, kept, n) in sorted(tally.items()):
-        with mock.patch.object(coding, "SCREEN_ASPECT", a):
-            cols = coding.screen_columns(DEFAULT_TAU[0], shape[0] * shape[1], shape[2])
-        choices = n * (len(LEVELS) if name == "levels" else 1)
+    for (a, m, name), (miss, worst, kept, n, choices) in sorted(tally.items()):
+        cols = coding.screen_columns(DEFAULT_TAU[0], shape[0] * shape[1], shape[2], aspect=a)
         rows.append({"aspect": a, "margin": m, "workload": name, "columns_at_885": list(cols),
                      "mflop_per_dictionary": coding.partial_flops(shape, cols) / 1e6,
                      "misses": miss, "choices": choices, "worst_relative": worst,

@@ -46,6 +46,7 @@ def test_screening_width_grows_with_tau(monkeypatch):
     # (light, view) columns: r·2 and r/2 of the square rule's r (24, 24, 36, 54)
     assert [coding.screen_columns(t, 100) for t in (64, 885, 2003, 4483)] == [
         (48, 12), (48, 12), (72, 18), (108, 27)]
+    assert coding.screen_columns(885, 100, aspect=1) == (24, 24)  # the square window
     # fewer light columns than asked: the view mode takes more, the count r² stays
     r3, r4 = coding.screen_columns(4483, 100, n_light=90)
     assert r3 == 90 and r4 == 33 and r3 * r4 >= 54 * 54

@@ -146,6 +146,14 @@ def _top_squares(sq: np.ndarray, top: int) -> np.ndarray:
     return -np.sort(-out, axis=1)
 
 
+def _partial_top(x: np.ndarray, mats: Sequence[np.ndarray], columns: tuple[int, int],
+                 top: int) -> np.ndarray:  # fmt: skip
+    """(K, min(top, n)) the largest squares of :func:`_partial_squares`, decreasing: what the
+    screening ranks a point by."""
+    sq = _partial_squares(x, mats, columns)
+    return _top_squares(sq, min(top, sq.shape[1]))
+
+
 #: Per worker thread: the two buffers :func:`~.tensor.project_into` writes a projection's
 #: modes into and :func:`~.codes.topk_abs`'s scratch (3 × 9 MB at 10×10×151×151 float32),
 #: kept from point to point.
@@ -168,18 +176,20 @@ def point_energies(batch: np.ndarray) -> np.ndarray:
                     dtype=np.float64).reshape(b)  # fmt: skip
 
 
-def screen_columns(tau: int, spatial: int, n_light: int | None = None) -> tuple[int, int]:
+def screen_columns(tau: int, spatial: int, n_light: int | None = None,
+                   aspect: float | None = None) -> tuple[int, int]:
     """(light, view) columns (r3, r4) of the screening's partial projection for a cap τ on
     points of ``spatial`` = p1·p2 texels: r the smallest >= :data:`SCREEN_COLUMNS` with
     p1·p2·r² >= :data:`SCREEN_DEPTH` · τ, split r3 = ⌈a·r⌉, r4 = ⌈r/a⌉ by
-    :data:`SCREEN_ASPECT` a (10×10 patches: 48 × 12 up to τ = 900, 72 × 18 at τ = 2003,
-    108 × 27 at τ = 4483). With ``n_light`` light columns at most, r4 grows so that r3·r4 >= r²
-    still holds."""
+    ``aspect`` a (default :data:`SCREEN_ASPECT`; 10×10 patches: 48 × 12 up to τ = 900,
+    72 × 18 at τ = 2003, 108 × 27 at τ = 4483). With ``n_light`` light columns at most, r4
+    grows so that r3·r4 >= r² still holds."""
+    a = SCREEN_ASPECT if aspect is None else aspect
     r = max(SCREEN_COLUMNS, math.ceil(math.sqrt(SCREEN_DEPTH * tau / spatial)))
-    r3 = math.ceil(SCREEN_ASPECT * r)
+    r3 = math.ceil(a * r)
     if n_light is not None:
         r3 = min(r3, n_light)
-    return r3, max(math.ceil(r / SCREEN_ASPECT), math.ceil(r * r / r3))
+    return r3, max(math.ceil(r / a), math.ceil(r * r / r3))
 
 
 def partial_flops(shape: Sequence[int], columns: tuple[int, int]) -> int:
@@ -251,9 +261,7 @@ def screen_dictionaries(
         margin = SCREEN_MARGIN
 
     def task(i: int) -> np.ndarray:
-        sq = _partial_squares(x[i], mats, columns)
-        top = min(levels[-1], sq.shape[1])
-        sq = _top_squares(sq, top)  # the largest ``top`` of each dictionary, decreasing
+        sq = _partial_top(x[i], mats, columns, levels[-1])
         return _kept(sq, float(energy[i]), size, levels, eps, candidates, margin)
 
     for i, keep in enumerate(parallel_map(task, range(b))):
