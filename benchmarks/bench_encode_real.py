@@ -10,9 +10,12 @@ materialised); ``dfmf`` and ``fmf``, that source's factors written once as a UBO
 model at its defaults (τ = 885/64/64, ε = 1e-5, screening), as ``sparsebtf encode`` does,
 then written to a coded file. Printed per input:
 
-* the wall-clock split: start-up (open, header), statistics (the whole pass), screening,
-  projections (the exact projections of the kept candidates and their selection), the
-  coder's wait for data (reading + preprocessing not hidden behind the coding), writing;
+* the split: start-up (open, header), statistics (the whole pass, wall and CPU), coding
+  (everything after it, wall and CPU: how many cores were busy), the coder's wait for data
+  (reading + preprocessing not hidden behind the coding), writing; and the coding's CPU by
+  kind of work, in thread CPU time: reading, preprocessing, energies, screening, exact
+  projections, top-τ selection and the rest (each point's screening and projections run in
+  one task, so only CPU time splits them);
 * the floor of its projections: the exact projections made × 2·Σ_n m_n·∏m FLOPs, at this
   machine's float32 GEMM rate measured in the same run on the projection's own shape
   ((10·10·151) × 151 by 151 × 151, all cores) and on a large square GEMM; the ratio
@@ -107,32 +110,37 @@ class Clock:
 
 @contextlib.contextmanager
 def instrumented(clock: Clock) -> Iterator[None]:
+    """The encoder's steps timed: statistics and coding in wall and process CPU time; within
+    the coding, which runs each point's screening and projections in one task on the worker
+    threads, each kind of work in thread CPU time (robust to other jobs sharing the cores)."""
     import importlib
 
     enc = importlib.import_module("sparsebtf.codec.encode")  # the package exports encode()
     jobs = importlib.import_module("sparsebtf.codec.jobs")
     coding = importlib.import_module("sparsebtf.learning.coding")
+    btf = importlib.import_module("sparsebtf.data.btf")
+    pre = importlib.import_module("sparsebtf.points.preprocessing")
+    cpu = time.thread_time
 
     undo = [
         clock.wrap(jobs, "_statistics", "statistics"),
-        clock.wrap(coding, "screen_dictionaries", "screening"),
-        clock.wrap(coding, "point_energies", "energies"),
-        clock.wrap(enc, "sparse_code_levels", "coding"),
+        clock.wrap(jobs, "_statistics", "statistics cpu", timer=time.process_time),
+        clock.wrap(enc, "sparse_code_batches", "coding"),
         clock.wrap_stream(enc, "stream_points", "waiting for data"),
+        clock.wrap(btf.BTF, "patch", "reading cpu", timer=cpu),
+        clock.wrap(pre.Preprocessor, "forward_into", "preprocessing cpu", timer=cpu),
+        clock.wrap(coding, "sum_squares", "energies cpu", timer=cpu),
+        # the exact projections counted
+        clock.wrap(coding, "project_into", "projections made", timer=cpu,
+                   calls=lambda args: args[0].shape[0]),
+        clock.wrap(coding, "topk_abs", "selection cpu", timer=cpu),
     ]
-    # the exact projections counted, in this worker's CPU time (robust to other jobs sharing
-    # the cores; their wall time is the coding's less screening and energies)
-    undo.append(clock.wrap(coding, "project_into", "projections made", timer=time.thread_time,
-                           calls=lambda args: args[0].shape[0]))  # fmt: skip
-    # the screening's own work in thread CPU time (its wall time also holds the waits for
-    # the worker threads, which read the next batch meanwhile)
-    undo += [clock.wrap(coding, kernel, "screening cpu", timer=time.thread_time,
-                        calls=lambda args: 0)
+    undo += [clock.wrap(coding, kernel, "screening cpu", timer=cpu, calls=lambda args: 0)
              for kernel in ("_partial_squares", "_top_squares", "_kept")]  # fmt: skip
     try:
         yield
     finally:
-        for u in undo:
+        for u in reversed(undo):
             u()
 
 
@@ -247,33 +255,36 @@ def encode_one(label: str, source: Any, workdir: Path, exhaustive: bool
     kw: dict[str, Any] = {"progress": False}
     if exhaustive:
         kw["candidates"] = None
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     with instrumented(clock):
         coded = encode(btf, model, **kw)
-    wall = time.perf_counter() - t
+    wall, cpu = time.perf_counter() - t, time.process_time() - c
     out = workdir / f"{label}.coded.h5"
     t = time.perf_counter()
     save_coded(coded, out)
     writing = time.perf_counter() - t
     out.unlink()
     s = clock.seconds
-    coding = s.get("coding", 0.0)
-    screening, energies = s.get("screening", 0.0), s.get("energies", 0.0)
     sizes = [int(d.shape[1]) for d in model.dictionaries["Y"]]
+    stats, stats_cpu = s.get("statistics", 0.0), s.get("statistics cpu", 0.0)
     return coded, {
         "input": label,
         "points": coded.n_points,
         "startup_seconds": startup,
         "encode_seconds": wall,
-        "statistics_seconds": s.get("statistics", 0.0),
-        "screening_seconds": screening,
-        "energies_seconds": energies,
-        "projections_seconds": coding - screening - energies,
+        "encode_cpu_seconds": cpu,
+        "statistics_seconds": stats,
+        "statistics_cpu_seconds": stats_cpu,
+        # everything after the statistics: reading, preprocessing, screening, projections
+        "coding_seconds": wall - stats,
+        "coding_cpu_seconds": cpu - stats_cpu,
+        "coding_calls_seconds": s.get("coding", 0.0),
         "waiting_for_data_seconds": s.get("waiting for data", 0.0),
         "writing_seconds": writing,
         "projections_made": clock.calls.get("projections made", 0),
+        **{f"{k}_cpu_seconds": s.get(f"{k.replace('_', ' ')} cpu", 0.0)
+           for k in ("reading", "preprocessing", "energies", "screening", "selection")},
         "projections_cpu_seconds": s.get("projections made", 0.0),
-        "screening_cpu_seconds": s.get("screening cpu", 0.0),
         "projection_gflop": projection_flops(sizes) / 1e9,
         "nnz": coded.nnz(),
     }
@@ -351,13 +362,11 @@ def compare(screened: Any, full: Any, run: dict[str, Any], ex: dict[str, Any]
     err_s = sum(float(np.sum(screened.codes[ch].errors)) for ch in screened.codes)
     err_f = sum(float(np.sum(full.codes[ch].errors)) for ch in full.codes)
 
-    def coding(r: dict[str, Any]) -> float:
-        return r["screening_seconds"] + r["energies_seconds"] + r["projections_seconds"]
-
     return {"point_channels": screened.n_points * len(screened.codes),
             "point_channels_changed": changed,
             "error_vs_exhaustive": err_s / err_f - 1 if err_f else 0.0,
-            "coding_seconds": coding(ex), "coding_speedup": coding(ex) / coding(run)}
+            "coding_seconds": ex["coding_seconds"],
+            "coding_speedup": ex["coding_seconds"] / run["coding_seconds"]}
 
 
 STATS_AB = ("before (offset sample, then the sums) {two_passes_seconds:.2f} s wall, "
@@ -463,44 +472,45 @@ def main() -> None:
     for r in runs:
         floor = r["projections_made"] * r["projection_gflop"] / shaped
         r["projections_floor_seconds"] = floor
-        cpu, screen_cpu = r["projections_cpu_seconds"], r["screening_cpu_seconds"]
+        proj, screen = r["projections_cpu_seconds"], r["screening_cpu_seconds"]
         cpu_floor = r["projections_made"] * r["projection_gflop"] / per_core
         r["projections_cpu_floor_seconds"] = cpu_floor
         total = r["startup_seconds"] + r["encode_seconds"] + r["writing_seconds"]
         r["total_seconds"] = total
-        other = (r["encode_seconds"] - r["statistics_seconds"] - r["screening_seconds"]
-                 - r["energies_seconds"] - r["projections_seconds"]
-                 - r["waiting_for_data_seconds"])
-        coding = r["projections_seconds"] + r["screening_seconds"] + r["energies_seconds"]
+        coding, coding_cpu = r["coding_seconds"], r["coding_cpu_seconds"]
+        kinds = ("reading", "preprocessing", "energies", "screening", "selection")
+        rest = coding_cpu - proj - sum(r[f"{k}_cpu_seconds"] for k in kinds)
+        n_cores = data["machine"]["cpus"]
+
+        def share(x: float, of: float = coding_cpu) -> str:
+            return f"{x:.2f} s ({x / max(of, 1e-9):.0%})"
+
         rows += [
             (r["input"], f"{r['points']} points, {total:.1f} s in all "
                          f"({total / r['points']:.3f} s per point)"),
             ("  start-up", f"{r['startup_seconds']:.2f} s"),
-            ("  statistics", f"{r['statistics_seconds']:.2f} s"),
-            ("  waiting for data", f"{r['waiting_for_data_seconds']:.2f} s (reading and "
-                                   "preprocessing not hidden behind the coding)"),
-            ("  screening", f"{r['screening_seconds']:.2f} s "
-                            f"({r['screening_seconds'] / max(1e-9, coding):.0%} of coding)"),
-            ("  energies", f"{r['energies_seconds']:.2f} s (the points' ||X||^2; the wall time "
-                           "includes waiting for the worker threads, which read the next "
-                           "batch meanwhile)"),
-            ("  projections", f"{r['projections_seconds']:.2f} s: {r['projections_made']} made, "
-                              f"floor {floor:.2f} s at the shaped GEMM rate, "
-                              f"{r['projections_seconds'] / max(floor, 1e-9):.2f}x the floor "
-                              f"({floor / max(r['projections_seconds'], 1e-9):.0%} of the rate)"),
-            ("  projections (CPU)", f"{cpu:.2f} s of thread CPU, floor {cpu_floor:.2f} s at "
-                                    f"the per-core rate: {cpu_floor / max(cpu, 1e-9):.0%} "
-                                    "of the GEMM rate"),
-            ("  screening (CPU)", f"{screen_cpu:.2f} s of thread CPU: "
-                                  f"{screen_cpu / max(1e-9, cpu + screen_cpu):.0%} of the "
-                                  "coding's CPU (screening + projections)"),
+            ("  statistics", f"{r['statistics_seconds']:.2f} s wall, "
+                             f"{r['statistics_cpu_seconds']:.2f} s CPU"),
+            ("  coding", f"{coding:.2f} s wall, {coding_cpu:.2f} s CPU "
+                         f"({coding_cpu / max(coding, 1e-9):.2f} of {n_cores} cores busy); "
+                         f"waiting for data {r['waiting_for_data_seconds']:.2f} s"),
+            ("  coding CPU: reading", share(r["reading_cpu_seconds"])),
+            ("  coding CPU: preprocessing", share(r["preprocessing_cpu_seconds"])),
+            ("  coding CPU: energies", share(r["energies_cpu_seconds"])),
+            ("  coding CPU: screening", share(screen) + f"; {screen / max(proj + screen, 1e-9):.0%}"
+                                                        " of screening + projections"),
+            ("  coding CPU: projections", f"{share(proj)}: {r['projections_made']} made, "
+                                          f"floor {cpu_floor:.2f} s at the per-core GEMM rate "
+                                          f"({cpu_floor / max(proj, 1e-9):.0%} of the rate)"),
+            ("  coding CPU: top-tau selection", share(r["selection_cpu_seconds"])),
+            ("  coding CPU: the rest", share(rest) + " (choosing, bookkeeping, threads)"),
+            ("  projections' floor (wall)", f"{floor:.2f} s at the shaped GEMM rate, all cores"),
             *([("  statistics A/B", STATS_AB.format(**r["ab_statistics"]))]
               if "ab_statistics" in r else []),
             *([("  vs exhaustive", EXHAUSTIVE.format(**r["exhaustive"]))]
               if "exhaustive" in r else []),
             *([("  whole command", REVISION.format(**r["whole_commands"]))]
               if "whole_commands" in r else []),
-            ("  rest of encode", f"{other:.2f} s (joining, bookkeeping)"),
             ("  writing", f"{r['writing_seconds']:.2f} s"),
         ]
     report(rows, data, a.json)

@@ -115,6 +115,27 @@ def test_screened_follows_the_rule_among_its_candidates(c):
                 assert np.array_equal(a, b)
 
 
+@pytest.mark.parametrize("c", [None, 2])
+def test_batches_coded_side_by_side_equal_one_call_each(c, monkeypatch):
+    """Several batches (a batch's Y, U, V) on their own ensembles and levels, every point
+    one task, one wait on the worker threads: the codes of one call per batch."""
+    dicts, other = _ensemble(), _ensemble(seed=5)
+    x, _ = _points(dicts)
+    y, _ = _points(other, n=3, seed=7)
+    ref = [sparse_code_levels(x, dicts, LEVELS, 1e-4, candidates=c),
+           sparse_code_levels(y, other, [30], 1e-4, candidates=c)]  # fmt: skip
+    waits = []
+    inner = coding.parallel_map
+    monkeypatch.setattr(coding, "parallel_map", lambda f, items: waits.append(1) or inner(f, items))
+    got = coding.sparse_code_batches([x, y], [dicts, other], [LEVELS, [30]], 1e-4,
+                                     candidates=c)  # fmt: skip
+    assert len(waits) == 1
+    for a, b in zip(got, ref, strict=True):
+        assert len(a) == len(b) and all(_same(p, q) for p, q in zip(a, b, strict=True))
+    with pytest.raises(BTFInputError, match="one of each per batch"):
+        coding.sparse_code_batches([x, y], [dicts], [LEVELS, [30]])
+
+
 def test_margin_keeps_a_close_second_only():
     """A second candidate far behind the first (a point planted on one dictionary) is dropped;
     one within the margin (a copy of the planted dictionary: the same partial error) stays."""

@@ -346,3 +346,32 @@ def test_full_size_file_is_read_lazily(tmp_path):
     assert btf.patch(398, 0, 2).shape == (2, 2, 151, 151, 3)
     with pytest.raises(BTFInputError, match="refusing"):
         btf.to_array()
+
+
+@pytest.mark.parametrize(("layout", "model"), [("DFMF", 11), ("DFMF", 12), ("FMF", None)])
+def test_angular_rows_kept_once_read_give_the_same_values(tmp_path, monkeypatch, layout, model):
+    """Each channel's angular factor is converted and reordered light-major once, then read
+    from there: the values of gathering the file's rows per read, bit for bit."""
+    import pickle
+
+    from sparsebtf.formats import ubo2014
+
+    rng = np.random.default_rng(9)
+    if layout == "DFMF":
+        sp, an = dfmf_factors(rng, dtype="half")
+        write_ubo2014(tmp_path / "e.btf", sp, an, H, W, LIGHTS, VIEWS, "DFMF", "half",
+                      color_model=model)  # fmt: skip
+    else:
+        sp, an = fmf_factors(rng, dtype="half")
+        write_ubo2014(tmp_path / "e.btf", sp, an, H, W, LIGHTS, VIEWS, "FMF", "half")
+    kept = read_ubo2014(tmp_path / "e.btf")
+    requests = [(slice(None),) * 4, (slice(2, 6), slice(1, 5), slice(None), slice(None)),
+                ([7, 0, 3], [5, 2], [6, 0, 2], [4, 1])]  # fmt: skip
+    got = [kept.read(*r) for r in requests]
+    assert kept.__dict__["_angular_rows"]  # the rows were kept
+    assert "_angular_rows" not in pickle.loads(pickle.dumps(kept)).__dict__
+    monkeypatch.setattr(ubo2014, "memory_budget", lambda: 0)  # too large to keep: gathered
+    gathered = read_ubo2014(tmp_path / "e.btf")
+    for r, g in zip(requests, got, strict=True):
+        assert np.array_equal(gathered.read(*r), g)
+    assert not gathered.__dict__.get("_angular_rows")

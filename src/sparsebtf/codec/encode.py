@@ -19,7 +19,7 @@ from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..execution import Execution
 from ..learning.codes import RELEASE_EPS, RELEASE_TAU
-from ..learning.coding import SparseCodes, sparse_code_levels, sparse_code_objective
+from ..learning.coding import SparseCodes, sparse_code_batches, sparse_code_objective
 from ..learning.lod_order import lod_orders
 from ..learning.objective import ChannelError, check_objective, joint_choice, objective_params
 from ..model import CHANNELS, CodedBTF, Model, TauSpec, parse_tau
@@ -225,14 +225,16 @@ class FixedTau:
             errors = batch_errors(x, pre, self.objective)
             if errors is not None:  # a linear or display objective: the channels judged jointly
                 self._code_objective(x, planar, model, errors, dt, parts)
-            for c, ch in enumerate(channels if errors is None else ()):
-                xc = x[c] if planar else x
-                taus_c = [lv[ch] for lv in self.levels]
-                coded = sparse_code_levels(
-                    xc, model.dictionaries[ch], taus_c, self.eps, dt, self.candidates
-                )
-                for j, sc in enumerate(coded):
-                    parts[j][ch].append(sc)
+            else:  # the channels' points side by side on the worker threads
+                coded = sparse_code_batches(
+                    [x[c] if planar else x for c in range(len(channels))],
+                    [model.dictionaries[ch] for ch in channels],
+                    [[lv[ch] for lv in self.levels] for ch in channels],
+                    self.eps, dt, self.candidates,
+                )  # fmt: skip
+                for ch, levels in zip(channels, coded, strict=True):
+                    for j, sc in enumerate(levels):
+                        parts[j][ch].append(sc)
             if tick is not None:
                 tick(x.shape[1] if planar else x.shape[0])
         return [{ch: SparseCodes.concatenate(p[ch]) for ch in channels} for p in parts]

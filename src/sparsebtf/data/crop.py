@@ -23,6 +23,7 @@ class CroppedBTF(BTF):
         self._r0, self._c0 = r0, c0
         hint_rows, hint_views = base.block_hint
         self.block_hint = (min(hint_rows, self.height), hint_views)
+        self.serial_reads = base.serial_reads
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
         r = as_index(rows, self.height, "row") + self._r0

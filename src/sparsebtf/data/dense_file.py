@@ -43,6 +43,7 @@ from .._progress import progress as _progress
 from .._semantic import check_directions
 from ..errors import BTFInputError, FileFormatError, SparseBTFError
 from .btf import BTF, Index
+from .chunks import ChunkReader
 from .directions import DirectionSet, from_vectors
 
 __all__ = [
@@ -220,6 +221,8 @@ def chunk_cache_bytes(
 class DenseFileBTF(BTF):
     """A BTF stored in our dense HDF5 file; reads only the chunks a request touches."""
 
+    serial_reads = True
+
     #: HDF5 chunk cache per open file in bytes (None: :func:`chunk_cache_bytes`).
     chunk_cache: int | None = None
 
@@ -230,6 +233,8 @@ class DenseFileBTF(BTF):
             ds, lights, views, name, attrs = _open_dense(f, str(self.path))
             cache = self.chunk_cache or chunk_cache_bytes(ds.shape, ds.chunks, ds.dtype)
             ds = _with_chunk_cache(ds, cache)
+            # the chunks read and verified here, h5py's filter pipeline left for the rest
+            self._chunks = ChunkReader.of(ds, cache)
         except SparseBTFError:
             f.close()
             raise
@@ -266,7 +271,9 @@ class DenseFileBTF(BTF):
         # HDF5 reads hyperslabs: read the bounding box, then pick the requested entries.
         box = tuple(slice(int(ix.min()), int(ix.max()) + 1) for ix in idx)
         try:
-            data = np.asarray(self._ds[box], dtype=np.float32)
+            data = None if self._chunks is None else self._chunks.read((*box, slice(0, 3)))
+            if data is None:
+                data = np.asarray(self._ds[box], dtype=np.float32)
         except HDF5_ERRORS as e:
             raise read_error(e, f"{self.path}/btf") from None
         rel = [ix - ix.min() for ix in idx]

@@ -27,6 +27,7 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
+from .._limits import memory_budget
 from .._semantic import check_color_header, check_directions
 from ..colour import YUV_TO_RGB_RELEASE
 from ..data.btf import BTF, RELEASE_LOG_OFFSET, Index, contiguous_slice
@@ -152,27 +153,67 @@ class UBO2014BTF(BTF):
 
     def _read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
         r, c, li, vi = self.indices(rows, cols, lights, views)
-        w, nl = self.width, len(self.lights)
+        w, nl, nv = self.width, len(self.lights), len(self.views)
         pix = (r[:, None] * w + c[None, :]).ravel()
         # Light outer, view inner, so the result reshapes to (l, v); file index is v·nL + l.
         ang = (vi[None, :] * nl + li[:, None]).ravel()
+        mine = (li[:, None] * nv + vi[None, :]).ravel()  # the same rows, light-major
         q = np.empty((pix.size, ang.size, 3), dtype=self._acc)
-        if self.layout == "DFMF":
-            for ch, (u, sxv) in enumerate(self.factors):
-                q[..., ch] = _rows(sxv, pix, self._acc) @ _rows(u, ang, self._acc).T
+        # exp(·) − offset channel by channel on the way into q, where the colour model maps
+        # each channel alone (DFMF 12; FMF's DRR, whose offset, Bonn's drr_eps, is
+        # hard-coded by their decoders, not stored): one pass instead of three and no
+        # temporaries of the whole patch
+        per_channel = (self.color_model == 12) if self.layout == "DFMF" else self.drr
+        val = np.empty((pix.size, ang.size), dtype=self._acc) if per_channel else None
+        for ch in range(3):
+            if self.layout == "DFMF":
+                u, sxv = self.factors[ch]
+                a = self._angular(ch, 0, 1)
+                a = _rows(u, ang, self._acc) if a is None else _rows(a, mine, self._acc)
+            else:
+                u, sxv = self.factors[0]
+                a = self._angular(0, ch, 3)
+                a = _rows(u, ang * 3 + ch, self._acc) if a is None else _rows(a, mine, self._acc)
+            if val is None:
+                q[..., ch] = _rows(sxv, pix, self._acc) @ a.T
+                continue
+            np.matmul(_rows(sxv, pix, self._acc), a.T, out=val)
+            np.exp(val, out=val)
+            np.subtract(val, RELEASE_LOG_OFFSET, out=q[..., ch])
+        if per_channel:
+            rgb = q
+        elif self.layout == "DFMF":
             rgb = self._color_inverse(q)
         else:
-            u, sxv = self.factors[0]
-            s = _rows(sxv, pix, self._acc)
-            for ch in range(3):
-                q[..., ch] = s @ _rows(u, ang * 3 + ch, self._acc).T
-            # the DRR's offset (Bonn's drr_eps) is hard-coded by their decoders, not stored
-            rgb = np.exp(q) - RELEASE_LOG_OFFSET if self.drr else q
+            rgb = q
         out = rgb.reshape(r.size, c.size, li.size, vi.size, 3)
         if self.divide_cosine:
             # BL removes the foreshortening term when the file says it is baked in (§1.10.5).
             out = out / self.lights.xyz[li, 2][None, None, :, None, None]
         return np.asarray(out, dtype=np.float32)
+
+    def _angular(self, k: int, ch: int, stride: int) -> np.ndarray | None:
+        """Angular factor ``k``'s rows of channel ``ch`` (file rows (view·L + light)·stride +
+        ch), light-major and converted to the sums' dtype, kept once read: a data point needs
+        every direction, which in the file's view-major order is a gather of every row of the
+        memory map and a conversion from binary16, per read and channel (a third of reading
+        a DFMF patch). None when that copy would take more than a sixteenth of the memory
+        budget (the rows are then gathered per read, as before)."""
+        cache = self.__dict__.setdefault("_angular_rows", {})
+        have = cache.get((k, ch))
+        if have is not None:
+            return have
+        u = self.factors[k][0]
+        nl, nv = len(self.lights), len(self.views)
+        if nl * nv * u.shape[1] * self._acc.itemsize > memory_budget() // 16:
+            return None
+        rows = (np.arange(nv)[None, :] * nl + np.arange(nl)[:, None]).ravel() * stride + ch
+        # two threads may both convert the first time: the same values, one kept
+        return cache.setdefault((k, ch), np.asarray(u[rows], dtype=self._acc))
+
+    def __getstate__(self) -> dict[str, Any]:
+        # the converted rows are read again where the object lands
+        return {k: v for k, v in self.__dict__.items() if k != "_angular_rows"}
 
     def _color_inverse(self, q: np.ndarray) -> np.ndarray:
         """DFMF colour model → RGB (§1.10.3), Bonn's BL form (no clamping)."""

@@ -52,6 +52,7 @@ __all__ = [
     "screen_columns",
     "screen_dictionaries",
     "sparse_code",
+    "sparse_code_batches",
     "sparse_code_levels",
     "sparse_code_objective",
     "topk_abs",
@@ -296,14 +297,11 @@ def sparse_code(
     return sparse_code_levels(batch, dictionaries, [tau], eps, dtype, candidates, error)[0]
 
 
-def _prepare(
-    batch: np.ndarray, dictionaries: Sequence[np.ndarray], taus: Sequence[int], eps: float,
-    dtype: type, candidates: int | None,
-) -> tuple[np.ndarray, tuple[int, ...], list[int], np.ndarray, np.ndarray]:  # fmt: skip
-    """What every coding rule starts from: the batch checked against the ensemble and made
-    contiguous in ``dtype``, its point shape, the levels clipped to the point size, the
-    (B, K) mask of the dictionaries projected exactly (:func:`screen_dictionaries`) and the
-    points' energies ‖X‖²."""
+def _checked(
+    batch: np.ndarray, dictionaries: Sequence[np.ndarray], taus: Sequence[int], dtype: type
+) -> tuple[np.ndarray, tuple[int, ...], list[int]]:
+    """The batch checked against the ensemble and made contiguous in ``dtype``, its point
+    shape and the levels clipped to the point size."""
     x = np.asarray(batch)
     shape = tuple(int(s) for s in x.shape[1:])
     if len(dictionaries) != len(shape):
@@ -315,13 +313,21 @@ def _prepare(
             raise BTFInputError(f"mode {n + 1}: dictionaries {d.shape} do not fit mode size {m}")
     if not taus or min(taus) < 1:
         raise BTFInputError(f"sparsity tau must be >= 1, got {list(taus)}")
-    n_dict = dictionaries[0].shape[0]
     size = int(np.prod(shape))
-    levels = [min(int(t), size) for t in taus]
-    b = x.shape[0]
-    xc = np.ascontiguousarray(x, dtype=dtype)
-    energy = point_energies(xc)
+    return np.ascontiguousarray(x, dtype=dtype), shape, [min(int(t), size) for t in taus]
 
+
+def _prepare(
+    batch: np.ndarray, dictionaries: Sequence[np.ndarray], taus: Sequence[int], eps: float,
+    dtype: type, candidates: int | None,
+) -> tuple[np.ndarray, tuple[int, ...], list[int], np.ndarray, np.ndarray]:  # fmt: skip
+    """What the objective rules start from (:func:`_checked`), with the (B, K) mask of the
+    dictionaries projected exactly (:func:`screen_dictionaries`) and the points' energies
+    ‖X‖²."""
+    xc, shape, levels = _checked(batch, dictionaries, taus, dtype)
+    n_dict = dictionaries[0].shape[0]
+    b = xc.shape[0]
+    energy = point_energies(xc)
     rule, n_cand = coding_rule(candidates, n_dict)
     if rule == "exhaustive":
         mask = np.ones((b, n_dict), dtype=bool)
@@ -329,6 +335,131 @@ def _prepare(
         mask = screen_dictionaries(xc, dictionaries, levels, eps, n_cand, dtype=dtype,
                                    energy=energy)
     return xc, shape, levels, mask, energy
+
+
+#: One point's exact projections: (dictionary k, the indices of its ``max τ`` largest
+#: coefficients by magnitude, their values), k increasing.
+Projected = list[tuple[int, np.ndarray, np.ndarray]]
+
+
+class _PointCoder:
+    """Everything one data point of a batch needs on a worker thread, in one task: its
+    energy, its screening (:func:`_partial_top`, :func:`_kept`) and the exact projections of
+    the dictionaries kept, each with its top-τ selection. The values are those of
+    :func:`point_energies`, :func:`screen_dictionaries` and the projections made after them,
+    bit for bit; one task per point (and channel) leaves one wait per batch instead of three
+    per channel (the energies, the screening and the projections each waited for the
+    slowest point, behind the reader's tasks)."""
+
+    def __init__(self, x: np.ndarray, dictionaries: Sequence[np.ndarray], levels: list[int],
+                 eps: float, candidates: int | None) -> None:  # fmt: skip
+        self.x, self.levels, self.eps = x, levels, eps
+        n_dict = dictionaries[0].shape[0]
+        self.n_dict = n_dict
+        rule, self.n_cand = coding_rule(candidates, n_dict)
+        # screen_dictionaries' conditions: 4D points and fewer candidates than dictionaries
+        self.screen = rule != "exhaustive" and x.ndim == 5 and self.n_cand < n_dict
+        dt = x.dtype
+        self.mats = [np.asarray(d, dtype=dt) for d in dictionaries]
+        self.mats_k = [[m[k] for m in self.mats] for k in range(n_dict)]
+        self.columns = (
+            screen_columns(levels[-1], x.shape[1] * x.shape[2], x.shape[3]) if self.screen
+            else (0, 0)
+        )  # fmt: skip
+
+    def __call__(self, i: int) -> tuple[float, Projected]:
+        x = self.x[i]
+        energy = float(sum_squares(self.x[i : i + 1].reshape(1, -1))[0])
+        if self.screen:
+            sq = _partial_top(x, self.mats, self.columns, self.levels[-1])
+            keep = np.flatnonzero(_kept(sq, energy, x.size, self.levels, self.eps,
+                                        self.n_cand, SCREEN_MARGIN))  # fmt: skip
+        else:
+            keep = np.arange(self.n_dict)
+        tmax = max(self.levels)
+        out: Projected = []
+        for k in keep:
+            # :func:`project`'s values, into this thread's buffers: idx and s[idx] are copies
+            buf = _buffers(x.size, x.dtype)
+            s = project_into(x[None], self.mats_k[k], buf[:2]).reshape(-1)
+            idx = topk_abs(s, tmax, scratch=buf[2])
+            out.append((int(k), idx, s[idx]))
+        return energy, out
+
+
+def _select(shape: tuple[int, ...], levels: list[int], eps: float, n_dict: int,
+            points: list[tuple[float, Projected]]) -> list[SparseCodes]:  # fmt: skip
+    """The paper's rule on each point's exact projections: per level, the sparsest
+    dictionary, then the least error (ties to the lower k); dictionaries not projected lose
+    every comparison."""
+    size = int(np.prod(shape))
+    b = len(points)
+    nl = len(levels)
+    counts = np.full((nl, b, n_dict), np.iinfo(np.int64).max, dtype=np.int64)
+    errs = np.full((nl, b, n_dict), np.inf)
+    best: list[list[tuple[tuple[int, float], np.ndarray, np.ndarray] | None]] = [
+        [None] * b for _ in range(nl)
+    ]
+    for i, (energy, projected) in enumerate(points):
+        for k, idx, vals in projected:
+            sq = vals.astype(np.float64) ** 2
+            for j, tau in enumerate(levels):
+                n, e = count_and_error(sq, energy, size, tau, eps)
+                counts[j, i, k], errs[j, i, k] = n, e
+                key = (n, e)
+                cur = best[j][i]
+                # Sparsest first, then least error; strict comparison keeps the first on ties.
+                if cur is None or key < cur[0]:
+                    best[j][i] = (key, idx[:n], vals[:n])
+    out = []
+    for j in range(nl):
+        member = np.array(
+            [int(np.lexsort((errs[j, i], counts[j, i]))[0]) for i in range(b)], dtype=np.int64
+        )
+        chosen = [best[j][i] for i in range(b)]
+        idx_all = (
+            np.concatenate([c[1] for c in chosen])  # type: ignore[index]
+            if b
+            else np.empty(0, dtype=np.int64)
+        )
+        vals_all = (
+            np.concatenate([c[2] for c in chosen]).astype(np.float32)  # type: ignore[index]
+            if b
+            else np.empty(0, np.float32)
+        )
+        locs = np.stack(np.unravel_index(idx_all, shape), axis=1).astype(np.int32)
+        out.append(SparseCodes(shape, member, counts[j, np.arange(b), member], vals_all, locs,
+                               errs[j, np.arange(b), member]))  # fmt: skip
+    return out
+
+
+def sparse_code_batches(
+    batches: Sequence[np.ndarray],
+    dictionaries: Sequence[Sequence[np.ndarray]],
+    taus: Sequence[Sequence[int]],
+    eps: float = 0.0,
+    dtype: type = np.float32,
+    candidates: int | None = None,
+) -> list[list[SparseCodes]]:
+    """:func:`sparse_code_levels` of several batches at once (a batch's Y, U and V on their
+    own ensembles and levels): ``[batch][level]``, the same codes as one call per batch.
+    Every point of every batch is one task on the worker threads (:class:`_PointCoder`),
+    so the threads wait once for all of them."""
+    if not len(batches) == len(dictionaries) == len(taus):
+        raise BTFInputError(f"{len(batches)} batches, {len(dictionaries)} ensembles and "
+                            f"{len(taus)} lists of levels: give one of each per batch")  # fmt: skip
+    checked = [_checked(x, d, t, dtype) for x, d, t in zip(batches, dictionaries, taus,
+                                                            strict=True)]  # fmt: skip
+    coders = [_PointCoder(xc, d, levels, eps, candidates)
+              for (xc, _, levels), d in zip(checked, dictionaries, strict=True)]  # fmt: skip
+    work = [(c, i) for c, (xc, _, _) in enumerate(checked) for i in range(xc.shape[0])]
+    done = list(parallel_map(lambda ci: coders[ci[0]](ci[1]), work))
+    out, at = [], 0
+    for (xc, shape, levels), coder in zip(checked, coders, strict=True):
+        b = xc.shape[0]
+        out.append(_select(shape, levels, eps, coder.n_dict, done[at : at + b]))
+        at += b
+    return out
 
 
 def sparse_code_levels(
@@ -349,70 +480,11 @@ def sparse_code_levels(
     point's error in that objective at a larger τ is never above that at a smaller one
     (:func:`~.objective.judged_code_levels`).
     """
-    xc, shape, levels, mask, energy = _prepare(batch, dictionaries, taus, eps, dtype,
-                                               candidates)
     if error is not None:
+        xc, _, levels, mask, energy = _prepare(batch, dictionaries, taus, eps, dtype,
+                                               candidates)  # fmt: skip
         return _judged(xc, error, dictionaries, levels, eps, dtype, mask, energy)[0]
-    n_dict = dictionaries[0].shape[0]
-    size = int(np.prod(shape))
-    tmax = max(levels)
-    b = xc.shape[0]
-    nl = len(levels)
-    # dictionaries left out by the screening lose every comparison of the rule
-    counts = np.full((nl, b, n_dict), np.iinfo(np.int64).max, dtype=np.int64)
-    errs = np.full((nl, b, n_dict), np.inf)
-    best: list[list[tuple[tuple[int, float], np.ndarray, np.ndarray] | None]] = [
-        [None] * b for _ in range(nl)
-    ]
-    mats_k = [[np.asarray(d[k], dtype=dtype) for d in dictionaries] for k in range(n_dict)]
-
-    def task(ik: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
-        i, k = ik
-        # :func:`project`'s values, into this thread's buffers: idx and s[idx] are copies
-        buf = _buffers(xc[i].size, xc.dtype)
-        s = project_into(xc[i : i + 1], mats_k[k], buf[:2]).reshape(-1)
-        idx = topk_abs(s, tmax, scratch=buf[2])
-        return idx, s[idx]
-
-    pairs = [(i, k) for k in range(n_dict) for i in range(b) if mask[i, k]]
-    for (i, k), (idx, vals) in zip(pairs, parallel_map(task, pairs), strict=True):
-        sq = vals.astype(np.float64) ** 2
-        for j, tau in enumerate(levels):
-            n, e = count_and_error(sq, energy[i], size, tau, eps)
-            counts[j, i, k], errs[j, i, k] = n, e
-            key = (n, e)
-            cur = best[j][i]
-            # Sparsest first, then least error; strict comparison keeps the first on ties.
-            if cur is None or key < cur[0]:
-                best[j][i] = (key, idx[:n], vals[:n])
-    out = []
-    for j in range(nl):
-        member = np.array(
-            [int(np.lexsort((errs[j, i], counts[j, i]))[0]) for i in range(b)], dtype=np.int64
-        )
-        chosen = [best[j][i] for i in range(b)]
-        idx_all = (
-            np.concatenate([c[1] for c in chosen])
-            if b  # type: ignore[index]
-            else np.empty(0, dtype=np.int64)
-        )
-        vals_all = (
-            np.concatenate([c[2] for c in chosen]).astype(np.float32)
-            if b  # type: ignore[index]
-            else np.empty(0, np.float32)
-        )
-        locs = np.stack(np.unravel_index(idx_all, shape), axis=1).astype(np.int32)
-        out.append(
-            SparseCodes(
-                shape,
-                member,
-                counts[j, np.arange(b), member],
-                vals_all,
-                locs,
-                errs[j, np.arange(b), member],
-            )
-        )
-    return out
+    return sparse_code_batches([batch], [dictionaries], [taus], eps, dtype, candidates)[0]
 
 
 def _judged(x: np.ndarray, error: ChannelError, dictionaries: Sequence[np.ndarray],

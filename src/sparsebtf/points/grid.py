@@ -182,7 +182,10 @@ def iter_points(
     ``batch`` data points whatever the BTF size. NaN/Inf raise with their location; negative
     values are clamped to 0 (counted by :func:`~sparsebtf.points.statistics.gather_statistics`).
     ``parallel``: the points of a batch are read on the worker threads
-    (:func:`~sparsebtf._threads.parallel_map`); the values are the same.
+    (:func:`~sparsebtf._threads.parallel_map`), unless the BTF's reads hold a lock of the
+    process (:attr:`~sparsebtf.data.btf.BTF.serial_reads`): then on this thread, one after
+    another, which leaves the workers to the caller's work instead of waiting for the lock
+    (a third of a dense file's reading time was that wait); the values are the same.
     ``reuse = n``: the batches are written into ``n`` arrays in turn (batch k's array again
     holds batch k + n), sparing the fresh pages the kernel zeroes for every new array (tens
     of ms per UBO2014 data point); the caller must be done with a batch ``n`` batches later.
@@ -229,7 +232,7 @@ def iter_points(
             y = pre.forward(rgb, dtype=dtype)
             dest[...] = np.moveaxis(y, -1, 0) if channels_first else y
 
-        run = parallel_map if parallel else map
+        run = parallel_map if parallel and not btf.serial_reads else map
         for _ in run(fill, range(chunk.size)):
             pass
         yield chunk, out

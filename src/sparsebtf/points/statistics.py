@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import itertools
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -149,11 +149,9 @@ def statistic_sums(
     reads (:attr:`StatisticSums.counts`).
 
     Read in bands of rows of a few views (:func:`statistic_bands`; memory: a band per
-    thread), the groups of views on the worker threads (:func:`~sparsebtf._threads.
-    ordered_map`), each value touched in three passes (:mod:`.kernels`); ``tick(n)`` after
-    each group of n views. NaN/Inf abort with their count and first location."""
-    from .._threads import ordered_map
-
+    thread), the groups of views on the worker threads (:func:`_each_group`), each value
+    touched in three passes (:mod:`.kernels`); ``tick(n)`` after each group of n views.
+    NaN/Inf abort with their count and first location."""
     h, w, nl, nv, _ = btf.shape
     v0, v1 = views if views is not None else (0, nv)
     if not 0 <= v0 < v1 <= nv:
@@ -178,7 +176,7 @@ def statistic_sums(
         return _group_sums(btf, vs, rows, log_offset, where)
 
     for (a, b), (sh, g1, g2, gt, neg, gc, gs) in zip(
-        groups, ordered_map(group_sums, groups), strict=True
+        groups, _each_group(btf, groups, rows, log_offset, where, group_sums), strict=True
     ):
         shift[:, a - v0 : b - v0] = sh
         s1[:, a - v0 : b - v0] = g1
@@ -193,53 +191,109 @@ def statistic_sums(
     return StatisticSums((v0, v1), shift, s1, s2, top, n, negatives, counts, seen)
 
 
+def _each_group(
+    btf: BTF, groups: list[tuple[int, int]], rows: int, offset: float,
+    sample: tuple[np.ndarray, int] | None, group_sums: Callable[[tuple[int, int]], Any],
+) -> Iterator[tuple[Any, ...]]:  # fmt: skip
+    """Each view group's sums, in order: the groups on the worker threads
+    (:func:`~sparsebtf._threads.ordered_map`), or, for a BTF whose reads hold a lock of the
+    process (:attr:`~sparsebtf.data.btf.BTF.serial_reads`), the bands read one after another
+    on a thread of their own while this one adds up the band read before (two threads
+    reading side by side waited for each other a fifth of the time). Same sums either way."""
+    from .._threads import n_workers, ordered_map, prefetch
+
+    if not btf.serial_reads or n_workers() == 1:
+        yield from ordered_map(group_sums, groups)
+        return
+    h = btf.shape[0]
+
+    def bands() -> Iterator[tuple[int, int, np.ndarray]]:
+        for g, (a, b) in enumerate(groups):
+            for r0 in range(0, h, rows):
+                yield g, r0, btf.read(slice(r0, min(r0 + rows, h)), slice(None),
+                                      slice(None), slice(a, b))  # fmt: skip
+
+    acc: _GroupAccumulator | None = None
+    for g, r0, block in prefetch(bands(), depth=1):
+        if r0 == 0:
+            if acc is not None:
+                yield acc.result()
+            acc = _GroupAccumulator(btf, groups[g], offset, sample)
+        acc.add(r0, block)  # type: ignore[union-attr]
+    if acc is not None:
+        yield acc.result()
+
+
+class _GroupAccumulator:
+    """Shift, Σd, Σd², top and the negative count of views ``[a, b)`` from their bands of
+    rows, added in row order (each view's sums in band order); with ``sample`` = (views,
+    step) of :func:`_offset_sample`, also the histogram of those views' subsampled values
+    in the range and their number (else None, 0)."""
+
+    def __init__(self, btf: BTF, views: tuple[int, int], offset: float,
+                 sample: tuple[np.ndarray, int] | None) -> None:  # fmt: skip
+        self.label, self.offset, self.sample = btf.label, offset, sample
+        self.nl = btf.shape[2]
+        self.a, b = views
+        self.nvg = b - self.a
+        n = self.nl * self.nvg
+        self.shift = np.zeros((n, 3), dtype=np.float32)
+        self.s1 = np.zeros((n, 3))
+        self.s2 = np.zeros((n, 3))
+        self.top = np.full(n, -np.inf)
+        self.negatives = 0
+        self.mine = [] if sample is None else [int(v) for v in sample[0] if self.a <= v < b]
+        self.counts = None if sample is None else np.zeros(_N_BINS, dtype=np.int64)
+        self.seen = 0
+
+    def add(self, r0: int, block: np.ndarray) -> None:
+        """The band of rows from ``r0``: (rows, W, L, b − a, 3) linear RGB."""
+        from .kernels import accumulate_sums, log_offset
+
+        a = self.a
+        if self.mine:  # the offset's sample rows (multiples of its step) and columns here
+            step = self.sample[1]  # type: ignore[index]
+            for v in self.mine:
+                sub = block[(-r0) % step :: step, ::step, :, v - a]
+                if sub.size:
+                    self.counts += _histogram(sub)  # type: ignore[operator]
+                    self.seen += sub.size
+        # float32 transforms (the release computed its statistics in single precision),
+        # float64 accumulators.
+        logs, bad, neg = log_offset(block, self.offset)
+        if bad:
+            check_finite(block, self.label, offset=(r0, 0, 0, a))
+        self.negatives += neg
+        accumulate_sums(logs.reshape(-1, self.nl * self.nvg, 3), RGB_TO_YUV_F32, self.shift,
+                        self.s1, self.s2, self.top, first=r0 == 0)  # fmt: skip
+
+    def result(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int,
+                              np.ndarray | None, int]:  # fmt: skip
+        nl, nvg = self.nl, self.nvg
+        return (
+            self.shift.reshape(nl, nvg, 3).astype(np.float64),
+            self.s1.reshape(nl, nvg, 3),
+            self.s2.reshape(nl, nvg, 3),
+            self.top.reshape(nl, nvg),
+            self.negatives,
+            self.counts,
+            self.seen,
+        )
+
+
 def _group_sums(
     btf: BTF, views: tuple[int, int], rows: int, offset: float,
     sample: tuple[np.ndarray, int] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, np.ndarray | None, int]:
-    """Shift, Σd, Σd², top ((L, v, 3) or (L, v)) and the negative count of views
-    ``[a, b)``, read in bands of ``rows`` rows; each view's sums in band order. With
-    ``sample`` = (views, step) of :func:`_offset_sample`, also the histogram of those views'
-    subsampled values in the range and their number (else None, 0)."""
-    from .kernels import accumulate_sums, log_offset
-
-    h, _, nl, _, _ = btf.shape
+    """:class:`_GroupAccumulator`'s result for views ``[a, b)``, read in bands of ``rows``
+    rows."""
+    h = btf.shape[0]
     a, b = views
-    nvg = b - a
-    shift = np.zeros((nl * nvg, 3), dtype=np.float32)
-    s1 = np.zeros((nl * nvg, 3))
-    s2 = np.zeros((nl * nvg, 3))
-    top = np.full(nl * nvg, -np.inf)
-    negatives = 0
-    mine = [] if sample is None else [int(v) for v in sample[0] if a <= v < b]
-    counts = None if sample is None else np.zeros(_N_BINS, dtype=np.int64)
-    seen = 0
+    acc = _GroupAccumulator(btf, views, offset, sample)
     for r0 in range(0, h, rows):
-        block = btf.read(slice(r0, min(r0 + rows, h)), slice(None), slice(None), slice(a, b))
-        if mine:  # the offset's sample rows (multiples of its step) and columns in this band
-            step = sample[1]  # type: ignore[index]
-            for v in mine:
-                sub = block[(-r0) % step :: step, ::step, :, v - a]
-                if sub.size:
-                    counts += _histogram(sub)  # type: ignore[operator]
-                    seen += sub.size
-        # float32 transforms (the release computed its statistics in single precision),
-        # float64 accumulators.
-        logs, bad, neg = log_offset(block, offset)
-        if bad:
-            check_finite(block, btf.label, offset=(r0, 0, 0, a))
-        negatives += neg
-        accumulate_sums(logs.reshape(-1, nl * nvg, 3), RGB_TO_YUV_F32, shift, s1, s2, top,
-                        first=r0 == 0)  # fmt: skip
-    return (
-        shift.reshape(nl, nvg, 3).astype(np.float64),
-        s1.reshape(nl, nvg, 3),
-        s2.reshape(nl, nvg, 3),
-        top.reshape(nl, nvg),
-        negatives,
-        counts,
-        seen,
-    )
+        acc.add(r0, btf.read(slice(r0, min(r0 + rows, h)), slice(None), slice(None),
+                             slice(a, b)))  # fmt: skip
+    return acc.result()
 
 
 def combine_statistics(
