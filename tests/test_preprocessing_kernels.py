@@ -35,6 +35,21 @@ def _values(seed: int = 0, n: int = 7, a: int = 13 * 13) -> np.ndarray:
 
 
 @needs_numba
+def test_log_histogram_equals_the_numpy_twin():
+    x = _values(seed=3, n=40)
+    x[0, :4, 0] = [1e-14, 1e13, np.float32(1e-12), 0]  # clipped below and above, an edge
+    got = {}
+    for be in ("numpy", "numba"):
+        counts = np.zeros(statistics._N_BINS, np.int64)
+        kernels.log_histogram(x, -12, 64, counts, backend=be)
+        kernels.log_histogram(x[:5], -12, 64, counts, backend=be)  # adds
+        got[be] = counts
+    assert np.array_equal(got["numpy"], got["numba"])
+    assert got["numpy"].sum() == (x > 0).sum() + (x[:5] > 0).sum()
+    assert got["numpy"][0] >= 2 and got["numpy"][-1] >= 2
+
+
+@needs_numba
 def test_compiled_passes_equal_the_numpy_twins_bit_for_bit():
     x = _values()
     rng = np.random.default_rng(1)

@@ -31,6 +31,7 @@ __all__ = [
     "HAVE_NUMBA",
     "accumulate_sums",
     "clamp_offset",
+    "log_histogram",
     "log_offset",
     "standardise_log_rgb",
 ]
@@ -98,8 +99,20 @@ def _accumulate_numpy(
     s2 += np.square(x).sum(axis=0, dtype=np.float64)
 
 
+def _bins_numpy(logs: np.ndarray, low: float, per: float, counts: np.ndarray) -> None:
+    b = np.floor((logs - low) * per).astype(np.int64)
+    counts += np.bincount(np.clip(b, 0, counts.size - 1), minlength=counts.size)
+
+
 if HAVE_NUMBA:
     assert _nb is not None
+
+    @_nb.njit(cache=True, nogil=True)
+    def _bins_nb(logs, low, per, counts):  # pragma: no cover - compiled
+        top = counts.size - 1
+        for i in range(logs.size):  # one pass, no temporaries of the sample
+            b = np.int64(np.floor((logs[i] - low) * per))
+            counts[min(max(b, 0), top)] += 1
 
     @_nb.njit(cache=True, nogil=True)
     def _clamp_offset_nb(x, offset, out):  # pragma: no cover - compiled
@@ -216,6 +229,20 @@ def standardise_log_rgb(
         return logs
     (_standardise_planar_nb if numba else _standardise_planar_numpy)(logs, m, mu, inv, out)
     return out
+
+
+def log_histogram(
+    x: np.ndarray, low: float, per: float, counts: np.ndarray, backend: str | None = None
+) -> None:
+    """Add the positive values of ``x`` to ``counts`` (int64, n bins): bin
+    ⌊per·(log10 x − low)⌋ clipped to [0, n − 1], the logarithm NumPy's in float64 on every
+    backend (the compiled path bins without the NumPy path's four temporaries)."""
+    v = x.ravel()
+    logs = np.log10(v[v > 0], dtype=np.float64)
+    if _backend(backend) == "numba":
+        _bins_nb(logs, float(low), float(per), counts)
+    else:
+        _bins_numpy(logs, low, per, counts)
 
 
 def accumulate_sums(

@@ -384,12 +384,13 @@ def _offset_sample(btf: BTF) -> tuple[np.ndarray, int]:
 
 def _histogram(block: np.ndarray) -> np.ndarray:
     """Counts of the positive values of ``block`` in the log-spaced bins (order-free: any
-    split of the sample sums to the same counts)."""
-    x = block.ravel()
-    x = x[x > 0].astype(np.float64)
-    # bin = ⌊64·(log10 x + 12)⌋: one pass, no search over the edges
-    b = np.floor((np.log10(x) - _HIST_LOW) * _HIST_PER_DECADE).astype(np.int64)
-    return np.bincount(np.clip(b, 0, _N_BINS - 1), minlength=_N_BINS)
+    split of the sample sums to the same counts): bin = ⌊64·(log10 x + 12)⌋, no search over
+    the edges (:func:`~.kernels.log_histogram`)."""
+    from .kernels import log_histogram
+
+    counts = np.zeros(_N_BINS, dtype=np.int64)
+    log_histogram(block, _HIST_LOW, _HIST_PER_DECADE, counts)
+    return counts
 
 
 def _median(counts: np.ndarray, seen: int) -> tuple[float | None, float]:
@@ -410,12 +411,13 @@ def positive_median(btf: BTF, rows: int | None = None) -> tuple[float | None, fl
     the median is its log-spaced histogram bin's geometric centre (64 bins per decade), None
     when no value is positive. ``rows``: the sample's rows below this one only. NaN/Inf abort
     with their count and a location."""
+    from .._threads import ordered_map
+
     h = btf.shape[0]
     views, step = _offset_sample(btf)
-    counts = np.zeros(_N_BINS, dtype=np.int64)
     sub = slice(None, None, step)
-    seen = 0
-    for v in views:
+
+    def view_counts(v: int) -> tuple[int, np.ndarray]:
         block = btf.read(slice(0, min(h, rows or h), step), sub, slice(None), [int(v)])
         bad = ~np.isfinite(block)
         if bad.any():  # located in the whole BTF: rows and cols of the subsample × step
@@ -425,8 +427,15 @@ def positive_median(btf: BTF, rows: int | None = None) -> tuple[float | None, fl
                 f"col {c * step}, "
                 f"light {li}, view {int(v)}, channel {ch}"
             )
-        seen += block.size
-        counts += _histogram(block)
+        return block.size, _histogram(block)
+
+    # the views on the worker threads (the first failure in view order is raised); counts
+    # are integers, so their sum does not depend on the order
+    counts = np.zeros(_N_BINS, dtype=np.int64)
+    seen = 0
+    for size, c in ordered_map(view_counts, [int(v) for v in views]):
+        seen += size
+        counts += c
     return _median(counts, seen)
 
 
