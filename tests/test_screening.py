@@ -132,6 +132,21 @@ def test_batches_coded_side_by_side_equal_one_call_each(c, monkeypatch):
     assert len(waits) == 1
     for a, b in zip(got, ref, strict=True):
         assert len(a) == len(b) and all(_same(p, q) for p, q in zip(a, b, strict=True))
+    # levels in any order, repeated: the dictionaries projected are screen_dictionaries' own
+    made = []
+    inner_p = coding.project_into
+    monkeypatch.setattr(coding, "project_into",
+                        lambda b, m, bufs: made.append(id(m)) or inner_p(b, m, bufs))  # fmt: skip
+    # points of no dictionary: close rankings, so the levels the screening sees matter
+    x2 = np.random.default_rng(11).standard_normal((12, *SHAPE)).astype(np.float32)
+    x2 += _points(dicts, n=12, seed=11)[0]
+    mixed = coding.sparse_code_batches([x2], [dicts], [[300, 12, 40, 12]], 0.0, candidates=c)
+    mask = (np.ones((12, K), bool) if c is None
+            else screen_dictionaries(x2, dicts, [300, 12, 40, 12], 0.0, c))  # fmt: skip
+    assert len(made) == mask.sum()
+    ref2 = sparse_code_levels(x2, dicts, [12, 40, 300], 0.0, candidates=c)
+    assert all(_same(p, q) for p, q in zip(mixed[0], [ref2[2], ref2[0], ref2[1], ref2[0]],
+                                           strict=True))  # fmt: skip
     with pytest.raises(BTFInputError, match="one of each per batch"):
         coding.sparse_code_batches([x, y], [dicts], [LEVELS, [30]])
 

@@ -353,7 +353,9 @@ class _PointCoder:
 
     def __init__(self, x: np.ndarray, dictionaries: Sequence[np.ndarray], levels: list[int],
                  eps: float, candidates: int | None) -> None:  # fmt: skip
-        self.x, self.levels, self.eps = x, levels, eps
+        self.x, self.eps = x, eps
+        # the screening's levels as screen_dictionaries takes them: distinct, increasing
+        self.levels = sorted(set(levels))
         n_dict = dictionaries[0].shape[0]
         self.n_dict = n_dict
         rule, self.n_cand = coding_rule(candidates, n_dict)
