@@ -132,7 +132,10 @@ def test_batches_coded_side_by_side_equal_one_call_each(c, monkeypatch):
     assert len(waits) == 1
     for a, b in zip(got, ref, strict=True):
         assert len(a) == len(b) and all(_same(p, q) for p, q in zip(a, b, strict=True))
-    # levels in any order, repeated: the dictionaries projected are screen_dictionaries' own
+    # levels in any order, repeated: the dictionaries projected are screen_dictionaries' own,
+    # the window too (wider for τ = 300 than for τ = 12 here)
+    monkeypatch.setattr(coding, "SCREEN_DEPTH", 4)
+    assert coding.screen_columns(300, 16, 20) != coding.screen_columns(12, 16, 20)
     made = []
     inner_p = coding.project_into
     monkeypatch.setattr(coding, "project_into",

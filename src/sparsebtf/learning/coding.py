@@ -248,26 +248,45 @@ def screen_dictionaries(
     b = x.shape[0]
     n_dict = dictionaries[0].shape[0]
     mask = np.zeros((b, n_dict), dtype=bool)
-    if x.ndim != 5 or candidates >= n_dict:
+    if not _Screening.applies(x, candidates, n_dict):
         mask[:] = True
         return mask
-    size = int(np.prod(x.shape[1:]))
-    levels = sorted({min(int(t), size) for t in taus})
-    mats = [np.asarray(d, dtype=dtype) for d in dictionaries]
     if energy is None:
         energy = point_energies(x)
-    if columns is None:
-        columns = screen_columns(levels[-1], x.shape[1] * x.shape[2], x.shape[3])
-    if margin is None:
-        margin = SCREEN_MARGIN
-
-    def task(i: int) -> np.ndarray:
-        sq = _partial_top(x[i], mats, columns, levels[-1])
-        return _kept(sq, float(energy[i]), size, levels, eps, candidates, margin)
-
-    for i, keep in enumerate(parallel_map(task, range(b))):
+    screen = _Screening(x, dictionaries, taus, eps, candidates, columns, margin)
+    for i, keep in enumerate(parallel_map(lambda i: screen.keep(x[i], float(energy[i])),
+                                          range(b))):  # fmt: skip
         mask[i] = keep
     return mask
+
+
+class _Screening:
+    """:func:`screen_dictionaries`' rule for the points of one batch ``x`` (B, p1, p2, L, V):
+    its levels (the distinct τ clipped to the point size, increasing), the dictionaries in
+    x's dtype, the columns (default :func:`screen_columns` of the largest τ) and the margin
+    (default :data:`SCREEN_MARGIN`); :meth:`keep` screens one point."""
+
+    def __init__(self, x: np.ndarray, dictionaries: Sequence[np.ndarray], taus: Sequence[int],
+                 eps: float, candidates: int, columns: tuple[int, int] | None = None,
+                 margin: float | None = None) -> None:  # fmt: skip
+        self.size = int(np.prod(x.shape[1:]))
+        self.levels = sorted({min(int(t), self.size) for t in taus})
+        self.mats = [np.asarray(d, dtype=x.dtype) for d in dictionaries]
+        self.columns = (screen_columns(self.levels[-1], x.shape[1] * x.shape[2], x.shape[3])
+                        if columns is None else columns)  # fmt: skip
+        self.margin = SCREEN_MARGIN if margin is None else margin
+        self.eps, self.candidates = eps, candidates
+
+    @staticmethod
+    def applies(x: np.ndarray, candidates: int, n_dict: int) -> bool:
+        """Screening is for batches of 4D points with fewer candidates than dictionaries."""
+        return x.ndim == 5 and candidates < n_dict
+
+    def keep(self, point: np.ndarray, energy: float) -> np.ndarray:
+        """(K,) the dictionaries ``point`` (p1, p2, L, V) of energy ‖X‖² is projected on."""
+        sq = _partial_top(point, self.mats, self.columns, self.levels[-1])
+        return _kept(sq, energy, self.size, self.levels, self.eps, self.candidates,
+                     self.margin)  # fmt: skip
 
 
 def sparse_code(
@@ -344,7 +363,7 @@ Projected = list[tuple[int, np.ndarray, np.ndarray]]
 
 class _PointCoder:
     """Everything one data point of a batch needs on a worker thread, in one task: its
-    energy, its screening (:func:`_partial_top`, :func:`_kept`) and the exact projections of
+    energy, its screening (:class:`_Screening`) and the exact projections of
     the dictionaries kept, each with its top-τ selection. The values are those of
     :func:`point_energies`, :func:`screen_dictionaries` and the projections made after them,
     bit for bit; one task per point (and channel) leaves one wait per batch instead of three
@@ -353,38 +372,26 @@ class _PointCoder:
 
     def __init__(self, x: np.ndarray, dictionaries: Sequence[np.ndarray], levels: list[int],
                  eps: float, candidates: int | None) -> None:  # fmt: skip
-        self.x, self.eps = x, eps
-        # the screening's levels as screen_dictionaries takes them: distinct, increasing
-        self.levels = sorted(set(levels))
-        n_dict = dictionaries[0].shape[0]
-        self.n_dict = n_dict
-        rule, self.n_cand = coding_rule(candidates, n_dict)
-        # screen_dictionaries' conditions: 4D points and fewer candidates than dictionaries
-        self.screen = rule != "exhaustive" and x.ndim == 5 and self.n_cand < n_dict
-        dt = x.dtype
-        self.mats = [np.asarray(d, dtype=dt) for d in dictionaries]
-        self.mats_k = [[m[k] for m in self.mats] for k in range(n_dict)]
-        self.columns = (
-            screen_columns(levels[-1], x.shape[1] * x.shape[2], x.shape[3]) if self.screen
-            else (0, 0)
-        )  # fmt: skip
+        self.x, self.tmax = x, max(levels)
+        self.n_dict = dictionaries[0].shape[0]
+        rule, n_cand = coding_rule(candidates, self.n_dict)
+        self.screen = (_Screening(x, dictionaries, levels, eps, n_cand)
+                       if rule != "exhaustive" and _Screening.applies(x, n_cand, self.n_dict)
+                       else None)  # fmt: skip
+        self.mats_k = [[np.asarray(d[k], dtype=x.dtype) for d in dictionaries]
+                       for k in range(self.n_dict)]  # fmt: skip
 
     def __call__(self, i: int) -> tuple[float, Projected]:
         x = self.x[i]
         energy = float(sum_squares(self.x[i : i + 1].reshape(1, -1))[0])
-        if self.screen:
-            sq = _partial_top(x, self.mats, self.columns, self.levels[-1])
-            keep = np.flatnonzero(_kept(sq, energy, x.size, self.levels, self.eps,
-                                        self.n_cand, SCREEN_MARGIN))  # fmt: skip
-        else:
-            keep = np.arange(self.n_dict)
-        tmax = max(self.levels)
+        keep = (np.arange(self.n_dict) if self.screen is None
+                else np.flatnonzero(self.screen.keep(x, energy)))  # fmt: skip
+        # :func:`project`'s values, into this thread's buffers: idx and s[idx] are copies
+        buf = _buffers(x.size, x.dtype)
         out: Projected = []
         for k in keep:
-            # :func:`project`'s values, into this thread's buffers: idx and s[idx] are copies
-            buf = _buffers(x.size, x.dtype)
             s = project_into(x[None], self.mats_k[k], buf[:2]).reshape(-1)
-            idx = topk_abs(s, tmax, scratch=buf[2])
+            idx = topk_abs(s, self.tmax, scratch=buf[2])
             out.append((int(k), idx, s[idx]))
         return energy, out
 
