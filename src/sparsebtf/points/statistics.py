@@ -172,11 +172,8 @@ def statistic_sums(
     counts = np.zeros(_N_BINS, dtype=np.int64) if sample else None
     seen = 0
 
-    def group_sums(vs: tuple[int, int]) -> tuple[Any, ...]:
-        return _group_sums(btf, vs, rows, log_offset, where)
-
     for (a, b), (sh, g1, g2, gt, neg, gc, gs) in zip(
-        groups, _each_group(btf, groups, rows, log_offset, where, group_sums), strict=True
+        groups, _each_group(btf, groups, rows, log_offset, where), strict=True
     ):
         shift[:, a - v0 : b - v0] = sh
         s1[:, a - v0 : b - v0] = g1
@@ -193,35 +190,49 @@ def statistic_sums(
 
 def _each_group(
     btf: BTF, groups: list[tuple[int, int]], rows: int, offset: float,
-    sample: tuple[np.ndarray, int] | None, group_sums: Callable[[tuple[int, int]], Any],
+    sample: tuple[np.ndarray, int] | None,
 ) -> Iterator[tuple[Any, ...]]:  # fmt: skip
-    """Each view group's sums, in order: the groups on the worker threads
-    (:func:`~sparsebtf._threads.ordered_map`), or, for a BTF whose reads hold a lock of the
-    process (:attr:`~sparsebtf.data.btf.BTF.serial_reads`), the bands read one after another
-    on a thread of their own while this one adds up the band read before (two threads
-    reading side by side waited for each other a fifth of the time). Same sums either way."""
+    """Each view group's sums (:class:`_GroupAccumulator`), in order: the groups on the
+    worker threads (:func:`~sparsebtf._threads.ordered_map`), or, for a BTF whose reads hold
+    a lock of the process (:attr:`~sparsebtf.data.btf.BTF.serial_reads`), the bands read one
+    after another on a thread of their own while this one adds up the band read before (two
+    threads reading side by side waited for each other a fifth of the time). Same sums
+    either way."""
     from .._threads import n_workers, ordered_map, prefetch
 
+    def new(g: int) -> _GroupAccumulator:
+        return _GroupAccumulator(btf, groups[g], offset, sample)
+
     if not btf.serial_reads or n_workers() == 1:
-        yield from ordered_map(group_sums, groups)
+
+        def group_sums(g: int) -> tuple[Any, ...]:
+            acc = new(g)
+            for r0, block in _bands(btf, groups[g], rows):
+                acc.add(r0, block)
+            return acc.result()
+
+        yield from ordered_map(group_sums, range(len(groups)))
         return
-    h = btf.shape[0]
-
-    def bands() -> Iterator[tuple[int, int, np.ndarray]]:
-        for g, (a, b) in enumerate(groups):
-            for r0 in range(0, h, rows):
-                yield g, r0, btf.read(slice(r0, min(r0 + rows, h)), slice(None),
-                                      slice(None), slice(a, b))  # fmt: skip
-
+    bands = ((g, r0, block) for g in range(len(groups))
+             for r0, block in _bands(btf, groups[g], rows))  # fmt: skip
     acc: _GroupAccumulator | None = None
-    for g, r0, block in prefetch(bands(), depth=1):
+    for g, r0, block in prefetch(bands, depth=1):
         if r0 == 0:
             if acc is not None:
                 yield acc.result()
-            acc = _GroupAccumulator(btf, groups[g], offset, sample)
+            acc = new(g)
         acc.add(r0, block)  # type: ignore[union-attr]
     if acc is not None:
         yield acc.result()
+
+
+def _bands(btf: BTF, views: tuple[int, int], rows: int) -> Iterator[tuple[int, np.ndarray]]:
+    """(first row, linear RGB (rows, W, L, b − a, 3)) of views ``[a, b)``, ``rows`` rows at a
+    time from the top."""
+    h = btf.shape[0]
+    for r0 in range(0, h, rows):
+        yield r0, btf.read(slice(r0, min(r0 + rows, h)), slice(None), slice(None),
+                           slice(*views))  # fmt: skip
 
 
 class _GroupAccumulator:
@@ -279,21 +290,6 @@ class _GroupAccumulator:
             self.counts,
             self.seen,
         )
-
-
-def _group_sums(
-    btf: BTF, views: tuple[int, int], rows: int, offset: float,
-    sample: tuple[np.ndarray, int] | None = None,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int, np.ndarray | None, int]:
-    """:class:`_GroupAccumulator`'s result for views ``[a, b)``, read in bands of ``rows``
-    rows."""
-    h = btf.shape[0]
-    a, b = views
-    acc = _GroupAccumulator(btf, views, offset, sample)
-    for r0 in range(0, h, rows):
-        acc.add(r0, btf.read(slice(r0, min(r0 + rows, h)), slice(None), slice(None),
-                             slice(a, b)))  # fmt: skip
-    return acc.result()
 
 
 def combine_statistics(
