@@ -165,63 +165,58 @@ class UBO2014BTF(BTF):
         # temporaries of the whole patch
         per_channel = (self.color_model == 12) if self.layout == "DFMF" else self.drr
         val = np.empty((pix.size, ang.size), dtype=self._acc) if per_channel else None
+        spatial: dict[int, np.ndarray] = {}  # FMF: one spatial factor for the three channels
         for ch in range(3):
-            if self.layout == "DFMF":
-                u, sxv = self.factors[ch]
-                a = self._angular(ch, 0, 1)
-                a = _rows(u, ang, self._acc) if a is None else _rows(a, mine, self._acc)
-            else:
-                u, sxv = self.factors[0]
-                a = self._angular(0, ch, 3)
-                a = _rows(u, ang * 3 + ch, self._acc) if a is None else _rows(a, mine, self._acc)
+            # DFMF: factor pair ch, rows view·L + light; FMF: pair 0, rows (view·L + light)·3 + ch
+            k, at, stride = (ch, 0, 1) if self.layout == "DFMF" else (0, ch, 3)
+            a = self._angular(k, at, stride, ang, mine)
+            if k not in spatial:
+                spatial[k] = _rows(self.factors[k][1], pix, self._acc)
             if val is None:
-                q[..., ch] = _rows(sxv, pix, self._acc) @ a.T
+                q[..., ch] = spatial[k] @ a.T
                 continue
-            np.matmul(_rows(sxv, pix, self._acc), a.T, out=val)
+            np.matmul(spatial[k], a.T, out=val)
             np.exp(val, out=val)
             np.subtract(val, RELEASE_LOG_OFFSET, out=q[..., ch])
-        if per_channel:
-            rgb = q
-        elif self.layout == "DFMF":
-            rgb = self._color_inverse(q)
-        else:
-            rgb = q
+        rgb = self._color_inverse(q) if self.layout == "DFMF" and not per_channel else q
         out = rgb.reshape(r.size, c.size, li.size, vi.size, 3)
         if self.divide_cosine:
             # BL removes the foreshortening term when the file says it is baked in (§1.10.5).
             out = out / self.lights.xyz[li, 2][None, None, :, None, None]
         return np.asarray(out, dtype=np.float32)
 
-    def _angular(self, k: int, ch: int, stride: int) -> np.ndarray | None:
-        """Angular factor ``k``'s rows of channel ``ch`` (file rows (view·L + light)·stride +
-        ch), light-major and converted to the sums' dtype, kept once read: a data point needs
-        every direction, which in the file's view-major order is a gather of every row of the
-        memory map and a conversion from binary16, per read and channel (a third of reading
-        a DFMF patch). None when that copy would take more than a sixteenth of the memory
-        budget (the rows are then gathered per read, as before)."""
+    def _angular(self, k: int, ch: int, stride: int, ang: np.ndarray, mine: np.ndarray
+                 ) -> np.ndarray:  # fmt: skip
+        """Angular factor ``k``'s rows of channel ``ch`` for the directions ``ang`` (file
+        rows (view·L + light)·stride + ch) = ``mine`` (light·V + view), in the sums' dtype.
+
+        The factor's rows of the channel are kept, light-major and converted, once read: a
+        data point needs every direction, which in the file's view-major order is a gather
+        of every row of the memory map and a conversion from binary16, per read and channel
+        (a third of reading a DFMF patch). When that copy would take more than a sixteenth
+        of the memory budget the rows are gathered from the file per read."""
+        u = self.factors[k][0]
         cache = self.__dict__.setdefault("_angular_rows", {})
         have = cache.get((k, ch))
-        if have is not None:
-            return have
-        u = self.factors[k][0]
-        nl, nv = len(self.lights), len(self.views)
-        if nl * nv * u.shape[1] * self._acc.itemsize > memory_budget() // 16:
-            return None
-        rows = (np.arange(nv)[None, :] * nl + np.arange(nl)[:, None]).ravel() * stride + ch
-        # two threads may both convert the first time: the same values, one kept
-        return cache.setdefault((k, ch), np.asarray(u[rows], dtype=self._acc))
+        if have is None:
+            nl, nv = len(self.lights), len(self.views)
+            if nl * nv * u.shape[1] * self._acc.itemsize > memory_budget() // 16:
+                return _rows(u, ang * stride + ch, self._acc)
+            rows = (np.arange(nv)[None, :] * nl + np.arange(nl)[:, None]).ravel() * stride + ch
+            # two threads may both convert the first time: the same values, one kept
+            have = cache.setdefault((k, ch), np.asarray(u[rows], dtype=self._acc))
+        return _rows(have, mine, self._acc)
 
     def __getstate__(self) -> dict[str, Any]:
         # the converted rows are read again where the object lands
         return {k: v for k, v in self.__dict__.items() if k != "_angular_rows"}
 
     def _color_inverse(self, q: np.ndarray) -> np.ndarray:
-        """DFMF colour model → RGB (§1.10.3), Bonn's BL form (no clamping)."""
+        """DFMF colour model → RGB (§1.10.3), Bonn's BL form (no clamping); model 12
+        (exp(·) − offset on each channel) is applied channel by channel in :meth:`_read`."""
         m = self.color_model
         if m == 0:
             return q
-        if m == 12:
-            return np.exp(q) - RELEASE_LOG_OFFSET
         if m == 3:
             t = np.asarray(self.color_transform, dtype=q.dtype)
             return q @ t + np.asarray(self.color_mean, dtype=q.dtype)
