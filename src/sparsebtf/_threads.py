@@ -13,16 +13,21 @@ processes).
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable, Iterable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
+import numpy as np
 from threadpoolctl import ThreadpoolController
 
 T = TypeVar("T")
 R = TypeVar("R")
 
-__all__ = ["n_workers", "ordered_map", "parallel_map", "prefetch", "single_threaded_blas"]
+__all__ = [
+    "n_workers", "ordered_map", "parallel_map", "prefetch", "single_threaded_blas",
+    "thread_buffer",
+]  # fmt: skip
 
 _POOL: ThreadPoolExecutor | None = None
 _BLAS: ThreadpoolController | None = None
@@ -35,6 +40,18 @@ def single_threaded_blas():  # type: ignore[no-untyped-def]
     if _BLAS is None:
         _BLAS = ThreadpoolController()
     return _BLAS.limit(limits=1, user_api="blas")
+
+
+def thread_buffer(local: threading.local, size: int, dtype: np.dtype | type,
+                  name: str = "buf") -> np.ndarray:  # fmt: skip
+    """The first ``size`` entries of a flat ``dtype`` array owned by the calling thread (kept
+    as ``local.<name>``, made anew only when too small or of another dtype): reused from call
+    to call, so the kernel does not map and zero fresh pages for every call."""
+    buf = getattr(local, name, None)
+    if buf is None or buf.size < size or buf.dtype != dtype:
+        buf = np.empty(size, dtype=dtype)
+        setattr(local, name, buf)
+    return buf[:size]
 
 
 def n_workers() -> int:

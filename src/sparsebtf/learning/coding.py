@@ -34,7 +34,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from .._threads import parallel_map
+from .._threads import parallel_map, thread_buffer
 from ..errors import BTFInputError
 from .codes import SparseCodes, coding_rule, count_and_error, rule_keys, topk_abs
 from .objective import ChannelError, judged_code_levels
@@ -162,10 +162,7 @@ _BUFFERS = threading.local()
 
 
 def _buffers(size: int, dtype: np.dtype) -> list[np.ndarray]:
-    have = getattr(_BUFFERS, "arrays", None)
-    if have is None or have[0].size < size or have[0].dtype != dtype:
-        have = _BUFFERS.arrays = [np.empty(size, dtype=dtype) for _ in range(3)]
-    return have
+    return [thread_buffer(_BUFFERS, size, dtype, f"buf{i}") for i in range(3)]
 
 
 def point_energies(batch: np.ndarray) -> np.ndarray:

@@ -20,6 +20,7 @@ bound, the log offset) are measured by :mod:`.statistics`.
 
 from __future__ import annotations
 
+import math
 import threading
 from dataclasses import dataclass
 from typing import Literal
@@ -27,6 +28,7 @@ from typing import Literal
 import numpy as np
 
 from .._semantic import LOG_OFFSET_RANGE
+from .._threads import thread_buffer
 from ..colour import RGB_TO_YUV_F32, rgb_to_yuv, yuv_to_rgb
 from ..constraints import Interval, StrOptions, check_option
 from ..data.btf import RELEASE_LOG_OFFSET, Index, as_index
@@ -275,10 +277,7 @@ class Preprocessor:
 
     def _scratch(self, shape: tuple[int, ...]) -> np.ndarray:
         """A float32 array of ``shape`` owned by the calling thread, reused across calls."""
-        buf = getattr(self._local, "buf", None)
-        if buf is None or buf.shape != shape:
-            buf = self._local.buf = np.empty(shape, dtype=np.float32)
-        return buf
+        return thread_buffer(self._local, math.prod(shape), np.float32).reshape(shape)
 
     def forward(
         self,
