@@ -117,6 +117,7 @@ class ChunkReader:
         self._ds = ds
         self.shape = tuple(int(s) for s in ds.shape)
         self.chunks = tuple(int(c) for c in ds.chunks)
+        self._nbytes = math.prod(self.chunks) * 4  # a chunk's float32 values, checksum aside
         self.checksum = checksum
         grid = [-(-s // c) for s, c in zip(self.shape, self.chunks, strict=True)]
         self._verified = np.zeros(grid, dtype=bool)
@@ -168,7 +169,7 @@ class ChunkReader:
         except (OSError, KeyError, ValueError, RuntimeError) as e:  # not allocated, unreadable
             raise _Unreadable from e
         data = np.frombuffer(raw, dtype=np.uint8)
-        n = math.prod(self.chunks) * 4
+        n = self._nbytes
         at = tuple(o // c for o, c in zip(origin, self.chunks, strict=True))
         if self.checksum and not mask & 1:  # bit 0 set: the filter was skipped for this chunk
             if data.size != n + 4:

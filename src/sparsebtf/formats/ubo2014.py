@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import os
 import struct
+import threading
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -29,6 +30,7 @@ import numpy as np
 
 from .._limits import memory_budget
 from .._semantic import check_color_header, check_directions
+from .._threads import thread_buffer
 from ..colour import YUV_TO_RGB_RELEASE
 from ..data.btf import BTF, RELEASE_LOG_OFFSET, Index, contiguous_slice
 from ..data.directions import from_angles
@@ -164,7 +166,9 @@ class UBO2014BTF(BTF):
         # hard-coded by their decoders, not stored): one pass instead of three and no
         # temporaries of the whole patch
         per_channel = (self.color_model == 12) if self.layout == "DFMF" else self.drr
-        val = np.empty((pix.size, ang.size), dtype=self._acc) if per_channel else None
+        local = self.__dict__.setdefault("_local", threading.local())
+        val = (thread_buffer(local, pix.size * ang.size, self._acc).reshape(pix.size, ang.size)
+               if per_channel else None)  # fmt: skip
         spatial: dict[int, np.ndarray] = {}  # FMF: one spatial factor for the three channels
         for ch in range(3):
             # DFMF: factor pair ch, rows view·L + light; FMF: pair 0, rows (view·L + light)·3 + ch
@@ -208,8 +212,9 @@ class UBO2014BTF(BTF):
         return _rows(have, mine, self._acc)
 
     def __getstate__(self) -> dict[str, Any]:
-        # the converted rows are read again where the object lands
-        return {k: v for k, v in self.__dict__.items() if k != "_angular_rows"}
+        # the converted rows are read again where the object lands; the threads' buffers
+        # stay behind (a thread-local does not pickle)
+        return {k: v for k, v in self.__dict__.items() if k not in ("_angular_rows", "_local")}
 
     def _color_inverse(self, q: np.ndarray) -> np.ndarray:
         """DFMF colour model → RGB (§1.10.3), Bonn's BL form (no clamping); model 12
