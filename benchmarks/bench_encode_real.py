@@ -134,9 +134,8 @@ def instrumented(clock: Clock) -> Iterator[None]:
         clock.wrap(coding, "project_into", "projections made", timer=cpu,
                    calls=lambda args: args[0].shape[0]),
         clock.wrap(coding, "topk_abs", "selection cpu", timer=cpu),
+        clock.wrap(coding._Screening, "keep", "screening cpu", timer=cpu),
     ]
-    undo += [clock.wrap(coding, kernel, "screening cpu", timer=cpu, calls=lambda args: 0)
-             for kernel in ("_partial_squares", "_top_squares", "_kept")]  # fmt: skip
     try:
         yield
     finally:
