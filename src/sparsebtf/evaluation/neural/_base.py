@@ -33,7 +33,8 @@ def largest_size(budget_bytes: int, texels: int, sizes: Callable[[int], list[int
 class NeuralMethod(Method):
     """Base of the neural baselines: ``seed`` (None: the run's ``FitContext.seed``),
     ``threads`` (torch intra-op threads; None: one per usable core), ``progress``; the training
-    cost accumulates in ``seconds_`` and ``trainings_``."""
+    cost accumulates in ``seconds_`` (wall), ``cpu_seconds_`` and ``trainings_``, of which
+    ``trainings_converged_`` stopped on their held-out plateau (:mod:`._convergence`)."""
 
     def __init__(self, seed: int | None = None, threads: int | None = None,
                  progress: bool | None = None) -> None:  # fmt: skip
@@ -41,8 +42,33 @@ class NeuralMethod(Method):
         self.threads = threads
         self.progress = progress
         self.seconds_ = 0.0
+        self.cpu_seconds_ = 0.0
         self.trainings_ = 0
+        self.trainings_converged_ = 0
+        self.efforts_: list[float] = []
         self._run_seed = 0
+
+    def record(self, seconds: float, fit: dict[str, Any]) -> None:
+        """Add one training's wall seconds and its :func:`~._convergence.train_to_convergence`
+        record (CPU seconds, whether it converged) to the method's totals."""
+        self.seconds_ += seconds
+        self.cpu_seconds_ += float(fit.get("cpu_seconds", 0.0))
+        self.trainings_ += 1
+        self.trainings_converged_ += bool(fit.get("converged"))
+        self.efforts_.append(float(fit.get("queries_per_texel", 0.0)))
+
+    def effort_summary(self) -> dict[str, Any]:
+        """The trainings' effort for ``training_budget``: CPU seconds, how many converged,
+        the training queries per texel they used (least, most)."""
+        return {"cpu_seconds": round(self.cpu_seconds_, 3), "trainings": self.trainings_,
+                "converged": self.converged_,
+                "queries_per_texel": round(max(self.efforts_), 1) if self.efforts_ else 0,
+                "queries_per_texel_min": round(min(self.efforts_), 1) if self.efforts_ else 0}
+
+    @property
+    def converged_(self) -> str:
+        """How many of the method's trainings converged, as ``"k/n"``."""
+        return f"{self.trainings_converged_}/{self.trainings_}"
 
     def fit(self, train: Sequence[BTF], context: FitContext) -> NeuralMethod:
         self._run_seed = int(context.seed)

@@ -1,5 +1,6 @@
 """What the neural baselines share: features, the log1p domain, binary16 storage, seeding,
-sample pools, the training loop and the lazy reconstruction.
+sample pools with their held-out queries, and the lazy reconstruction (the training loop and
+its stop rule: :mod:`._convergence`).
 
 Conventions (docs/neural-baselines.md):
 
@@ -21,7 +22,7 @@ import itertools
 import math
 import os
 import zlib
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -37,13 +38,14 @@ from ...errors import BTFInputError
 __all__ = [
     "BATCH",
     "FP16_MAX",
+    "HeldOut",
     "NeuralBTF",
     "SamplePool",
-    "adam_steps",
     "binary16",
     "decode_latents",
     "direction_terms",
     "direction_xy",
+    "heldout_pairs",
     "init_mlp",
     "mlp_params",
     "read_pool",
@@ -189,35 +191,49 @@ def output(o: torch.Tensor, head: str) -> torch.Tensor:
     raise ValueError(f"unknown output head {head!r}")
 
 
-# -- training ---------------------------------------------------------------------------------
-def adam_steps(
-    params: Sequence[torch.Tensor],
-    steps: int,
-    loss_at: Callable[[int], torch.Tensor],
-    lr: tuple[float, float],
-    desc: str,
-    progress: bool | None,
-) -> dict[str, float]:
-    """``steps`` Adam steps on ``loss_at(step)``, the learning rate decaying geometrically
-    from ``lr[0]`` to ``lr[1]``. Returns the mean loss of the first and of the last tenth."""
-    opt = torch.optim.Adam(list(params), lr=lr[0])
-    losses = np.zeros(max(steps, 0))
-    with bar(steps, desc, "step", progress) as pb:
-        for t in range(steps):
-            for group in opt.param_groups:
-                group["lr"] = lr[0] * (lr[1] / lr[0]) ** (t / max(steps - 1, 1))
-            opt.zero_grad(set_to_none=True)
-            loss = loss_at(t)
-            loss.backward()
-            opt.step()
-            losses[t] = float(loss.detach())
-            pb.update(1)
-    k = max(1, steps // 10)
-    return {"loss_first": float(losses[:k].mean()) if steps else float("nan"),
-            "loss_last": float(losses[-k:].mean()) if steps else float("nan")}  # fmt: skip
-
-
 # -- sample pools -----------------------------------------------------------------------------
+@dataclass
+class HeldOut:
+    """Held-out queries of a pool's texels: (light, view) pairs that are **not** among that
+    texel's training samples nor the encoder's shared pairs, so a loss on them measures how
+    well a training generalises over directions, not how well it memorises its pool.
+
+    ``rows`` (m,) int64 pool rows (texels), ``values`` (m, 3) float32 log1p targets,
+    ``lights``, ``views`` (m,) int64 direction indices.
+    """
+
+    rows: torch.Tensor
+    values: torch.Tensor
+    lights: torch.Tensor
+    views: torch.Tensor
+
+
+def heldout_pairs(taken: np.ndarray, n_pairs: int, per_texel: int,
+                  gen: torch.Generator) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Up to ``per_texel`` random flat pairs in [0, ``n_pairs``) per row of ``taken`` (k, S)
+    that are not in that row: (row index (m,), pair (m,)), at most ``per_texel`` per row
+    (fewer where a row leaves fewer free pairs among the draws)."""
+    k = taken.shape[0]
+    draws = torch.randint(0, n_pairs, (k, 4 * per_texel), generator=gen).numpy()
+    row_keys = np.sort(taken.astype(np.int64) + (np.arange(k, dtype=np.int64) * n_pairs)[:, None],
+                       axis=None)  # fmt: skip
+    keys = draws.astype(np.int64) + (np.arange(k, dtype=np.int64) * n_pairs)[:, None]
+    pos = np.minimum(np.searchsorted(row_keys, keys), row_keys.size - 1)
+    free = row_keys[pos] != keys
+    # a pair drawn twice for one row counts once
+    order = np.argsort(keys, axis=1, kind="stable")
+    s = np.take_along_axis(keys, order, axis=1)
+    first = np.ones_like(free)
+    first[:, 1:] = s[:, 1:] != s[:, :-1]
+    uniq = np.empty_like(free)
+    np.put_along_axis(uniq, order, first, axis=1)
+    free &= uniq
+    rank = np.cumsum(free, axis=1)
+    keep = free & (rank <= per_texel)
+    rows, cols = np.nonzero(keep)
+    return rows.astype(np.int64), draws[rows, cols].astype(np.int64)
+
+
 @dataclass
 class SamplePool:
     """Random (light, view) samples of some texels of one material, held for training.
@@ -225,7 +241,8 @@ class SamplePool:
     ``values`` (n, S, 3) float32 log1p(max(y, 0)); ``lights``, ``views`` (n, S) int16
     direction indices (drawn uniformly, with replacement, per texel); ``texels`` (n,) int64
     flat texel indices row·W + col; ``shared`` (n, P, 3) log1p values at the P pairs
-    ``shared_pairs`` common to every texel (an encoder's fixed input), or None.
+    ``shared_pairs`` common to every texel (an encoder's fixed input), or None; ``heldout``
+    the queries a training is judged on (:class:`HeldOut`), or None.
     """
 
     values: torch.Tensor
@@ -234,6 +251,7 @@ class SamplePool:
     texels: np.ndarray
     shared: torch.Tensor | None = None
     shared_pairs: np.ndarray | None = None
+    heldout: HeldOut | None = None
 
     def take(self, rows: torch.Tensor, cols: torch.Tensor
              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
@@ -250,12 +268,22 @@ def read_pool(
     texels: np.ndarray | None = None,
     shared_pairs: np.ndarray | None = None,
     progress: bool | None = None,
+    heldout: int = 0,
+    heldout_texels: int = 4096,
 ) -> SamplePool:
     """Read ``n_samples`` random (light, view) samples of each texel of ``btf`` (``texels``:
     flat indices, default all) in bands of rows of at most :data:`READ_BYTES`, plus the
-    values at the flat pairs ``shared_pairs`` (light·V + view) if given."""
+    values at the flat pairs ``shared_pairs`` (light·V + view) if given, plus ``heldout``
+    held-out queries (:class:`HeldOut`) on each of at most ``heldout_texels`` random texels
+    of them: pairs outside that texel's samples, and outside ``shared_pairs`` unless these
+    cover half the grid or more (a tiny direction set, where nothing would be left)."""
     h, w, nl, nv, _ = btf.shape
     want = np.arange(h * w) if texels is None else np.unique(np.asarray(texels, np.int64))
+    judged = np.zeros(want.size, bool)
+    if heldout > 0:
+        judged[torch.randperm(want.size, generator=gen)[:heldout_texels].numpy()] = True
+    held: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+    offset = 0
     row_bytes = 12 * w * nl * nv
     band = max(1, READ_BYTES // row_bytes)
     vals, lis, vis, shared = [], [], [], []
@@ -276,11 +304,30 @@ def read_pool(
             vis.append((pairs % nv).astype(np.int16))
             if shared_pairs is not None:
                 shared.append(block[:, shared_pairs])
+            if heldout > 0:
+                here = np.flatnonzero(judged[offset:offset + sel.size])
+                taken = pairs[here]
+                if shared_pairs is not None and 2 * len(shared_pairs) < nl * nv:
+                    taken = np.concatenate(
+                        [taken, np.broadcast_to(shared_pairs, (here.size, len(shared_pairs)))],
+                        axis=1)  # fmt: skip
+                r_i, p_i = heldout_pairs(taken, nl * nv, heldout, gen)
+                held.append((offset + here[r_i], p_i, block[here[r_i], p_i]))
+            offset += sel.size
+    ho = None
+    if heldout > 0:
+        r_h, p_h, v_h = (np.concatenate(x) for x in zip(*held, strict=True))
+        if not r_h.size:
+            raise BTFInputError(f"{btf.label}: no held-out (light, view) pair is left outside "
+                                f"{n_samples} samples per texel of {nl} x {nv} directions; "
+                                "draw fewer samples per texel")  # fmt: skip
+        ho = HeldOut(torch.from_numpy(r_h), torch.from_numpy(np.ascontiguousarray(v_h)),
+                     torch.from_numpy(p_h // nv), torch.from_numpy(p_h % nv))  # fmt: skip
     return SamplePool(
         torch.from_numpy(np.concatenate(vals)), torch.from_numpy(np.concatenate(lis)),
         torch.from_numpy(np.concatenate(vis)), want,
         torch.from_numpy(np.concatenate(shared)) if shared_pairs is not None else None,
-        None if shared_pairs is None else np.asarray(shared_pairs),
+        None if shared_pairs is None else np.asarray(shared_pairs), ho,
     )  # fmt: skip
 
 

@@ -6,10 +6,11 @@ texture(C)], three hidden layers of 25 (ReLU), 6 outputs (log-YUV and a shadow t
 :func:`~._torch.output`), texture initialised N(0, 0.1²), Adam 1e-3, loss
 MSE(log1p(clamp(ŷ, −0.1)), log1p(y)) + 0.01·L1(ŷ, y), the texture blurred early in training
 with σ(t) = 8·exp(−t·ln 8 / 10,000) texels (floored at 0.1) over 30,000 iterations. We keep
-all of that (:class:`NeuMIPRecipe`); what differs is the budget: far fewer iterations, the
-blur schedule compressed to them, a higher starting learning rate, and one texture level
-(a single-scale BTF needs no pyramid). A query at a texel's centre reads that texel exactly
-(bilinear lookup at the sample point), so the lookup is an index.
+all of that (:class:`NeuMIPRecipe`); what differs: training stops on a plateau of the loss
+on held-out queries (at most twice the recipe's effort), a higher starting learning rate
+that drops to the recipe's, and one texture level (a single-scale BTF needs no pyramid). A
+query at a texel's centre reads that texel exactly (bilinear lookup at the sample point), so
+the lookup is an index.
 
 Storage, per material: 2·C·H·W bytes of texture + 2·(MLP parameters, which grow with C).
 C is the largest that fits the budget.
@@ -20,7 +21,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import torch
@@ -29,10 +30,10 @@ import torch.nn.functional as F
 from ...data.btf import BTF
 from ..methods.base import MATCHINGS, Budget, Coding
 from ._base import NeuralMethod, largest_size
+from ._convergence import StopRule, train_to_convergence
 from ._torch import (
     NeuralBTF,
     SamplePool,
-    adam_steps,
     binary16,
     direction_terms,
     direction_xy,
@@ -46,7 +47,8 @@ from ._torch import (
     torch_threads,
 )
 
-__all__ = ["RECIPE", "NeuMIPMethod", "NeuMIPRecipe", "blur_sigma", "circular_blur"]
+__all__ = ["QUICK_CAP", "RECIPE", "REFERENCE_QUERIES", "STOP", "NeuMIPMethod", "NeuMIPRecipe",
+           "blur_fades_at", "blur_sigma", "circular_blur"]
 
 
 @dataclass(frozen=True)
@@ -57,10 +59,11 @@ class NeuMIPRecipe:
     * ``texture_std`` 0.1 — [V] N(0, σ²) initial texture.
     * ``l1_weight`` 0.01, ``clamp_low`` −0.1 — [V] the loss.
     * ``blur_sigma0`` 8, ``blur_floor`` 0.1, ``blur_fall_iterations`` 10,000 of
-      ``reference_iterations`` 30,000 — [V] σ(t) = 8·exp(−t·ln 8/10,000); [P] we map our
-      iterations onto the reference's 30,000 so the schedule keeps its shape.
-    * ``lr`` — [V] 1e-3 constant in the original over 30,000 iterations; [P] we start higher
-      and decay to it, as our budget is a few hundred iterations.
+      ``reference_iterations`` 30,000 — [V] σ(t) = 8·exp(−t·ln 8/10,000); the schedule is
+      followed per training query per texel, as the recipe's 4 queries per texel per
+      iteration give it (a shorter span only in the quick configuration).
+    * ``lr`` — [V] 1e-3 constant in the original; [P] we start 10x higher and drop to it on
+      the held-out plateaus (:mod:`._convergence`), so 1e-3 is the floor.
     """
 
     hidden: tuple[int, ...] = (25, 25, 25)
@@ -80,15 +83,31 @@ class NeuMIPRecipe:
 
 #: The recipe every NeuMIP coding uses (one place; docs/neural-baselines.md).
 RECIPE = NeuMIPRecipe()
+#: The recipe's effort: 30,000 iterations of 4 images, every texel queried 4 times each.
+REFERENCE_QUERIES = 4 * RECIPE.reference_iterations
+#: When a NeuMIP training stops: a plateau of its held-out loss once the blur has faded
+#: (84,000 queries per texel on the recipe's schedule), capped at twice the recipe's effort.
+STOP = StopRule(max_queries_per_texel=2 * REFERENCE_QUERIES, eval_every=2000)
+#: The cap of the quick configuration (its blur compressed to half of it).
+QUICK_CAP = 20_000
 
 
-def blur_sigma(step: int, steps: int, recipe: NeuMIPRecipe = RECIPE) -> float:
-    """The texture blur σ (texels) at ``step`` of ``steps``: NeuMIP's schedule with our steps
-    mapped onto its ``reference_iterations``."""
-    t = step * recipe.reference_iterations / max(steps, 1)
+def blur_sigma(queries: float, span: float, recipe: NeuMIPRecipe = RECIPE) -> float:
+    """The texture blur σ (texels) after ``queries`` training queries per texel: NeuMIP's
+    schedule over its ``reference_iterations``, mapped onto ``span`` queries per texel (the
+    recipe's own mapping: 4 queries per texel per iteration, ``span`` = 120,000)."""
+    t = queries * recipe.reference_iterations / max(span, 1e-9)
     s = recipe.blur_sigma0 * math.exp(-t * math.log(recipe.blur_sigma0)
                                       / recipe.blur_fall_iterations)  # fmt: skip
     return max(s, recipe.blur_floor)
+
+
+def blur_fades_at(span: float, recipe: NeuMIPRecipe = RECIPE) -> float:
+    """The queries per texel at which :func:`blur_sigma` reaches its floor: before it, the
+    loss measures a blurred texture, so the stop rule is not tested."""
+    t = (recipe.blur_fall_iterations * math.log(recipe.blur_sigma0 / recipe.blur_floor)
+         / math.log(recipe.blur_sigma0))  # fmt: skip
+    return t * span / recipe.reference_iterations
 
 
 def circular_blur(n: int, sigma: float) -> torch.Tensor:
@@ -104,9 +123,12 @@ def circular_blur(n: int, sigma: float) -> torch.Tensor:
 class NeuMIPMethod(NeuralMethod):
     """NeuMIP without neural offset, one texture and MLP per material and budget.
 
-    Effort: ``queries_per_texel`` training queries per texel; every iteration queries every
-    texel ``queries_per_step`` times (NeuMIP: a batch of 4 full images, each pixel with its own
-    random light and view), from a pool of ``pool`` random samples per texel.
+    Effort: every iteration queries every texel ``queries_per_step`` times (NeuMIP: a batch of
+    4 full images, each pixel with its own random light and view), from a pool of ``pool``
+    random samples per texel; the blur schedule spans ``blur_queries_per_texel`` (the
+    recipe's 120,000); training runs until the loss on ``heldout`` held-out queries on each of
+    ``heldout_texels`` texels plateaus after the blur has faded (:data:`STOP`), at most
+    ``max_queries_per_texel``.
     """
 
     name = "neumip"
@@ -117,39 +139,59 @@ class NeuMIPMethod(NeuralMethod):
 
     def __init__(
         self,
-        queries_per_texel: int = 2500,
+        max_queries_per_texel: float = STOP.max_queries_per_texel,
+        eval_every: float = STOP.eval_every,
+        tolerance: float = STOP.tolerance,
+        blur_queries_per_texel: float = REFERENCE_QUERIES,
         queries_per_step: int = 2,
         pool: int = 4000,
+        heldout: int = 16,
+        heldout_texels: int = 4096,
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
     ) -> None:
         super().__init__(seed, threads, progress)
-        self.queries_per_texel = int(queries_per_texel)
+        self.max_queries_per_texel = float(max_queries_per_texel)
+        self.eval_every = float(eval_every)
+        self.tolerance = float(tolerance)
+        self.blur_queries_per_texel = float(blur_queries_per_texel)
         self.queries_per_step = int(queries_per_step)
         self.pool = int(pool)
+        self.heldout = int(heldout)
+        self.heldout_texels = int(heldout_texels)
+        if self.heldout < 1 or self.heldout_texels < 1:
+            raise ValueError(f"heldout and heldout_texels must be >= 1 (the stop rule is judged "
+                             f"on held-out queries), got {heldout} and {heldout_texels}")
 
     @classmethod
     def from_config(cls, config: Any) -> NeuMIPMethod:
         if getattr(config, "name", "full") == "quick":
-            return cls(queries_per_texel=1200, pool=3000)
+            return cls(max_queries_per_texel=QUICK_CAP, blur_queries_per_texel=QUICK_CAP / 2,
+                       eval_every=QUICK_CAP / 40, pool=3000)  # fmt: skip
         return cls()
+
+    @property
+    def rule(self) -> StopRule:
+        return replace(STOP, max_queries_per_texel=self.max_queries_per_texel,
+                       eval_every=self.eval_every, tolerance=self.tolerance,
+                       min_queries_per_texel=blur_fades_at(self.blur_queries_per_texel,
+                                                           self.recipe))  # fmt: skip
 
     def channels(self, budget_bytes: int, texels: int) -> int:
         """The largest C with 2·C·H·W + 2·(MLP parameters at C) <= ``budget_bytes``."""
         return largest_size(budget_bytes, texels, self.recipe.mlp_sizes, True)
 
-    def steps(self) -> int:
-        return max(1, math.ceil(self.queries_per_texel / self.queries_per_step))
-
     def training_budget(self) -> dict[str, Any]:
         return {
             "seconds": round(self.seconds_, 3),
-            "trainings": self.trainings_,
-            "queries_per_texel": self.steps() * self.queries_per_step,
-            "iterations": self.steps(),
+            **self.effort_summary(),
+            "cap_queries_per_texel": self.max_queries_per_texel,
+            "iterations": f"until the held-out loss plateaus after the blur, at most "
+                          f"ceil({self.max_queries_per_texel:g} / {self.queries_per_step})",
             "pool_per_texel": self.pool,
-            "reference_queries_per_texel": self.recipe.reference_iterations * 4,
+            "reference_queries_per_texel": REFERENCE_QUERIES,
+            "stop_rule": self.rule.describe(),
             "scope": "one model per material and channel count",
         }
 
@@ -161,7 +203,8 @@ class NeuMIPMethod(NeuralMethod):
         gen = seed_generator(self.seed_, "neumip", btf.name)
         out: list[Coding] = []
         with torch_threads(self.threads):
-            pool = read_pool(btf, self.pool, gen, progress=self.progress)
+            pool = read_pool(btf, self.pool, gen, progress=self.progress, heldout=self.heldout,
+                             heldout_texels=self.heldout_texels)
             trained: dict[int, tuple[NeuralBTF, dict[str, Any]]] = {}
             for budget, c in zip(budgets, sizes, strict=True):
                 if c < 1:
@@ -188,15 +231,11 @@ class NeuMIPMethod(NeuralMethod):
         mlp = init_mlp(r.mlp_sizes(channels), gen)
         lxy, vxy = direction_xy(btf.lights), direction_xy(btf.views)
         n, s = pool.values.shape[:2]
-        steps = self.steps()
         rows = torch.arange(n)[:, None]
+        span = self.blur_queries_per_texel
 
-        def loss_at(t: int) -> torch.Tensor:
-            sigma = blur_sigma(t, steps, r)
-            tex = torch.einsum("ih,hwc,jw->ijc", circular_blur(h, sigma), texture,
-                               circular_blur(w, sigma)).reshape(n, channels)  # fmt: skip
-            cols = torch.randint(0, s, (n, self.queries_per_step), generator=gen)
-            y_log, li, vi = pool.take(rows, cols)
+        def loss(tex: torch.Tensor, y_log: torch.Tensor, li: torch.Tensor,
+                 vi: torch.Tensor) -> torch.Tensor:  # fmt: skip
             w0, b0 = mlp[0]
             a_l, a_v = direction_terms(w0, channels, lxy, vxy)
             pre = (tex @ w0[:, :channels].T + b0)[:, None] + a_l[li] + a_v[vi]
@@ -204,15 +243,27 @@ class NeuMIPMethod(NeuralMethod):
             return (F.mse_loss(torch.log1p(y_hat.clamp_min(r.clamp_low)), y_log)
                     + r.l1_weight * F.l1_loss(y_hat, torch.expm1(y_log)))  # fmt: skip
 
-        losses = adam_steps([texture, *flat(mlp)], steps, loss_at, r.lr,
-                            f"neumip {btf.name} C={channels}", self.progress)  # fmt: skip
+        def loss_at(_: int, queries: float) -> torch.Tensor:
+            sigma = blur_sigma(queries, span, r)
+            tex = torch.einsum("ih,hwc,jw->ijc", circular_blur(h, sigma), texture,
+                               circular_blur(w, sigma)).reshape(n, channels)  # fmt: skip
+            cols = torch.randint(0, s, (n, self.queries_per_step), generator=gen)
+            return loss(tex, *pool.take(rows, cols))
+
+        ho = pool.heldout
+
+        def heldout() -> float:  # the texture as it will be stored: unblurred
+            tex = texture.reshape(n, channels)[ho.rows]
+            return float(loss(tex, ho.values[:, None], ho.lights[:, None], ho.views[:, None]))
+
+        fit = train_to_convergence([texture, *flat(mlp)], loss_at, heldout,
+                                   float(self.queries_per_step), r.lr, self.rule,
+                                   f"neumip {btf.name} C={channels}", self.progress)  # fmt: skip
         rec = NeuralBTF(binary16(texture), [(binary16(a), binary16(b)) for a, b in mlp],
                         btf.lights, btf.views, head="neumip", slope=0.0,
                         name=f"neumip-{btf.name}-C{channels}", threads=self.threads)  # fmt: skip
         seconds = time.perf_counter() - t0
-        self.seconds_ += seconds
-        self.trainings_ += 1
-        info = {"channels": channels, "iterations": steps,
-                "queries_per_texel": steps * self.queries_per_step, "pool_per_texel": s,
-                "train_seconds": round(seconds, 3), **losses}  # fmt: skip
+        self.record(seconds, fit)
+        info = {"channels": channels, "pool_per_texel": s, "train_seconds": round(seconds, 3),
+                "heldout_queries": int(ho.rows.numel()), **fit}  # fmt: skip
         return rec, info

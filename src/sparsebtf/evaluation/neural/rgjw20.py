@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -35,12 +35,13 @@ from ...data.btf import BTF
 from ...errors import BTFInputError
 from ..methods.base import MATCHINGS, PAPER, Budget, Coding, FitContext
 from ._base import NeuralMethod
+from ._convergence import StopRule, train_to_convergence
 from ._torch import (
+    HeldOut,
     Layers,
     NeuralBTF,
     SamplePool,
     activate,
-    adam_steps,
     as_f32,
     binary16,
     decode_latents,
@@ -55,7 +56,8 @@ from ._torch import (
     torch_threads,
 )
 
-__all__ = ["RECIPE", "RGJW20FineTunedMethod", "RGJW20Method", "RGJW20Recipe"]
+__all__ = ["FINETUNE_CAP", "QUICK_CAP", "RECIPE", "STOP", "RGJW20FineTunedMethod", "RGJW20Method",
+           "RGJW20Recipe"]
 
 
 @dataclass(frozen=True)
@@ -91,6 +93,16 @@ class RGJW20Recipe:
 
 #: The recipe every RGJW20 model uses (one place; docs/neural-baselines.md).
 RECIPE = RGJW20Recipe()
+#: When RGJW20's shared training stops: a plateau of its held-out loss, tested from the 850
+#: training queries per training texel it had before (3,000 steps), capped at 30,000
+#: training queries per training texel (35x the 3,000 steps it had before: about 100,000
+#: steps, 10 to 15 CPU-minutes per latent size, so the run's sizes together get more than
+#: SparseBTF's ensemble training).
+STOP = StopRule(max_queries_per_texel=30_000, eval_every=250, min_queries_per_texel=850)
+#: The cap of the quick configuration.
+QUICK_CAP = 6_000
+#: The cap of a material's latent fine-tuning (RGJW20 + fine-tuning), in queries per texel.
+FINETUNE_CAP = 20_000
 
 
 @dataclass
@@ -131,11 +143,14 @@ def encode(model: _Model, values: torch.Tensor, li: torch.Tensor, vi: torch.Tens
 class RGJW20Method(NeuralMethod):
     """[RGJW20]: trained once on the training materials, one model per latent size.
 
-    Effort: ``steps`` iterations of ``texels_per_step`` texels, each giving
-    ``encoder_samples`` of its pooled samples to the encoder and ``loss_samples`` others to
-    the loss (random subsets teach the invariance to the samples' number and positions);
-    ``train_texels`` random texels per training material, ``pool`` samples each. Coding a
-    material: one encoder pass per texel over ``code_samples`` random samples.
+    Effort: iterations of ``texels_per_step`` texels, each giving ``encoder_samples`` of its
+    pooled samples to the encoder and ``loss_samples`` others to the loss (random subsets
+    teach the invariance to the samples' number and positions); ``train_texels`` random
+    texels per training material, ``pool`` samples each. Training runs until the loss on
+    ``heldout`` held-out queries on each of ``heldout_texels`` training texels (pairs outside
+    their pools, encoded from their first ``encoder_samples`` pooled samples) plateaus
+    (:data:`STOP`), at most ``max_queries_per_texel`` training queries per training texel.
+    Coding a material: one encoder pass per texel over ``code_samples`` random samples.
     """
 
     name = "rgjw20"
@@ -146,19 +161,30 @@ class RGJW20Method(NeuralMethod):
 
     def __init__(
         self,
-        steps: int = 3000,
+        max_queries_per_texel: float = STOP.max_queries_per_texel,
+        eval_every: float = STOP.eval_every,
+        tolerance: float = STOP.tolerance,
         texels_per_step: int = 16,
         encoder_samples: int = 128,
         loss_samples: int = 128,
         train_texels: int = 400,
         pool: int = 1024,
         code_samples: int = 2048,
+        heldout: int = 16,
+        heldout_texels: int = 2048,
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
     ) -> None:
         super().__init__(seed, threads, progress)
-        self.steps = int(steps)
+        self.max_queries_per_texel = float(max_queries_per_texel)
+        self.eval_every = float(eval_every)
+        self.tolerance = float(tolerance)
+        self.heldout = int(heldout)
+        self.heldout_texels = int(heldout_texels)
+        if self.heldout < 1 or self.heldout_texels < 1:
+            raise ValueError(f"heldout and heldout_texels must be >= 1 (the stop rule is judged "
+                             f"on held-out queries), got {heldout} and {heldout_texels}")
         self.texels_per_step = int(texels_per_step)
         self.encoder_samples = int(encoder_samples)
         self.loss_samples = int(loss_samples)
@@ -170,8 +196,15 @@ class RGJW20Method(NeuralMethod):
     @classmethod
     def from_config(cls, config: Any) -> RGJW20Method:
         if getattr(config, "name", "full") == "quick":
-            return cls(steps=800)
+            return cls(max_queries_per_texel=QUICK_CAP, eval_every=QUICK_CAP / 40)
         return cls()
+
+    @property
+    def rule(self) -> StopRule:
+        return replace(STOP, max_queries_per_texel=self.max_queries_per_texel,
+                       eval_every=self.eval_every, tolerance=self.tolerance,
+                       min_queries_per_texel=min(STOP.min_queries_per_texel,
+                                                 self.max_queries_per_texel))  # fmt: skip
 
     # -- sizes ------------------------------------------------------------------------------
     def sizes_for(self, context: FitContext) -> list[int]:
@@ -187,8 +220,8 @@ class RGJW20Method(NeuralMethod):
         return sorted(s for s in sizes if s >= 1)
 
     def _effort(self) -> tuple[int, ...]:
-        return (self.steps, self.texels_per_step, self.encoder_samples, self.loss_samples,
-                self.train_texels, self.pool)  # fmt: skip
+        return (self.rule, self.texels_per_step, self.encoder_samples, self.loss_samples,
+                self.train_texels, self.pool, self.heldout, self.heldout_texels)  # fmt: skip
 
     # -- fitting ----------------------------------------------------------------------------
     def fit(self, train: Sequence[BTF], context: FitContext) -> RGJW20Method:
@@ -216,7 +249,8 @@ class RGJW20Method(NeuralMethod):
         for btf in train:
             hw = btf.height * btf.width
             texels = torch.randperm(hw, generator=gen)[: self.train_texels].numpy()
-            p = read_pool(btf, self.pool, gen, texels=texels, progress=self.progress)
+            p = read_pool(btf, self.pool, gen, texels=texels, progress=self.progress,
+                          heldout=self.heldout, heldout_texels=self.heldout_texels)
             p.lights += offset_l
             p.views += offset_v
             parts.append(p)
@@ -224,10 +258,16 @@ class RGJW20Method(NeuralMethod):
             views.append(direction_xy(btf.views))
             offset_l += len(btf.lights)
             offset_v += len(btf.views)
+        rows = np.cumsum([0] + [p.values.shape[0] for p in parts])
+        held = HeldOut(*(torch.cat(x) for x in zip(*[
+            (p.heldout.rows + int(r), p.heldout.values, p.heldout.lights + int(dl),
+             p.heldout.views + int(dv)) for p, r, dl, dv in zip(
+                parts, rows, np.cumsum([0] + [len(b.lights) for b in train]),
+                np.cumsum([0] + [len(b.views) for b in train]), strict=False)], strict=True)))
         pool = SamplePool(torch.cat([p.values for p in parts]),
                           torch.cat([p.lights for p in parts]),
                           torch.cat([p.views for p in parts]),
-                          np.concatenate([p.texels for p in parts]))  # fmt: skip
+                          np.concatenate([p.texels for p in parts]), heldout=held)  # fmt: skip
         return pool, torch.cat(lights), torch.cat(views)
 
     def _train(self, pool: SamplePool, lxy: torch.Tensor, vxy: torch.Tensor,
@@ -243,29 +283,38 @@ class RGJW20Method(NeuralMethod):
         e = max(1, min(self.encoder_samples, s - 1))
         q = max(1, min(self.loss_samples, s - e))
 
-        def loss_at(_: int) -> torch.Tensor:
+        def loss_at(_: int, __: float) -> torch.Tensor:
             rows = torch.randint(0, n, (b, 1), generator=gen)
             order = torch.rand(b, s, generator=gen).argsort(dim=1)
             z = encode(model, *pool.take(rows, order[:, :e]), lxy, vxy, r.slope)
             y, li, vi = pool.take(rows, order[:, e:e + q])
             return F.mse_loss(decode_latents(dec, z, li, vi, lxy, vxy, r.slope), y)
 
+        ho = pool.heldout
+        ho_texels, ho_index = torch.unique(ho.rows, return_inverse=True)
+
+        def heldout() -> float:
+            z = encode(model, *pool.take(ho_texels[:, None], torch.arange(e)), lxy, vxy,
+                       r.slope)  # fmt: skip
+            pred = decode_latents(dec, z[ho_index], ho.lights[:, None], ho.views[:, None],
+                                  lxy, vxy, r.slope)[:, 0]  # fmt: skip
+            return float(F.mse_loss(pred, ho.values))
+
         params = flat(model.sample) + flat(model.pooled) + flat(dec)
-        losses = adam_steps(params, self.steps, loss_at, r.lr, f"rgjw20 L={size}",
-                            self.progress)  # fmt: skip
+        fit = train_to_convergence(params, loss_at, heldout, b * q / n, r.lr, self.rule,
+                                   f"rgjw20 L={size}", self.progress)  # fmt: skip
         for layers in (model.sample, model.pooled):
             for wb in layers:
                 for t in wb:
                     t.requires_grad_(False)
         model.decoder16 = [(binary16(w), binary16(bb)) for w, bb in dec]
         seconds = time.perf_counter() - t0
-        self.seconds_ += seconds
-        self.trainings_ += 1
-        model.info = {"iterations": self.steps, "train_seconds": round(seconds, 3),
-                      "train_texels": n, "texel_visits": self.steps * b,
-                      "queries_per_texel": self.steps * b * q / n,
+        self.record(seconds, fit)
+        model.info = {"train_seconds": round(seconds, 3), "train_texels": n,
+                      "texel_visits": fit["iterations"] * b,
+                      "heldout_queries": int(ho.rows.numel()),
                       "encoder_params": mlp_params(r.sample_sizes())
-                      + mlp_params(r.pooled_sizes(size)), **losses}  # fmt: skip
+                      + mlp_params(r.pooled_sizes(size)), **fit}  # fmt: skip
         return model
 
     def shared_bytes(self) -> int:
@@ -275,12 +324,20 @@ class RGJW20Method(NeuralMethod):
 
     def training_budget(self) -> dict[str, Any]:
         infos = [m.info for m in self.models_.values()]
+        efforts = [i["queries_per_texel"] for i in infos]
         return {
             "seconds": round(sum(i.get("train_seconds", 0.0) for i in infos), 3),
+            "cpu_seconds": round(sum(i.get("cpu_seconds", 0.0) for i in infos), 3),
+            "trainings": len(infos),
+            "converged": f"{sum(bool(i.get('converged')) for i in infos)}/{len(infos)}",
             "latent_sizes": sorted(self.models_),
-            "iterations": self.steps,
+            "iterations": "until the held-out loss plateaus, at most "
+                          f"{self.max_queries_per_texel:g} queries per training texel",
             "texels_per_step": self.texels_per_step,
-            "queries_per_texel": round(infos[0]["queries_per_texel"], 1) if infos else 0,
+            "queries_per_texel": round(max(efforts), 1) if efforts else 0,
+            "queries_per_texel_min": round(min(efforts), 1) if efforts else 0,
+            "cap_queries_per_texel": self.max_queries_per_texel,
+            "stop_rule": self.rule.describe(),
             "encoder_samples": self.encoder_samples,
             "code_samples": self.code_samples,
             "scope": "one shared model per latent size, trained once",
@@ -296,7 +353,8 @@ class RGJW20Method(NeuralMethod):
         out: list[Coding] = []
         done: dict[int, tuple[NeuralBTF, dict[str, Any]]] = {}
         with torch_threads(self.threads):
-            pool = read_pool(btf, self.code_samples, gen, progress=self.progress)
+            pool = read_pool(btf, self.code_samples, gen, progress=self.progress,
+                             heldout=self.coding_heldout, heldout_texels=self.heldout_texels)
             lxy, vxy = direction_xy(btf.lights), direction_xy(btf.views)
             for budget in budgets:
                 want = budget.material_bytes // (2 * hw)
@@ -329,14 +387,25 @@ class RGJW20Method(NeuralMethod):
         rec = NeuralBTF(latents, model.decoder16, btf.lights, btf.views, head="log1p",
                         slope=r.slope, name=f"{self.name}-{btf.name}-L{model.latents}",
                         threads=self.threads)  # fmt: skip
+        shared = model.info
         info = {"latent_size": model.latents, "code_samples": pool.values.shape[1],
-                "training": model.info, **refine}  # fmt: skip
+                "converged": bool(shared["converged"]) and refine.get("converged", True),
+                "loss_curve": shared["loss_curve"],
+                "cpu_seconds": round(shared["cpu_seconds"] + refine.get("cpu_seconds", 0.0), 3),
+                "training": {k: v for k, v in shared.items() if k != "loss_curve"},
+                **refine}  # fmt: skip
         return rec, info
 
     def _refine(self, btf: BTF, pool: SamplePool, lxy: torch.Tensor, vxy: torch.Tensor,
                 model: _Model, z: torch.Tensor) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
         """The latents as stored: [RGJW20] keeps the encoder's (no optimisation)."""
         return z, {}
+
+    @property
+    def coding_heldout(self) -> int:
+        """Held-out queries per texel read with a material to code (none: RGJW20 does not
+        train on it)."""
+        return 0
 
 
 class RGJW20FineTunedMethod(RGJW20Method):
@@ -347,22 +416,37 @@ class RGJW20FineTunedMethod(RGJW20Method):
     name = "rgjw20+ft"
     label = "RGJW20 + fine-tuning"
 
-    def __init__(self, *args: Any, finetune_steps: int = 100, finetune_queries: int = 16,
-                 **kwargs: Any) -> None:  # fmt: skip
+    def __init__(self, *args: Any, finetune_max_queries_per_texel: float = FINETUNE_CAP,
+                 finetune_queries: int = 16, **kwargs: Any) -> None:  # fmt: skip
         super().__init__(*args, **kwargs)
-        self.finetune_steps = int(finetune_steps)
+        self.finetune_max_queries_per_texel = float(finetune_max_queries_per_texel)
         self.finetune_queries = int(finetune_queries)
         self.finetune_seconds_ = 0.0
+        self.finetunes_: list[dict[str, Any]] = []
+
+    @property
+    def coding_heldout(self) -> int:
+        return self.heldout
 
     @classmethod
     def from_config(cls, config: Any) -> RGJW20FineTunedMethod:
         if getattr(config, "name", "full") == "quick":
-            return cls(steps=800, finetune_steps=60)
+            return cls(max_queries_per_texel=QUICK_CAP, eval_every=QUICK_CAP / 40,
+                       finetune_max_queries_per_texel=FINETUNE_CAP / 4)  # fmt: skip
         return cls()
 
+    @property
+    def finetune_rule(self) -> StopRule:
+        cap = self.finetune_max_queries_per_texel
+        return StopRule(max_queries_per_texel=cap, eval_every=cap / 40)
+
     def training_budget(self) -> dict[str, Any]:
-        return {**super().training_budget(), "finetune_steps": self.finetune_steps,
-                "finetune_queries_per_texel": self.finetune_steps * self.finetune_queries,
+        done = self.finetunes_
+        return {**super().training_budget(),
+                "finetune_cap_queries_per_texel": self.finetune_max_queries_per_texel,
+                "finetune_queries_per_texel": max((f["queries_per_texel"] for f in done),
+                                                  default=0),
+                "finetune_converged": f"{sum(f['converged'] for f in done)}/{len(done)}",
                 "finetune_seconds": round(self.finetune_seconds_, 3)}  # fmt: skip
 
     def _refine(self, btf: BTF, pool: SamplePool, lxy: torch.Tensor, vxy: torch.Tensor,
@@ -375,16 +459,26 @@ class RGJW20FineTunedMethod(RGJW20Method):
         n, s = pool.values.shape[:2]
         rows = torch.arange(n)[:, None]
 
-        def loss_at(_: int) -> torch.Tensor:
+        def loss_at(_: int, __: float) -> torch.Tensor:
             cols = torch.randint(0, s, (n, self.finetune_queries), generator=gen)
             y, li, vi = pool.take(rows, cols)
             return F.mse_loss(decode_latents(dec, z, li, vi, lxy, vxy, r.slope), y)
 
-        losses = adam_steps([z], self.finetune_steps, loss_at, r.finetune_lr,
-                            f"rgjw20+ft {btf.name} L={model.latents}", self.progress)  # fmt: skip
+        ho = pool.heldout
+
+        def heldout() -> float:
+            pred = decode_latents(dec, z[ho.rows], ho.lights[:, None], ho.views[:, None], lxy,
+                                  vxy, r.slope)[:, 0]  # fmt: skip
+            return float(F.mse_loss(pred, ho.values))
+
+        fit = train_to_convergence([z], loss_at, heldout, float(self.finetune_queries),
+                                   r.finetune_lr, self.finetune_rule,
+                                   f"rgjw20+ft {btf.name} L={model.latents}",
+                                   self.progress)  # fmt: skip
         seconds = time.perf_counter() - t0
         self.finetune_seconds_ += seconds
-        return z.detach(), {"finetune": {
-            "iterations": self.finetune_steps,
-            "queries_per_texel": self.finetune_steps * self.finetune_queries,
-            "seconds": round(seconds, 3), **losses}}  # fmt: skip
+        self.finetunes_.append(fit)
+        curve = fit.pop("loss_curve")
+        return z.detach(), {"converged": fit["converged"], "cpu_seconds": fit["cpu_seconds"],
+                            "finetune": {**fit, "loss_curve": curve,
+                                         "seconds": round(seconds, 3)}}  # fmt: skip

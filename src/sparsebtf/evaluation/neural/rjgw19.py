@@ -14,10 +14,9 @@ The latent size follows the budget: the largest L with 2·H·W·L + 2·(decoder 
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -27,9 +26,9 @@ import torch.nn.functional as F
 from ...data.btf import BTF
 from ..methods.base import MATCHINGS, Budget, Coding
 from ._base import NeuralMethod, largest_size
+from ._convergence import StopRule, train_to_convergence
 from ._torch import (
     NeuralBTF,
-    adam_steps,
     binary16,
     decode_latents,
     direction_xy,
@@ -42,7 +41,7 @@ from ._torch import (
     torch_threads,
 )
 
-__all__ = ["RECIPE", "RJGW19Method", "RJGW19Recipe"]
+__all__ = ["QUICK_CAP", "RECIPE", "STOP", "RJGW19Method", "RJGW19Recipe"]
 
 
 @dataclass(frozen=True)
@@ -78,14 +77,23 @@ class RJGW19Recipe:
 
 #: The recipe every RJGW19 coding uses (one place; docs/neural-baselines.md).
 RECIPE = RJGW19Recipe()
+#: When an RJGW19 training stops: a plateau of its held-out loss, tested from the fixed
+#: effort it had before (2,000 queries per texel, which left it unconverged: at 10x, its
+#: error at 128 latents fell 25-fold on felt12; an early stall is no plateau), capped at 50x
+#: that, about 120 CPU-s per model at 30x30 texels.
+STOP = StopRule(max_queries_per_texel=100_000, eval_every=500, min_queries_per_texel=2000)
+#: The cap of the quick configuration (its rows say whether they converged under it).
+QUICK_CAP = 20_000
 
 
 class RJGW19Method(NeuralMethod):
     """One autoencoder per material and budget ([RJGW19]).
 
-    Effort: ``queries_per_texel`` training queries seen per texel (each step draws
-    ``texels_per_step`` texels × ``queries_per_step`` of their pooled samples), from a pool
-    of ``pool`` random (light, view) samples per texel read once per material.
+    Effort: each step draws ``texels_per_step`` texels × ``queries_per_step`` of their pooled
+    samples, from a pool of ``pool`` random (light, view) samples per texel read once per
+    material; training runs until the loss on ``heldout`` held-out queries on each of
+    ``heldout_texels`` texels (pairs outside the pool) plateaus (:data:`STOP`,
+    :mod:`._convergence`), at most ``max_queries_per_texel`` training queries per texel.
     """
 
     name = "rjgw19"
@@ -96,42 +104,58 @@ class RJGW19Method(NeuralMethod):
 
     def __init__(
         self,
-        queries_per_texel: int = 2000,
+        max_queries_per_texel: float = STOP.max_queries_per_texel,
+        eval_every: float = STOP.eval_every,
+        tolerance: float = STOP.tolerance,
         texels_per_step: int = 32,
         queries_per_step: int = 32,
         pool: int = 4000,
+        heldout: int = 16,
+        heldout_texels: int = 2048,
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
     ) -> None:
         super().__init__(seed, threads, progress)
-        self.queries_per_texel = int(queries_per_texel)
+        self.max_queries_per_texel = float(max_queries_per_texel)
+        self.eval_every = float(eval_every)
+        self.tolerance = float(tolerance)
         self.texels_per_step = int(texels_per_step)
         self.queries_per_step = int(queries_per_step)
         self.pool = int(pool)
+        self.heldout = int(heldout)
+        self.heldout_texels = int(heldout_texels)
+        if self.heldout < 1 or self.heldout_texels < 1:
+            raise ValueError(f"heldout and heldout_texels must be >= 1 (the stop rule is judged "
+                             f"on held-out queries), got {heldout} and {heldout_texels}")
 
     @classmethod
     def from_config(cls, config: Any) -> RJGW19Method:
         if getattr(config, "name", "full") == "quick":
-            return cls(queries_per_texel=1200, pool=3000)
+            return cls(max_queries_per_texel=QUICK_CAP, pool=3000)
         return cls()
+
+    @property
+    def rule(self) -> StopRule:
+        return replace(STOP, max_queries_per_texel=self.max_queries_per_texel,
+                       eval_every=self.eval_every, tolerance=self.tolerance,
+                       min_queries_per_texel=min(STOP.min_queries_per_texel,
+                                                 self.max_queries_per_texel))  # fmt: skip
 
     def latent_size(self, budget_bytes: int, texels: int) -> int:
         """The largest L whose latents and decoder fit ``budget_bytes`` (0: none)."""
         return largest_size(budget_bytes, texels, self.recipe.decoder_sizes, True)
 
-    def steps_for(self, texels: int) -> int:
-        per_step = min(self.texels_per_step, texels) * self.queries_per_step
-        return max(1, math.ceil(self.queries_per_texel * texels / per_step))
-
     def training_budget(self) -> dict[str, Any]:
         return {
             "seconds": round(self.seconds_, 3),
-            "trainings": self.trainings_,
-            "queries_per_texel": self.queries_per_texel,
+            **self.effort_summary(),
+            "cap_queries_per_texel": self.max_queries_per_texel,
             "pool_per_texel": self.pool,
-            "iterations": f"ceil({self.queries_per_texel}·H·W / "
+            "iterations": f"until the held-out loss plateaus, at most "
+                          f"ceil({self.max_queries_per_texel:g}·H·W / "
                           f"({self.texels_per_step}·{self.queries_per_step})) per model",
+            "stop_rule": self.rule.describe(),
             "scope": "one model per material and latent size",
         }  # fmt: skip
 
@@ -146,7 +170,8 @@ class RJGW19Method(NeuralMethod):
         probes = np.sort(torch.randperm(nl * nv, generator=gen)[: self.recipe.encoder_pairs]
                          .numpy())  # fmt: skip
         with torch_threads(self.threads):
-            pool = read_pool(btf, self.pool, gen, shared_pairs=probes, progress=self.progress)
+            pool = read_pool(btf, self.pool, gen, shared_pairs=probes, progress=self.progress,
+                             heldout=self.heldout, heldout_texels=self.heldout_texels)
             trained: dict[int, tuple[NeuralBTF, dict[str, Any]]] = {}
             for budget, size in zip(budgets, sizes, strict=True):
                 if size < 1:
@@ -181,15 +206,24 @@ class RJGW19Method(NeuralMethod):
         def encode(xb: torch.Tensor) -> torch.Tensor:
             return tail(F.linear(xb, *enc[0]), enc, r.slope)
 
-        def loss_at(_: int) -> torch.Tensor:
+        def loss_at(_: int, __: float) -> torch.Tensor:
             rows = torch.randint(0, n, (b,), generator=gen)
             cols = torch.randint(0, s, (b, self.queries_per_step), generator=gen)
             y, li, vi = pool.take(rows[:, None], cols)
             return F.mse_loss(decode_latents(dec, encode(x[rows]), li, vi, lxy, vxy, r.slope), y)
 
-        steps = self.steps_for(n)
-        losses = adam_steps(flat(enc) + flat(dec), steps, loss_at, r.lr,
-                            f"rjgw19 {btf.name} L={size}", self.progress)  # fmt: skip
+        ho = pool.heldout
+        ho_texels, ho_index = torch.unique(ho.rows, return_inverse=True)
+
+        def heldout() -> float:
+            z = encode(x[ho_texels])
+            pred = decode_latents(dec, z[ho_index], ho.lights[:, None],
+                                  ho.views[:, None], lxy, vxy, r.slope)[:, 0]  # fmt: skip
+            return float(F.mse_loss(pred, ho.values))
+
+        fit = train_to_convergence(flat(enc) + flat(dec), loss_at, heldout,
+                                   b * self.queries_per_step / n, r.lr, self.rule,
+                                   f"rjgw19 {btf.name} L={size}", self.progress)  # fmt: skip
         with torch.no_grad():
             z = encode(x)
         latents = binary16(z).reshape(btf.height, btf.width, size)
@@ -197,10 +231,8 @@ class RJGW19Method(NeuralMethod):
                         btf.views, head="log1p", slope=r.slope, name=f"rjgw19-{btf.name}-L{size}",
                         threads=self.threads)  # fmt: skip
         seconds = time.perf_counter() - t0
-        self.seconds_ += seconds
-        self.trainings_ += 1
+        self.record(seconds, fit)
         info = {"latent_size": size, "encoder_params": mlp_params(r.encoder_sizes(size, pairs)),
-                "encoder_pairs": pairs,
-                "iterations": steps, "queries_per_texel": steps * b * self.queries_per_step / n,
-                "pool_per_texel": s, "train_seconds": round(seconds, 3), **losses}  # fmt: skip
+                "encoder_pairs": pairs, "pool_per_texel": s, "train_seconds": round(seconds, 3),
+                "heldout_queries": int(ho.rows.numel()), **fit}  # fmt: skip
         return rec, info

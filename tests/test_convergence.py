@@ -1,0 +1,146 @@
+"""The neural baselines' stop rule (training until the held-out loss plateaus) on toy problems:
+it stops on a plateau and not before, runs to its cap when the loss keeps falling, records
+what it did, and a larger latent at convergence is not worse."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+torch = pytest.importorskip("torch")
+
+from sparsebtf.data.btf import ArrayBTF  # noqa: E402
+from sparsebtf.data.directions import tiny  # noqa: E402
+from sparsebtf.evaluation.methods import PAPER, Budget  # noqa: E402
+from sparsebtf.evaluation.neural import rjgw19  # noqa: E402
+from sparsebtf.evaluation.neural._convergence import (  # noqa: E402
+    StopRule,
+    plateaued,
+    train_to_convergence,
+)
+from sparsebtf.evaluation.neural._torch import heldout_pairs, read_pool, seed_generator  # noqa: E402
+
+RULE = StopRule(max_queries_per_texel=1000, eval_every=10)
+
+
+def test_plateau_needs_less_than_tolerance_over_the_last_fifth():
+    falling = [(q, 0.9 ** (q / 10)) for q in range(0, 210, 10)]  # -19% per fifth at the end
+    assert not plateaued(falling, 0.0, RULE)
+    flat = [(0, 1.0), *((q, 0.5 - 1e-4 * q / 10) for q in range(10, 210, 10))]
+    assert plateaued(flat, 0.0, RULE)
+    # the last fifth (160..200) must lie after the last learning-rate drop
+    assert not plateaued(flat, 170.0, RULE)
+    assert plateaued(flat, 160.0, RULE)
+    # nor is it tested before the minimum effort (NeuMIP's blur)
+    assert not plateaued(flat, 0.0, StopRule(1000, 10, min_queries_per_texel=250))
+    # the best loss counts: a noisy rise after a low is no improvement
+    bumpy = [(0, 1.0), (10, 0.5), (20, 0.6), (30, 0.55), (40, 0.52), (50, 0.51)]
+    assert plateaued(bumpy, 0.0, RULE)
+    assert plateaued([(0, 1.0), (10, float("inf"))], 0.0, RULE)  # diverged
+
+
+def _regression(seed: int = 0):
+    """A noisy linear least-squares problem: its held-out loss falls to the noise and stays."""
+    g = torch.Generator().manual_seed(seed)
+    x = torch.randn(4096, 8, generator=g)
+    y = x @ torch.randn(8, 1, generator=g) + 0.1 * torch.randn(4096, 1, generator=g)
+    w = torch.zeros(8, 1, requires_grad=True)
+    xt, yt, xh, yh = x[:3072], y[:3072], x[3072:], y[3072:]
+
+    def loss_at(_: int, __: float) -> torch.Tensor:
+        i = torch.randint(0, 3072, (64,), generator=g)
+        return ((xt[i] @ w - yt[i]) ** 2).mean()
+
+    def heldout() -> float:
+        return float(((xh @ w - yh) ** 2).mean())
+
+    return w, loss_at, heldout
+
+
+def test_stops_on_a_plateau_and_not_before():
+    w, loss_at, heldout = _regression()
+    fit = train_to_convergence([w], loss_at, heldout, 1.0, (0.05, 0.005), RULE, "toy", False)
+    assert fit["converged"] and fit["iterations"] < RULE.max_queries_per_texel
+    assert fit["heldout_loss"] < 0.02  # the noise's 0.01, not the start's ~8
+    curve = [tuple(p) for p in fit["loss_curve"]]
+    assert curve[0][0] == 0 and curve[-1][0] == fit["queries_per_texel"]
+    drops = fit["lr_drops"]
+    assert len(drops) == 2  # 0.05 -> 0.015 -> 0.005 (the floor), then the final plateau
+    since = drops[-1]
+    assert plateaued(curve, since, RULE)
+    # no earlier evaluation at the floor rate had plateaued: it did not stop early
+    for k in range(1, len(curve)):
+        if curve[k - 1][0] > since:
+            assert not plateaued(curve[:k], since, RULE)
+
+
+def test_runs_to_its_cap_while_the_loss_keeps_falling():
+    calls = []
+
+    def heldout() -> float:
+        calls.append(1)
+        return 0.8 ** len(calls)
+
+    p = torch.zeros(1, requires_grad=True)
+    fit = train_to_convergence([p], lambda t, q: (p - 1).pow(2).sum(), heldout, 2.0,
+                               (1e-2, 1e-3), StopRule(200, 20), "toy", False)  # fmt: skip
+    assert not fit["converged"] and fit["lr_drops"] == []
+    assert fit["iterations"] == 100 and fit["queries_per_texel"] == 200
+    assert len(fit["loss_curve"]) == 11 and fit["cpu_seconds"] >= 0
+
+
+def test_heldout_pairs_avoid_the_training_pairs():
+    gen = seed_generator(1)
+    taken = np.stack([np.arange(10), np.arange(5, 15), np.zeros(10, int)])
+    rows, pairs = heldout_pairs(taken, 20, 6, gen)
+    for r in range(3):
+        mine = pairs[rows == r]
+        assert 0 < mine.size <= 6 and len(set(mine)) == mine.size
+        assert not set(mine) & set(taken[r])
+    btf = ArrayBTF(np.random.default_rng(0).uniform(0.1, 1, (4, 4, 13, 13, 3)).astype(
+        np.float32), tiny(13), tiny(13))  # fmt: skip
+    pool = read_pool(btf, 40, seed_generator(2), heldout=8, heldout_texels=5)
+    ho = pool.heldout
+    assert len(set(ho.rows.tolist())) == 5
+    flat_pool = pool.lights.long() * 13 + pool.views.long()
+    for r in set(ho.rows.tolist()):
+        mine = (ho.lights[ho.rows == r] * 13 + ho.views[ho.rows == r]).tolist()
+        assert not set(mine) & set(flat_pool[r].tolist())
+    values = btf.read(slice(None), slice(None), slice(None), slice(None)).reshape(16, 13, 13, 3)
+    texel = pool.texels[ho.rows.numpy()]
+    np.testing.assert_allclose(ho.values.numpy(), np.log1p(values[texel, ho.lights.numpy(),
+                                                                    ho.views.numpy()]),
+                               rtol=1e-6)  # fmt: skip
+
+
+def _mixture_btf(size: int = 8, lobes: int = 6, noise: float = 0.05, seed: int = 0) -> ArrayBTF:
+    """Texels, each its own mixture of ``lobes`` angular lobes (and ``noise``, a floor the
+    held-out loss reaches): few latents cannot tell the texels apart, more can."""
+    rng = np.random.default_rng(seed)
+    d = tiny(13)
+    axes = rng.normal(size=(lobes, 3))
+    axes[:, 2] = np.abs(axes[:, 2]) + 0.5
+    axes /= np.linalg.norm(axes, axis=1, keepdims=True)
+    half = d.xyz[:, None, :] + d.xyz[None, :, :]
+    half /= np.linalg.norm(half, axis=-1, keepdims=True)
+    lobe = np.exp(8 * (half @ axes.T - 1))  # (13, 13, lobes)
+    weights = rng.dirichlet(np.ones(lobes), (size, size)) * rng.uniform(0.2, 1.0, (size, size, 1))
+    colour = rng.uniform(0.3, 1.0, (lobes, 3))
+    data = 10 * np.einsum("hwk,lvk,kc->hwlvc", weights, lobe, colour) + 0.2
+    data *= 1 + noise * rng.standard_normal(data.shape)
+    return ArrayBTF(data.astype(np.float32), d, d, name="mixture")
+
+
+def test_a_larger_latent_is_not_worse_at_convergence():
+    btf = _mixture_btf(noise=0.2)
+    ref = btf.read(slice(None), slice(None), slice(None), slice(None))
+    method = rjgw19.RJGW19Method(max_queries_per_texel=40_000, eval_every=400, pool=80,
+                                 heldout=8, tolerance=0.02, seed=0, progress=False)  # fmt: skip
+    small = method.latent_size(5600, 64)
+    codings = method.code(btf, [Budget(2, 5600, PAPER), Budget(16, 12_000, PAPER)])
+    sizes = [c.info["latent_size"] for c in codings]
+    assert sizes[0] == small < sizes[1]
+    assert all(c.info["converged"] for c in codings)
+    err = [float(((c.reconstruction.read(slice(None), slice(None), slice(None), slice(None))
+                   - ref) ** 2).mean()) for c in codings]  # fmt: skip
+    assert err[1] <= 1.05 * err[0], (sizes, err)
