@@ -144,3 +144,69 @@ def test_a_larger_latent_is_not_worse_at_convergence():
     err = [float(((c.reconstruction.read(slice(None), slice(None), slice(None), slice(None))
                    - ref) ** 2).mean()) for c in codings]  # fmt: skip
     assert err[1] <= 1.05 * err[0], (sizes, err)
+
+
+# -- reading a run: the verdicts count converged cells only ---------------------------------------
+def _run(converged: dict[tuple[str, str, int], bool], mse: dict[tuple[str, str, int], float]):
+    rows = []
+    for (m, mat, lv), v in mse.items():
+        row = {"material": mat, "set": "test", "method": m, "level": lv, "mse_rgb": v * 1e-4}
+        if m != "sparsebtf":
+            row.update(matching=PAPER, budget_factor=1, latent_size=lv,
+                       heldout_loss=v * 1e-3, converged=converged.get((m, mat, lv), True),
+                       loss_curve=[[0.0, 1.0], [100.0, v * 1e-3]])  # fmt: skip
+        rows.append(row)
+    return {"config": {"levels": [16, 128]}, "rows": rows,
+            "methods": {"sparsebtf": "SparseBTF", "rjgw19": "RJGW19", "rgjw20": "RGJW20"},
+            "method_runs": {"rjgw19": {"label": "RJGW19", "scope": "per_material"},
+                            "rgjw20": {"label": "RGJW20", "scope": "shared"}}}  # fmt: skip
+
+
+def test_verdicts_leave_out_unconverged_cells_and_count_them():
+    from sparsebtf.evaluation.claims3 import NOT_CONVERGED, summarise_table3, table3_comparison
+
+    mse = {}
+    for mat in ("a", "b"):
+        for lv, (s, r20, r19) in {16: (10, 20, 5), 128: (4, 20, 30)}.items():
+            mse.update({("sparsebtf", mat, lv): s, ("rgjw20", mat, lv): r20,
+                        ("rjgw19", mat, lv): r19})  # fmt: skip
+    everything = summarise_table3(_run({}, mse), 16)
+    assert everything["table3_rjgw19_lowest"]["cells_lowest"] == "2/4"
+    cap = everything["table3_capacity"]
+    assert cap["verdict"] == "fails in 2/2" and cap["methods"] == ["rjgw19"]
+    assert cap["failures"][0]["ratio"] == pytest.approx(6.0)
+    assert "rose too" in cap["failures"][0]["cause"]  # its held-out loss rose with L
+
+    # RJGW19 at 128 stopped at its cap on material a: that cell and that pair are left out
+    s = summarise_table3(_run({("rjgw19", "a", 128): False}, mse), 16)
+    low = s["table3_rjgw19_lowest"]
+    assert low["cells_lowest"] == "2/3" and low["not_converged_cells"] == ["a (128)"]
+    assert s["table3_vs_rgjw20"]["cells_won"] == "4/4"  # RGJW20's cells all converged
+    assert s["table3_vs_rgjw20"]["not_converged"] == 0
+    cap = s["table3_capacity"]
+    assert cap["pairs_holding"] == "0/1" and cap["not_converged_pairs"] == ["rjgw19 a"]
+    # converged, a larger latent that is not worse holds
+    good = {**mse, ("rjgw19", "a", 128): 5.2, ("rjgw19", "b", 128): 4}
+    assert summarise_table3(_run({}, good), 16)["table3_capacity"]["verdict"] == "holds"
+    text = table3_comparison(_run({("rjgw19", "a", 128): False}, mse))
+    assert f"| RJGW19 (128) | 30{NOT_CONVERGED} | 30 |" in text
+
+
+def test_learning_curve_figure_and_budget_table(tmp_path):
+    from sparsebtf.evaluation.plots import learning_curve_rows, learning_curves
+    from sparsebtf.evaluation.report import _budgets_table
+
+    mse = {(m, mat, lv): 1.0 + lv for m in ("rjgw19", "sparsebtf") for mat in ("a", "b", "c")
+           for lv in (16, 128)}  # fmt: skip
+    result = _run({("rjgw19", "b", 128): False}, mse)
+    data = learning_curve_rows(result)
+    assert set(data) == {"rjgw19"} and set(data["rjgw19"]) == {"a", "b"}  # two materials
+    assert sorted(data["rjgw19"]["a"]) == [16, 128]
+    assert learning_curves(result, tmp_path / "lc.png").stat().st_size > 1000
+    assert learning_curves({"rows": [], "config": {"levels": []}}, tmp_path / "x.png") is None
+    result["method_runs"]["rjgw19"]["training_budget"] = {
+        "seconds": 2.0, "cpu_seconds": 3.5, "converged": "3/4", "queries_per_texel": 9000.0,
+        "queries_per_texel_min": 4000.0, "stop_rule": "plateau"}
+    table = "\n".join(_budgets_table(result, "results/"))
+    assert "| RJGW19 | per_material | 0 | 2 | 4 | 4,000–9,000 | 3/4 | plateau |" in table
+    assert "![learning curves](results/learning_curves.png)" in table

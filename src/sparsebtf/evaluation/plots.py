@@ -71,6 +71,56 @@ def quality_storage(result: dict[str, Any], path: Path) -> Path:
 
 
 
+def learning_curve_rows(result: dict[str, Any], n_materials: int = 2
+                        ) -> dict[str, dict[str, dict[int, list[list[float]]]]]:  # fmt: skip
+    """The held-out loss curves of the run's trained methods: method → material → latent size
+    (or NeuMIP's channels) → [[queries per texel, held-out loss], ...], for the first
+    ``n_materials`` test materials that have curves; {} when no row carries one."""
+    out: dict[str, dict[str, dict[int, list[list[float]]]]] = {}
+    mats = [m for m in _materials(result, "test")
+            if any(r.get("loss_curve") for r in _rows(result, material=m, set="test"))]
+    for mat in mats[:n_materials]:
+        for r in _rows(result, material=mat, set="test"):
+            curve, size = r.get("loss_curve"), r.get("latent_size", r.get("channels"))
+            if curve and size:
+                out.setdefault(r["method"], {}).setdefault(mat, {}).setdefault(int(size), curve)
+    return out
+
+
+def learning_curves(result: dict[str, Any], path: Path) -> Path | None:
+    """Held-out loss vs training queries per texel, one panel per trained method and material
+    (two materials), one line per latent size; a marker where the training stopped, hollow
+    when it stopped at its cap before converging. None (nothing written) without curves."""
+    data = learning_curve_rows(result)
+    if not data:
+        return None
+    methods = list(data)
+    mats = sorted({m for d in data.values() for m in d})
+    fig, axes = plt.subplots(len(methods), len(mats), figsize=(5.2 * len(mats),
+                             3.4 * len(methods)), squeeze=False)  # fmt: skip
+    converged = {(r["method"], r["material"], int(r.get("latent_size", r.get("channels", 0)))):
+                 r.get("converged") for r in result["rows"] if r.get("loss_curve")}
+    for i, m in enumerate(methods):
+        for j, mat in enumerate(mats):
+            ax = axes[i, j]
+            for size, curve in sorted(data[m].get(mat, {}).items()):
+                q = [p[0] for p in curve]
+                loss = [p[1] for p in curve]
+                (line,) = ax.plot(q, loss, label=f"L = {size}")
+                done = converged.get((m, mat, size))
+                ax.plot(q[-1:], loss[-1:], marker="o", color=line.get_color(),
+                        fillstyle="full" if done else "none")  # fmt: skip
+            ax.set_xscale("symlog", linthresh=100)
+            ax.set_yscale("log")
+            ax.set_xlabel("training queries per texel")
+            ax.set_ylabel("held-out loss (log space)")
+            ax.set_title(f"{result.get('methods', {}).get(m, m)}: {mat}")
+            ax.grid(True, which="both", alpha=0.3)
+            if ax.lines:
+                ax.legend(fontsize=7)
+    return save_figure(fig, path, dpi=110)
+
+
 #: border colour of each node size in :func:`tree_figure`, largest size first
 TREE_COLOURS = ("tab:cyan", "tab:orange", "tab:red", "tab:green")
 

@@ -20,9 +20,9 @@ from .._json import json_default
 from ..errors import BTFInputError
 from .adaptive_verdicts import ADAPTIVE_KEYS, adaptive_figures, adaptive_section
 from .captured import captured_section
-from .claims3 import table3_comparison
+from .claims3 import CAPACITY_SLACK, NOT_CONVERGED, table3_comparison
 from .history import describe, moved, record
-from .plots import figure3, quality_storage
+from .plots import figure3, learning_curve_rows, learning_curves, quality_storage
 from .rows import materials as _materials
 from .side_runs import side_runs_section
 from .tables import (
@@ -266,10 +266,22 @@ def render_markdown(
                         f"{s['sparsebtf_falls']} materials")
             elif fig is not None:
                 text = f"{text} cells ({s['matching']} matching)"
+            if s.get("not_converged"):
+                text += f"; {s['not_converged']} cells left out, not converged"
             verdict_row(key, s["claim"], text)
+    if "table3_capacity" in summary:
+        s = summary["table3_capacity"]
+        text = s.get("why", "—") if "pairs_holding" not in s else (
+            f"level {s['levels'][1]} <= {CAPACITY_SLACK} x level {s['levels'][0]} on "
+            f"{s['pairs_holding']} converged method x material pairs"
+            + "".join(f"; fails {f['cell']} ({f['ratio']:.2f}x: {f['cause']})"
+                      for f in s["failures"])
+            + (f"; {s['not_converged']} pairs not converged" if s["not_converged"] else ""))
+        verdict_row("table3_capacity", s["claim"], text)
     lines += ["", "Rules behind the verdicts:", ""]
     for key in ("table2_processing", "table2_metrics", "table3_monotone", "table3_vs_rgjw20",
-                "table3_rgjw20_stalls", "table3_rjgw19_lowest", "table5_pca", "true_black",
+                "table3_rgjw20_stalls", "table3_rjgw19_lowest", "table3_capacity", "table5_pca",
+                "true_black",
                 "standardisation", "rate_control", *TRAINING_KEYS, *ADAPTIVE_KEYS):
         if key in summary:
             lines.append(f"- {key}: {summary[key]['rule']}")
@@ -349,20 +361,23 @@ def _table3_section(result: dict[str, Any], img: str) -> list[str]:
     body = table3_comparison(result)
     if body:
         lines += ["", body]
+        if NOT_CONVERGED in body:
+            lines += ["", f"{NOT_CONVERGED}: its training reached its effort cap before the "
+                      "held-out loss plateaued; the verdicts leave such cells out."]
     else:
         lines += ["", "_No method beyond SparseBTF's own variants in this run (the neural "
                   "ones need PyTorch: `pip install -e \".[neural]\"`)._"]
-    lines += _budgets_table(result)
+    lines += _budgets_table(result, img)
     for g in result.get("figure5", []):
         lines += ["", "Figure 5 shape: reference, SparseBTF(32) and RGJW20(32), false-colour "
                   "|error| x2.", "", f"![{g}]({img}{g})"]
     return lines
 
 
-def _budgets_table(result: dict[str, Any]) -> list[str]:
-    """Each method's training budget (seconds; training queries seen per texel and
-    iterations where a method reports them) and shared bytes; [] for runs before methods were
-    recorded."""
+def _budgets_table(result: dict[str, Any], img: str = "") -> list[str]:
+    """Each method's training budget (wall and CPU seconds; training queries seen per texel,
+    how many trainings converged and the stop rule where a method reports them) and shared
+    bytes; [] for runs before methods were recorded."""
     runs = result.get("method_runs") or {}
     if not runs:
         return []
@@ -374,16 +389,37 @@ def _budgets_table(result: dict[str, Any]) -> list[str]:
             return ", ".join(f"{k} {v}" for k, v in x.items())
         return f"{x:,.0f}" if isinstance(x, float) else str(x)
 
-    body = [[v["label"], v["scope"], f"{v.get('shared_bytes', 0):,d}",
-             cell((v.get("training_budget") or {}).get("seconds")),
-             cell((v.get("training_budget") or {}).get("queries_per_texel")),
-             cell((v.get("training_budget") or {}).get("iterations"))]
-            for v in runs.values()]  # fmt: skip
-    return ["", "Training budgets: seconds of fitting (a per-material method: over all the "
-            "materials it coded), training queries seen per texel and iterations (per channel "
-            "for SparseBTF's dictionaries), and the bytes every material shares.", "",
-            _table(["method", "scope", "shared bytes", "seconds", "queries per texel",
-                    "iterations"], body)]  # fmt: skip
+    def effort(b: dict[str, Any]) -> str:
+        lo, hi = b.get("queries_per_texel_min"), b.get("queries_per_texel")
+        return cell(hi) if lo is None or lo == hi else f"{cell(float(lo))}–{cell(float(hi))}"
+
+    body = []
+    for v in runs.values():
+        b = v.get("training_budget") or {}
+        body.append([v["label"], v["scope"], f"{v.get('shared_bytes', 0):,d}",
+                     cell(b.get("seconds")), cell(b.get("cpu_seconds")), effort(b),
+                     cell(b.get("converged")), cell(b.get("stop_rule") or b.get("iterations"))])
+    return ["", "Training budgets: seconds of fitting, wall and CPU (a per-material method: over "
+            "all the materials it coded), training queries seen per texel (least–most over its "
+            "trainings), how many trainings stopped on their held-out plateau rather than at "
+            "their cap, the stop rule (iterations per channel for SparseBTF's dictionaries), "
+            "and the bytes every material shares.", "",
+            _table(["method", "scope", "shared bytes", "seconds", "CPU seconds",
+                    "queries per texel", "converged", "stop rule / iterations"], body),
+            *_learning_curves_note(result, img)]  # fmt: skip
+
+
+def _learning_curves_note(result: dict[str, Any], img: str) -> list[str]:
+    """The learning-curve figure under the training budgets, when some training recorded its
+    held-out loss curve."""
+    data = learning_curve_rows(result)
+    if not data:
+        return []
+    mats = sorted({m for d in data.values() for m in d})
+    return ["", f"Learning curves: held-out loss (log space, queries outside each texel's "
+            f"training pool) against training queries per texel, one line per latent size, on "
+            f"{' and '.join(mats)}; a filled end marker stopped on its plateau, a hollow one at "
+            "its cap.", "", f"![learning curves]({img}learning_curves.png)"]
 
 
 def _figure8_section(result: dict[str, Any], img: str) -> list[str]:
@@ -443,6 +479,7 @@ def write_report(result: dict[str, Any], out: str | os.PathLike[str]) -> dict[st
     result["summary"] = summary
     figure3(result, out / "figure3.png")
     quality_storage(result, out / "quality_storage.png")
+    learning_curves(result, out / "learning_curves.png")
     for name, fn in (("table2.md", table2), ("table3.md", table3), ("table5.md", table5)):
         with atomic_output(out / name) as tmp:
             tmp.write_text(fn(result) + "\n")
@@ -538,6 +575,7 @@ def regenerate(
     result["summary"] = summary
     figure3(result, img_dir / "figure3.png")
     quality_storage(result, img_dir / "quality_storage.png")
+    learning_curves(result, img_dir / "learning_curves.png")
     figure8 = ["figure8/figure8.png"] if (result.get("figure8") or {}).get("methods") else []
     for g in [*result.get("grids", []), *figure8, *adaptive_figures(result)]:
         src, dst = run / g, img_dir / Path(g).name
