@@ -33,13 +33,14 @@ method, never in the per-material bytes.
 
 from __future__ import annotations
 
+import copy
 import itertools
 import json
 import os
 import platform
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -203,6 +204,31 @@ def run_quality(
         )
 
 
+@dataclass
+class _Coded:
+    """One material's codings under way: its rows so far (the reference's), grid
+    reconstructions, views, the reference's bytes per level, and the other methods' tasks."""
+
+    base: dict[str, Any]
+    which: str
+    pending: list[tuple[dict[str, Any], BTF | None]] = field(default_factory=list)
+    recs: dict[str, BTF] = field(default_factory=dict)
+    views: dict[str, dict[tuple[int, str], BTF]] = field(default_factory=dict)
+    ref_bytes: dict[int, int] = field(default_factory=dict)
+    tasks: dict[str, Any] = field(default_factory=dict)
+
+
+def _code_task(method: Method, btf: BTF, budgets: Sequence[Budget]) -> tuple[list, list]:
+    """A cluster task: ``method.code(btf, budgets)`` with the worker's copy of the method,
+    and what the coding added to that copy's accounting (:meth:`~.methods.Method.cost_log`,
+    replayed on the run's method). The worker's shared copy is copied again: tasks on one
+    worker share it across threads, and ``code`` adds to the accounting it holds."""
+    method = copy.deepcopy(method)
+    before = len(method.cost_log())
+    codings = method.code(btf, budgets)
+    return codings, list(method.cost_log()[before:])
+
+
 class _QualityRun:
     """One run's state: configuration, methods, rows, timings."""
 
@@ -231,6 +257,7 @@ class _QualityRun:
         self.figure5: list[str] = []
         self.figure8: dict[str, Any] = {}
         self.speed: dict[str, Any] = {}
+        self._remote_methods: dict[str, Any] = {}
 
     def adopt(self, methods: list[Method]) -> None:
         """The run's methods (built, or loaded from a checkpoint), the reference first."""
@@ -286,6 +313,9 @@ class _QualityRun:
         saved = self.store.methods() if self.store.resumed else None
         if saved is not None:
             self.adopt(saved["methods"])
+            for m in self.methods:  # a checkpoint's contexts lost their executor: this run's
+                if isinstance(getattr(m, "context_", None), FitContext):
+                    m.context_ = replace(m.context_, executor=self.ex)  # type: ignore[attr-defined]
         for i, m in enumerate(self.methods):
             t0 = time.perf_counter()
             if saved is not None and i < saved["fitted"]:
@@ -322,16 +352,24 @@ class _QualityRun:
         self.stage("evaluate", t0)
 
     def code_set(self, which: str, label: str, cls: str, mseed: int | None, btf: BTF,
-                 levels: Sequence[int]) -> tuple[list, dict[str, BTF], dict]:  # fmt: skip
+                 levels: Sequence[int], ahead: _Coded | None = None,
+                 ) -> tuple[list, dict[str, BTF], dict]:  # fmt: skip
         """The reference and every method coding set ``which``, on one material: pending
-        rows, grid reconstructions, and per method name its views by (level, matching)."""
+        rows, grid reconstructions, and per method name its views by (level, matching).
+        ``ahead``: the material's :meth:`code_reference`, its other methods already submitted
+        (a cluster run codes the next materials' while this one's finish)."""
+        coded = ahead or self.code_reference(which, label, cls, mseed, btf, levels)
+        return self.code_others(coded, btf, levels)
+
+    def code_reference(self, which: str, label: str, cls: str, mseed: int | None, btf: BTF,
+                       levels: Sequence[int], submit: bool = False) -> _Coded:  # fmt: skip
+        """The reference's codings of one material (and with ``submit``, on a cluster, the
+        other methods' as tasks: their per-material budgets follow the reference's bytes)."""
         cfg = self.cfg
         base = {"material": label, "class": cls, "seed": mseed, "set": which,
                 "size": [btf.height, btf.width]}
         self.note_values(label, btf)
-        pending: list[tuple[dict[str, Any], BTF | None]] = []
-        recs: dict[str, BTF] = {}
-        views: dict[str, dict[tuple[int, str], BTF]] = {}
+        coded = _Coded(base, which)
         budgets = self.ref.level_budgets(btf, levels)
         curve = which == "test"
         self.say(f"{label}: {self.ref.label} at levels {list(levels)} (tau "
@@ -340,30 +378,55 @@ class _QualityRun:
         t0 = time.perf_counter()
         codings = self.ref.code(btf, budgets, curve=curve)
         self.stage(f"encode_{self.ref.name}", t0)
-        ref_bytes: dict[int, int] = {}
         for j, c in enumerate(codings):
             lv = budgets[j].level if j < len(budgets) else None
-            pending.append((method_row(base, self.ref.name, lv, None, c), c.reconstruction))
+            coded.pending.append((method_row(base, self.ref.name, lv, None, c),
+                                  c.reconstruction))  # fmt: skip
             if lv is not None:
-                ref_bytes[lv] = c.material_bytes
-                views.setdefault(self.ref.name, {})[(lv, "")] = c.reconstruction
+                coded.ref_bytes[lv] = c.material_bytes
+                coded.views.setdefault(self.ref.name, {})[(lv, "")] = c.reconstruction
                 if lv in cfg.grid_levels:
-                    recs[f"{self.ref.label}({lv})"] = c.reconstruction
+                    coded.recs[f"{self.ref.label}({lv})"] = c.reconstruction
+        if submit:
+            data = self.ex.constant(btf)
+            for m in self.others:
+                if which in m.sets:
+                    bs = budgets_for(m, btf, levels, coded.ref_bytes)
+                    coded.tasks[m.name] = self.ex.submit(_code_task, self._remote(m), data, bs)
+        return coded
+
+    def _remote(self, m: Method) -> Any:
+        """The method as the cluster's tasks share it (sent once per run)."""
+        if m.name not in self._remote_methods:
+            self._remote_methods[m.name] = self.ex.constant(m)
+        return self._remote_methods[m.name]
+
+    def code_others(self, coded: _Coded, btf: BTF,
+                    levels: Sequence[int]) -> tuple[list, dict[str, BTF], dict]:  # fmt: skip
+        cfg = self.cfg
+        label, which = coded.base["material"], coded.which
+        pending, recs, views = coded.pending, coded.recs, coded.views
         for m in self.others:
             if which not in m.sets:
                 continue
-            bs = budgets_for(m, btf, levels, ref_bytes)
+            bs = budgets_for(m, btf, levels, coded.ref_bytes)
             self.say(f"{label}: {m.label} at {len(bs)} budgets "
                      f"({', '.join(m.matchings)}; bytes {[b.material_bytes for b in bs]})")
             t0 = time.perf_counter()
-            cs = m.code(btf, bs)
+            task = coded.tasks.pop(m.name, None)
+            if task is None:
+                cs = m.code(btf, bs)
+            else:
+                cs, log = self.ex.gather([task])[0]
+                m.replay(log)
             self.stage(f"encode_{m.name}", t0)
             if len(cs) != len(bs):
                 raise BTFInputError(f"method {m.name!r}: code() returned {len(cs)} codings "
                                     f"for {len(bs)} budgets (one per budget, in order)")
             top = max(m.factors)
             for b, c in zip(bs, cs, strict=True):
-                pending.append((method_row(base, m.name, b.level, b, c), c.reconstruction))
+                pending.append((method_row(coded.base, m.name, b.level, b, c),
+                                c.reconstruction))  # fmt: skip
                 if c.reconstruction is None or b.factor != top:
                     continue
                 views.setdefault(m.name, {})[(b.level, b.matching)] = c.reconstruction  # type: ignore
@@ -371,6 +434,19 @@ class _QualityRun:
                     f = "" if b.factor == 1 else f" {b.factor:g}x"
                     recs[f"{m.label}{f}({b.level})"] = c.reconstruction
         return pending, recs, views
+
+    def code_ahead(self, items: list[tuple[int, str, str, int | None, BTF]], which: str,
+                   levels: Sequence[int]) -> dict[int, _Coded]:  # fmt: skip
+        """On a cluster: every not-yet-checkpointed material's reference coding, with the other
+        methods' codings submitted as tasks, by run index; {} in process (each material is
+        coded when its turn comes)."""
+        if not self.ex.distributed or not self.others:
+            return {}
+        ahead = {}
+        for k, label, cls, mseed, btf in items:
+            if not (self.store.resumed and self.store.material(k) is not None):
+                ahead[k] = self.code_reference(which, label, cls, mseed, btf, levels, True)
+        return ahead
 
     def grid(self, btf: BTF, recs: dict[str, BTF], name: str) -> None:
         t0 = time.perf_counter()
@@ -471,11 +547,13 @@ class _QualityRun:
         self.fit(train)
 
         order = itertools.count()
+        ahead = self.code_ahead([(i, *t) for i, t in enumerate(tests)], "test", cfg.levels)
         for label, cls, mseed, btf in tests:
             if self.done(k := next(order)):
                 continue
             mark = self.mark()
-            pending, recs, views = self.code_set("test", label, cls, mseed, btf, cfg.levels)
+            pending, recs, views = self.code_set("test", label, cls, mseed, btf, cfg.levels,
+                                                 ahead.pop(k, None))  # fmt: skip
             self.say(f"{label}: metrics of {sum(v is not None for _, v in pending)} "
                      "reconstructions")
             self.score(btf, pending)
@@ -488,11 +566,14 @@ class _QualityRun:
             self.checkpoint(k, label, mark)
 
         t5_levels = tuple(cfg.table5_levels) or tuple(cfg.levels)
+        ahead = self.code_ahead([(len(tests) + i, *t) for i, t in enumerate(table5)], "table5",
+                                t5_levels)  # fmt: skip
         for label, cls, mseed, btf in table5:
             if self.done(k := next(order)):
                 continue
             mark = self.mark()
-            pending, recs, _ = self.code_set("table5", label, cls, mseed, btf, t5_levels)
+            pending, recs, _ = self.code_set("table5", label, cls, mseed, btf, t5_levels,
+                                             ahead.pop(k, None))  # fmt: skip
             self.say(f"{label}: metrics of {sum(v is not None for _, v in pending)} "
                      "reconstructions")
             self.score(btf, pending)

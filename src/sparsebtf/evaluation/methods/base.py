@@ -119,6 +119,14 @@ class FitContext:
     #: the run's folder: pictures a method draws go under it (None: it draws none)
     out: Any = None
 
+    def __getstate__(self) -> dict[str, Any]:
+        # a live cluster connection does not survive a pickle (a checkpoint, a task): the
+        # copy runs in process until the runner binds its own executor (``with_executor``)
+        return {**self.__dict__, "executor": None}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+
 
 class Method(abc.ABC):
     """A compression method compared by the benchmark.
@@ -161,6 +169,16 @@ class Method(abc.ABC):
     @abc.abstractmethod
     def code(self, btf: BTF, budgets: Sequence[Budget]) -> list[Coding]:
         """Code ``btf`` at every budget (one :class:`Coding` each, in order)."""
+
+    def cost_log(self) -> list[Any]:
+        """What :meth:`code` added to the method's own accounting (training seconds, efforts),
+        entry by entry. When the benchmark codes a material on a cluster, the task codes with a
+        copy of the method and hands back the entries it added; :meth:`replay` adds them to the
+        method here, so ``training_budget`` counts every material. Default: nothing kept."""
+        return []
+
+    def replay(self, entries: Sequence[Any]) -> None:  # noqa: B027 - default: nothing kept
+        """Add ``entries`` of another copy's :meth:`cost_log` to this method's accounting."""
 
     def shared_bytes(self) -> int:
         """Bytes shared by every material (dictionaries, a shared decoder); 0 if none."""

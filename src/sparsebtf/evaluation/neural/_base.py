@@ -46,16 +46,29 @@ class NeuralMethod(Method):
         self.trainings_ = 0
         self.trainings_converged_ = 0
         self.efforts_: list[float] = []
+        self.log_: list[tuple[float, dict[str, Any], str]] = []
         self._run_seed = 0
 
-    def record(self, seconds: float, fit: dict[str, Any]) -> None:
+    def record(self, seconds: float, fit: dict[str, Any], kind: str = "train") -> None:
         """Add one training's wall seconds and its :func:`~._convergence.train_to_convergence`
-        record (CPU seconds, whether it converged) to the method's totals."""
+        record (CPU seconds, whether it converged) to the method's totals and its
+        :meth:`cost_log`; ``kind`` tells a subclass's other trainings apart (fine-tuning)."""
+        self.log_.append((seconds, fit, kind))
+        self._count(seconds, fit, kind)
+
+    def _count(self, seconds: float, fit: dict[str, Any], kind: str) -> None:
         self.seconds_ += seconds
         self.cpu_seconds_ += float(fit.get("cpu_seconds", 0.0))
         self.trainings_ += 1
         self.trainings_converged_ += bool(fit.get("converged"))
         self.efforts_.append(float(fit.get("queries_per_texel", 0.0)))
+
+    def cost_log(self) -> list[Any]:
+        return self.log_
+
+    def replay(self, entries: Sequence[Any]) -> None:
+        for seconds, fit, kind in entries:
+            self.record(seconds, fit, kind)
 
     def effort_summary(self) -> dict[str, Any]:
         """The trainings' effort for ``training_budget``: CPU seconds, how many converged,

@@ -440,6 +440,13 @@ class RGJW20FineTunedMethod(RGJW20Method):
         cap = self.finetune_max_queries_per_texel
         return StopRule(max_queries_per_texel=cap, eval_every=cap / 40)
 
+    def _count(self, seconds: float, fit: dict[str, Any], kind: str) -> None:
+        if kind != "finetune":
+            super()._count(seconds, fit, kind)
+            return
+        self.finetune_seconds_ += seconds
+        self.finetunes_.append(fit)
+
     def training_budget(self) -> dict[str, Any]:
         done = self.finetunes_
         return {**super().training_budget(),
@@ -476,9 +483,8 @@ class RGJW20FineTunedMethod(RGJW20Method):
                                    f"rgjw20+ft {btf.name} L={model.latents}",
                                    self.progress)  # fmt: skip
         seconds = time.perf_counter() - t0
-        self.finetune_seconds_ += seconds
-        self.finetunes_.append(fit)
         curve = fit.pop("loss_curve")
+        self.record(seconds, dict(fit), kind="finetune")
         return z.detach(), {"converged": fit["converged"], "cpu_seconds": fit["cpu_seconds"],
                             "finetune": {**fit, "loss_curve": curve,
                                          "seconds": round(seconds, 3)}}  # fmt: skip
