@@ -54,3 +54,35 @@ def test_an_unreadable_side_run_is_left_out(tmp_path):
     folder.mkdir(parents=True)
     (folder / "results.json").write_text("{not json")
     assert side_runs_section(tmp_path) == []
+
+
+def test_the_paper_crop_run_carries_table3_alone_at_100x100(tmp_path):
+    from sparsebtf.evaluation.benchmark_set import CLASSES, BenchConfig
+
+    cfg = BenchConfig.paper_crop()
+    assert cfg.test_size == 100 and cfg.levels == (16, 32, 64, 128)
+    assert len(cfg.test_set()) == len(CLASSES) == 7  # one material per class
+    assert cfg.train_set() == BenchConfig().train_set()  # the full run's training
+    assert not (cfg.table5_materials or cfg.black_materials or cfg.with_raw or cfg.render_spp)
+    _run(tmp_path / "paper-crop", "synth", {"table3_rjgw19_lowest": "mostly supported",
+                                            "table3_capacity": "holds"})  # fmt: skip
+    text = "\n".join(side_runs_section(tmp_path))
+    assert "| claim table3_capacity | ratio holds: **holds** | not run |" in text
+    assert "(paper-crop/results.md)" in text
+
+
+def test_bench_quality_paper_crop_flag(tmp_path, monkeypatch, capsys):
+    import pytest
+
+    import sparsebtf.evaluation.runner as runner
+    from sparsebtf.cli.main import main
+
+    seen = {}
+    monkeypatch.setattr(runner, "run_quality",
+                        lambda out, cfg, **kw: seen.update(cfg=cfg) or {"summary": {}})  # fmt: skip
+    assert main(["bench", "quality", "--paper-crop", "--methods", "neural", "--out",
+                 str(tmp_path / "q")]) == 0  # fmt: skip
+    assert seen["cfg"].name == "paper-crop" and seen["cfg"].test_size == 100
+    with pytest.raises(SystemExit):  # one configuration at a time
+        main(["bench", "quality", "--paper-crop", "--quick", "--out", str(tmp_path / "q")])
+    assert "not allowed with" in capsys.readouterr().err

@@ -27,7 +27,9 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
 
     check_output_dir(args.out, "--out")
     check_output_dir(args.docs, "--docs")
-    cfg = getattr(args, "config", None) or (BenchConfig.quick() if args.quick else BenchConfig())
+    cfg = getattr(args, "config", None) or (
+        BenchConfig.quick() if args.quick else
+        BenchConfig.paper_crop() if args.paper_crop else BenchConfig())  # fmt: skip
     if args.source == "capture":
         cfg = cfg.captured()
     if args.log_offset is not None:
@@ -125,7 +127,11 @@ def register(sub: Any) -> None:
         "neural methods, --quick under 10 minutes)",
     )
     q.add_argument("--out", default="bench-quality", help="output folder (default bench-quality)")
-    q.add_argument("--quick", action="store_true", help="small configuration (< 10 minutes)")
+    size = q.add_mutually_exclusive_group()
+    size.add_argument("--quick", action="store_true", help="small configuration (< 10 minutes)")
+    size.add_argument("--paper-crop", action="store_true",
+                      help="Table 3 alone at the paper's 100x100 test crops, one per class "
+                      "(a side run: docs/paper-crop)")
     q.add_argument("--materials", nargs="+", metavar="BTF",
                    help="extra test BTFs (.btf, dense .h5, synth:...) at the same directions")
     q.add_argument("--seed", type=int, default=0, help="shifts every material and training seed")

@@ -29,8 +29,8 @@ from .methods.base import MATCHINGS, PAPER, PER_MATERIAL
 from .rows import find, label, levels, materials, method_order
 from .tables import fmt, gmean, markdown_table
 
-__all__ = ["CAPACITY_SLACK", "NOT_CONVERGED", "STALL_GAIN", "TABLE2_ONLY", "summarise_table3",
-           "table3_comparison", "table3_methods"]  # fmt: skip
+__all__ = ["CAPACITY_SLACK", "NOT_CONVERGED", "STALL_GAIN", "TABLE2_ONLY", "TABLE3_KEYS",
+           "summarise_table3", "table3_comparison", "table3_methods"]  # fmt: skip
 
 #: SparseBTF's own variants: Table 2's rows, not Table 3's
 TABLE2_ONLY = ("rate", "per_channel", "raw")
@@ -41,6 +41,9 @@ STALL_GAIN = 1.2
 #: capacity sanity: a per-material method's converged MSE at the top level may exceed its MSE at
 #: the lowest level by at most this factor (5 %: run-to-run noise of a converged fit)
 CAPACITY_SLACK = 1.05
+#: the summary keys of Table 3's verdicts and its sanity row
+TABLE3_KEYS = ("table3_vs_rgjw20", "table3_rgjw20_stalls", "table3_rjgw19_lowest",
+               "table3_capacity")
 #: the mark of a cell whose training stopped at its cap before it converged
 NOT_CONVERGED = "†"
 #: the metrics Table 2's verdict is re-read in: linear RGB (the paper's), display-mapped, log
@@ -308,6 +311,13 @@ def summarise_table3(result: dict[str, Any], mid: int) -> dict[str, Any]:
     out = {"table3_vs_rgjw20": _vs_rgjw20(result), "table3_rgjw20_stalls": _stalls(result),
            "table3_rjgw19_lowest": _rjgw19_lowest(result),
            "table3_capacity": _capacity(result)}  # fmt: skip
+    for v in out.values():  # the side-run table's one-line figure
+        if "verdict" in v and v["verdict"] != "not measured":
+            fig = v.get("cells_won") or v.get("cells_lowest") or v.get("pairs_holding")
+            if fig is None and v.get("rgjw20_gain_geomean") is not None:
+                fig = f"RGJW20 gain {v['rgjw20_gain_geomean']:.2f}"
+            left = v.get("not_converged")
+            v["figure"] = f"{fig}" + (f" ({left} not converged, left out)" if left else "")
     if any(r["method"] == "raw" for r in result["rows"]):
         out["table2_metrics"] = _table2_metrics(result, mid)
     return out

@@ -1,7 +1,8 @@
 """The beyond-the-paper verdicts measured by runs of their own, in ``docs/results.md``.
 
-The training variants (issue 34, ``docs/training-variants``) and adaptive patch sizes (issue
-35, ``docs/adaptive-patches``) are benchmark methods the default run does not include; their
+The training variants (issue 34, ``docs/training-variants``), adaptive patch sizes (issue
+35, ``docs/adaptive-patches``) and Table 3 at the paper's 100×100 crops (``bench quality
+--paper-crop``, ``docs/paper-crop``) are benchmark methods the default run does not include; their
 runs (``bench quality --methods …``, synthetic and ``--source capture``) are regenerated into
 folders of their own by ``sparsebtf bench report RUN --docs docs/<name>[/capture]``; a rerun
 at another ``--seed`` (other materials, other training points) goes into a ``seed<N>``
@@ -19,6 +20,7 @@ from pathlib import Path
 from typing import Any
 
 from .adaptive_verdicts import ADAPTIVE_KEYS
+from .claims3 import TABLE3_KEYS
 from .training_verdicts import TRAINING_KEYS
 
 __all__ = ["SIDE_RUNS", "side_runs_section"]
@@ -27,6 +29,7 @@ __all__ = ["SIDE_RUNS", "side_runs_section"]
 SIDE_RUNS: tuple[tuple[str, tuple[str, ...]], ...] = (
     ("training-variants", TRAINING_KEYS),
     ("adaptive-patches", ADAPTIVE_KEYS),
+    ("paper-crop", TABLE3_KEYS),
 )
 
 
@@ -89,8 +92,9 @@ def side_runs_section(docs: str | os.PathLike[str]) -> list[str]:
     if not rows:
         return []
     return ["", "## Beyond the paper: methods measured in runs of their own", "",
-            "Methods the default run does not include, measured beside the reference by "
-            "`sparsebtf bench quality --methods …` (each run's page has every table, its "
-            "command and its rules):", "", *runs_text, "",
+            "Methods and configurations the default run does not include, measured beside the "
+            "reference by `sparsebtf bench quality --methods …` (or `--paper-crop`: Table 3 at "
+            "the paper's 100x100 crops; each run's page has every table, its command and its "
+            "rules):", "", *runs_text, "",
             "| claim | synthetic materials | captured materials |", "|---|---|---|",
             *rows]  # fmt: skip

@@ -52,6 +52,7 @@ GROUPS: dict[str, tuple[str, ...]] = {
     "mhu19": ("raw",),
     "pca": ("pca_log", "pca_linear"),
     "training": ("sparsebtf-multitau", "sparsebtf-learntau", "sparsebtf-precluster"),
+    "neural": ("rgjw20", "rgjw20+ft", "rjgw19", "neumip"),
 }
 
 

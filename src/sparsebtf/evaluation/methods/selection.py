@@ -30,7 +30,7 @@ REFERENCE = "sparsebtf"
 #: the default methods that need nothing beyond the core install
 BASELINE_METHODS = ("sparsebtf", "rate", "per_channel", "raw", "pca_log", "pca_linear")
 #: the neural encodings (PyTorch: the ``neural`` extra), run by default when it imports
-NEURAL_METHODS = ("rgjw20", "rgjw20+ft", "rjgw19", "neumip")
+NEURAL_METHODS = GROUPS["neural"]
 NEURAL_NOTE = ("the neural methods ({}) were left out: PyTorch is not installed "
                '(pip install -e ".[neural]")')  # fmt: skip
 
