@@ -188,12 +188,15 @@ def _stalls(result: dict[str, Any]) -> dict[str, Any]:
             falls[m] = all(b < a for a, b in itertools.pairwise(errs))  # type: ignore[operator]
     gain = _level_gain(result, "rgjw20", 32, top, matching)
     ours = _level_gain(result, "sparsebtf", 32, top, matching)
-    if gain is None or not falls:
-        return _not_measured(claim, rule, "no RGJW20 or SparseBTF errors at these levels")
-    n_falls = sum(falls.values())
-    a, b = n_falls == len(falls), gain < STALL_GAIN
     left_out = [f"{m} ({lv})" for lv in (32, top) for m in materials(result, "test")
                 if _unconverged(result, ["rgjw20"], m, lv, matching)]  # fmt: skip
+    if gain is None or not falls:
+        why = (f"{len(left_out)} RGJW20 cells at levels 32 and {top} left out, not converged"
+               if left_out else "no RGJW20 or SparseBTF errors at these levels")
+        return {**_not_measured(claim, rule + _CONVERGED_ONLY, why),
+                "not_converged": len(left_out), "not_converged_cells": left_out}
+    n_falls = sum(falls.values())
+    a, b = n_falls == len(falls), gain < STALL_GAIN
     return {"claim": claim, "rule": rule + _CONVERGED_ONLY, "matching": matching,
             "top_level": top, "not_converged": len(left_out), "not_converged_cells": left_out,
             "sparsebtf_falls": f"{n_falls}/{len(falls)}", "per_material_falls": falls,

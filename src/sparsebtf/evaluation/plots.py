@@ -81,7 +81,10 @@ def learning_curve_rows(result: dict[str, Any], n_materials: int = 2
             if any(r.get("loss_curve") for r in _rows(result, material=m, set="test"))]
     for mat in mats[:n_materials]:
         for r in _rows(result, material=mat, set="test"):
-            curve, size = r.get("loss_curve"), r.get("latent_size", r.get("channels"))
+            # a fine-tuned coding's own training is its fine-tuning (the shared curve is
+            # its base method's)
+            curve = (r.get("finetune") or {}).get("loss_curve") or r.get("loss_curve")
+            size = r.get("latent_size", r.get("channels"))
             if curve and size:
                 out.setdefault(r["method"], {}).setdefault(mat, {}).setdefault(int(size), curve)
     return out
@@ -89,7 +92,8 @@ def learning_curve_rows(result: dict[str, Any], n_materials: int = 2
 
 def learning_curves(result: dict[str, Any], path: Path) -> Path | None:
     """Held-out loss vs training queries per texel, one panel per trained method and material
-    (two materials), one line per latent size; a marker where the training stopped, hollow
+    (two materials), one line per latent size (NeuMIP: channels C; a fine-tuned method: its
+    fine-tuning); a marker where the training stopped, hollow
     when it stopped at its cap before converging. None (nothing written) without curves."""
     data = learning_curve_rows(result)
     if not data:
@@ -99,14 +103,16 @@ def learning_curves(result: dict[str, Any], path: Path) -> Path | None:
     fig, axes = plt.subplots(len(methods), len(mats), figsize=(5.2 * len(mats),
                              3.4 * len(methods)), squeeze=False)  # fmt: skip
     converged = {(r["method"], r["material"], int(r.get("latent_size", r.get("channels", 0)))):
-                 r.get("converged") for r in result["rows"] if r.get("loss_curve")}
+                 (r.get("finetune") or r).get("converged") for r in result["rows"]
+                 if r.get("loss_curve")}  # fmt: skip
+    symbol = {r["method"]: "C" if "channels" in r else "L" for r in result["rows"]}
     for i, m in enumerate(methods):
         for j, mat in enumerate(mats):
             ax = axes[i, j]
             for size, curve in sorted(data[m].get(mat, {}).items()):
                 q = [p[0] for p in curve]
                 loss = [p[1] for p in curve]
-                (line,) = ax.plot(q, loss, label=f"L = {size}")
+                (line,) = ax.plot(q, loss, label=f"{symbol.get(m, 'L')} = {size}")
                 done = converged.get((m, mat, size))
                 ax.plot(q[-1:], loss[-1:], marker="o", color=line.get_color(),
                         fillstyle="full" if done else "none")  # fmt: skip

@@ -266,7 +266,7 @@ def render_markdown(
                         f"{s['sparsebtf_falls']} materials")
             elif fig is not None:
                 text = f"{text} cells ({s['matching']} matching)"
-            if s.get("not_converged"):
+            if s.get("not_converged") and fig is not None:
                 text += f"; {s['not_converged']} cells left out, not converged"
             verdict_row(key, s["claim"], text)
     if "table3_capacity" in summary:
