@@ -206,7 +206,8 @@ def test_learning_curve_figure_and_budget_table(tmp_path):
     assert learning_curves({"rows": [], "config": {"levels": []}}, tmp_path / "x.png") is None
     result["method_runs"]["rjgw19"]["training_budget"] = {
         "seconds": 2.0, "cpu_seconds": 3.5, "converged": "3/4", "queries_per_texel": 9000.0,
-        "queries_per_texel_min": 4000.0, "stop_rule": "plateau"}
+        "queries_per_texel_min": 4000.0, "stop_rule": StopRule(20_000, 500).describe()}
     table = "\n".join(_budgets_table(result, "results/"))
-    assert "| RJGW19 | per_material | 0 | 2 | 4 | 4,000–9,000 | 3/4 | plateau |" in table
+    assert ("| RJGW19 | per_material | 0 | 2 | 4 | 4,000–9,000 | 3/4 | held-out gain < 1% over "
+            "the last 20%; eval every 500, from 0, cap 20,000 queries per texel |") in table
     assert "![learning curves](results/learning_curves.png)" in table

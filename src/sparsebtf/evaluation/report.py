@@ -393,12 +393,24 @@ def _budgets_table(result: dict[str, Any], img: str = "") -> list[str]:
         lo, hi = b.get("queries_per_texel_min"), b.get("queries_per_texel")
         return cell(hi) if lo is None or lo == hi else f"{cell(float(lo))}–{cell(float(hi))}"
 
+    def rule(b: dict[str, Any]) -> str:
+        r = b.get("stop_rule")
+        if not isinstance(r, dict):
+            return cell(b.get("iterations"))
+        return (f"held-out gain < {r['tolerance']:.0%} over the last {r['window']:.0%}; eval "
+                f"every {r['eval_every']:,.0f}, from {r.get('min_queries_per_texel') or 0:,.0f}"
+                f", cap {r['max_queries_per_texel']:,.0f} queries per texel")
+
+    def converged(b: dict[str, Any]) -> str:
+        ft = b.get("finetune_converged")
+        return cell(b.get("converged")) + (f" shared, {ft} fine-tunings" if ft else "")
+
     body = []
     for v in runs.values():
         b = v.get("training_budget") or {}
         body.append([v["label"], v["scope"], f"{v.get('shared_bytes', 0):,d}",
                      cell(b.get("seconds")), cell(b.get("cpu_seconds")), effort(b),
-                     cell(b.get("converged")), cell(b.get("stop_rule") or b.get("iterations"))])
+                     converged(b), rule(b)])
     return ["", "Training budgets: seconds of fitting, wall and CPU (a per-material method: over "
             "all the materials it coded), training queries seen per texel (least–most over its "
             "trainings), how many trainings stopped on their held-out plateau rather than at "
