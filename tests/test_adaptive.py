@@ -304,12 +304,15 @@ def test_numba_backend_matches_the_numpy_reference(model, mixed, monkeypatch):
     wi /= np.linalg.norm(wi, axis=1, keepdims=True)
     wo /= np.linalg.norm(wo, axis=1, keepdims=True)
     frac = rng.uniform(0.5, 3.5, size=n)  # below every node's stored count: the prefix fades
-    from sparsebtf.runtime import kernels
+    from sparsebtf.runtime import kernels, wavefront
 
     used = []  # the backend each layer's kernels ran on (the numba answer is not NumPy's)
     for fn in ("separable_sum", "pair_sums"):
         real = getattr(kernels, fn)
         monkeypatch.setattr(kernels, fn, lambda *a, _f=real: (used.append(a[-1]), _f(*a))[1])
+    real_sums = wavefront.separable_sums  # the compiled loops (numba only)
+    monkeypatch.setattr(wavefront, "separable_sums",
+                        lambda *a, **k: (used.append("numba"), real_sums(*a, **k))[1])
     for kwargs in ({"interpolation": "linear"}, {"interpolation": "gaussian", "domain": "log"},
                    {"interpolation": "barycentric", "tau": frac}):  # fmt: skip
         ref = rt.evaluate(wi, wo, texel=texels, backend="numpy", **kwargs)

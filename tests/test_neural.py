@@ -184,6 +184,12 @@ def test_reconstruction_is_the_binary16_network_and_query_equals_read(name, codi
     np.testing.assert_allclose(queried, _manual_decode(rec, r, c, li, vi), rtol=1e-4, atol=1e-6)
     # the latents / texture really are binary16 values: float32 ones would differ
     assert rec.stored()["code"].dtype == np.float16
+    # a renderer's continuous directions: at the measured ones, the same values
+    looked = rec.lookup(r, c, rec.lights.xyz[li], rec.views.xyz[vi])
+    np.testing.assert_allclose(looked, queried, rtol=1e-5, atol=1e-7)
+    mid = rec.lights.xyz[li] + rec.lights.xyz[(li + 1) % 13]
+    mid /= np.linalg.norm(mid, axis=1, keepdims=True)
+    assert not np.allclose(rec.lookup(r, c, mid, rec.views.xyz[vi]), looked)
 
 
 @pytest.mark.parametrize("name", ["rjgw19", "neumip", "rgjw20"])

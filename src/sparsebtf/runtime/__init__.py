@@ -13,7 +13,7 @@
 from __future__ import annotations
 
 from .adaptive import AdaptiveDecodedBTF, AdaptiveRuntimeBTF
-from .angular import SCHEMES, angular_weights, neighbour_table
+from .angular import SCHEMES, DirectionIndex, angular_weights, neighbour_table
 from .blend import blend
 from .decoder import RuntimeBTF, texels_from_uv
 from .dense import DecodedBTF, coded_btf_view, decode_points, decode_points_eq5
@@ -23,6 +23,7 @@ __all__ = [
     "AdaptiveDecodedBTF",
     "AdaptiveRuntimeBTF",
     "DecodedBTF",
+    "DirectionIndex",
     "RuntimeBTF",
     "angular_weights",
     "blend",

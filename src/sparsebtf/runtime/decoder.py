@@ -22,14 +22,14 @@ from typing import Any, Literal
 
 import numpy as np
 
-from ..colour import YUV_TO_RGB, yuv_to_rgb
+from ..colour import YUV_TO_RGB, YUV_TO_RGB_RELEASE, yuv_to_rgb
 from ..errors import BTFInputError
 from ..model import CHANNELS, CodedBTF, TauSpec
 from ..patch_tree import refuse_adaptive
 from ..points.grid import PatchGrid
 from ..points.preprocessing import inverse_log_transform
-from . import kernels
-from .angular import SCHEMES, Scheme, angular_weights, neighbour_table
+from . import kernels, wavefront
+from .angular import DEFAULT_K, SCHEMES, DirectionIndex, Scheme, angular_weights, neighbour_table
 
 __all__ = ["NO_BOUND", "Domain", "RuntimeBTF", "query_texels", "texels_from_uv"]
 
@@ -129,6 +129,7 @@ class RuntimeBTF:
         self._std = np.ascontiguousarray(np.moveaxis(st.std, 2, 0), dtype=np.float64)
         self.log_offset = float(st.log_offset)
         self._bound = None if st.bound is None else np.asarray(st.bound, dtype=np.float64)
+        self._indices: dict[tuple[str, int], DirectionIndex] = {}
         self.meta: dict[str, Any] = {
             "name": coded.name,
             "height": coded.height,
@@ -233,6 +234,19 @@ class RuntimeBTF:
         pts, i1, i2 = PatchGrid(h, w, p).locate(row, col)
         return pts.astype(np.int64), i1.astype(np.int64), i2.astype(np.int64)
 
+    def _weights(self, which: str, q: np.ndarray, scheme: str, k: int | None, beta: float,
+                 table: bool) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """Neighbours and weights of light or view queries; with ``table`` the search scans
+        grid-cell candidate lists (:class:`DirectionIndex`, built once per set and k)."""
+        dirs = self.coded.lights if which == "lights" else self.coded.views
+        index = None
+        kk = DEFAULT_K.get(scheme, 0) if k is None else int(k)
+        if table and 1 <= kk <= len(dirs):
+            index = self._indices.get((which, kk))
+            if index is None:
+                index = self._indices[(which, kk)] = DirectionIndex(dirs, kk)
+        return angular_weights(dirs, q, scheme, k, beta, table=index)
+
     def _select_backend(self, backend: str) -> str:
         if backend == "auto":
             return "numba" if kernels.HAVE_NUMBA else "numpy"
@@ -331,8 +345,12 @@ class RuntimeBTF:
         pts, i1, i2 = self._texels(uv, texel, n)
         caps = self._run_tau(tau, pts.size)
         be = self._select_backend(backend)
-        li, lw = angular_weights(self.coded.lights, wi, interpolation, k, beta)
-        vi, vw = angular_weights(self.coded.views, wo, interpolation, k, beta)
+        fast = be == "numba"
+        li, lw = self._weights("lights", wi, interpolation, k, beta, fast)
+        vi, vw = self._weights("views", wo, interpolation, k, beta, fast)
+        if fast and domain == "standardized":
+            return self._evaluate_compiled(pts, i1, i2, li, lw, vi, vw, caps, output,
+                                           release_matrix)  # fmt: skip
         # Neighbour-pair weights and statistics: (n, kl, kv).
         w2 = lw[:, :, None] * vw[:, None, :]
         s = self._mean.shape[0]
@@ -357,6 +375,21 @@ class RuntimeBTF:
             bound = np.einsum("nab,nab->n", w2, self._bound[li[:, :, None], vi[:, None, :]])
             np.minimum(log_rgb, bound[:, None], out=log_rgb)
         return inverse_log_transform(log_rgb, self.log_offset).astype(np.float32)
+
+    def _evaluate_compiled(self, pts, i1, i2, li, lw, vi, vw, caps, output, release_matrix
+                           ) -> np.ndarray:  # fmt: skip
+        """The numba path of :meth:`evaluate` (domain "standardized"): the sums of Eq. 6 by
+        :func:`~sparsebtf.runtime.wavefront.separable_sums` (queries grouped by data point
+        where that pays), then de-standardisation, colour, bound and exp fused per query."""
+        n = pts.size
+        groups = wavefront.group_by_point(pts, self.coded.n_points)
+        x = np.empty((n, 3), dtype=np.float64)
+        for c, ch in enumerate(CHANNELS):
+            x[:, c] = wavefront.separable_sums(self._channels[ch], pts, i1, i2, li, lw, vi, vw,
+                                               kernels._per_query(caps[ch], n), groups)  # fmt: skip
+        matrix = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
+        return wavefront.finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
+                                self.log_offset, output == "rgb")  # fmt: skip
 
     def image(
         self,

@@ -368,6 +368,8 @@ class NeuralBTF(BTF):
         self._light, self._view = direction_terms(
             w0, n, direction_xy(lights), direction_xy(views)
         )
+        self._w_light = w0[:, n:n + 2].T.contiguous()
+        self._w_view = w0[:, n + 2:n + 4].T.contiguous()
 
     def stored(self) -> dict[str, np.ndarray]:
         """Every stored array by name (binary16): ``code``, ``layer{i}.weight``/``.bias``."""
@@ -401,6 +403,28 @@ class NeuralBTF(BTF):
                     val = self._decode(pre.reshape(-1, pre.shape[-1]))
                     out[t0:t0 + kt, l0:l0 + kl] = val.reshape(*pre.shape[:3], 3).numpy()
         return out.reshape(r.size, c.size, li.size, vi.size, 3)
+
+    def lookup(self, rows: np.ndarray, cols: np.ndarray, wi: np.ndarray, wo: np.ndarray
+               ) -> np.ndarray:  # fmt: skip
+        """A renderer's query: texels (rows, cols) and continuous unit directions wi, wo
+        (n, 3) in the local frame → (n, 3) float32. The decoder's input is [code, ω_i.xy,
+        ω_o.xy], so an unmeasured direction costs two (n, 2) × (2, width) products instead of
+        the per-direction tables of :meth:`query`."""
+        r, c = (np.asarray(a, dtype=np.int64) for a in (rows, cols))
+        wi, wo = (np.asarray(a, dtype=np.float32) for a in (wi, wo))
+        if not (r.shape == c.shape == wi.shape[:1] == wo.shape[:1]) or wi.shape != wo.shape:
+            raise BTFInputError(f"{self.label}: lookup needs rows, cols (n,) and wi, wo (n, 3), "
+                                f"got {r.shape}, {c.shape}, {wi.shape}, {wo.shape}")  # fmt: skip
+        tex = torch.from_numpy(r * self.width + c)
+        li_xy, vi_xy = torch.from_numpy(wi[:, :2].copy()), torch.from_numpy(wo[:, :2].copy())
+        out = np.empty((r.size, 3), dtype=np.float32)
+        with torch.inference_mode(), torch_threads(self.threads):
+            for s in range(0, r.size, self.batch):
+                e = s + self.batch
+                pre = torch.addmm(self._texel[tex[s:e]], li_xy[s:e], self._w_light)
+                pre.addmm_(vi_xy[s:e], self._w_view)
+                out[s:e] = self._decode(pre).numpy()
+        return out
 
     def query(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
         """Values at point queries: four equal-length integer arrays → (n, 3) float32."""

@@ -1,0 +1,165 @@
+"""The compiled lookup (runtime/wavefront.py, DirectionIndex) tied to the NumPy reference:
+grouping, both loops of Eq. 6, every scheme, domain, output, level of detail and dtype."""
+
+import itertools
+
+import numpy as np
+import pytest
+
+from sparsebtf.codec import encode
+from sparsebtf.data.directions import k_nearest, ubo2014
+from sparsebtf.runtime import DirectionIndex, RuntimeBTF, angular_weights, kernels
+from sparsebtf.runtime.angular import SCHEMES
+from sparsebtf.runtime.wavefront import (
+    _group_numpy,
+    group_by_point,
+    grouped_pays,
+    separable_sums,
+)
+
+from .conftest import smooth_btf, tiny_model
+
+numba_only = pytest.mark.skipif(not kernels.HAVE_NUMBA, reason="numba is not installed")
+
+
+@pytest.fixture(scope="module")
+def coded():
+    return encode(smooth_btf(9), tiny_model(), tau=(40, 8, 8), eps=0.0, progress=False)
+
+
+def _dirs(rng, n, low=0.05):
+    el = rng.uniform(low, np.pi / 2, n)
+    az = rng.uniform(-np.pi, np.pi, n)
+    return np.stack([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)], axis=1)
+
+
+@pytest.mark.parametrize("width", [1, 3, 32])
+def test_groups_hold_every_query_once_each_of_one_point(width):
+    rng = np.random.default_rng(0)
+    pts = rng.integers(0, 7, 500)
+    pts[pts == 4] = 5  # a point without queries
+    order, starts = group_by_point(pts, 7, width)
+    assert np.array_equal(np.sort(order), np.arange(pts.size))
+    assert starts[0] == 0 and starts[-1] == pts.size
+    sizes = np.diff(starts)
+    assert sizes.min() >= 1 and sizes.max() <= width
+    for a, b in itertools.pairwise(starts):
+        assert np.unique(pts[order[a:b]]).size == 1
+        assert np.all(np.diff(order[a:b]) > 0)  # stable within a point
+    ref = _group_numpy(pts, width)
+    assert np.array_equal(order, ref[0]) and np.array_equal(starts, ref[1])
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 4, 8])
+@pytest.mark.parametrize("which", ["ubo2014", "tiny"])
+def test_direction_index_finds_the_same_neighbours_as_the_full_scan(k, which, coded):
+    dirs = ubo2014() if which == "ubo2014" else coded.lights
+    rng = np.random.default_rng(k)
+    q = np.concatenate([
+        _dirs(rng, 3000, 0.0),
+        dirs.xyz,  # sampled directions: exact hits and tied neighbours
+        -_dirs(rng, 50),  # below the horizon: the full scan
+        [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, -1.0, 0.0]],  # horizon, pole, φ = −π/2
+    ])  # fmt: skip
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    idx, d2 = DirectionIndex(dirs, k).k_nearest(q)
+    ref_idx, ref_d2 = k_nearest(dirs.xyz, q, k)
+    assert np.array_equal(idx, ref_idx)
+    np.testing.assert_array_equal(d2, ref_d2)
+
+
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_angular_weights_with_a_table_equal_the_scan(scheme, coded):
+    rng = np.random.default_rng(1)
+    q = _dirs(rng, 400)
+    k = 4 if scheme == "gaussian" else None
+    kk = {"nearest": 1, "linear": 2, "barycentric": 3, "gaussian": 4}[scheme]
+    a = angular_weights(coded.lights, q, scheme, k)
+    b = angular_weights(coded.lights, q, scheme, k, table=DirectionIndex(coded.lights, kk))
+    assert np.array_equal(a[0], b[0])
+    np.testing.assert_array_equal(a[1], b[1])
+
+
+def _sums_inputs(coded, n, rng, scheme="linear"):
+    rt = RuntimeBTF(coded)
+    uv = rng.uniform(-1, 2, (n, 2))
+    pts, i1, i2 = rt._texels(uv, None, n)
+    li, lw = angular_weights(coded.lights, _dirs(rng, n), scheme)
+    vi, vw = angular_weights(coded.views, _dirs(rng, n), scheme)
+    return rt, (pts, i1, i2, li, lw, vi, vw)
+
+
+@numba_only
+@pytest.mark.parametrize("loop", ["grouped", "query"])
+@pytest.mark.parametrize("scheme", SCHEMES)
+@pytest.mark.parametrize("width", [1, 5, 32])
+def test_both_loops_equal_the_reference_sum(coded, loop, scheme, width):
+    rng = np.random.default_rng(width)
+    n = 300
+    rt, (pts, i1, i2, li, lw, vi, vw) = _sums_inputs(coded, n, rng, scheme)
+    groups = group_by_point(pts, coded.n_points, width)
+    for ch in "YUV":
+        arr = rt._channels[ch]
+        full = float(rt.tau[ch])
+        for tau in (np.full(n, full), np.full(n, 3.0), rng.uniform(0, full, n),
+                    rng.integers(0, int(full) + 1, n).astype(float)):  # fmt: skip
+            ref = kernels.separable_sum(arr, pts, i1, i2, li, lw, vi, vw, tau, "numpy")
+            got = separable_sums(arr, pts, i1, i2, li, lw, vi, vw, tau, groups, loop, width)
+            scale = np.abs(ref).max()
+            np.testing.assert_allclose(got, ref, rtol=0, atol=2e-6 * scale)
+    assert np.abs(ref).max() > 0
+
+
+@numba_only
+def test_the_loop_choice_follows_the_terms():
+    """The grouped loop pays for a channel with many coefficients per point and many queries
+    per point, not for a few coefficients or a query alone on its point."""
+    rng = np.random.default_rng(0)
+    d = {f"dict{i}": rng.normal(size=(2, m, m)).astype(np.float32)
+         for i, m in zip((1, 2, 3, 4), (10, 10, 151, 151), strict=True)}  # fmt: skip
+    ch = {**d, "offsets": np.array([0, 885, 1770])}
+    assert grouped_pays(ch, np.full(100, 885.0), 2, 2, 32)
+    assert not grouped_pays(ch, np.full(100, 64.0), 2, 2, 32)
+    assert not grouped_pays(ch, np.full(100, 885.0), 2, 2, 1)
+
+
+@numba_only
+@pytest.mark.parametrize("domain", ["standardized", "log"])
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_evaluate_compiled_equals_numpy(coded, domain, scheme):
+    rng = np.random.default_rng(7)
+    n = 400
+    uv = rng.uniform(-2, 3, (n, 2))
+    wi, wo = _dirs(rng, n), _dirs(rng, n)
+    wi[:5] = coded.lights.xyz[:5]  # measured directions too
+    for dtype in (np.float32, np.float64):
+        rt = RuntimeBTF(coded, dtype=dtype)
+        tol = 1e-5 if dtype is np.float32 else 1e-9
+        frac = rng.uniform(0, 1, (n, 3)) * np.array([rt.tau[c] for c in "YUV"])
+        for kw in ({}, {"tau": frac}, {"tau": "10,3,2"}, {"output": "log_yuv"},
+                   {"release_matrix": True}):  # fmt: skip
+            a = rt.evaluate(wi, wo, uv=uv, interpolation=scheme, domain=domain,
+                            backend="numpy", **kw)  # fmt: skip
+            b = rt.evaluate(wi, wo, uv=uv, interpolation=scheme, domain=domain,
+                            backend="numba", **kw)  # fmt: skip
+            np.testing.assert_allclose(b, a, rtol=tol, atol=tol * np.abs(a).max())
+
+
+@numba_only
+def test_evaluate_compiled_without_a_bound_and_with_every_group_shape(coded):
+    """A material without a bound (older files), and queries that all land on one point or
+    one per point: the fused finish and the grouping agree with the reference."""
+    rt = RuntimeBTF(coded)
+    rt._bound = None
+    rng = np.random.default_rng(3)
+    n = 200
+    wi, wo = _dirs(rng, n), _dirs(rng, n)
+    for texel in (np.zeros((n, 2), dtype=np.int64),
+                  np.stack([rng.integers(0, 8, n), rng.integers(0, 8, n)], 1)):  # fmt: skip
+        a = rt.evaluate(wi, wo, texel=texel, backend="numpy")
+        b = rt.evaluate(wi, wo, texel=texel, backend="numba")
+        np.testing.assert_allclose(b, a, rtol=1e-5)
+    t0 = np.zeros((1, 2), dtype=np.int64)
+    np.testing.assert_allclose(rt.evaluate(wi[:1], wo[:1], texel=t0, backend="numba"),
+                               rt.evaluate(wi[:1], wo[:1], texel=t0, backend="numpy"),
+                               rtol=1e-5)  # fmt: skip
