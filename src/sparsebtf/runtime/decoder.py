@@ -382,7 +382,9 @@ class RuntimeBTF:
         :func:`~sparsebtf.runtime.wavefront.separable_sums` (queries grouped by data point
         where that pays), then de-standardisation, colour, bound and exp fused per query."""
         n = pts.size
-        groups = wavefront.group_by_point(pts, self.coded.n_points)
+        # A handful of queries cannot fill a group: skip the sort.
+        few = n < 2 * wavefront.GROUP
+        groups = None if few else wavefront.group_by_point(pts, self.coded.n_points)
         x = np.empty((n, 3), dtype=np.float64)
         for c, ch in enumerate(CHANNELS):
             x[:, c] = wavefront.separable_sums(self._channels[ch], pts, i1, i2, li, lw, vi, vw,
