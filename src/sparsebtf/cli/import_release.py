@@ -34,8 +34,14 @@ def run(args: argparse.Namespace) -> int:
     check_output_dir(args.coded_dir, "--coded-dir")
     against = open_model_arg(args.model) if args.model else None
     height, width = _size(args.size)
+    # Every input file is read and checked here, before anything is written.
     model, coded, notes = import_release(args.folder, prefer=args.prefer, model=against,
                                          height=height, width=width)
+    if not coded and not args.output:
+        raise SparseBTFError(
+            f"{args.folder}: no Coeffs_BTF_<name>_<eps>_<CH>.bin files, so nothing to write "
+            "(-o MODEL.h5 writes the dictionaries alone as a model)"
+        )
     if args.output:
         save_model(model, args.output)
         model_path = str(Path(args.output).resolve())

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import os
 import re
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -35,6 +36,7 @@ from .._limits import check_allocation
 from .._semantic import (
     ORTHONORMAL_TOLERANCE,
     ORTHONORMAL_TOLERANCE_FP16,
+    STAT_BOUND,
     check_codes,
     check_directions,
     check_orthonormal,
@@ -48,7 +50,9 @@ from ..points.preprocessing import Standardization
 
 __all__ = [
     "check_same_dictionaries",
+    "check_storable_statistics",
     "import_release",
+    "points_that_fit",
     "read_angles",
     "read_coefficients",
     "read_dictionaries",
@@ -137,9 +141,17 @@ def _read_mat_dictionaries(
 
 
 def read_coefficients(
-    path: str | os.PathLike[str], n_points: int = 1600, n_dictionaries: int = 8
+    path: str | os.PathLike[str],
+    n_points: int = 1600,
+    n_dictionaries: int = 8,
+    texels: tuple[int, int] | None = None,
 ) -> SparseCodes:
-    """One channel's codes; each point's coefficients sorted by decreasing magnitude."""
+    """One channel's codes; each point's coefficients sorted by decreasing magnitude.
+
+    The file does not say its point count: ``n_points`` (P) comes from the BTF's size
+    (``texels``, H × W, named in the messages when given). When the words do not parse with
+    that P but do with another, the error names the size and the point count that fits (a
+    wrong size, not a damaged file)."""
     p = Path(path)
     size = _regular_size(p)
     # Words, then int32 locations, int64 membership/counts and float32 values: ~10x the file.
@@ -150,11 +162,23 @@ def read_coefficients(
     dims = tuple(int(v) for v in raw[:4].view("<i2"))
     if any(d <= 0 for d in dims):
         raise FileFormatError(f"{p}: header dims {dims} are not positive")
+
+    def misfit(why: str) -> FileFormatError:
+        """``why`` P does not parse: a size error when another point count does."""
+        fits = [q for q in points_that_fit(raw, n_dictionaries) if q != n_points]
+        if not fits:
+            return FileFormatError(f"{p}: {why}")
+        asked = (f"size {texels[0]}x{texels[1]} ({n_points} points of 10x10 texels)"
+                 if texels else f"a BTF of {n_points} points")  # fmt: skip
+        other = " or ".join(f"{q} points (e.g. size {size_text(q)})" for q in fits[:3])
+        return FileFormatError(
+            f"{p}: {asked} does not fit its {raw.size} words, which parse as {other}; give "
+            "that size (the release's files do not store it), or the file is damaged"
+        )
+
     rest = raw.size - 4 - 2 * n_points
     if rest < 0 or rest % 5:
-        raise FileFormatError(
-            f"{p}: {raw.size} words do not fit 4 + 5·N + 2·P with P = {n_points} points"
-        )
+        raise misfit(f"{raw.size} words do not fit 4 + 5·N + 2·P with P = {n_points} points")
     n = rest // 5
     lnz = raw[4 : 4 + 4 * n].reshape(n, 4).astype(np.int32)
     member = raw[4 + 4 * n : 4 + 4 * n + n_points].view("<i2").astype(np.int64)
@@ -162,9 +186,9 @@ def read_coefficients(
     values = raw[4 + 4 * n + 2 * n_points :].view("<f2").astype(np.float32)
     if np.any(counts < 0):
         i = int(np.flatnonzero(counts < 0)[0])
-        raise FileFormatError(f"{p}: NNZ[{i}] = {counts[i]} is negative")
+        raise misfit(f"NNZ[{i}] = {counts[i]} is negative")
     if int(counts.sum()) != n:
-        raise FileFormatError(f"{p}: NNZ sums to {int(counts.sum())}, but the file holds {n}")
+        raise misfit(f"NNZ sums to {int(counts.sum())}, but the file holds {n}")
     bad = (member < 0) | (member >= n_dictionaries)
     if bad.any():
         i = int(np.flatnonzero(bad)[0])
@@ -190,10 +214,77 @@ def read_coefficients(
     return codes
 
 
+def points_that_fit(raw: np.ndarray, n_dictionaries: int = 8, limit: int = 4) -> list[int]:
+    """The point counts P (at most ``limit``, smallest first) for which a coefficient file's
+    16-bit words ``raw`` parse: 4 + 5·N + 2·P words whose P counts are non-negative and sum
+    to N, and whose P memberships lie in [0, K). One pass over the words (prefix sums)."""
+    w = int(raw.size) - 4
+    if w < 2:
+        return []
+    # 2·P ≡ w (mod 5)  <=>  P ≡ 3·w (mod 5)
+    ps = np.arange((3 * w) % 5, w // 2 + 1, 5, dtype=np.int64)
+    ps = ps[ps > 0]
+    ns = (w - 2 * ps) // 5
+    dims = raw[:4].view("<i2").astype(np.int64)
+    signed = raw.view("<i2").astype(np.int64)
+    csum = np.concatenate([[0], np.cumsum(signed)])
+    start = 4 + 4 * ns + ps  # the first NNZ word
+    sums = csum[start + ps] - csum[start]
+    found = []
+    for q, n in zip(ps[sums == ns].tolist(), ns[sums == ns].tolist(), strict=True):
+        counts = signed[4 + 4 * n + q : 4 + 4 * n + 2 * q]
+        member = signed[4 + 4 * n : 4 + 4 * n + q]
+        if counts.min() < 0 or member.min() < 0 or member.max() >= n_dictionaries:
+            continue
+        lnz = raw[4 : 4 + 4 * n].reshape(n, 4)
+        values = raw[4 + 4 * n + 2 * q :].view("<f2")
+        if np.all(lnz < dims) and np.all(np.isfinite(values)):
+            found.append(q)
+            if len(found) == limit:
+                break
+    return found
+
+
+def size_text(n_points: int, patch: int = 10) -> str:
+    """A size ``HxW`` of ``n_points`` patches of ``patch``² texels, as near square as the count
+    allows (1600 -> 400x400, 2 -> 20x10)."""
+    a = max(d for d in range(1, int(np.sqrt(n_points)) + 1) if n_points % d == 0)
+    return f"{patch * (n_points // a)}x{patch * a}"
+
+
+#: The smallest σ float32 holds within its rounding (its smallest normal number, 1.18e-38).
+FLOAT32_NORMAL = float(np.finfo(np.float32).tiny)
+
+
+def check_storable_statistics(stats: Standardization, where: str) -> None:
+    """The statistics as a coded file stores them (μ, σ in float32; ``stats/`` of
+    ``docs/format.md`` §3) pass the check ``decode`` applies
+    (:func:`~sparsebtf._semantic.check_statistics`), and every σ is stored within float32
+    rounding: a float64 σ of 5e-324 passes σ > 0 but is stored as 0.0, one of 1e-40 as a
+    float32 subnormal with 5 significant digits lost."""
+    std = np.asarray(stats.std, dtype=np.float64)
+    stored = std.astype(np.float32).astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        bad = np.isfinite(std) & (np.abs(stored - std) > 2.0**-24 * np.abs(std))
+    if bad.any():
+        first = tuple(int(x[0]) for x in np.nonzero(bad))
+        raise FileFormatError(
+            f"{where}/std: {int(bad.sum())} values that float32 (as the coded file stores σ) "
+            f"cannot hold, first {float(std[first])!r} at index {first} (light, view, channel), "
+            f"stored as {float(stored[first])!r}; expected {FLOAT32_NORMAL:.3g} <= std <= "
+            f"{STAT_BOUND:g}"
+        )
+    check_statistics(
+        replace(stats, mean=np.asarray(stats.mean, np.float32).astype(np.float64), std=stored),
+        where,
+    )
+
+
 def read_mean_std(
     path: str | os.PathLike[str], n_lights: int = 151, n_views: int = 151
 ) -> Standardization:
-    """The release's shared standardisation (index ``view·L + light``)."""
+    """The release's shared standardisation (index ``view·L + light``), checked as a coded
+    file will store it (:func:`check_storable_statistics`)."""
     p = Path(path)
     j = n_lights * n_views
     size = _regular_size(p)
@@ -204,6 +295,7 @@ def read_mean_std(
     std = a[j:].reshape(n_views, n_lights).T[..., None]
     stats = Standardization("shared", np.ascontiguousarray(mean), np.ascontiguousarray(std))
     check_statistics(stats, str(p))
+    check_storable_statistics(stats, str(p))
     return stats
 
 
@@ -318,7 +410,19 @@ def import_release(
     folder without dictionaries (as ``sparsebtf export-release`` writes) needs ``model``.
     ``height`` × ``width``: the texels of every material (the files do not say; the release's
     are 400 × 400).
+
+    Incomplete or implausible input is refused in one line (:class:`FileFormatError` naming
+    the file and field) before anything is returned, so a caller that writes afterwards
+    writes nothing: a material without its U or V coefficient file, or without its
+    ``*_mean_std.bin``; a coefficient file without dictionaries for its channel; statistics a
+    coded file cannot store (:func:`check_storable_statistics`); a size whose point count does
+    not fit the coefficient files (the message names the size and the count that fits).
     """
+    if not all(isinstance(v, (int, np.integer)) and v > 0 and v % 10 == 0 for v in (height, width)):
+        raise BTFInputError(
+            f"size {height}x{width}: expected positive multiples of the release's 10-texel "
+            "patches (400x400)"
+        )
     d = Path(directory)
     if model is not None and d.is_dir() and not any(d.glob("DictEnsOrth4D*")):
         # A folder written by ``export-release``: no dictionaries, the codes refer to the
@@ -357,40 +461,31 @@ def _import_codes(
     folder's ensembles and directions)."""
     dicts = own.dictionaries
     directions = own.lights
-    groups: dict[str, dict[str, tuple[Path, float]]] = {}
-    for f in sorted(d.glob("Coeffs_BTF_*.bin")):
-        m = COEFF_RE.match(f.name)
-        if m:
-            try:
-                eps = float(m["eps"])
-            except ValueError:
-                notes.append(f"{f.name}: skipped, its ε field {m['eps']!r} is not a number")
-                continue
-            groups.setdefault(m["mat"], {})[m["ch"]] = (f, eps)
+    groups = _coefficient_groups(d, notes)
     coded: dict[str, CodedBTF] = {}
     n_points = (height // 10) * (width // 10)
+    # Everything is read and checked before anything is returned (so before any file is
+    # written): one line for the first problem, naming the file.
     for mat, files in groups.items():
+        _check_complete(d, mat, files, dicts)
         stats_file = d / f"{mat}_mean_std.bin"
         if not stats_file.exists():
-            notes.append(f"{mat}: skipped, {stats_file.name} is missing")
-            continue
+            raise FileFormatError(
+                f"{stats_file}: missing; the statistics (μ, σ) of "
+                f"{', '.join(f.name for f, _ in files.values())} must be beside them"
+            )
         stats = read_mean_std(stats_file)
         codes = {}
         for ch in ("Y", "U", "V"):
             if ch not in files:
                 notes.append(f"{mat}: no {ch} coefficients in the release; imported without {ch}")
                 continue
-            if ch not in dicts:
-                notes.append(f"{mat}: {ch} coefficients skipped, no {ch} dictionaries")
-                continue
-            codes[ch] = read_coefficients(files[ch][0], n_points)
+            codes[ch] = read_coefficients(files[ch][0], n_points, texels=(height, width))
             if tuple(codes[ch].mode_sizes) != MODE_SIZES:
                 raise FileFormatError(
                     f"{files[ch][0]}: header dims {tuple(codes[ch].mode_sizes)}, the release's "
                     f"dictionaries have {MODE_SIZES}"
                 )
-        if not codes:
-            continue
         eps = next(iter(files.values()))[1]
         c = CodedBTF(
             codes,
@@ -414,3 +509,59 @@ def _import_codes(
         coded[mat] = c.attach(model)
         notes.append(f"{mat}: channels {', '.join(codes)} ({n_points} points)")
     return coded, notes
+
+
+#: Channels every material's coefficients must have. Y may be absent: the authors' release
+#: publishes U and V only (such a coded file serves ``lookup`` of U and V, not RGB).
+REQUIRED_CHANNELS = ("U", "V")
+
+
+def _coefficient_groups(d: Path, notes: list[str]) -> dict[str, dict[str, tuple[Path, float]]]:
+    """The folder's ``Coeffs_BTF_<mat>_<ε>_<CH>.bin`` by material and channel; refuses two
+    files for one channel or channels of one material with different ε."""
+    groups: dict[str, dict[str, tuple[Path, float]]] = {}
+    for f in sorted(d.glob("Coeffs_BTF_*.bin")):
+        m = COEFF_RE.match(f.name)
+        if m:
+            try:
+                eps = float(m["eps"])
+            except ValueError:
+                notes.append(f"{f.name}: skipped, its ε field {m['eps']!r} is not a number")
+                continue
+            have = groups.setdefault(m["mat"], {})
+            if m["ch"] in have:
+                raise FileFormatError(
+                    f"{d}: two {m['ch']} coefficient files for {m['mat']}, "
+                    f"{have[m['ch']][0].name} and {f.name}; expected one per channel"
+                )
+            have[m["ch"]] = (f, eps)
+    for mat, files in groups.items():
+        if len({eps for _, eps in files.values()}) > 1:
+            raise FileFormatError(
+                f"{d}: the coefficient files of {mat} give different ε "
+                f"({', '.join(f.name for f, _ in files.values())}); expected one"
+            )
+    return groups
+
+
+def _check_complete(
+    d: Path, mat: str, files: dict[str, tuple[Path, float]], dicts: dict[str, Any]
+) -> None:
+    """``mat``'s coefficient files hold U and V (and Y, optionally), each with the folder's
+    (or the model's) dictionaries for its channel."""
+    some = next(iter(files.values()))[0]
+    eps = COEFF_RE.match(some.name)["eps"]  # type: ignore[index]
+    missing = [ch for ch in REQUIRED_CHANNELS if ch not in files]
+    if missing:
+        names = ", ".join(f"Coeffs_BTF_{mat}_{eps}_{ch}.bin" for ch in missing)
+        raise FileFormatError(
+            f"{d / names.split(', ')[0]}: missing ({names}); {mat} has "
+            f"{', '.join(f.name for f, _ in files.values())}, and every material needs its U "
+            "and V coefficient files (Y may be absent, as in the authors' release)"
+        )
+    for ch, (f, _) in files.items():
+        if ch not in dicts:
+            raise FileFormatError(
+                f"{f}: no {ch} dictionaries to decode it with (DictEnsOrth4D{ch}.mat or .bin "
+                f"in {d}, or a model with channel {ch})"
+            )
