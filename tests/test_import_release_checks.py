@@ -133,10 +133,11 @@ def test_missing_statistics_file_is_refused(tmp_path, capsys):
         import_release(d, height=20, width=10)
 
 
-@pytest.mark.parametrize("size", ["10x10", "20x20", "400x400"])
+@pytest.mark.parametrize("size", ["10x10", "20x20", "210x10", "400x400"])
 def test_size_that_does_not_fit_names_the_size(tmp_path, capsys, size):
     """6 points (60x10 texels) on file: another --size is named, with the point count that
-    fits, never as a negative count (with 1 point, today's reader read a value as NNZ)."""
+    fits, never as a negative count (at 210x10, 21 points, the reader took values for NNZ and
+    said "NNZ[19] = -19684 is negative")."""
     d = release_folder(tmp_path / "rel", n_points=6)
     code, err, names = _import(d, tmp_path / "out", capsys, size=size)
     assert code == 2 and names == []

@@ -18,6 +18,9 @@ column-major scan order there; we sort each point's by decreasing magnitude on i
 Every reader checks sizes and counts against the file's length (and the memory budget) before
 allocating, opens the ``.mat`` files behind the HDF5 watchdog (:mod:`sparsebtf._hdf5`), and
 reports a damaged file as a :class:`FileFormatError` naming the file and the field.
+:func:`import_release` reads and checks a whole folder before it returns (a material without
+its U/V coefficients or statistics, statistics a coded file cannot store, a size that does not
+fit: ``docs/format.md`` §8, "What import refuses"), so its callers write nothing on a refusal.
 """
 
 from __future__ import annotations
@@ -168,9 +171,11 @@ def read_coefficients(
         fits = [q for q in points_that_fit(raw, n_dictionaries) if q != n_points]
         if not fits:
             return FileFormatError(f"{p}: {why}")
-        asked = (f"size {texels[0]}x{texels[1]} ({n_points} points of 10x10 texels)"
-                 if texels else f"a BTF of {n_points} points")  # fmt: skip
-        other = " or ".join(f"{q} points (e.g. size {size_text(q)})" for q in fits[:3])
+        points = f"{n_points} point{'s' * (n_points != 1)}"
+        asked = (f"size {texels[0]}x{texels[1]} ({points} of 10x10 texels)"
+                 if texels else f"a BTF of {points}")  # fmt: skip
+        other = " or ".join(f"{q} point{'s' * (q != 1)} (e.g. size {size_text(q)})"
+                            for q in fits[:3])  # fmt: skip
         return FileFormatError(
             f"{p}: {asked} does not fit its {raw.size} words, which parse as {other}; give "
             "that size (the release's files do not store it), or the file is damaged"
@@ -553,9 +558,10 @@ def _check_complete(
     eps = COEFF_RE.match(some.name)["eps"]  # type: ignore[index]
     missing = [ch for ch in REQUIRED_CHANNELS if ch not in files]
     if missing:
-        names = ", ".join(f"Coeffs_BTF_{mat}_{eps}_{ch}.bin" for ch in missing)
+        names = [f"Coeffs_BTF_{mat}_{eps}_{ch}.bin" for ch in missing]
+        also = f" (and {', '.join(names[1:])})" if names[1:] else ""
         raise FileFormatError(
-            f"{d / names.split(', ')[0]}: missing ({names}); {mat} has "
+            f"{d / names[0]}: missing{also}; {mat} has "
             f"{', '.join(f.name for f, _ in files.values())}, and every material needs its U "
             "and V coefficient files (Y may be absent, as in the authors' release)"
         )
