@@ -173,3 +173,39 @@ def test_coefficients_without_model_or_output_write_nothing_and_say_so(tmp_path,
     assert code == 2 and list(out.iterdir()) == []
     line = _one_error_line(err)
     assert "Coeffs_BTF_" in line
+
+
+def test_api_refuses_the_same_with_a_model(tmp_path):
+    """A folder without dictionaries (as export-release writes) read against a model: the same
+    refusals, from the same code."""
+    from sparsebtf.storage.bundled import load_bundled
+
+    model = load_bundled("release")
+    d = release_folder(tmp_path / "rel", channels="YV", dictionaries=False)
+    with pytest.raises(FileFormatError, match=re.escape("Coeffs_BTF_mat_1e-05_U.bin: missing")):
+        import_release(d, model=model, height=20, width=10)
+    d = release_folder(tmp_path / "rel2", stats=False, dictionaries=False)
+    with pytest.raises(FileFormatError, match=re.escape("mat_mean_std.bin: missing")):
+        import_release(d, model=model, height=20, width=10)
+
+
+def test_ambiguous_coefficient_files_are_refused(tmp_path, capsys):
+    d = release_folder(tmp_path / "rel")
+    (d / "Coeffs_BTF_mat_0.001_U.bin").write_bytes((d / "Coeffs_BTF_mat_1e-05_U.bin").read_bytes())
+    code, err, names = _import(d, tmp_path / "out", capsys)
+    assert code == 2 and names == []
+    assert "two U coefficient files for mat" in _one_error_line(err)
+    d = release_folder(tmp_path / "rel2")
+    (d / "Coeffs_BTF_mat_1e-05_V.bin").rename(d / "Coeffs_BTF_mat_0.001_V.bin")
+    with pytest.raises(FileFormatError, match="different ε"):
+        import_release(d, height=20, width=10)
+
+
+@pytest.mark.parametrize("hw", [(25, 10), (0, 10), (20, -10)])
+def test_api_size_must_be_whole_patches(tmp_path, hw):
+    """The CLI's --size rule, in the API (25x10 was read as 2 points)."""
+    from sparsebtf.errors import BTFInputError
+
+    d = release_folder(tmp_path / "rel")
+    with pytest.raises(BTFInputError, match=f"size {hw[0]}x{hw[1]}"):
+        import_release(d, height=hw[0], width=hw[1])

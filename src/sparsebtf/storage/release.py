@@ -257,32 +257,35 @@ def size_text(n_points: int, patch: int = 10) -> str:
     return f"{patch * (n_points // a)}x{patch * a}"
 
 
-#: The smallest σ float32 holds within its rounding (its smallest normal number, 1.18e-38).
+#: The smallest σ a coded file stores within float32 rounding (float32's smallest normal
+#: number, 1.18e-38); below it float32 is subnormal (fewer digits) or 0.
 FLOAT32_NORMAL = float(np.finfo(np.float32).tiny)
 
 
 def check_storable_statistics(stats: Standardization, where: str) -> None:
     """The statistics as a coded file stores them (μ, σ in float32; ``stats/`` of
     ``docs/format.md`` §3) pass the check ``decode`` applies
-    (:func:`~sparsebtf._semantic.check_statistics`), and every σ is stored within float32
-    rounding: a float64 σ of 5e-324 passes σ > 0 but is stored as 0.0, one of 1e-40 as a
-    float32 subnormal with 5 significant digits lost."""
+    (:func:`~sparsebtf._semantic.check_statistics`), and every σ is a normal float32 number
+    (at least :data:`FLOAT32_NORMAL`), stored within float32 rounding: a float64 σ of 5e-324
+    passes σ > 0 but is stored as 0.0, one of 1e-40 as a float32 subnormal that has lost 5 of
+    its digits."""
     std = np.asarray(stats.std, dtype=np.float64)
-    stored = std.astype(np.float32).astype(np.float64)
     with np.errstate(invalid="ignore"):
-        bad = np.isfinite(std) & (np.abs(stored - std) > 2.0**-24 * np.abs(std))
+        bad = np.isfinite(std) & (std > 0) & (std < FLOAT32_NORMAL)
     if bad.any():
         first = tuple(int(x[0]) for x in np.nonzero(bad))
+        stored = float(np.float32(std[first]))
         raise FileFormatError(
-            f"{where}/std: {int(bad.sum())} values that float32 (as the coded file stores σ) "
-            f"cannot hold, first {float(std[first])!r} at index {first} (light, view, channel), "
-            f"stored as {float(stored[first])!r}; expected {FLOAT32_NORMAL:.3g} <= std <= "
-            f"{STAT_BOUND:g}"
+            f"{where}/std: {int(bad.sum())} values below float32's smallest normal number "
+            f"(the coded file stores σ in float32), first {float(std[first])!r} at index "
+            f"{first} (light, view, channel), stored as {stored!r}; expected "
+            f"{FLOAT32_NORMAL:.3g} <= std <= {STAT_BOUND:g}"
         )
     check_statistics(
-        replace(stats, mean=np.asarray(stats.mean, np.float32).astype(np.float64), std=stored),
+        replace(stats, mean=np.asarray(stats.mean, np.float32).astype(np.float64),
+                std=std.astype(np.float32).astype(np.float64)),
         where,
-    )
+    )  # fmt: skip
 
 
 def read_mean_std(
