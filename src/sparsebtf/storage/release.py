@@ -222,7 +222,9 @@ def read_coefficients(
 def points_that_fit(raw: np.ndarray, n_dictionaries: int = 8, limit: int = 4) -> list[int]:
     """The point counts P (at most ``limit``, smallest first) for which a coefficient file's
     16-bit words ``raw`` parse: 4 + 5·N + 2·P words whose P counts are non-negative and sum
-    to N, and whose P memberships lie in [0, K). One pass over the words (prefix sums)."""
+    to N, whose P memberships lie in [0, K), whose locations lie below the header's dims and
+    whose values are finite. The sums come from one pass (prefix sums); at most 64 counts
+    whose sums agree are examined further (a crafted file cannot make this slow)."""
     w = int(raw.size) - 4
     if w < 2:
         return []
@@ -236,7 +238,7 @@ def points_that_fit(raw: np.ndarray, n_dictionaries: int = 8, limit: int = 4) ->
     start = 4 + 4 * ns + ps  # the first NNZ word
     sums = csum[start + ps] - csum[start]
     found = []
-    for q, n in zip(ps[sums == ns].tolist(), ns[sums == ns].tolist(), strict=True):
+    for q, n in zip(ps[sums == ns][:64].tolist(), ns[sums == ns][:64].tolist(), strict=True):
         counts = signed[4 + 4 * n + q : 4 + 4 * n + 2 * q]
         member = signed[4 + 4 * n : 4 + 4 * n + q]
         if counts.min() < 0 or member.min() < 0 or member.max() >= n_dictionaries:
