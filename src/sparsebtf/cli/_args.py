@@ -89,7 +89,8 @@ def build_options(cls: type[_O], flags: Mapping[str, str], **values: Any) -> _O:
     try:
         return cls(**values)
     except OptionError as e:
-        raise e.renamed(flags.get(e.option, "--" + e.option.replace("_", "-"))) from None
+        raise e.renamed(flags.get(e.option, "--" + e.option.replace("_", "-")),
+                        dict(flags)) from None
 
 
 class _DeprecatedAlias(argparse.Action):

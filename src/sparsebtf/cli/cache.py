@@ -7,6 +7,7 @@ import argparse
 import time
 from typing import Any
 
+from ..errors import SparseBTFError
 from ._output import print_json
 
 __all__ = ["register"]
@@ -40,6 +41,18 @@ def run(args: argparse.Namespace) -> int:
     folder = resolve_cache_dir()
     cap = cache_cap()
     action = args.action or "list"
+    if folder.exists() and not folder.is_dir():
+        raise SparseBTFError(f"the cache folder {folder} is a file, not a folder: set "
+                             "$SPARSEBTF_CACHE to a folder (or unset it for "
+                             "~/.cache/sparsebtf)")  # fmt: skip
+    if not folder.exists():  # nothing cached yet: say so, not "0 entries"
+        if args.json:
+            print_json({"folder": str(folder), "exists": False, "entries": 0,
+                        "total_bytes": 0, "cap_bytes": cap})  # fmt: skip
+        else:
+            print(f"{folder}: no such folder, nothing cached yet (it is made at the first "
+                  "synth: or captured input; $SPARSEBTF_CACHE moves it)")  # fmt: skip
+        return 0
     if action == "clear":
         removed = clear(args.patterns)
         left = entries()

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from ..constraints import Interval, Options, Rule, StrOptions
-from ..errors import BTFInputError
+from ..errors import BTFInputError, OptionError
 from ..execution import Execution
 from ..learning.codes import DTYPES, RELEASE_EPS, RELEASE_TAU_TRAIN
 from ..learning.coding import DEFAULT_CANDIDATES
@@ -235,6 +235,29 @@ class TrainOptions(Options):
         "log_offset": LOG_OFFSET_RULE,
         "crop": CROP,
     }
+
+    def check(self) -> None:
+        """The rules between options, the same for the library and the command line (which
+        names the flags): ``tau_validation`` only with a learned ``tau_train``, and K =
+        ``n_dictionaries`` split evenly over several training levels."""
+        channels = ("YUV",) if self.colour_mode else CHANNELS
+        try:
+            levels, learn = parse_tau_train(self.tau_train, channels)
+        except BTFInputError:  # the other channels' spelling: train() names the mismatch
+            return
+        if self.tau_validation is not None and not learn:
+            given = repr(self.tau_train).replace("{", "{{").replace("}", "}}")
+            raise OptionError("tau_validation", ": has no effect unless {tau_train} is 'learn' "
+                              f"(the coding tau a learned tau_l is chosen at); {{tau_train}} is "
+                              f"{given}", mentions=("tau_train",))  # fmt: skip
+        from ..learning.tau_levels import VALIDATION, check_levels
+
+        for per_channel in levels.values():
+            try:
+                check_levels(per_channel, self.n_dictionaries, learn, VALIDATION)
+            except BTFInputError as e:
+                text = str(e).replace("{", "{{").replace("}", "}}")
+                raise OptionError("n_dictionaries", f": {text}") from None
 
 
 def encode_settings(
