@@ -52,6 +52,7 @@ def check_btf(function: str, argument: str, value: Any) -> None:
         raise wrong_type(function, argument, _BTF, value,
                          ARRAY_HINT if _is_array(value) else "")  # fmt: skip
 
+
 #: What :func:`encode`'s ``target`` accepts (see :func:`parse_target`).
 Target = None | str | Sequence[int] | Mapping[str, int]
 
@@ -177,7 +178,9 @@ def encode(
     (:class:`~sparsebtf.execution.Execution`: ``workers``, ``scheduler``, ``client``);
     ``keywords`` set their fields (``eps=1e-3``, ``workers=4``). A keyword that does not
     apply to the target (``eps`` to a ratio), or to one BTF (``crop``, ``checkpoint_dir``),
-    is refused in one line.
+    is refused in one line; so is an argument of the wrong type (``options=5``, an array for
+    a BTF: wrap it in :class:`~sparsebtf.data.btf.ArrayBTF`), with
+    :class:`~sparsebtf.errors.ArgumentTypeError` (a ``TypeError``).
     """
     from .codec import encode as encode_tau
     from .codec import encode_many, encode_to_size

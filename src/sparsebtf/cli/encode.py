@@ -18,6 +18,7 @@ from ._args import (
     check_tau,
     checkpoint_dir,
     cluster_options,
+    given_int,
     integer,
     log_offset,
     number,
@@ -43,10 +44,9 @@ def run(args: argparse.Namespace) -> int:
 
     tau = check_tau(args.tau)
     ck = checkpoint_dir(args)
-    candidates = args.candidates if args.candidates is not None else DEFAULTS.candidates
     options = build_options(
         EncodeOptions, FLAGS, eps=args.eps,
-        candidates=None if args.exhaustive else candidates, objective=args.objective,
+        candidates=None if args.exhaustive else args.candidates, objective=args.objective,
         allow_below_training=args.allow_below_training, std_mode=args.std_mode,
         log_offset=log_offset(args.log_offset), batch_size=args.batch,
         crop=parse_crop(args.crop), checkpoint_dir=ck, adaptive_patches=args.adaptive_patches,
@@ -239,9 +239,9 @@ def register(sub: Any) -> None:
                    "shadows, masked texels) do not dominate the code; release = 1e-5, the "
                    "authors' preprocessing; or a number in [1e-5, 1e3]")
     rule = s.add_mutually_exclusive_group()
-    # no default here (None, the library's then): argparse lets an excluded option through
-    # when its value equals the default (--candidates 2 --exhaustive)
-    rule.add_argument("--candidates", type=int, default=None, metavar="N",
+    # given_int: argparse lets an excluded option through when its value is the default's
+    # object (--candidates 2 --exhaustive)
+    rule.add_argument("--candidates", type=given_int, default=DEFAULTS.candidates, metavar="N",
                       help="dictionaries projected exactly per data point and channel, after a "
                       "screening by partial projections ranks all K (default "
                       f"{DEFAULTS.candidates}; K or more: every dictionary)")

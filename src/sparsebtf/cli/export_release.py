@@ -64,6 +64,7 @@ def register(sub: Any) -> None:
         help="folder to write Coeffs_BTF_*.bin, *_mean_std.bin, "
         "bonn_angles.bin, xyz_loc.bin into (no dictionaries: the release's are used)",
     )
-    s.add_argument("--name", help="material name in the file names (default: the coded file's)")
+    s.add_argument("--name", help="material name in the file names, not empty (default: the coded "
+                   "file's)")
     s.add_argument("--json", action="store_true", help="print what was written as JSON")
     s.set_defaults(func=run)

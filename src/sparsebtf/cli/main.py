@@ -4,7 +4,9 @@ Every command has ``--help``; long work shows a progress bar with ETA on a termi
 (``SPARSEBTF_PROGRESS=1`` forces it, ``=0`` silences it); ``--json`` prints one JSON object.
 Errors in the user's input print one line ``sparsebtf: error: …`` and exit with status 2;
 warnings print as one ``sparsebtf: note: …`` line each (no source line). ``sparsebtf … |
-head`` exits 0 when the reader goes away. Each command module has ``register(subparsers)``;
+head`` exits 0 when the reader goes away. Text stdout's encoding lacks (a name with é under
+``LC_ALL=C`` or ``PYTHONIOENCODING=ascii``, a file name that is not UTF-8) prints as a
+backslash escape. Each command module has ``register(subparsers)``;
 heavy imports happen inside its ``run``.
 """
 

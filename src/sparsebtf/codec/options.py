@@ -164,10 +164,11 @@ class TrainOptions(Options):
 
     * ``n_dictionaries`` K per ensemble, ``tau_train`` τ_l per channel (default the paper's
       256,32,32; several levels ``"64,8,8/256,32,32"``, K split evenly over them; or
-      ``"learn"``: each dictionary's τ_l chosen on a validation split), ``tau_validation``
-      (with ``"learn"``: the coding τ_t the validation error is read at), ``patch`` p (or
-      several that nest, ``(20, 10, 5)``: one ensemble per size, trained one after the other
-      on the same materials, for adaptive patch sizes),
+      ``"learn"``: each dictionary's τ_l chosen on a validation split; each level once, and
+      K a multiple of their number), ``tau_validation`` (with ``"learn"`` only: the coding
+      τ_t the validation error is read at), ``patch`` p (or several that nest, largest first,
+      ``(20, 10, 5)``: one ensemble per size, trained one after the other on the same
+      materials, for adaptive patch sizes),
       ``sample`` (the fraction of each BTF's points; paper: 10%).
     * ``max_iter``, ``tol`` (stop below this relative decrease of the objective), ``init``
       ("points", "random" or "preclustered"), ``seed``.

@@ -168,11 +168,13 @@ def train(
     pass streams them from the BTFs. ``keywords`` set the options' fields (``n_dictionaries=2``) and
     the execution's (``workers=4``).
 
-    ``btfs`` are BTF objects or sources (paths, ``synth:`` specs; ``crop`` = (rows, cols)
-    applies to every one). ``execution`` (:class:`~sparsebtf.execution.Execution`) runs the
-    training passes in this process (default) or on a Dask cluster; the points are cut into
-    tasks of ``partition_size`` points, and the model does not depend on where they run. On a
-    cluster the workers open the sources themselves (give paths on shared storage).
+    ``btfs`` is a list of BTF objects or sources (paths, ``synth:`` specs; ``crop`` = (rows,
+    cols) applies to every one); one BTF or path alone is refused
+    (:class:`~sparsebtf.errors.ArgumentTypeError`: give ``[path]``). ``execution``
+    (:class:`~sparsebtf.execution.Execution`) runs the training passes in this process
+    (default) or on a Dask cluster; the points are cut into tasks of ``partition_size``
+    points, and the model does not depend on where they run. On a cluster the workers open
+    the sources themselves (give paths on shared storage).
     """
     btfs = _check_inputs(btfs, options, execution)
     o, where = train_settings(options, execution, keywords)
