@@ -101,6 +101,13 @@ def test_encode_an_array_says_how_to_wrap_it():
         assert "0.123" not in text  # the array's type and shape, never its values
 
 
+def test_open_btf_refuses_an_array_and_a_number():
+    text = _refusal(lambda: sb.open_btf(np.zeros((2, 2, 3, 3, 3))),  # type: ignore[arg-type]
+                    "open_btf: source must be a path", "numpy.ndarray of shape", "ArrayBTF")
+    assert "0." not in text
+    _refusal(lambda: sb.open_btf(42), "open_btf: source must be", "got 42 (int)")  # type: ignore
+
+
 def test_blend_refuses_inputs_that_are_not_coded():
     btf = smooth_btf(0)
     _refusal(lambda: sb.blend([btf, btf], alpha=0.5),  # type: ignore[list-item]
