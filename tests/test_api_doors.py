@@ -187,6 +187,11 @@ def test_cache_on_a_file_is_an_error(tmp_path, capsys, monkeypatch):
     for action in (["list"], ["size"], ["clear"], []):
         line = _cli_error(["cache", *action], capsys)
         assert str(tmp_path / "cachefile") in line and "not a folder" in line
+    from sparsebtf.data.cache import entries  # the library's rule, the command's line
+
+    with pytest.raises(SparseBTFError, match="cachefile is a file, not a folder"):
+        entries()
+    assert entries(tmp_path / "nowhere") == []  # not made yet: nothing cached
 
 
 def test_cache_on_a_missing_folder_says_so(tmp_path, capsys, monkeypatch):

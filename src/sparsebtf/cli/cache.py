@@ -7,7 +7,6 @@ import argparse
 import time
 from typing import Any
 
-from ..errors import SparseBTFError
 from ._output import print_json
 
 __all__ = ["register"]
@@ -36,15 +35,11 @@ Only files the cache writes (synth-*.h5, capture-*.h5) are listed or removed.
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.cache import CACHE_MAX_VARIABLE, cache_cap, clear, entries, resolve_cache_dir
+    from ..data.cache import CACHE_MAX_VARIABLE, cache_cap, check_folder, clear, entries
 
-    folder = resolve_cache_dir()
+    folder = check_folder()  # a file in its place: one error line
     cap = cache_cap()
     action = args.action or "list"
-    if folder.exists() and not folder.is_dir():
-        raise SparseBTFError(f"the cache folder {folder} is a file, not a folder: set "
-                             "$SPARSEBTF_CACHE to a folder (or unset it for "
-                             "~/.cache/sparsebtf)")  # fmt: skip
     if not folder.exists():  # nothing cached yet: say so, not "0 entries"
         if args.json:
             print_json({"folder": str(folder), "exists": False, "entries": 0,
