@@ -245,9 +245,9 @@ def test_save_btf_refusals_leave_no_file(model, btf, tmp_path):
             sb.save_btf(obj, tmp_path / name, **({"dtype": "int8"} if "dtype" in why else {}))
         _one_line(e)
     assert list(tmp_path.iterdir()) == []
-    with pytest.raises(SparseBTFError, match="decode takes a coded BTF"):
+    with pytest.raises(SparseBTFError, match="decode: coded must be a coded BTF"):
         sb.decode(object())  # type: ignore[arg-type]
-    with pytest.raises(BTFInputError, match="encode takes a BTF, a path or a list"):
+    with pytest.raises(BTFInputError, match="encode: btf_or_btfs must be a BTF, a path"):
         sb.encode(3.5, model)  # type: ignore[call-overload]
 
 

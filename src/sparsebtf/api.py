@@ -19,6 +19,7 @@ import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, overload
 
+from .constraints import wrong_type
 from .errors import BTFInputError
 
 if TYPE_CHECKING:
@@ -29,6 +30,28 @@ if TYPE_CHECKING:
     from .runtime.dense import DecodedBTF
 
 __all__ = ["Target", "decode", "encode", "load_model", "parse_target"]
+
+#: What a model argument may be, in a refusal.
+_MODEL = "a Model, a bundled model's name ('sparsebtf models' lists them), a model file's path"
+#: What one BTF may be, in a refusal, and how an array becomes one.
+_BTF = "a BTF, a path or a synth: spec"
+ARRAY_HINT = ("an array is no BTF: wrap it as sparsebtf.data.btf.ArrayBTF(data, lights, views) "
+              "with the directions of sparsebtf.data.directions (ubo2014() …)")
+
+
+def _is_array(value: Any) -> bool:
+    return hasattr(value, "shape") and hasattr(value, "dtype") and hasattr(value, "__array__")
+
+
+def check_btf(function: str, argument: str, value: Any) -> None:
+    """Refuse ``value`` unless it is one BTF: a :class:`~sparsebtf.data.btf.BTF`, a path or a
+    ``synth:`` spec (an array is named as such, with how to wrap it)."""
+    from .data.btf import BTF
+
+    if not isinstance(value, BTF | str | os.PathLike):
+        raise wrong_type(function, argument, _BTF, value,
+                         ARRAY_HINT if _is_array(value) else "")  # fmt: skip
+
 
 #: What :func:`encode`'s ``target`` accepts (see :func:`parse_target`).
 Target = None | str | Sequence[int] | Mapping[str, int]
@@ -50,6 +73,9 @@ def load_model(spec: str | os.PathLike[str] = "release") -> Model:
     :func:`~sparsebtf.storage.save_model`, or from ``sparsebtf import-release``)."""
     from .storage.bundled import open_model
 
+    if not isinstance(spec, str | os.PathLike):
+        raise wrong_type("load_model", "spec", "a bundled model's name ('sparsebtf models' lists "
+                         "them) or a model file's path", spec)  # fmt: skip
     return open_model(spec)
 
 
@@ -95,17 +121,22 @@ def parse_target(target: Target) -> tuple[str, Any]:
     return "tau", target
 
 
-def _model_of(model: Model | str | os.PathLike[str] | None) -> Model:
+def _check_model(function: str, model: Any) -> None:
     from .model import Model
 
+    if model is not None and not isinstance(model, Model | str | os.PathLike):
+        raise wrong_type(function, "model", _MODEL + " or None", model)
+
+
+def _model_of(model: Model | str | os.PathLike[str] | None, function: str = "encode") -> Model:
+    from .model import Model
+
+    _check_model(function, model)
     if model is None:
         return load_model("release")
     if isinstance(model, Model):
         return model
-    if isinstance(model, str | os.PathLike):
-        return load_model(model)
-    raise BTFInputError(f"model must be a Model, a bundled model's name or a model file, "
-                        f"not a {type(model).__name__}")  # fmt: skip
+    return load_model(model)  # type: ignore[arg-type]
 
 
 @overload
@@ -147,12 +178,29 @@ def encode(
     (:class:`~sparsebtf.execution.Execution`: ``workers``, ``scheduler``, ``client``);
     ``keywords`` set their fields (``eps=1e-3``, ``workers=4``). A keyword that does not
     apply to the target (``eps`` to a ratio), or to one BTF (``crop``, ``checkpoint_dir``),
-    is refused in one line.
+    is refused in one line; so is an argument of the wrong type (``options=5``, an array for
+    a BTF: wrap it in :class:`~sparsebtf.data.btf.ArrayBTF`), with
+    :class:`~sparsebtf.errors.ArgumentTypeError` (a ``TypeError``).
     """
     from .codec import encode as encode_tau
     from .codec import encode_many, encode_to_size
+    from .codec.options import EncodeOptions
     from .data.btf import BTF
+    from .execution import Execution
 
+    if options is not None and not isinstance(options, EncodeOptions):
+        raise wrong_type("encode", "options", "an EncodeOptions or None", options)
+    if execution is not None and not isinstance(execution, Execution):
+        raise wrong_type("encode", "execution", "an Execution or None", execution)
+    if not isinstance(btf_or_btfs, BTF | str | os.PathLike):
+        if _is_array(btf_or_btfs) or not isinstance(btf_or_btfs, Iterable) or isinstance(
+                btf_or_btfs, bytes | Mapping):  # fmt: skip
+            raise wrong_type("encode", "btf_or_btfs", _BTF + ", or a list of them",
+                             btf_or_btfs, ARRAY_HINT if _is_array(btf_or_btfs) else "")
+        btf_or_btfs = list(btf_or_btfs)
+        for i, one in enumerate(btf_or_btfs):
+            check_btf("encode", f"btf_or_btfs[{i}]", one)
+    _check_model("encode", model)
     kind, value = parse_target(target)
     for key in ("tau", "target_bytes", "target_ratio"):
         if key in keywords:
@@ -169,11 +217,8 @@ def encode(
                 "budget": keywords.pop("budget", "stored"),
                 "per_material": keywords.pop("per_material", True)}  # fmt: skip
     settings = {"options": options, "execution": execution, **keywords}
-    if not isinstance(btf_or_btfs, BTF | str | os.PathLike):
-        if not isinstance(btf_or_btfs, Iterable):
-            raise BTFInputError(f"encode takes a BTF, a path or a list of them, not a "
-                                f"{type(btf_or_btfs).__name__}")  # fmt: skip
-        return encode_many(list(btf_or_btfs), the_model, **goal, **settings)
+    if not isinstance(btf_or_btfs, BTF | str | os.PathLike):  # a list, checked above
+        return encode_many(btf_or_btfs, the_model, **goal, **settings)
     btf = btf_or_btfs
     if isinstance(btf, str | os.PathLike):
         from .open import open_btf
@@ -224,6 +269,7 @@ def decode(
     from .runtime.dense import coded_btf_view
     from .storage.bundled import find_model
 
+    _check_model("decode", model)
     if isinstance(coded, str | os.PathLike):
         from .storage import load_coded, load_coded_with_model
 
@@ -234,15 +280,16 @@ def decode(
         return decoded_view(read) if isinstance(read, AdaptiveCodedBTF) else coded_btf_view(read)
     if isinstance(coded, AdaptiveCodedBTF):  # adaptive patch sizes: the NumPy reference
         if model is not None:
-            coded.attach(_model_of(model))
+            coded.attach(_model_of(model, "decode"))
         elif coded.model is None:
             coded.attach(find_model(coded, None, coded.label))  # type: ignore[arg-type]
         return decoded_view(coded)
     if not isinstance(coded, CodedBTF):
-        raise BTFInputError(f"decode takes a coded BTF or a coded .h5 file, not a "
-                            f"{type(coded).__name__}")  # fmt: skip
+        raise wrong_type("decode", "coded", "a coded BTF (sparsebtf.encode's result) or a coded "
+                         ".h5 file's path", coded, ARRAY_HINT.split(":")[0] + " (nor a coded one)"
+                         if _is_array(coded) else "")  # fmt: skip
     if model is not None:
-        coded.attach(_model_of(model))
+        coded.attach(_model_of(model, "decode"))
     elif coded.model is None:
         coded.attach(find_model(coded, None, coded.label))
     return coded_btf_view(coded)

@@ -30,7 +30,7 @@ import os
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, ClassVar, Literal, TypeVar
 
-from .errors import BTFInputError, OptionError
+from .errors import ArgumentTypeError, BTFInputError, OptionError
 
 __all__ = [
     "Interval",
@@ -39,6 +39,8 @@ __all__ = [
     "StrOptions",
     "check_option",
     "describe",
+    "given",
+    "wrong_type",
 ]
 
 _O = TypeVar("_O", bound="Options")
@@ -167,6 +169,28 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+def given(value: Any) -> str:
+    """What was given, short, for a refusal: an array by its type, shape and dtype (never its
+    values), anything else as its (shortened) repr and its type's name."""
+    kind = type(value)
+    if hasattr(value, "shape") and hasattr(value, "dtype"):
+        module = kind.__module__.split(".")[0]
+        return (f"a {module}.{kind.__name__} of shape {tuple(value.shape)} and dtype "
+                f"{value.dtype}")  # fmt: skip
+    if value is None:
+        return "None"
+    return f"{_shown(value)} ({kind.__name__})"
+
+
+def wrong_type(function: str, argument: str, expected: str, value: Any,
+               hint: str = "") -> ArgumentTypeError:  # fmt: skip
+    """The refusal of an argument of the wrong type, one line: ``"<function>: <argument>
+    must be <expected>, got <what was given>[; <hint>]"`` (raise it; no ``function``: no
+    prefix)."""
+    text = f"{function + ': ' if function else ''}{argument} must be {expected}, got {given(value)}"
+    return ArgumentTypeError(text + (f"; {hint}" if hint else ""))
+
+
 def check_option(name: str, value: Any, constraints: Sequence[Any]) -> None:
     """Refuse ``value`` for option ``name`` unless one of ``constraints`` accepts it: one
     :class:`~sparsebtf.errors.OptionError` line naming the option, what it must be and the value."""
@@ -197,6 +221,8 @@ class Options:
 
     #: option name → what it may be (see the module docstring)
     constraints: ClassVar[dict[str, list[Any]]] = {}
+    #: the functions' argument that takes such an object (named in a refusal)
+    argument = "options"
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
@@ -229,7 +255,8 @@ class Options:
         if base is None:
             return cls(**keywords)
         if not isinstance(base, cls):
-            raise BTFInputError(f"expected {cls.__name__}, got {type(base).__name__}")
+            article = "an" if cls.__name__[0] in "AEIOU" else "a"
+            raise wrong_type("", cls.argument, f"{article} {cls.__name__} or None", base)
         return dataclasses.replace(base, **keywords) if keywords else base
 
     def replace(self: _O, **changes: Any) -> _O:

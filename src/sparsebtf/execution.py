@@ -535,6 +535,7 @@ class Execution(Options):
         "scheduler": [str, None],
         "workers": [Interval(int, 1, None, unit="(worker processes)"), None],
     }
+    argument = "execution"
 
     def check(self) -> None:
         if self.workers is not None and self.scheduler:

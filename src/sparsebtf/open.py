@@ -75,6 +75,15 @@ def open_btf(
 ) -> BTF:
     """Open ``source`` as a :class:`BTF` (see the module docstring for what is accepted);
     a file's BTF has ``source`` = the path, so messages name the file, not the material."""
+    if not isinstance(source, str | os.PathLike) or not isinstance(
+            model_path, str | os.PathLike | None):  # fmt: skip
+        from .api import ARRAY_HINT
+        from .constraints import wrong_type
+
+        if not isinstance(source, str | os.PathLike):
+            hint = ARRAY_HINT if hasattr(source, "dtype") and hasattr(source, "shape") else ""
+            raise wrong_type("open_btf", "source", "a path or a synth: spec", source, hint)
+        raise wrong_type("open_btf", "model_path", "a model file's path or None", model_path)
     s = str(source)
     if s.startswith("synth:"):
         from .data.synth import cached

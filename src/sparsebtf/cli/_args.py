@@ -72,6 +72,21 @@ def integer(lo: int | None = None, hi: int | None = None, *, unit: str = "") -> 
     return lambda value, flag: check_option(flag, value, rule)
 
 
+class _GivenInt(int):
+    """An integer the user typed: never the very object of an equal default, which argparse's
+    mutually exclusive groups skip (``--candidates 2 --exhaustive`` went through, and
+    ``--candidates`` was lost, when 2 was the default)."""
+
+
+def given_int(text: str) -> int:
+    """``type=`` of an integer option in a mutually exclusive group (see :class:`_GivenInt`);
+    :func:`build_options` hands the library a plain int."""
+    return _GivenInt(int(text))
+
+
+given_int.__name__ = "int"  # argparse's "invalid int value: 'x'"
+
+
 def option_checks(cls: type[Options], flags: Mapping[str, str]) -> dict[str, Check]:
     """The ``checks`` (:func:`check_args`) of the options ``flags`` names (option → flag):
     the library's own constraints (``cls.constraints``), run before the command."""
@@ -86,10 +101,12 @@ def build_options(cls: type[_O], flags: Mapping[str, str], **values: Any) -> _O:
     """The option object ``cls`` (:class:`~sparsebtf.codec.options.EncodeOptions` …) of a
     command's parsed ``values``; its refusal is the library's line naming the flag (``flags``:
     option → flag; else ``--`` + the option's name)."""
+    values = {k: int(v) if isinstance(v, _GivenInt) else v for k, v in values.items()}
     try:
         return cls(**values)
     except OptionError as e:
-        raise e.renamed(flags.get(e.option, "--" + e.option.replace("_", "-"))) from None
+        raise e.renamed(flags.get(e.option, "--" + e.option.replace("_", "-")),
+                        dict(flags)) from None
 
 
 class _DeprecatedAlias(argparse.Action):

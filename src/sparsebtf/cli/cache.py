@@ -35,11 +35,19 @@ Only files the cache writes (synth-*.h5, capture-*.h5) are listed or removed.
 
 
 def run(args: argparse.Namespace) -> int:
-    from ..data.cache import CACHE_MAX_VARIABLE, cache_cap, clear, entries, resolve_cache_dir
+    from ..data.cache import CACHE_MAX_VARIABLE, cache_cap, check_folder, clear, entries
 
-    folder = resolve_cache_dir()
+    folder = check_folder()  # a file in its place: one error line
     cap = cache_cap()
     action = args.action or "list"
+    if not folder.exists():  # nothing cached yet: say so, not "0 entries"
+        if args.json:
+            print_json({"folder": str(folder), "exists": False, "entries": 0,
+                        "total_bytes": 0, "cap_bytes": cap})  # fmt: skip
+        else:
+            print(f"{folder}: no such folder, nothing cached yet (it is made at the first "
+                  "synth: or captured input; $SPARSEBTF_CACHE moves it)")  # fmt: skip
+        return 0
     if action == "clear":
         removed = clear(args.patterns)
         left = entries()

@@ -18,6 +18,7 @@ from ._args import (
     check_tau,
     checkpoint_dir,
     cluster_options,
+    given_int,
     integer,
     log_offset,
     number,
@@ -238,7 +239,9 @@ def register(sub: Any) -> None:
                    "shadows, masked texels) do not dominate the code; release = 1e-5, the "
                    "authors' preprocessing; or a number in [1e-5, 1e3]")
     rule = s.add_mutually_exclusive_group()
-    rule.add_argument("--candidates", type=int, default=DEFAULTS.candidates, metavar="N",
+    # given_int: argparse lets an excluded option through when its value is the default's
+    # object (--candidates 2 --exhaustive)
+    rule.add_argument("--candidates", type=given_int, default=DEFAULTS.candidates, metavar="N",
                       help="dictionaries projected exactly per data point and channel, after a "
                       "screening by partial projections ranks all K (default "
                       f"{DEFAULTS.candidates}; K or more: every dictionary)")

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from ..errors import SparseBTFError
 from ._args import check_output_dir, output_format
 from ._output import print_json
 
@@ -17,6 +18,9 @@ def run(args: argparse.Namespace) -> int:
     from ..storage.bundled import bundled_models
     from ..storage.release_write import export_release
 
+    if args.name is not None and not args.name.strip():
+        raise SparseBTFError("--name must not be empty: give the material name for the file "
+                             "names, or leave --name out for the coded file's")  # fmt: skip
     output_format(args.coded, "coded", "CODED")
     check_output_dir(args.folder, "OUT")
     coded = load_coded(args.coded)
@@ -60,6 +64,7 @@ def register(sub: Any) -> None:
         help="folder to write Coeffs_BTF_*.bin, *_mean_std.bin, "
         "bonn_angles.bin, xyz_loc.bin into (no dictionaries: the release's are used)",
     )
-    s.add_argument("--name", help="material name in the file names (default: the coded file's)")
+    s.add_argument("--name", help="material name in the file names, not empty (default: the coded "
+                   "file's)")
     s.add_argument("--json", action="store_true", help="print what was written as JSON")
     s.set_defaults(func=run)

@@ -4,13 +4,16 @@ Every command has ``--help``; long work shows a progress bar with ETA on a termi
 (``SPARSEBTF_PROGRESS=1`` forces it, ``=0`` silences it); ``--json`` prints one JSON object.
 Errors in the user's input print one line ``sparsebtf: error: …`` and exit with status 2;
 warnings print as one ``sparsebtf: note: …`` line each (no source line). ``sparsebtf … |
-head`` exits 0 when the reader goes away. Each command module has ``register(subparsers)``;
+head`` exits 0 when the reader goes away. Text stdout's encoding lacks (a name with é under
+``LC_ALL=C`` or ``PYTHONIOENCODING=ascii``, a file name that is not UTF-8) prints as a
+backslash escape. Each command module has ``register(subparsers)``;
 heavy imports happen inside its ``run``.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import signal
 import sys
@@ -116,7 +119,34 @@ def _stdout_gone() -> int:
     return 0
 
 
+@contextmanager
+def _printable_output() -> Iterator[None]:
+    """stdout and stderr that print every text: a character their encoding lacks (a name
+    with é on an ASCII terminal, ``LC_ALL=C``; a file name that is not valid UTF-8, held as
+    surrogates) prints as a backslash escape, not a UnicodeEncodeError traceback."""
+    changed = []
+    for stream in (sys.stdout, sys.stderr):
+        errors = getattr(stream, "errors", None)
+        if errors in ("strict", None) and hasattr(stream, "reconfigure"):
+            try:
+                stream.reconfigure(errors="backslashreplace")
+            except (ValueError, OSError, AttributeError):  # pragma: no cover - odd streams
+                continue
+            changed.append((stream, errors or "strict"))
+    try:
+        yield
+    finally:
+        for stream, errors in changed:
+            with contextlib.suppress(ValueError, OSError):
+                stream.reconfigure(errors=errors)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    with _printable_output():
+        return _main(argv)
+
+
+def _main(argv: Sequence[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:

@@ -116,7 +116,8 @@ def register(sub: Any) -> None:
     s.add_argument("--tau-train", default=tau,
                    help=f"training sparsity per channel Y,U,V (default {tau}); several levels "
                    "split the dictionaries evenly over them, e.g. 64,8,8/256,32,32/885,64,64 "
-                   "(--dicts a multiple of their number); 'learn' (or learn:LEVELS) chooses "
+                   "(each once; --dicts a multiple of their number); 'learn' (or learn:LEVELS) "
+                   "chooses "
                    "each dictionary's level from the grid 64,8,8/256,32,32/885,64,64 by the "
                    "error on a held-out fifth of the training points (see docs/benchmarks.md)")
     s.add_argument("--tau-validation", metavar="LEVELS",
@@ -129,8 +130,8 @@ def register(sub: Any) -> None:
                    "with alike sparsity patterns under a DCT basis)")
     s.add_argument("--patch", type=_patches, default=d.patch, metavar="P[,P...]",
                    help=f"spatial patch size p (default {d.patch}); several that nest, such as "
-                   "20,10,5 (each divides the next larger), train one ensemble per size into "
-                   "one model, for encode --adaptive-patches")
+                   "20,10,5 (largest first, each dividing the next larger), train one "
+                   "ensemble per size into one model, for encode --adaptive-patches")
     s.add_argument("--sample", type=float, default=d.sample,
                    help=f"fraction of each BTF's data points used (default {d.sample:g})")
     s.add_argument("--iters", type=int, default=d.max_iter,

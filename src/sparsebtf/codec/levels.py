@@ -58,6 +58,13 @@ def parse_tau_train(tau_train: TauTrainSpec, channels: Sequence[str]
         tau = [tau]
     levels = list(tau) if _is_level_list(tau) or (learn and isinstance(tau, list)) else [tau]
     per_level = [parse_tau(t, channels) for t in levels]
+    seen = set()
+    for lv in per_level:  # a level twice trains the same dictionaries twice: adds nothing
+        key = tuple(lv[ch] for ch in channels)
+        if key in seen:
+            raise BTFInputError(f"{tau_train!r}: the level {','.join(map(str, key))} is given "
+                                "twice; give each level once")  # fmt: skip
+        seen.add(key)
     out = {ch: [lv[ch] for lv in per_level] for ch in channels}
     if learn and len(levels) < 2:
         raise BTFInputError(f"tau_train {tau_train!r}: learning tau needs a grid of at least "

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from ..constraints import Interval, Options, Rule, StrOptions
-from ..errors import BTFInputError
+from ..errors import BTFInputError, OptionError
 from ..execution import Execution
 from ..learning.codes import DTYPES, RELEASE_EPS, RELEASE_TAU_TRAIN
 from ..learning.coding import DEFAULT_CANDIDATES
@@ -164,10 +164,11 @@ class TrainOptions(Options):
 
     * ``n_dictionaries`` K per ensemble, ``tau_train`` τ_l per channel (default the paper's
       256,32,32; several levels ``"64,8,8/256,32,32"``, K split evenly over them; or
-      ``"learn"``: each dictionary's τ_l chosen on a validation split), ``tau_validation``
-      (with ``"learn"``: the coding τ_t the validation error is read at), ``patch`` p (or
-      several that nest, ``(20, 10, 5)``: one ensemble per size, trained one after the other
-      on the same materials, for adaptive patch sizes),
+      ``"learn"``: each dictionary's τ_l chosen on a validation split; each level once, and
+      K a multiple of their number), ``tau_validation`` (with ``"learn"`` only: the coding
+      τ_t the validation error is read at), ``patch`` p (or several that nest, largest first,
+      ``(20, 10, 5)``: one ensemble per size, trained one after the other on the same
+      materials, for adaptive patch sizes),
       ``sample`` (the fraction of each BTF's points; paper: 10%).
     * ``max_iter``, ``tol`` (stop below this relative decrease of the objective), ``init``
       ("points", "random" or "preclustered"), ``seed``.
@@ -235,6 +236,29 @@ class TrainOptions(Options):
         "log_offset": LOG_OFFSET_RULE,
         "crop": CROP,
     }
+
+    def check(self) -> None:
+        """The rules between options, the same for the library and the command line (which
+        names the flags): ``tau_validation`` only with a learned ``tau_train``, and K =
+        ``n_dictionaries`` split evenly over several training levels."""
+        channels = ("YUV",) if self.colour_mode else CHANNELS
+        try:
+            levels, learn = parse_tau_train(self.tau_train, channels)
+        except BTFInputError:  # the other channels' spelling: train() names the mismatch
+            return
+        if self.tau_validation is not None and not learn:
+            given = repr(self.tau_train).replace("{", "{{").replace("}", "}}")
+            raise OptionError("tau_validation", ": has no effect unless {tau_train} is 'learn' "
+                              f"(the coding tau a learned tau_l is chosen at); {{tau_train}} is "
+                              f"{given}", mentions=("tau_train",))  # fmt: skip
+        from ..learning.tau_levels import VALIDATION, check_levels
+
+        for per_channel in levels.values():
+            try:
+                check_levels(per_channel, self.n_dictionaries, learn, VALIDATION)
+            except BTFInputError as e:
+                text = str(e).replace("{", "{{").replace("}", "}}")
+                raise OptionError("n_dictionaries", f": {text}") from None
 
 
 def encode_settings(

@@ -15,7 +15,7 @@ import hashlib
 import math
 import os
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -168,12 +168,15 @@ def train(
     pass streams them from the BTFs. ``keywords`` set the options' fields (``n_dictionaries=2``) and
     the execution's (``workers=4``).
 
-    ``btfs`` are BTF objects or sources (paths, ``synth:`` specs; ``crop`` = (rows, cols)
-    applies to every one). ``execution`` (:class:`~sparsebtf.execution.Execution`) runs the
-    training passes in this process (default) or on a Dask cluster; the points are cut into
-    tasks of ``partition_size`` points, and the model does not depend on where they run. On a
-    cluster the workers open the sources themselves (give paths on shared storage).
+    ``btfs`` is a list of BTF objects or sources (paths, ``synth:`` specs; ``crop`` = (rows,
+    cols) applies to every one); one BTF or path alone is refused
+    (:class:`~sparsebtf.errors.ArgumentTypeError`: give ``[path]``). ``execution``
+    (:class:`~sparsebtf.execution.Execution`) runs the training passes in this process
+    (default) or on a Dask cluster; the points are cut into tasks of ``partition_size``
+    points, and the model does not depend on where they run. On a cluster the workers open
+    the sources themselves (give paths on shared storage).
     """
+    btfs = _check_inputs(btfs, options, execution)
     o, where = train_settings(options, execution, keywords)
     if not btfs:
         raise BTFInputError("training needs at least one BTF")
@@ -190,6 +193,31 @@ def train(
         ck = None if o.checkpoint_dir is None else os.path.join(o.checkpoint_dir, f"patch{p}")
         models.append(_train_one(btfs, replace(o, patch=p, checkpoint_dir=ck), where))
     return join_patch_sizes(models)
+
+
+def _check_inputs(btfs: Any, options: Any, execution: Any) -> list[Any]:
+    """:func:`train`'s arguments of the wrong type, refused in one line each (one BTF or
+    path where a list belongs: say so, not iterate the path's characters); the list."""
+    from ..api import check_btf
+    from ..constraints import wrong_type
+    if options is not None and not isinstance(options, TrainOptions):
+        raise wrong_type("train", "options", "a TrainOptions or None", options)
+    if execution is not None and not isinstance(execution, Execution):
+        raise wrong_type("train", "execution", "an Execution or None", execution)
+    what = "a list of BTFs, paths or synth: specs"
+    if isinstance(btfs, BTF | str | os.PathLike):
+        one = repr(btfs) if isinstance(btfs, str) else "btf"
+        raise wrong_type("train", "btfs", what, btfs, f"for one, give [{one}]")
+    if (hasattr(btfs, "shape") and hasattr(btfs, "dtype")) or isinstance(btfs, bytes | Mapping) \
+            or not isinstance(btfs, Iterable):  # fmt: skip
+        from ..api import ARRAY_HINT
+
+        raise wrong_type("train", "btfs", what, btfs,
+                         ARRAY_HINT if hasattr(btfs, "dtype") else "")  # fmt: skip
+    out = list(btfs)
+    for i, one in enumerate(out):
+        check_btf("train", f"btfs[{i}]", one)
+    return out
 
 
 def join_patch_sizes(models: Sequence[Model]) -> Model:

@@ -40,6 +40,7 @@ __all__ = [
     "CacheEntry",
     "announce_write",
     "cache_cap",
+    "check_folder",
     "clear",
     "enforce_cap",
     "entries",
@@ -104,11 +105,24 @@ def cache_cap() -> int | None:
     return parse_size(text) if text else None
 
 
-def entries(folder: str | os.PathLike[str] | None = None) -> list[CacheEntry]:
-    """The cache's entries, least recently used first (ties by name)."""
+def check_folder(folder: str | os.PathLike[str] | None = None) -> Path:
+    """The cache folder (:func:`resolve_cache_dir`); something else than a folder at its path
+    (a file) is refused in one line naming it. A folder not made yet is no error: nothing is
+    cached yet."""
     d = resolve_cache_dir(folder)
+    if d.exists() and not d.is_dir():
+        where = ("set $SPARSEBTF_CACHE to a folder (or unset it for ~/.cache/sparsebtf)"
+                 if folder is None else "give a folder")  # fmt: skip
+        raise SparseBTFError(f"the cache folder {d} is a file, not a folder: {where}")
+    return d
+
+
+def entries(folder: str | os.PathLike[str] | None = None) -> list[CacheEntry]:
+    """The cache's entries, least recently used first (ties by name); none while the folder
+    is not made yet, a refusal where a file stands in its place (:func:`check_folder`)."""
+    d = check_folder(folder)
     found: list[CacheEntry] = []
-    with contextlib.suppress(FileNotFoundError, NotADirectoryError):
+    with contextlib.suppress(FileNotFoundError):
         for item in os.scandir(d):
             if not _is_entry(item.name) or not item.is_file(follow_symlinks=False):
                 continue

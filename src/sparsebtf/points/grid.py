@@ -67,7 +67,8 @@ def check_nested(sizes: Sequence[int], what: str | None = None) -> tuple[int, ..
 
 def parse_patches(value: object) -> tuple[int, ...]:
     """A patch size or several, largest first: an integer, a sequence of integers, or text
-    ``"10"`` / ``"20,10,5"`` (several must nest, :func:`check_nested`)."""
+    ``"10"`` / ``"20,10,5"`` (several must nest, :func:`check_nested`, and be given largest
+    first)."""
     what = f"patch sizes {value!r}"
     if isinstance(value, str):
         parts = [v.strip() for v in value.split(",")]
@@ -78,7 +79,11 @@ def parse_patches(value: object) -> tuple[int, ...]:
         value = [int(value)]
     if not isinstance(value, Sequence):
         raise BTFInputError(f"{what}: expected integers such as 10 or 20,10,5")
-    return check_nested(value, what)
+    out = check_nested(value, what)
+    if tuple(int(v) for v in value) != out:  # one order, as every listing shows them
+        raise BTFInputError(f"{what}: give the sizes largest first, each dividing the next "
+                            f"larger, such as {','.join(map(str, out))}")  # fmt: skip
+    return out
 
 
 @dataclass(frozen=True)

@@ -67,6 +67,23 @@ def check_blendable(coded: Sequence[CodedBTF]) -> None:
     a.require_model()
 
 
+def _check_coded(coded: object) -> None:
+    """Refuse inputs that are no coded BTFs, in one line naming the argument (not an
+    AttributeError from inside the blend)."""
+    from ..constraints import wrong_type
+
+    what = ("a list of two or more coded BTFs (sparsebtf.encode's results, or coded .h5 files "
+            "read with sparsebtf.storage.load_coded)")
+    if isinstance(coded, CodedBTF | AdaptiveCodedBTF | str | bytes) or not isinstance(
+            coded, Sequence):  # fmt: skip
+        raise wrong_type("blend", "coded", what, coded)
+    for i, c in enumerate(coded):
+        if not isinstance(c, CodedBTF | AdaptiveCodedBTF):
+            raise wrong_type("blend", f"coded[{i}]", "a coded BTF (CodedBTF or "
+                             "AdaptiveCodedBTF: sparsebtf.encode's result, or a coded .h5 file "
+                             "read with sparsebtf.storage.load_coded)", c)  # fmt: skip
+
+
 def blend(
     coded: Sequence[CodedBTF] | Sequence[AdaptiveCodedBTF],
     weights: Sequence[float] | None = None,
@@ -89,6 +106,7 @@ def blend(
     tau : sparsity of the output per channel; default the largest coded τ of the inputs
         (adaptive: per point of the largest size, each node's cap scaled to its texels).
     """
+    _check_coded(coded)
     kinds = {isinstance(c, AdaptiveCodedBTF) for c in coded}
     if len(kinds) > 1:
         one = next(c for c in coded if not isinstance(c, AdaptiveCodedBTF))

@@ -74,7 +74,8 @@ class LearnTauMethod(_Ensemble):
     def train_tau(self) -> Any:  # type: ignore[override]
         t = tuple(int(v) for v in self.tau_train)
         grid = [tuple(max(1, v // 4) for v in t), t, _higher(t)]
-        return "learn:" + "/".join(",".join(map(str, lv)) for lv in grid)
+        # each level once (a tiny τ_l's quarter can round to itself)
+        return "learn:" + "/".join(dict.fromkeys(",".join(map(str, lv)) for lv in grid))
 
     def fit(self, train_btfs: Sequence[BTF], context: FitContext) -> Method:
         # The validation split holds out whole partitions (5 at least, so a fifth is one):
@@ -85,8 +86,8 @@ class LearnTauMethod(_Ensemble):
         # the validation error at the τ_t the benchmark codes every level at
         coded = [self.level_tau(train_btfs[0], lv) for lv in sorted(self.level_ratios)]
         self.training_options = {**type(self).training_options, "partition_size": size,
-                                 "tau_validation": "/".join(",".join(map(str, t))
-                                                            for t in coded)}  # fmt: skip
+                                 "tau_validation": "/".join(dict.fromkeys(
+                                     ",".join(map(str, t)) for t in coded))}  # fmt: skip
         return super().fit(train_btfs, context)
 
     def describe(self) -> dict[str, Any]:
