@@ -105,3 +105,14 @@ def test_unrepresentable_coded_files_are_refused(coded_file, tmp_path, capsys):
     code, _, err = run(["export-release", other, tmp_path / "out"], capsys)
     assert code != 0 and len(err.strip().splitlines()) == 1 and "release" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_an_empty_name_is_refused_by_the_library_too(coded_file, tmp_path):
+    """The command line's rule (``--name ""``) is the library's: an empty or blank name is a
+    mistake, not the default (None takes the coded file's name)."""
+    coded = load_coded(coded_file)
+    release = load_bundled("release").content_hash
+    for name in ("", "   "):
+        with pytest.raises(BTFInputError, match="name must not be empty"):
+            export_release(coded, tmp_path / "out", release, name=name)
+    assert not (tmp_path / "out").exists()

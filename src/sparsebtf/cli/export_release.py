@@ -6,7 +6,6 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from ..errors import SparseBTFError
 from ._args import check_output_dir, output_format
 from ._output import print_json
 
@@ -16,11 +15,9 @@ __all__ = ["register"]
 def run(args: argparse.Namespace) -> int:
     from ..storage import load_coded
     from ..storage.bundled import bundled_models
-    from ..storage.release_write import export_release
+    from ..storage.release_write import check_name, export_release
 
-    if args.name is not None and not args.name.strip():
-        raise SparseBTFError("--name must not be empty: give the material name for the file "
-                             "names, or leave --name out for the coded file's")  # fmt: skip
+    check_name(args.name, "--name")
     output_format(args.coded, "coded", "CODED")
     check_output_dir(args.folder, "OUT")
     coded = load_coded(args.coded)

@@ -34,7 +34,7 @@ from ..learning.codes import RELEASE_EPS
 from ..model import CodedBTF
 from .release import MODE_SIZES
 
-__all__ = ["FP16_MAX", "check_exportable", "export_release", "release_files"]
+__all__ = ["FP16_MAX", "check_exportable", "check_name", "export_release", "release_files"]
 
 #: The largest finite fp16 value: coefficients beyond it do not fit the release's values.
 FP16_MAX = 65504.0
@@ -56,11 +56,21 @@ def release_files(coded: CodedBTF, name: str | None = None) -> list[str]:
             "bonn_angles.bin", "xyz_loc.bin"]  # fmt: skip
 
 
+def check_name(name: str | None, option: str = "name") -> None:
+    """The rule of the material name given to :func:`export_release` (``option``: how the
+    caller spells it, ``--name`` on the command line): None takes the coded file's name, an
+    empty or blank one is a mistake, not a request for the default."""
+    if name is not None and not name.strip():
+        raise BTFInputError(f"{option} must not be empty, got {name!r}: give the material name "
+                            f"for the file names, or leave {option} out for the coded file's")
+
+
 def check_exportable(coded: CodedBTF, release_hash: str, name: str | None = None) -> None:
     """One line (:class:`BTFInputError`) unless ``coded`` fits the release layout: coded on
     the release's ensembles (model ``release_hash``), shared log-YUV statistics with log offset
     1e-5, 10×10 patches on 151×151 directions, channels Y/U/V, K = 8, values within fp16."""
     where = coded.label
+    check_name(name)
     n = name or coded.name
     if not _NAME_RE.match(n):
         raise BTFInputError(f"{where}: material name {n!r} cannot be a release file name "
