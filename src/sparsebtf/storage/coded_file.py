@@ -199,7 +199,8 @@ def _check_coded(coded: CodedBTF) -> None:
             raise BTFInputError(
                 f"{name}, channel {ch}: {int((~np.isfinite(c.values)).sum())} NaN/Inf values"
             )
-    ks = {ch: k for ch in coded.channels if (k := coded.dictionary_count(ch)) is not None}
+    # the K each channel's file records (:func:`written_k`), as the reader will check it
+    ks = {ch: written_k(coded.dictionary_count(ch), coded.codes[ch]) for ch in coded.channels}
     try:  # the reader's semantic checks, so that no file is written that cannot be read
         validate_coded(coded, name, ks)
     except FileFormatError as e:
@@ -306,6 +307,15 @@ def write_shared(f: h5py.File, coded: CodedBTF, schema: int) -> None:
     write_directions(f.create_group("views"), coded.views)
 
 
+def written_k(k: int | None, c: SparseCodes) -> int:
+    """The ``n_dictionaries`` a channel's file records: K, or when K is unknown to the writer
+    the fewest dictionaries the memberships use (a lower bound: the reader checks the
+    memberships against it, and against the model's K when it is attached)."""
+    if k is not None:
+        return k
+    return int(c.membership.max()) + 1 if c.n_points else 1
+
+
 def _write_codes(
     g: h5py.Group, c: SparseCodes, k: int | None, schema: int, name: str, ch: str
 ) -> None:
@@ -315,9 +325,7 @@ def _write_codes(
     g.attrs["n_points"] = c.n_points
     g.attrs["nnz"] = c.nnz
     g.attrs["location_bytes"] = location_width(sizes)
-    # K, or when unknown here the fewest dictionaries the memberships use (a lower bound the
-    # reader checks the memberships and the model's K against)
-    k_eff = k if k is not None else (int(c.membership.max()) + 1 if c.n_points else 1)
+    k_eff = written_k(k, c)
     g.attrs["n_dictionaries"] = k_eff
     m_dtype = "<u1" if k_eff <= 255 else "<u2" if k_eff <= 65535 else "<u4"
     create_dataset(g, "membership", data=np.asarray(c.membership).astype(m_dtype),
