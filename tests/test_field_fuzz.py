@@ -9,6 +9,8 @@ import shutil
 from collections import Counter
 from pathlib import Path
 
+import h5py
+import numpy as np
 import pytest
 
 from sparsebtf.errors import FileFormatError
@@ -60,9 +62,9 @@ def test_channel_counts_are_required_and_checked(corpus, tmp_path, kind, group, 
 @pytest.mark.parametrize("field", ["lights/phi", "views/theta"])
 @pytest.mark.parametrize("kind", ["coded3", "coded4", "model"])
 def test_damaged_angle_tables_are_refused(corpus, tmp_path, kind, field, op):
-    """θ/φ are checked against ``xyz`` (one entry 2^40 or NaN, one entry fewer or more);
-    direction 0 of the table is the pole, whose azimuth is free, so φ's damage goes to its
-    last entry there (:func:`mutate_field` damages entry 0: θ of the pole, φ's length)."""
+    """θ/φ are checked against ``xyz`` (entry 0 set to 2^40 or NaN, one entry fewer or
+    more). Direction 0 of the table is the pole, whose azimuth is free: φ = 2^40 there is no
+    damage (the field fuzz finds it accepted with the same output)."""
     if field.endswith("phi") and op == "huge":
         pytest.skip("φ of the pole (entry 0) is any angle: no damage")
     msg = _refused(corpus, kind, field, op, tmp_path)
@@ -105,3 +107,17 @@ def test_field_fuzz_catches_a_missing_check(corpus, tmp_path, monkeypatch):
     monkeypatch.setattr(model_file, "_check_root", lambda f, schema, where: None)
     res = run_field_case(corpus, "model", "@params_json", "delete", tmp_path)
     assert res["outcome"] == "silent_wrong", res
+
+
+@pytest.mark.parametrize("field", ["views/phi", "lights/theta"])
+def test_a_wrong_finite_angle_is_refused(corpus, tmp_path, field):
+    """An in-range angle that disagrees with ``xyz`` (off the pole) is damage too."""
+    path = tmp_path / FILES["coded3"]
+    shutil.copyfile(corpus["dir"] / FILES["coded3"], path)
+    with h5py.File(path, "r+") as f:
+        a = f[field][()]
+        a[1] += 0.25  # radians
+        f[field][...] = a
+        assert abs(float(np.cos(f["views/theta"][1]))) < 1  # direction 1 is off the pole
+    with pytest.raises(FileFormatError, match=rf"{field}: direction 1 has"):
+        field_exercise("coded3", path, corpus)
