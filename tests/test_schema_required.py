@@ -19,9 +19,8 @@ from sparsebtf.runtime import RuntimeBTF
 from sparsebtf.storage import load_coded, save_coded
 from sparsebtf.storage.coded_schema import REQUIRED_SINCE
 
-# Fields a schema-3 file may leave out: K when the writer did not know it, the tie rank of
-# codes already in the magnitude order.
-OPTIONAL = {"codes/*@n_dictionaries", "codes/*/rank"}
+# Fields a schema-3 file may leave out: the tie rank of codes already in the magnitude order.
+OPTIONAL = {"codes/*/rank"}
 
 
 @pytest.fixture(scope="module")

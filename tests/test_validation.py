@@ -140,7 +140,8 @@ def test_coded_directions_must_be_the_models(corpus, tmp_path):
     # Codes index the model's directions: a permuted (but valid) table would pair every
     # decoded value with the wrong direction.
     p = _copy(corpus, "coded.h5", tmp_path)
-    _set(p, "lights/xyz", lambda x: x[::-1].copy())
+    for key in ("xyz", "theta", "phi"):  # the whole table, its angles agreeing with xyz
+        _set(p, f"lights/{key}", lambda x: x[::-1].copy())
     load_coded(p)  # a valid table on its own
     with pytest.raises(FileFormatError) as e:
         load_coded_with_model(p, corpus / "model.h5")

@@ -78,11 +78,47 @@ def read_directions(group: h5py.Group, where: str) -> DirectionSet:
     if xyz.shape[0] == 0:
         raise FileFormatError(f"{where}/xyz: expected at least one direction, found 0")
     check_directions(xyz, f"{where}/xyz")
+    for key in ("theta", "phi"):  # redundant with xyz, but a damaged copy is damage
+        if key in group:
+            check_angles(group, key, xyz, where)
     name = read_str_attr(group, "name", where) if "name" in group.attrs else "custom"
     try:
         return from_vectors(xyz.astype(np.float64), name=name)
     except BTFInputError as e:
         raise FileFormatError(f"{where}/xyz: {e}") from None
+
+
+#: Largest distance between ``xyz`` and the unit vector of its stored (θ, φ): float32 angles
+#: are within 1e-6 of it; a damaged angle is off by far more.
+ANGLE_TOLERANCE = 1e-5
+
+
+def angle_vectors(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Unit vectors of polar angles ``theta`` and azimuths ``phi`` (radians), (n, 3)."""
+    st = np.sin(theta)
+    return np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=1)
+
+
+def check_angles(group: h5py.Group, key: str, xyz: np.ndarray, where: str) -> None:
+    """The table's ``theta`` or ``phi`` dataset: (n,) finite radians giving back ``xyz``.
+
+    Readers take directions from ``xyz`` alone; the angles are kept for other tools, so a
+    copy that disagrees with ``xyz`` is refused rather than left to mislead them.
+    """
+    n = len(xyz)
+    angles = read_array(group, key, where, kinds="f", shape=(n,), finite=True)
+    exact = from_vectors(xyz.astype(np.float64))
+    theta = angles if key == "theta" else exact.theta
+    phi = angles if key == "phi" else exact.phi
+    off = np.abs(angle_vectors(theta.astype(np.float64), phi.astype(np.float64)) - exact.xyz)
+    # (at the pole any azimuth gives the same vector: there only θ is checked, by nature)
+    worst = int(np.argmax(off.max(axis=1)))
+    if float(off[worst].max()) > ANGLE_TOLERANCE:
+        raise FileFormatError(
+            f"{where}/{key}: direction {worst} has {key} {float(angles[worst]):.6g}, but xyz "
+            f"gives {float(getattr(exact, key)[worst]):.6g} (radians); the angle table "
+            "disagrees with xyz: the file is damaged"
+        )
 
 
 def _chunk(shape: Sequence[int], chunks: Sequence[int] | None) -> tuple[int, ...]:

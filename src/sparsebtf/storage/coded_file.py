@@ -5,7 +5,8 @@ Layout (``format="sparsebtf-coded"``, ``schema_version=3``; 2 and 1 are read too
     /                       attrs: format, schema_version, model_hash, library_version, name,
                             height, width, patch, channels (JSON list), params_json, attrs_json
     /codes/<CH>             attrs: mode_sizes (N,) int64, n_points, nnz, location_bytes (3|4),
-                            n_dictionaries (K; only when known at write time)
+                            n_dictionaries (K; unknown at write time: max(membership) + 1);
+                            each checked against the data (required from schema 3)
     /codes/<CH>/membership  (P,) uint8 (K <= 255) or uint16     dictionary of each point (m)
     /codes/<CH>/counts      (P,) uint16 (or uint32 if a count > 65535)   coefficients per point (z)
     /codes/<CH>/location_table, table_sizes, usage, value_bytes [, rank]   schema 3:
@@ -198,7 +199,8 @@ def _check_coded(coded: CodedBTF) -> None:
             raise BTFInputError(
                 f"{name}, channel {ch}: {int((~np.isfinite(c.values)).sum())} NaN/Inf values"
             )
-    ks = {ch: k for ch in coded.channels if (k := coded.dictionary_count(ch)) is not None}
+    # the K each channel's file records (:func:`written_k`), as the reader will check it
+    ks = {ch: written_k(coded.dictionary_count(ch), coded.codes[ch]) for ch in coded.channels}
     try:  # the reader's semantic checks, so that no file is written that cannot be read
         validate_coded(coded, name, ks)
     except FileFormatError as e:
@@ -305,6 +307,15 @@ def write_shared(f: h5py.File, coded: CodedBTF, schema: int) -> None:
     write_directions(f.create_group("views"), coded.views)
 
 
+def written_k(k: int | None, c: SparseCodes) -> int:
+    """The ``n_dictionaries`` a channel's file records: K, or when K is unknown to the writer
+    the fewest dictionaries the memberships use (a lower bound: the reader checks the
+    memberships against it, and against the model's K when it is attached)."""
+    if k is not None:
+        return k
+    return int(c.membership.max()) + 1 if c.n_points else 1
+
+
 def _write_codes(
     g: h5py.Group, c: SparseCodes, k: int | None, schema: int, name: str, ch: str
 ) -> None:
@@ -314,9 +325,8 @@ def _write_codes(
     g.attrs["n_points"] = c.n_points
     g.attrs["nnz"] = c.nnz
     g.attrs["location_bytes"] = location_width(sizes)
-    if k is not None:
-        g.attrs["n_dictionaries"] = k
-    k_eff = k if k is not None else (int(c.membership.max()) + 1 if c.n_points else 1)
+    k_eff = written_k(k, c)
+    g.attrs["n_dictionaries"] = k_eff
     m_dtype = "<u1" if k_eff <= 255 else "<u2" if k_eff <= 65535 else "<u4"
     create_dataset(g, "membership", data=np.asarray(c.membership).astype(m_dtype),
                    compress=packed)  # fmt: skip
@@ -495,7 +505,7 @@ def _read_codes(
     g: h5py.Group, where: str, n_points: int, schema: int
 ) -> tuple[SparseCodes, int | None]:
     sizes = _mode_sizes(g, where)
-    k = read_int_attr(g, "n_dictionaries", where, 1, 2**32) if "n_dictionaries" in g.attrs else None
+    k = _dictionary_count(g, where, schema)
     membership = read_array(g, "membership", where, kinds="u", shape=(n_points,))
     counts = read_array(g, "counts", where, kinds="u", shape=(n_points,)).astype(np.int64)
     errors = read_array(g, "errors", where, kinds="f", shape=(n_points,))
@@ -504,6 +514,12 @@ def _read_codes(
         values, locations = read_streams(g, where, sizes, membership, counts, total)
     else:
         values, locations = _read_packed(g, where, sizes, total)
+    # after the data agree among themselves (their own messages are the more telling)
+    _check_size_attrs(g, where, schema, {
+        "n_points": (n_points, "the texture's grid (schema 4: its tree's nodes)"),
+        "nnz": (total, "the sum of 'counts'"),
+        "location_bytes": (location_width(sizes), "the width 'mode_sizes' needs"),
+    })  # fmt: skip
     try:
         codes = SparseCodes(
             sizes,
@@ -516,6 +532,41 @@ def _read_codes(
     except BTFInputError as e:
         raise FileFormatError(f"{where}: {e}") from None
     return codes, k
+
+
+def _dictionary_count(g: h5py.Group, where: str, schema: int) -> int | None:
+    """``n_dictionaries`` (K): required from schema 3 (the writer always records it), checked
+    against the memberships by :func:`~sparsebtf._semantic.validate_coded` and against the
+    model's K when one is attached; older files may lack it."""
+    if schema < 3 and "n_dictionaries" not in g.attrs:
+        return None
+    if "n_dictionaries" not in g.attrs:
+        raise FileFormatError(
+            f"{where}: missing attribute 'n_dictionaries', which every schema-3 coded file "
+            f"carries (this file says schema {schema}); the file is damaged"
+        )
+    return read_int_attr(g, "n_dictionaries", where, 1, 2**32)
+
+
+def _check_size_attrs(g: h5py.Group, where: str, schema: int,
+                      expected: dict[str, tuple[int, str]]) -> None:  # fmt: skip
+    """The channel's counts (``n_points``, ``nnz``, ``location_bytes``) must equal what its
+    data give: a count that disagrees is damage, even where the reader need not use it.
+    Required from schema 3; checked when present in older files."""
+    for key, (want, source) in expected.items():
+        if key not in g.attrs:
+            if schema < 3:
+                continue
+            raise FileFormatError(
+                f"{where}: missing attribute {key!r}, which every schema-3 coded file carries "
+                f"(this file says schema {schema}); the file is damaged"
+            )
+        found = read_int_attr(g, key, where)
+        if found != want:
+            raise FileFormatError(
+                f"{where}: attribute {key!r} is {found}, but {source} gives {want}; the file "
+                "is damaged"
+            )
 
 
 def _read_packed(

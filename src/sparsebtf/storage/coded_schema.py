@@ -56,6 +56,7 @@ REQUIRED_SINCE: tuple[Required, ...] = (
     Required("codes/*", "n_points", "attribute", 3),
     Required("codes/*", "nnz", "attribute", 3),
     Required("codes/*", "location_bytes", "attribute", 3),
+    Required("codes/*", "n_dictionaries", "attribute", 3),
     Required("stats", "eps", "attribute", 3),
     Required("stats", "bound", "dataset", 3, unless=NO_CLAMP),
     *(Required(g, n, k, 3) for g in ("lights", "views")

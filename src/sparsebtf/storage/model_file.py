@@ -4,8 +4,9 @@ Layout (``format="sparsebtf-model"``, ``schema_version=2``; schema 1 lacks the c
 
     /                         attrs: format, schema_version, content_hash, library_version,
                               patch, channels (JSON list), params_json, provenance_json,
-                              training_json
-    /dictionaries/<CH>        attrs: n_dictionaries (K), mode_sizes (N,) int64
+                              training_json (all required from schema 2)
+    /dictionaries/<CH>        attrs: n_dictionaries (K), mode_sizes (N,) int64 (checked against
+                              the datasets from schema 2)
     /dictionaries/<CH>/modeN  (K, m_n, m_n) float64 (float32 / float16 when that type holds
                               every value exactly; shuffle + deflate filters, lossless);
                               [k, row, col]: row = sample index
@@ -152,13 +153,16 @@ def load_model(path: str | os.PathLike[str]) -> Model:
     p = Path(path)
     with open_checked(p, MODEL_FORMAT, _SUPPORTED) as f:
         where = str(p)
+        schema = read_int_attr(f, "schema_version", where)
+        _check_root(f, schema, where)
         stored_hash = read_str_attr(f, "content_hash", where)
         patch = read_int_attr(f, "patch", where, 1, MAX_PATCH)
         root = require(f, "dictionaries", where)
         channels = _channel_list(f, root, where)
         tolerance: dict[str, float] = {}
-        dictionaries = _read_ensembles(root, channels, f"{where}/dictionaries", tolerance)
-        patches = _read_patches(f, channels, patch, where, tolerance)
+        dictionaries = _read_ensembles(root, channels, f"{where}/dictionaries", tolerance,
+                                       schema)  # fmt: skip
+        patches = _read_patches(f, channels, patch, where, tolerance, schema)
         lights = read_directions(require(f, "lights", where), f"{where}/lights")
         views = read_directions(require(f, "views", where), f"{where}/views")
         params = read_json_attr(f, "params_json", where)
@@ -201,8 +205,48 @@ def load_model(path: str | os.PathLike[str]) -> Model:
     return model
 
 
+#: Root attributes every model file carries from schema 2 on (schema 1 files may lack them:
+#: no channel order, no parameters). Without ``params_json`` a model of several training
+#: levels would lose its per-dictionary τ_l silently, so from schema 2 a missing one is damage.
+REQUIRED_ROOT = ("library_version", "channels", "params_json", "provenance_json",
+                 "training_json")  # fmt: skip
+
+
+def _check_root(f: h5py.File, schema: int, where: str) -> None:
+    """Refuse a schema >= 2 model that lacks an attribute of :data:`REQUIRED_ROOT`."""
+    if schema < 2:
+        return
+    for key in REQUIRED_ROOT:
+        if key not in f.attrs:
+            raise FileFormatError(
+                f"{where}: missing attribute {key!r}, which every schema-2 model file carries "
+                f"(this file says schema {schema}); the file is damaged or was edited"
+            )
+
+
+def _check_group_attrs(g: h5py.Group, mats: list[np.ndarray], where: str) -> None:
+    """A channel group's ``n_dictionaries`` and ``mode_sizes`` (schema >= 2 writes both):
+    they must state the K and mode sizes of its datasets."""
+    k = read_int_attr(g, "n_dictionaries", where, 1, 2**32)
+    if k != mats[0].shape[0]:
+        raise FileFormatError(
+            f"{where}: attribute 'n_dictionaries' is {k}, but its datasets hold "
+            f"{mats[0].shape[0]} dictionaries; the file is damaged"
+        )
+    raw = np.asarray(g.attrs["mode_sizes"]) if "mode_sizes" in g.attrs else None
+    want = [int(m.shape[1]) for m in mats]
+    if raw is None or raw.dtype.kind not in "iu" or raw.shape != (len(want),) or (
+            [int(v) for v in raw] != want):  # fmt: skip
+        found = "nothing" if raw is None else f"{raw.tolist()} ({raw.dtype})"
+        raise FileFormatError(
+            f"{where}: attribute 'mode_sizes' must be {want} (its datasets' sizes), found "
+            f"{found}; the file is damaged"
+        )
+
+
 def _read_ensembles(root: h5py.Group, channels: list[str], where: str,
-                    tolerance: dict[str, float]) -> dict[str, list[np.ndarray]]:  # fmt: skip
+                    tolerance: dict[str, float],
+                    schema: int = 2) -> dict[str, list[np.ndarray]]:  # fmt: skip
     """One ensemble per channel from ``root``/<CH>/mode1..modeN (float64); ``tolerance``
     gets each channel's orthonormality tolerance (looser where a mode is stored in fp16)."""
     dictionaries: dict[str, list[np.ndarray]] = {}
@@ -234,12 +278,15 @@ def _read_ensembles(root: h5py.Group, channels: list[str], where: str,
                 f"{gw}: modes disagree on the number of dictionaries "
                 f"{[m.shape[0] for m in mats]}"
             )
+        if schema >= 2:
+            _check_group_attrs(g, mats, gw)
         dictionaries[ch] = mats
     return dictionaries
 
 
 def _read_patches(f: h5py.File, channels: list[str], patch: int, where: str,
-                  tolerance: dict[str, float]) -> dict[int, dict[str, list[np.ndarray]]]:
+                  tolerance: dict[str, float],
+                  schema: int) -> dict[int, dict[str, list[np.ndarray]]]:
     """The ensembles at other patch sizes (``/patches``, schema 3), checked against the
     root's ``patch_sizes``; none in a model of one size."""
     if "patches" not in f and "patch_sizes" not in f.attrs:
@@ -258,8 +305,8 @@ def _read_patches(f: h5py.File, channels: list[str], patch: int, where: str,
         found = sorted(group.keys()) if isinstance(group, h5py.Group) else "a dataset"
         raise FileFormatError(f"{where}/patches: expected one group per other patch size "
                               f"{others}, found {found}")  # fmt: skip
-    return {p: _read_ensembles(group[str(p)], channels, f"{where}/patches/{p}", tolerance)
-            for p in others}
+    return {p: _read_ensembles(group[str(p)], channels, f"{where}/patches/{p}", tolerance,
+                               schema) for p in others}  # fmt: skip
 
 
 def _check_tau_dictionaries(params: dict, ks: dict[str, int], where: str) -> None:

@@ -30,8 +30,8 @@ __all__ = [
 #
 # * ``rejected``: the rules are broken and the reader raised a project error (correct);
 # * ``correct``: the rules hold and the reader accepted the file with finite results, equal
-#   to the unmutated file's when the field is one the reader does not use (theta/phi columns,
-#   the angle file's index row);
+#   to the unmutated file's when the field is one the reader does not use for its results
+#   (theta/phi columns: checked against ``xyz``, never used; the angle file's index row);
 # * ``silent_wrong``: accepted although the rules are broken, or accepted with results that
 #   differ from the unmutated file's where the field is unused (must be 0);
 # * ``false_rejection``: refused although the rules hold (reported; a stricter rule than the
@@ -131,6 +131,28 @@ def _angles_xyz(theta: np.ndarray, phi: np.ndarray) -> np.ndarray | None:
     if np.any(np.abs(phi) > 4 * np.pi):  # an azimuth, in radians
         return None
     return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)], 1)
+
+
+def _angles_ok(group: h5py.Group) -> bool:
+    """A direction table's stored θ/φ (radians) give back its ``xyz`` within 1e-5 (the
+    readers take directions from ``xyz``; a copy that disagrees is damage)."""
+    v = np.asarray(group["xyz"][()], dtype=np.float64)
+    with np.errstate(all="ignore"):
+        v = v / np.linalg.norm(v, axis=1, keepdims=True)
+        angles = {"theta": np.arccos(np.clip(v[:, 2], -1, 1)), "phi": np.arctan2(v[:, 1], v[:, 0])}
+    for key in angles:
+        if key in group:
+            a = np.asarray(group[key][()], dtype=np.float64)
+            if a.shape != (len(v),) or not np.isfinite(a).all():
+                return False
+            theta = a if key == "theta" else angles["theta"]
+            phi = a if key == "phi" else angles["phi"]
+            with np.errstate(all="ignore"):
+                back = np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi),
+                                 np.cos(theta)], 1)  # fmt: skip
+            if not np.all(np.abs(back - v) <= 1e-5):
+                return False
+    return True
 
 
 def _stats_ok(mean: np.ndarray, std: np.ndarray, log_offset: float, bound: Any = None) -> bool:
@@ -386,7 +408,7 @@ def _case_h5(corpus: dict[str, Any], kind: str, field: str, op: str,
 
 
 def _h5_legal(f: h5py.File, kind: str, model: Path) -> bool:
-    ok = all(_directions_ok(f[g]["xyz"][()]) for g in ("lights", "views"))
+    ok = all(_directions_ok(f[g]["xyz"][()]) and _angles_ok(f[g]) for g in ("lights", "views"))
     if kind == "coded":  # the codes index the model's directions, in its order
         with h5py.File(model, "r") as m:
             ok = ok and all(np.abs(f[g]["xyz"][()] - m[g]["xyz"][()]).max() <= _UNIT
