@@ -316,23 +316,22 @@ class RateTargets:
                 for i in range(xc.shape[0]):
                     ks = [k for k in range(n_k) if mask[i, k]]
                     cums = [np.cumsum(res[i, k][1].astype(np.float64) ** 2) for k in ks]
-                    for lv in range(n_lv):
-                        r = refs[lv][ch]
-                        # least residual at the reference count (in the objective); ties:
-                        # lowest k
-                        # an objective's: one dictionary for every target of the call, of
-                        # least error summed over their reference counts, and one candidate
-                        # pool (the largest), so a larger target keeps a superset
-                        picks.append((i, lv, ks[int(np.argmax([cs[min(r, cs.size) - 1]
-                                                               for cs in cums]))]
-                                      if losses is None else
-                                      ks[int(np.argmin([sum(losses[i, k]) for k in ks]))]))
+                    # one dictionary for every target of the call (nested codes, issue 46),
+                    # of least residual summed over their reference counts (in the
+                    # objective); ties: lowest k. With one target: the least residual at its
+                    # reference count, as before
+                    kept = [sum(cs[min(r[ch], cs.size) - 1] for r in refs) for cs in cums]
+                    k_pt = (ks[int(np.argmax(kept))] if losses is None
+                            else ks[int(np.argmin([sum(losses[i, k]) for k in ks]))])  # fmt: skip
+                    picks.extend((i, lv, k_pt) for lv in range(n_lv))
+                # one candidate pool (the largest) for every target, so that with one
+                # dictionary a larger target keeps a superset of a smaller one's coefficients;
                 # the objective's candidates: its level-of-detail order with exact error curves
                 pool = max(ncand[lv][ch] for lv in range(n_lv))
                 walks = None if judge is None else _walks(xc, res, picks, pool, mats[ch],
                                                           judge[c])  # fmt: skip
                 for i, lv, k in picks:
-                    n = ncand[lv][ch] if walks is None else pool
+                    n = pool
                     d = parts[lv][ch]
                     d["m"].append(k)
                     if walks is None:

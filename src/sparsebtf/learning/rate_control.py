@@ -156,6 +156,18 @@ def known_count(curves: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return best[np.arange(curves.shape[0]), c]
 
 
+def _top_stable(pool: np.ndarray, extra: int) -> np.ndarray:
+    """The positions of the ``extra`` largest of ``pool``, ties to the lower position: what
+    ``np.argsort(-pool, kind="stable")[:extra]`` selects, in linear time (a partition, then
+    the ties at the threshold by position)."""
+    if extra >= pool.size:
+        return np.arange(pool.size)
+    thr = np.partition(pool, pool.size - extra)[pool.size - extra]
+    above = np.flatnonzero(pool > thr)
+    tied = np.flatnonzero(pool == thr)
+    return np.concatenate([above, tied[: extra - above.size]])
+
+
 def allocate(
     candidates: Mapping[str, ChannelCandidates],
     target_bytes: int,
@@ -202,11 +214,9 @@ def allocate(
             )
     else:
         chosen = np.zeros(pool.size, dtype=bool)
-        if extra > 0 and exact:
+        if extra > 0:
             # a stable order: a larger budget keeps a superset (ties by point, then position)
-            chosen[np.argsort(-pool, kind="stable")[:extra]] = True
-        elif extra > 0:
-            chosen[np.argpartition(-pool, extra - 1)[:extra]] = True
+            chosen[_top_stable(pool, extra)] = True
     codes: dict[str, SparseCodes] = {}
     start = 0
     total_nnz = 0
