@@ -532,7 +532,11 @@ def encode_rate_levels(
     :func:`material_target_bytes`). Each point's dictionary is the one with the least error at
     the point's reference count (the target split over channels as the option ``split``,
     default the release's 885:64:64, or equal for identity preprocessing); its top
-    ``candidate_factor`` × that count (+16) coefficients are the candidates. ``weighting``
+    ``candidate_factor`` × that count (+16) coefficients are the candidates; with several
+    targets, one dictionary per point for all of them (least residual summed over their
+    reference counts) and one pool (the largest), so that a larger target keeps a superset
+    of a smaller one's coefficients and no point's error in any channel grows with the
+    target (nested levels, issue 46; one target codes as before). ``weighting``
     is one of :data:`~.options.WEIGHTINGS` (see :func:`_point_weights`). Results hit each
     target to within one coefficient (5 bytes) unless the candidate pool runs out (a warning).
     ``options`` / ``execution`` / ``keywords`` as for :func:`~.encode.encode` (a Dask cluster

@@ -18,6 +18,11 @@ again as the next block, and once the pool is spent all of them (twice at most).
   fewer coefficients err less than the code did). So **the stored code errs no more than the
   code chosen at the level, and E_c falls along the stops**; between two stops (the
   runtime's fade from one count to the next) it is not evaluated.
+* Nested levels (issue 46, :func:`lod_orders`): in increasing τ a level's stored codes err
+  no more than a lower level's of the call, jointly (E) and per channel (E_c); a level that
+  would keeps the least-E mix of its channels' codes and a lower level's that errs no more
+  (the lower level's codes whole always qualify where the levels are ordered channel by
+  channel), walked again at its own fractions.
 * Rate control's candidates (:func:`walk_pool`): the walk over a point's candidate pool with
   stops every count up to :data:`WALK_EXACT`, then four per octave (:func:`walk_stops`); the
   error curve at the stops is what the allocation spends on
@@ -430,6 +435,8 @@ def _nest(x: Sequence[np.ndarray], errors: Sequence[ChannelError],
                             best = cand
                     elif cand.joint < fallback.joint:
                         fallback = cand
+                if best is not None:  # the largest lower level that gives one: enough
+                    break
             # levels ordered channel by channel: a lower level's codes whole are within
             pick = best if best is not None else fallback
             mine[hi] = _rewalk(errors, i, xs, pick, [int(t[hi]) for t in taus], below, mats_of)

@@ -178,9 +178,10 @@ def allocate(
     Every point and channel keeps at least one coefficient (as the release's coder does); the
     rest of the budget goes by decreasing gain ``w_{p,c} · s²`` over all points and channels.
     With exact error curves (``curves``, a linear or display objective) the gains are those
-    curves' (:func:`hull_gains`), in a stable order: a larger budget keeps a superset, so no
-    point's error grows with the budget, nor the material's; a point keeps no coefficient
-    its curve lacks.
+    curves' (:func:`hull_gains`); either way they are taken in a stable order (ties to the
+    lower position, :func:`_top_stable`): on the same candidates a larger budget keeps a
+    superset, so no point's error grows with the budget, nor the material's; a point keeps
+    no coefficient its curve lacks.
     Returns the codes per channel and a summary (``bytes``, ``nnz``, ``exhausted``: whether
     the candidate pool ran out before the budget did, leaving the result below target).
     """
