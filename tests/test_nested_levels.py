@@ -239,8 +239,9 @@ def test_objective_levels_nested_on_random_glossy_btfs(model, seed, share, gain,
 @pytest.mark.parametrize("candidates", [None, 2])
 def test_log_rate_control_targets_of_one_call_are_nested(model, candidates):
     """Rate control under the log objective, several targets in one call: each point keeps
-    one dictionary for every target and one candidate pool, and a larger budget keeps a
-    superset, so no point's (Parseval) error in any channel rises with the target. On main
+    one dictionary for every target (the largest target's) and one candidate pool, and a
+    larger budget keeps a superset, so no point's (Parseval) error in any channel rises with
+    the target; the largest target is coded as alone. On main
     each target chose its point's dictionary at its own reference count: the highlight's
     and the glossy BTF's Y errors rose (2 and 1 points)."""
     from sparsebtf.codec.rate import encode_rate_levels
@@ -254,6 +255,13 @@ def test_log_rate_control_targets_of_one_call_are_nested(model, candidates):
             assert (np.diff(counts, axis=0) >= 0).all()
             members = np.array([c.codes[ch].membership for c in coded])
             assert (members == members[0]).all()
+    # the largest target codes as it would alone (its dictionary, its pool)
+    alone = encode_rate_levels(btf, model, [700], progress=False, candidates=candidates)[0]
+    for ch in "YUV":
+        a, b = alone.codes[ch], coded[-1].codes[ch]
+        for u, v in zip((a.membership, a.counts, a.values, a.locations, a.errors),
+                        (b.membership, b.counts, b.values, b.locations, b.errors), strict=True):
+            assert np.array_equal(u, v), ch
 
 
 @settings(max_examples=100, deadline=None, derandomize=True)

@@ -316,11 +316,12 @@ class RateTargets:
                 for i in range(xc.shape[0]):
                     ks = [k for k in range(n_k) if mask[i, k]]
                     cums = [np.cumsum(res[i, k][1].astype(np.float64) ** 2) for k in ks]
-                    # one dictionary for every target of the call (nested codes, issue 46),
-                    # of least residual summed over their reference counts (in the
-                    # objective); ties: lowest k. With one target: the least residual at its
-                    # reference count, as before
-                    kept = [sum(cs[min(r[ch], cs.size) - 1] for r in refs) for cs in cums]
+                    # one dictionary for every target of the call (nested codes, issue 46):
+                    # the log rule's, of least residual at the largest target's reference
+                    # count (so that target codes as it would alone); an objective's, of least
+                    # error summed over every target's reference count. Ties: lowest k
+                    r_top = max(r[ch] for r in refs)
+                    kept = [cs[min(r_top, cs.size) - 1] for cs in cums]
                     k_pt = (ks[int(np.argmax(kept))] if losses is None
                             else ks[int(np.argmin([sum(losses[i, k]) for k in ks]))])  # fmt: skip
                     picks.extend((i, lv, k_pt) for lv in range(n_lv))
@@ -533,10 +534,11 @@ def encode_rate_levels(
     the point's reference count (the target split over channels as the option ``split``,
     default the release's 885:64:64, or equal for identity preprocessing); its top
     ``candidate_factor`` × that count (+16) coefficients are the candidates; with several
-    targets, one dictionary per point for all of them (least residual summed over their
-    reference counts) and one pool (the largest), so that a larger target keeps a superset
-    of a smaller one's coefficients and no point's error in any channel grows with the
-    target (nested levels, issue 46; one target codes as before). ``weighting``
+    targets, one dictionary per point for all of them (the largest target's: least
+    residual at its reference count) and one pool (the largest), so that the largest target
+    codes as it would alone, a larger target keeps a superset of a smaller one's
+    coefficients, and no point's error in any channel grows with the target (nested levels,
+    issue 46). ``weighting``
     is one of :data:`~.options.WEIGHTINGS` (see :func:`_point_weights`). Results hit each
     target to within one coefficient (5 bytes) unless the candidate pool runs out (a warning).
     ``options`` / ``execution`` / ``keywords`` as for :func:`~.encode.encode` (a Dask cluster
