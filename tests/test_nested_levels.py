@@ -76,8 +76,8 @@ def _assert_nested(errs: np.ndarray, rtol: float = 0.0) -> None:
 @given(seed=st.integers(0, 2**31 - 1), k=st.integers(2, 5),
        candidates=st.sampled_from([None, 1, 2]), heavy=st.booleans(),
        taus=st.lists(st.integers(1, 400), min_size=2, max_size=4, unique=True),
-       partial=st.booleans())  # fmt: skip
-def test_log_levels_of_one_call_are_nested(seed, k, candidates, heavy, taus, partial):
+       partial=st.booleans(), eps=st.sampled_from([0.0, 1e-5, 0.05]))  # fmt: skip
+def test_log_levels_of_one_call_are_nested(seed, k, candidates, heavy, taus, partial, eps):
     """The log rule at several τ in one call, exhaustive or screened (with the screening's
     partial projection truly partial, as at full size, or whole, as at the tests' size):
     each point's Parseval error, and the error of its reconstruction, never rise with τ."""
@@ -88,24 +88,24 @@ def test_log_levels_of_one_call_are_nested(seed, k, candidates, heavy, taus, par
     with pytest.MonkeyPatch.context() as mp:
         if partial:  # 2 of 13 light and view columns, as 48 x 12 of 151 at 10 x 10
             mp.setattr(coding, "screen_columns", lambda *a, **kw: (2, 2))
-        levels = sparse_code_levels(x, dicts, taus, 0.0, candidates=candidates)
+        levels = sparse_code_levels(x, dicts, taus, eps, candidates=candidates)
     _assert_nested(np.array([c.errors for c in levels]))
     _assert_nested(np.array([_mse(c, dicts, x) for c in levels]), rtol=1e-5)
 
 
 @FAST
 @given(seed=st.integers(0, 2**31 - 1), k=st.integers(2, 5), heavy=st.booleans(),
-       candidates=st.sampled_from([None, 1, 2]),
+       candidates=st.sampled_from([None, 1, 2]), eps=st.sampled_from([0.0, 0.05]),
        taus=st.lists(st.integers(1, 400), min_size=2, max_size=3, unique=True))  # fmt: skip
 def test_log_separate_calls_are_nested_where_every_candidate_is_judged(seed, k, heavy,
-                                                                        candidates, taus):
+                                                                        candidates, eps, taus):
     """Separate calls at one τ each: nested with the exhaustive rule, and with the screening
     where its partial projection is the whole point (13 x 13 directions): the rule at a
     larger τ judges every dictionary the smaller τ could pick."""
     rng = np.random.default_rng(seed)
     dicts = _ensemble(rng, k)
     x = _points(rng, 3, heavy)
-    got = [sparse_code(x, dicts, t, 0.0, candidates=candidates) for t in sorted(taus)]
+    got = [sparse_code(x, dicts, t, eps, candidates=candidates) for t in sorted(taus)]
     _assert_nested(np.array([c.errors for c in got]))
 
 
@@ -182,7 +182,7 @@ class _Judge:
         return self.errors[c](i, self.residuals(coded, i)[c])
 
 
-def _check_levels(btf, model, objective, levels=LEVELS) -> tuple[int, int]:
+def _check_levels(btf, model, objective, levels=LEVELS, eps=0.0) -> tuple[int, int]:
     """Encode ``btf`` at ``levels`` in one call; check the nesting per channel and jointly,
     and the level of detail at each level's fractions. Returns (pairs whose order does not
     fall, pairs counted not judged)."""
@@ -197,7 +197,7 @@ def _check_levels(btf, model, objective, levels=LEVELS) -> tuple[int, int]:
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(encode_mod, "lod_orders", counting)
-        coded = encode_levels(btf, model, levels, eps=0.0, progress=False, objective=objective)
+        coded = encode_levels(btf, model, levels, eps=eps, progress=False, objective=objective)
     judge = _Judge(btf, coded[0], model, objective)
     for c, ch in enumerate("YUV"):  # each channel's E_c, as stored (the walk's float64 sums)
         stored = np.array([lv.codes[ch].errors for lv in coded])
@@ -229,10 +229,14 @@ def test_objective_levels_nested_per_channel_on_highlights(model, objective):
                                  HealthCheck.function_scoped_fixture])  # fmt: skip
 @given(seed=st.integers(0, 2**16), share=st.sampled_from([0.002, 0.01, 0.05]),
        gain=st.sampled_from([20.0, 200.0, 2000.0]),
-       objective=st.sampled_from(["linear", "display"]))  # fmt: skip
-def test_objective_levels_nested_on_random_glossy_btfs(model, seed, share, gain, objective):
-    """Random glossy BTFs (a share of values 20 to 2000 times brighter), three levels."""
-    rising, unjudged = _check_levels(_glossy(seed, share, gain), model, objective, LEVELS[:3])
+       objective=st.sampled_from(["linear", "display"]),
+       eps=st.sampled_from([0.0, 1e-5, 1e-3]))  # fmt: skip
+def test_objective_levels_nested_on_random_glossy_btfs(model, seed, share, gain, objective,
+                                                       eps):
+    """Random glossy BTFs (a share of values 20 to 2000 times brighter), three levels, with
+    and without a threshold ε (in the objective's units)."""
+    rising, unjudged = _check_levels(_glossy(seed, share, gain), model, objective, LEVELS[:3],
+                                     eps)  # fmt: skip
     assert rising <= unjudged
 
 
