@@ -387,7 +387,8 @@ class RateTargets:
                     "material_bytes": summary["bytes"],
                     "weighting": self.point_weighting if self.objective == "log" else "exact",
                     "reference_counts": extra["refs"][lv],
-                    "candidates": extra["ncand"][lv],
+                    # the pool every target of the call shares (nested levels)
+                    "candidates": {ch: max(nc[ch] for nc in extra["ncand"]) for ch in channels},
                     "split": list(extra["split"]),
                 }
                 if extra.get("stored_target") is not None:
