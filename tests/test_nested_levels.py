@@ -9,7 +9,7 @@ coefficients is never worse in the chosen objective than one at fewer.
   (a counterexample below, kept to show what one call gives).
 * linear and display objectives, levels of one ``encode_levels`` call: each channel's E_c
   (the other channels exact) and the joint E (all three residuals) never rise with τ. On
-  main only E was nested: a channel's E_c rose (the highlight BTF's U at level 64, linear;
+  main only E was nested: a channel's E_c rose (the highlight BTF's U under linear;
   the glossy BTF's Y, display), which these tests caught.
 * level of detail: the joint E of the first ⌈f·τ_c⌉ stored coefficients falls along
   f = 0.1 … 1 at every level of the call, the level's own fractions (also for a level that
