@@ -290,7 +290,14 @@ def encode_levels(
 ) -> list[CodedBTF]:
     """:func:`encode` at several sparsity levels from one pass (projections are shared).
 
-    Under a weighted ``objective`` each point's error in it never grows with the level's τ
-    (:func:`~sparsebtf.learning.objective.weighted_code_levels`)."""
+    The levels are nested (issue 46): per point and channel, the error in the chosen
+    objective never grows with the level's τ (levels whose τ are ordered channel by
+    channel). Under "log" the levels share the projections and the screening's candidates
+    (:func:`~sparsebtf.learning.coding.sparse_code_levels`); under "linear" or "display"
+    each channel's error (the other two exact) and the joint error are nested
+    (:func:`~sparsebtf.learning.lod_order.lod_orders`). Separate calls at one τ each are
+    nested only under "log" with the exhaustive rule (``candidates=None``): a screened call
+    ranks its candidates for its own τ, and an objective's call judges its own prefix
+    lengths."""
     (coded,) = run_plan([btf], model, FixedTau(tuple(taus)), options, execution, **keywords)
     return coded

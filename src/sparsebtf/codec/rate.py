@@ -316,23 +316,23 @@ class RateTargets:
                 for i in range(xc.shape[0]):
                     ks = [k for k in range(n_k) if mask[i, k]]
                     cums = [np.cumsum(res[i, k][1].astype(np.float64) ** 2) for k in ks]
-                    for lv in range(n_lv):
-                        r = refs[lv][ch]
-                        # least residual at the reference count (in the objective); ties:
-                        # lowest k
-                        # an objective's: one dictionary for every target of the call, of
-                        # least error summed over their reference counts, and one candidate
-                        # pool (the largest), so a larger target keeps a superset
-                        picks.append((i, lv, ks[int(np.argmax([cs[min(r, cs.size) - 1]
-                                                               for cs in cums]))]
-                                      if losses is None else
-                                      ks[int(np.argmin([sum(losses[i, k]) for k in ks]))]))
+                    # one dictionary for every target of the call (nested codes, issue 46):
+                    # the log rule's, of least residual at the largest target's reference
+                    # count (so that target codes as it would alone); an objective's, of least
+                    # error summed over every target's reference count. Ties: lowest k
+                    r_top = max(r[ch] for r in refs)
+                    kept = [cs[min(r_top, cs.size) - 1] for cs in cums]
+                    k_pt = (ks[int(np.argmax(kept))] if losses is None
+                            else ks[int(np.argmin([sum(losses[i, k]) for k in ks]))])  # fmt: skip
+                    picks.extend((i, lv, k_pt) for lv in range(n_lv))
+                # one candidate pool (the largest) for every target, so that with one
+                # dictionary a larger target keeps a superset of a smaller one's coefficients;
                 # the objective's candidates: its level-of-detail order with exact error curves
                 pool = max(ncand[lv][ch] for lv in range(n_lv))
                 walks = None if judge is None else _walks(xc, res, picks, pool, mats[ch],
                                                           judge[c])  # fmt: skip
                 for i, lv, k in picks:
-                    n = ncand[lv][ch] if walks is None else pool
+                    n = pool
                     d = parts[lv][ch]
                     d["m"].append(k)
                     if walks is None:
@@ -387,7 +387,8 @@ class RateTargets:
                     "material_bytes": summary["bytes"],
                     "weighting": self.point_weighting if self.objective == "log" else "exact",
                     "reference_counts": extra["refs"][lv],
-                    "candidates": extra["ncand"][lv],
+                    # the pool every target of the call shares (nested levels)
+                    "candidates": {ch: max(nc[ch] for nc in extra["ncand"]) for ch in channels},
                     "split": list(extra["split"]),
                 }
                 if extra.get("stored_target") is not None:
@@ -533,7 +534,12 @@ def encode_rate_levels(
     :func:`material_target_bytes`). Each point's dictionary is the one with the least error at
     the point's reference count (the target split over channels as the option ``split``,
     default the release's 885:64:64, or equal for identity preprocessing); its top
-    ``candidate_factor`` × that count (+16) coefficients are the candidates. ``weighting``
+    ``candidate_factor`` × that count (+16) coefficients are the candidates; with several
+    targets, one dictionary per point for all of them (the largest target's: least
+    residual at its reference count) and one pool (the largest), so that the largest target
+    codes as it would alone, a larger target keeps a superset of a smaller one's
+    coefficients, and no point's error in any channel grows with the target (nested levels,
+    issue 46). ``weighting``
     is one of :data:`~.options.WEIGHTINGS` (see :func:`_point_weights`). Results hit each
     target to within one coefficient (5 bytes) unless the candidate pool runs out (a warning).
     ``options`` / ``execution`` / ``keywords`` as for :func:`~.encode.encode` (a Dask cluster

@@ -21,6 +21,14 @@ and more on the light mode than on the view mode (:func:`screen_columns`) — an
 :data:`SCREEN_MARGIN`); the paper's rule then chooses among them. With ``candidates`` >= K
 (or None) every dictionary is projected (the exhaustive rule, bit for bit).
 
+**Nested levels** (issue 46). The rule is monotone in τ on a fixed candidate set: a
+dictionary's count and error at τ' > τ are at most its own at τ, so the sparsest-then-least-
+error choice at τ' errs no more than the one at τ. The levels of one call share one
+candidate set (the union of every level's screening), so they are nested; separate calls
+are nested with the exhaustive rule only, since the screening ranks the candidates by a
+partial projection for the τ it is given and a call at τ' can miss the dictionary that won
+at τ (``tests/test_nested_levels.py`` keeps a counterexample).
+
 :class:`~.codes.SparseCodes` stores the result: per point its dictionary (membership m), its
 count (z), and its values and multi-index locations **sorted by decreasing magnitude**, so a
 renderer can truncate τ by reading a prefix; the count rule is :func:`~.codes.rule_keys`.
@@ -482,9 +490,13 @@ def sparse_code_levels(
     The projections do not depend on τ, so a quality–storage curve costs one encoding.
     Returns one :class:`SparseCodes` per τ, identical to separate :func:`sparse_code` calls
     (with screening, a point's candidates are the union of every level's best ``candidates``,
-    so they may differ from a single level's). With ``error`` (:func:`sparse_code`) each
-    point's error in that objective at a larger τ is never above that at a smaller one
-    (:func:`~.objective.judged_code_levels`).
+    so they may differ from a single level's). The levels are **nested**: every level
+    judges the same candidates, and a larger τ can keep whatever a smaller one chose, so no
+    point's error at a larger τ is above its error at a smaller one (under the log rule its
+    Parseval error; with ``error`` (:func:`sparse_code`) its error in that objective,
+    :func:`~.objective.judged_code_levels`). Separate calls are nested with the exhaustive
+    rule (``candidates`` None or >= K) under the log rule, not with screening, whose
+    candidates are ranked for the call's own levels (issue 46).
     """
     if error is not None:
         xc, _, levels, mask, energy = _prepare(batch, dictionaries, taus, eps, dtype,

@@ -18,6 +18,11 @@ again as the next block, and once the pool is spent all of them (twice at most).
   fewer coefficients err less than the code did). So **the stored code errs no more than the
   code chosen at the level, and E_c falls along the stops**; between two stops (the
   runtime's fade from one count to the next) it is not evaluated.
+* Nested levels (issue 46, :func:`lod_orders`): in increasing τ a level's stored codes err
+  no more than a lower level's of the call, jointly (E) and per channel (E_c); a level that
+  would keeps the least-E mix of its channels' codes and a lower level's that errs no more
+  (the lower level's codes whole always qualify where the levels are ordered channel by
+  channel), walked again at its own fractions.
 * Rate control's candidates (:func:`walk_pool`): the walk over a point's candidate pool with
   stops every count up to :data:`WALK_EXACT`, then four per octave (:func:`walk_stops`); the
   error curve at the stops is what the allocation spends on
@@ -32,8 +37,10 @@ retries), rate control's ~16 + 4·log2(pool/16).
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -268,11 +275,17 @@ def lod_orders(
     Per point and level the three channels are walked together (:func:`joint_walk`, once per
     distinct code). The walked codes are kept where their joint error E is not above the
     codes as chosen (values at the file's precision); else the chosen codes stay, in
-    magnitude order (counted: their level of detail is not judged). Then in increasing τ a
-    level whose E is above a lower level's keeps that level's codes, as
-    :func:`~.objective.joint_choice` does. Returns (``[c][j]`` codes, each point's
-    ``errors`` its channel's E_c, the others exact; the number of (point, level) pairs that
-    kept their chosen codes in magnitude order).
+    magnitude order (counted: their level of detail is not judged). Then the levels are
+    **nested** (:func:`_nest`, issue 46): in increasing τ, a level whose codes have a joint
+    error E or a channel's error E_c above a lower level's (one whose every channel's τ is at
+    most its own) takes, of the mixes of its own channels' codes and a lower level's (any
+    channel from either), the one of least E that is above no lower level in E nor in any
+    E_c; the lower level's codes whole are one of them. The mix is walked again at the
+    level's own fractions (its level of detail judged at the counts the runtime reads for
+    this level) and kept walked where that stays above no lower level; else as it is
+    (counted). Returns (``[c][j]`` codes, each point's ``errors`` its channel's E_c, the
+    others exact; the number of (point, level) pairs whose stored order is not judged at
+    their level's fractions).
     """
     n_ch, n_lv = len(codes), len(codes[0])
     b = codes[0][0].n_points
@@ -288,64 +301,186 @@ def lod_orders(
                 first[key] = (j, i)
                 jobs.append((j, i))
 
-    def point_codes(j: int, i: int) -> list[tuple[np.ndarray, np.ndarray, list[np.ndarray]]]:
-        out = []
+    def mats_of(c: int, k: int) -> list[np.ndarray]:
+        return [np.asarray(d[k], dtype=np.float64) for d in dictionaries[c]]
+
+    def walk(ji: tuple[int, int]) -> _Stored:
+        j, i = ji
+        members = [int(codes[c][j].membership[i]) for c in range(n_ch)]
+        parts = []
         for c in range(n_ch):
             loc, val = codes[c][j].point(i)
-            k = int(codes[c][j].membership[i])
-            out.append((loc, stored_precision(val),
-                        [np.asarray(d[k], dtype=np.float64) for d in dictionaries[c]]))
-        return out
-
-    def walk(ji: tuple[int, int]) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[float],
-                                           float, bool]:  # fmt: skip
-        """(per channel (locations, values), per channel E_c, joint E, walked or not)."""
-        j, i = ji
-        pc = point_codes(j, i)
+            parts.append((loc, stored_precision(val)))
         xs = [x[c][i] for c in range(n_ch)]
+        pc = [(loc, val, mats_of(c, members[c])) for c, (loc, val) in enumerate(parts)]
         pos, curve = joint_walk(errors, i, xs, pc, [int(taus[c][j]) for c in range(n_ch)])
-        whole = [reconstruct_sparse(loc, val.astype(np.float64), m) - xs[c]
-                 for c, (loc, val, m) in enumerate(pc)]  # fmt: skip
-        ref = errors[0].reference(i)
-        e_whole = joint_sum64(errors, i, whole, ref)
-        if curve[-1] <= e_whole:
-            chosen = [(loc[p], val[p]) for (loc, val, _), p in zip(pc, pos, strict=True)]
-            res = [reconstruct_sparse(loc, val.astype(np.float64), m) - xs[c]
-                   for c, ((loc, val), (_, _, m)) in enumerate(zip(chosen, pc, strict=True))]
-            e, walked = float(curve[-1]), True
-        else:
-            chosen, res, e, walked = [(loc, val) for loc, val, _ in pc], whole, e_whole, False
-        per_channel = [errors[c].sum64(i, res[c], errors[c].reference(i)) for c in range(n_ch)]
-        return chosen, per_channel, e, walked
+        whole = _Stored.of(errors, i, xs, parts, members, mats_of, walked=False)
+        if curve[-1] <= whole.joint:
+            chosen = [(loc[p], val[p]) for (loc, val), p in zip(parts, pos, strict=True)]
+            return _Stored.of(errors, i, xs, chosen, members, mats_of, walked=True)
+        # the walk dropped what the code needs: the whole code, the walk's order first and
+        # what it set aside after it, or as it is, where E falls along the fractions so
+        level = [int(taus[c][j]) for c in range(n_ch)]
+        rest = [np.concatenate([p, np.setdiff1d(np.arange(v.size), p)])
+                for (_, v), p in zip(parts, pos, strict=True)]  # fmt: skip
+        for order in ([(loc[r], val[r]) for (loc, val), r in zip(parts, rest, strict=True)],
+                      parts):  # fmt: skip
+            if _falls(errors, i, xs, order, members, mats_of, level):
+                return _Stored.of(errors, i, xs, order, members, mats_of, walked=True,
+                                  channel=whole.channel)  # fmt: skip
+        return whole
 
     done = dict(zip(jobs, parallel_map(walk, jobs), strict=True))
     for key, src in alias.items():
         done[key] = done[src]
-    err = np.array([[done[j, i][2] for i in range(b)] for j in range(n_lv)]).reshape(n_lv, b)
-    source = np.tile(np.arange(n_lv)[:, None], (1, b))  # whose codes a level keeps
-    order = sorted(range(n_lv), key=lambda j: tuple(t[j] for t in taus))
-    for pos, hi in enumerate(order):
-        for lo in order[:pos]:
-            if all(t[lo] <= t[hi] for t in taus):
-                for i in np.flatnonzero(err[lo] < err[hi]):
-                    source[hi, i], err[hi, i] = source[lo, i], err[lo, i]
-    unjudged = sum(int(not done[int(source[j, i]), i][3]) for j in range(n_lv) for i in range(b))
+    final = _nest(x, errors, done, taus, b, mats_of)
+    unjudged = sum(int(not final[j, i].walked) for j in range(n_lv) for i in range(b))
     out: list[list[SparseCodes]] = []
     for c in range(n_ch):
         per_level = []
         for j in range(n_lv):
-            src = [int(source[j, i]) for i in range(b)]
-            parts = [done[s, i][0][c] for i, s in enumerate(src)]
+            parts = [final[j, i].parts[c] for i in range(b)]
             mode_sizes = codes[c][j].mode_sizes
             per_level.append(SparseCodes(
                 mode_sizes,
-                np.array([codes[c][s].membership[i] for i, s in enumerate(src)], np.int64),
+                np.array([final[j, i].members[c] for i in range(b)], np.int64),
                 np.array([p[1].size for p in parts], dtype=np.int64),
                 np.concatenate([p[1] for p in parts]).astype(np.float32) if b
                 else np.empty(0, np.float32),
                 np.concatenate([p[0] for p in parts]).astype(np.int32) if b
                 else np.empty((0, len(mode_sizes)), np.int32),
-                np.array([done[s, i][1][c] for i, s in enumerate(src)], dtype=np.float64),
+                np.array([final[j, i].channel[c] for i in range(b)], dtype=np.float64),
             ))  # fmt: skip
         out.append(per_level)
     return out, unjudged
+
+
+@dataclass(frozen=True)
+class _Stored:
+    """One point's codes at one level as the file will keep them: per channel (locations,
+    values at the file's precision) in their stored order and dictionary, per channel E_c
+    (the other channels exact), the joint E, and whether the order was judged (walked) at
+    the level's fractions."""
+
+    parts: list[tuple[np.ndarray, np.ndarray]]
+    members: list[int]
+    channel: list[float]
+    joint: float
+    walked: bool
+
+    @staticmethod
+    def residuals(i: int, xs: Sequence[np.ndarray], parts: Sequence[tuple[np.ndarray, np.ndarray]],
+                  members: Sequence[int], mats_of) -> list[np.ndarray]:  # type: ignore[no-untyped-def]  # fmt: skip
+        return [reconstruct_sparse(loc, val.astype(np.float64), mats_of(c, members[c]))
+                - np.asarray(xs[c], dtype=np.float64)
+                for c, (loc, val) in enumerate(parts)]  # fmt: skip
+
+    @classmethod
+    def of(cls, errors: Sequence[ChannelError], i: int, xs: Sequence[np.ndarray],
+           parts: list[tuple[np.ndarray, np.ndarray]], members: list[int], mats_of,  # type: ignore[no-untyped-def]
+           walked: bool, channel: Sequence[float | None] | None = None) -> _Stored:  # fmt: skip
+        """The codes ``parts`` of point ``i`` with their errors; ``channel[c]`` a channel's E_c
+        already known (the same residual gives the same value), else None."""
+        res = cls.residuals(i, xs, parts, members, mats_of)
+        ref = errors[0].reference(i)
+        joint = joint_sum64(errors, i, res, ref)
+        known = [None] * len(parts) if channel is None else list(channel)
+        per = [errors[c].sum64(i, res[c], errors[c].reference(i)) if known[c] is None
+               else float(known[c]) for c in range(len(parts))]  # type: ignore[arg-type]
+        return cls(list(parts), list(members), per, float(joint), walked)
+
+    def within(self, lower: Sequence[_Stored]) -> bool:
+        """Its E and every E_c at most those of each of ``lower``."""
+        return all(self.joint <= lo.joint
+                   and all(a <= b for a, b in zip(self.channel, lo.channel, strict=True))
+                   for lo in lower)  # fmt: skip
+
+
+def _nest(x: Sequence[np.ndarray], errors: Sequence[ChannelError],
+          done: dict[tuple[int, int], _Stored], taus: Sequence[Sequence[int]], b: int,
+          mats_of) -> dict[tuple[int, int], _Stored]:  # type: ignore[no-untyped-def]  # fmt: skip
+    """The levels nested point by point (:func:`lod_orders`): ``done[j, i]`` the walked codes
+    of level j, point i; returns the codes each (level, point) stores."""
+    n_ch, n_lv = len(taus), len(taus[0])
+    order = sorted(range(n_lv), key=lambda j: tuple(t[j] for t in taus))
+    lowers = {hi: [lo for lo in order[:pos] if all(t[lo] <= t[hi] for t in taus)]
+              for pos, hi in enumerate(order)}  # fmt: skip
+    final: dict[tuple[int, int], _Stored] = {}
+
+    def nest(i: int) -> list[_Stored]:
+        xs = [x[c][i] for c in range(n_ch)]
+        mine: dict[int, _Stored] = {}
+        for hi in order:
+            own = done[hi, i]
+            below = [mine[lo] for lo in lowers[hi]]
+            if own.within(below):
+                mine[hi] = own
+                continue
+            best: _Stored | None = None
+            fallback = own
+            for lo_code in reversed(below):  # the largest lower level first
+                for mask in itertools.product((False, True), repeat=n_ch):
+                    if not any(mask):
+                        continue
+                    src = [lo_code if m else own for m in mask]
+                    if all(mask):
+                        cand = lo_code
+                    else:
+                        cand = _Stored.of(errors, i, xs, [s.parts[c] for c, s in enumerate(src)],
+                                          [s.members[c] for c, s in enumerate(src)], mats_of,
+                                          walked=False,
+                                          channel=[s.channel[c] for c, s in enumerate(src)])
+                    if cand.within(below):
+                        if best is None or cand.joint < best.joint:
+                            best = cand
+                    elif cand.joint < fallback.joint:
+                        fallback = cand
+                if best is not None:  # the largest lower level that gives one: enough
+                    break
+            # levels ordered channel by channel: a lower level's codes whole are within
+            pick = best if best is not None else fallback
+            mine[hi] = _rewalk(errors, i, xs, pick, [int(t[hi]) for t in taus], below, mats_of)
+        return [mine[j] for j in range(n_lv)]
+
+    for i, per_level in enumerate(parallel_map(nest, range(b))):
+        for j, s in enumerate(per_level):
+            final[j, i] = s
+    return final
+
+
+def _rewalk(errors: Sequence[ChannelError], i: int, xs: Sequence[np.ndarray], code: _Stored,
+            taus: Sequence[int], below: Sequence[_Stored], mats_of  # type: ignore[no-untyped-def]
+            ) -> _Stored:  # fmt: skip
+    """``code`` (another level's codes, or a mix) walked at the fractions of ``taus``, the
+    level that stores it: the walked codes where they stay within ``below``
+    (:meth:`_Stored.within`), else ``code`` as it is, not judged at these fractions."""
+    pc = [(loc, val, mats_of(c, code.members[c])) for c, (loc, val) in enumerate(code.parts)]
+    pos, _ = joint_walk(errors, i, xs, pc, taus)
+    parts = [(loc[p], val[p]) for (loc, val), p in zip(code.parts, pos, strict=True)]
+    walked = _Stored.of(errors, i, xs, parts, code.members, mats_of, walked=True)
+    if walked.within(below) and walked.joint <= code.joint:
+        return walked
+    judged = _falls(errors, i, xs, code.parts, code.members, mats_of, taus)
+    return _Stored(code.parts, code.members, code.channel, code.joint, judged)
+
+
+def _falls(errors: Sequence[ChannelError], i: int, xs: Sequence[np.ndarray],
+           parts: Sequence[tuple[np.ndarray, np.ndarray]], members: Sequence[int],
+           mats_of, taus: Sequence[int]) -> bool:  # type: ignore[no-untyped-def]  # fmt: skip
+    """Whether the joint E of point ``i``'s codes ``parts`` (in their stored order) does not
+    rise from no coefficient to the first ⌈f·τ_c⌉ of every channel, f in
+    :data:`LOD_FRACTIONS`, to the next."""
+    ref = errors[0].reference(i)
+    last = math.inf
+    for f in (0.0, *LOD_FRACTIONS):
+        res = []
+        for c, (loc, val) in enumerate(parts):
+            k = math.ceil(f * taus[c] - 1e-9)
+            res.append(reconstruct_sparse(loc[:k], val[:k].astype(np.float64),
+                                          mats_of(c, members[c]))
+                       - np.asarray(xs[c], dtype=np.float64))  # fmt: skip
+        e = joint_sum64(errors, i, res, ref)
+        if e > last:
+            return False
+        last = e
+    return True

@@ -36,9 +36,12 @@ channels' residuals at once (E_c with every channel's δ) of the judged codes ag
 rule's; the lower is kept, and in increasing τ a level keeps a lower level's codes where those
 have the lower E. So **no point's error in the objective is above the log rule's** at its
 level, **nor above its error at a lower level** of the same call
-(:func:`~sparsebtf.codec.encode_levels`; separate calls judge other lengths). Level of detail
-truncates the stored (magnitude) order: the error of a prefix below the stored count is not
-guaranteed to fall.
+(:func:`~sparsebtf.codec.encode_levels`). The stored codes are then put in their
+level-of-detail order (:func:`~.lod_order.lod_orders`), which nests the levels again, per
+channel as well as jointly (issue 46): in increasing τ no point's joint E nor any channel's
+E_c is above a lower level's of the call (a level that would be keeps the best mix of its own
+and the lower level's channel codes). Separate calls are not nested: each judges the prefix
+lengths of its own levels, and a screened call ranks its candidates for its own τ.
 
 Cost per point and candidate dictionary (10×10 texels × 151 × 151, n = 2.28 M entries): the
 log rule's projection (1.47 GFLOP), one sparse reconstruction of τ_max coefficients split at

@@ -156,6 +156,18 @@ def known_count(curves: np.ndarray, counts: np.ndarray) -> np.ndarray:
     return best[np.arange(curves.shape[0]), c]
 
 
+def _top_stable(pool: np.ndarray, extra: int) -> np.ndarray:
+    """The positions of the ``extra`` largest of ``pool``, ties to the lower position: what
+    ``np.argsort(-pool, kind="stable")[:extra]`` selects, in linear time (a partition, then
+    the ties at the threshold by position)."""
+    if extra >= pool.size:
+        return np.arange(pool.size)
+    thr = np.partition(pool, pool.size - extra)[pool.size - extra]
+    above = np.flatnonzero(pool > thr)
+    tied = np.flatnonzero(pool == thr)
+    return np.concatenate([above, tied[: extra - above.size]])
+
+
 def allocate(
     candidates: Mapping[str, ChannelCandidates],
     target_bytes: int,
@@ -166,9 +178,10 @@ def allocate(
     Every point and channel keeps at least one coefficient (as the release's coder does); the
     rest of the budget goes by decreasing gain ``w_{p,c} · s²`` over all points and channels.
     With exact error curves (``curves``, a linear or display objective) the gains are those
-    curves' (:func:`hull_gains`), in a stable order: a larger budget keeps a superset, so no
-    point's error grows with the budget, nor the material's; a point keeps no coefficient
-    its curve lacks.
+    curves' (:func:`hull_gains`); either way they are taken in a stable order (ties to the
+    lower position, :func:`_top_stable`): on the same candidates a larger budget keeps a
+    superset, so no point's error grows with the budget, nor the material's; a point keeps
+    no coefficient its curve lacks.
     Returns the codes per channel and a summary (``bytes``, ``nnz``, ``exhausted``: whether
     the candidate pool ran out before the budget did, leaving the result below target).
     """
@@ -202,11 +215,9 @@ def allocate(
             )
     else:
         chosen = np.zeros(pool.size, dtype=bool)
-        if extra > 0 and exact:
+        if extra > 0:
             # a stable order: a larger budget keeps a superset (ties by point, then position)
-            chosen[np.argsort(-pool, kind="stable")[:extra]] = True
-        elif extra > 0:
-            chosen[np.argpartition(-pool, extra - 1)[:extra]] = True
+            chosen[_top_stable(pool, extra)] = True
     codes: dict[str, SparseCodes] = {}
     start = 0
     total_nnz = 0
