@@ -1,5 +1,5 @@
 """What the three neural methods share as :class:`~..methods.base.Method` subclasses: the
-seed, threads, progress and training-budget bookkeeping, the size search under a byte budget
+seed, threads, device, progress and training-budget bookkeeping, the size search under a byte budget
 and the :class:`~..methods.base.Coding` they return."""
 
 from __future__ import annotations
@@ -8,9 +8,11 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import torch
+
 from ...data.btf import BTF
 from ..methods.base import Budget, Coding, FitContext, Method
-from ._torch import NeuralBTF, mlp_params
+from ._torch import NeuralBTF, check_device, mlp_params, resolve_device
 
 __all__ = ["NeuralMethod", "largest_size"]
 
@@ -32,15 +34,21 @@ def largest_size(budget_bytes: int, texels: int, sizes: Callable[[int], list[int
 
 class NeuralMethod(Method):
     """Base of the neural baselines: ``seed`` (None: the run's ``FitContext.seed``),
-    ``threads`` (torch intra-op threads; None: one per usable core), ``progress``; the training
-    cost accumulates in ``seconds_`` (wall), ``cpu_seconds_`` and ``trainings_``, of which
-    ``trainings_converged_`` stopped on their held-out plateau (:mod:`._convergence`)."""
+    ``threads`` (torch intra-op threads on the CPU; None: :func:`~._torch.default_threads`),
+    ``device`` (``"cpu"``, ``"cuda"``, ``"cuda:N"``, ``"auto"``; None: ``$SPARSEBTF_TORCH_DEVICE``
+    where the method runs, else the CPU; :func:`~._torch.resolve_device`), ``progress``; the
+    training cost accumulates in ``seconds_`` (wall), ``cpu_seconds_`` and ``trainings_``, of
+    which ``trainings_converged_`` stopped on their held-out plateau (:mod:`._convergence`)."""
+
+    #: (for a method pickled before devices existed)
+    device: str | None = None
 
     def __init__(self, seed: int | None = None, threads: int | None = None,
-                 progress: bool | None = None) -> None:  # fmt: skip
+                 progress: bool | None = None, device: str | None = None) -> None:  # fmt: skip
         self.seed = seed
         self.threads = threads
         self.progress = progress
+        self.device = check_device(device)
         self.seconds_ = 0.0
         self.cpu_seconds_ = 0.0
         self.trainings_ = 0
@@ -90,6 +98,17 @@ class NeuralMethod(Method):
         return self
 
     @property
+    def device_(self) -> torch.device:
+        """The device the method trains and decodes on, resolved where it runs (a Dask
+        worker reads its own ``$SPARSEBTF_TORCH_DEVICE`` when ``device`` is None)."""
+        return resolve_device(self.device)
+
+    @staticmethod
+    def config_device(config: Any) -> str | None:
+        """The device a benchmark configuration asks for (``BenchConfig.torch_device``)."""
+        return getattr(config, "torch_device", None)
+
+    @property
     def seed_(self) -> int:
         """The seed in use: the method's own, else the run's."""
         return self._run_seed if self.seed is None else int(self.seed)
@@ -113,7 +132,8 @@ class NeuralMethod(Method):
         full = {"matching": budget.matching, "level": budget.level,
                 "budget_bytes": budget.material_bytes, "code_bytes": code_bytes,
                 "decoder_bytes": decoder_bytes, "decoder_shared": shared_decoder,
-                "decoder_params": rec.decoder_values(), **info}  # fmt: skip
+                "decoder_params": rec.decoder_values(), "device": str(rec.device),
+                **info}  # fmt: skip
         return Coding(rec, material, decoder_bytes if shared_decoder else 0, full)
 
     @staticmethod

@@ -13,6 +13,12 @@ Conventions (docs/neural-baselines.md):
   exactly into a per-texel, a per-light and a per-view term, each computed once:
   ``W₀·[c, l, v] + b₀ = (W_c·c + b₀) + W_l·l + W_v·v``. A query then costs the layers after
   the first only (training and decoding alike).
+
+Devices (:func:`resolve_device`): the trainings, encoders, decoders and lookups run on one
+torch device, ``"cpu"`` (default), ``"cuda"``, ``"cuda:N"`` or ``"auto"``; the sample pools are
+read on the CPU (the same random draws on every device) and moved there, the initial weights
+are drawn on the CPU and moved there, and every array that leaves a method is a NumPy array.
+On the CPU every operation is the one it was before devices existed, in the same order.
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ import contextlib
 import itertools
 import math
 import os
+import re
 import zlib
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -33,10 +40,11 @@ import torch.nn.functional as F
 from ..._progress import bar
 from ...data.btf import BTF, Index, as_index
 from ...data.directions import DirectionSet
-from ...errors import BTFInputError
+from ...errors import BTFInputError, OptionError
 
 __all__ = [
     "BATCH",
+    "DEVICE_ENV",
     "FP16_MAX",
     "HeldOut",
     "NeuralBTF",
@@ -49,7 +57,9 @@ __all__ = [
     "init_mlp",
     "mlp_params",
     "read_pool",
+    "resolve_device",
     "seed_generator",
+    "step_generator",
     "tail",
     "torch_threads",
 ]
@@ -60,19 +70,82 @@ FP16_MAX = 65504.0
 BATCH = 1 << 16
 #: A pool read holds at most this many bytes of a material's float32 values at once.
 READ_BYTES = 64 * 2**20
+#: The environment variable that names the neural methods' default device.
+DEVICE_ENV = "SPARSEBTF_TORCH_DEVICE"
+#: The CPU, where pools are read and initial weights drawn on every device.
+CPU = torch.device("cpu")
 
 Layers = list[tuple[torch.Tensor, torch.Tensor]]
 
 
+# -- devices ----------------------------------------------------------------------------------
+def _no_cuda() -> str:
+    if torch.version.cuda is None:
+        return (f"this PyTorch {torch.__version__} is a CPU build: install a CUDA build of "
+                "torch, or use device 'cpu'")  # fmt: skip
+    return (f"this PyTorch is built for CUDA {torch.version.cuda} but sees no GPU: check the "
+            "driver and CUDA_VISIBLE_DEVICES, or use device 'cpu'")  # fmt: skip
+
+
+def resolve_device(spec: str | torch.device | None = None) -> torch.device:
+    """The torch device of the neural methods: ``spec`` is ``"cpu"``, ``"cuda"``,
+    ``"cuda:N"`` or ``"auto"`` (CUDA when ``torch.cuda.is_available()``, else the CPU); None or
+    blank: ``$SPARSEBTF_TORCH_DEVICE``, else ``"cpu"``. An unknown name, or CUDA where PyTorch
+    finds none, is one :class:`~sparsebtf.errors.OptionError` line."""
+    where = "device"
+    if spec is None or (isinstance(spec, str) and not spec.strip()):
+        env = os.environ.get(DEVICE_ENV, "").strip()
+        if not env:
+            return CPU
+        spec, where = env, f"${DEVICE_ENV}"
+    text = str(spec).strip().lower()
+    if text == "auto":
+        return torch.device("cuda") if torch.cuda.is_available() else CPU
+    if text == "cpu":
+        return CPU
+    m = re.fullmatch(r"cuda(?::(\d+))?", text)
+    if m is None:
+        raise OptionError(f"{where} {str(spec)!r}: unknown device; expected cpu, cuda, cuda:N "
+                          "or auto")  # fmt: skip
+    if not torch.cuda.is_available():
+        raise OptionError(f"{where} {text!r} requested but torch.cuda.is_available() is False "
+                          f"({_no_cuda()})")  # fmt: skip
+    if m.group(1) is not None and int(m.group(1)) >= torch.cuda.device_count():
+        raise OptionError(f"{where} {text!r} requested but PyTorch sees "
+                          f"{torch.cuda.device_count()} CUDA device(s) (cuda:0 to "
+                          f"cuda:{torch.cuda.device_count() - 1})")  # fmt: skip
+    return torch.device(text)
+
+
+def check_device(spec: str | torch.device | None) -> str | None:
+    """``spec`` as a method keeps it (stripped, lower case; None or blank: None, that is
+    :func:`resolve_device`'s default where the method runs), after checking that it
+    resolves here."""
+    if spec is None or (isinstance(spec, str) and not spec.strip()):
+        return None
+    resolve_device(spec)
+    return str(spec).strip().lower()
+
+
 # -- seeding and threads ---------------------------------------------------------------------
-def seed_generator(*keys: int | str) -> torch.Generator:
-    """A CPU :class:`torch.Generator` seeded from ``keys`` (ints, or strings hashed with
-    CRC-32): the same keys give the same stream on every machine."""
+def seed_generator(*keys: int | str, device: torch.device | None = None) -> torch.Generator:
+    """A :class:`torch.Generator` (on the CPU, or on ``device``) seeded from ``keys`` (ints,
+    or strings hashed with CRC-32): the same keys give the same stream on every machine (a
+    CUDA generator's stream differs from the CPU's)."""
     ints = [zlib.crc32(k.encode()) if isinstance(k, str) else abs(int(k)) for k in keys]
     state = np.random.SeedSequence(ints).generate_state(1, np.uint64)[0]
-    gen = torch.Generator()
+    gen = torch.Generator() if device is None or device.type == "cpu" else torch.Generator(
+        device=device)  # fmt: skip
     gen.manual_seed(int(state) & (2**63 - 1))
     return gen
+
+
+def step_generator(gen: torch.Generator, device: torch.device, *keys: int | str
+                   ) -> torch.Generator:  # fmt: skip
+    """The generator of a training's random steps on ``device``: ``gen`` itself on the CPU
+    (its stream goes on from the initial weights, as it always did), else a generator on
+    ``device`` seeded from ``keys`` and ``"steps"``."""
+    return gen if device.type == "cpu" else seed_generator(*keys, "steps", device=device)
 
 
 def default_threads() -> int:
@@ -99,31 +172,39 @@ def torch_threads(n: int | None) -> Iterator[None]:
 
 
 # -- features, storage -----------------------------------------------------------------------
-def direction_xy(directions: DirectionSet) -> torch.Tensor:
-    """(n, 2) float32: the x, y of each unit direction (z implied)."""
-    return torch.from_numpy(np.ascontiguousarray(directions.xyz[:, :2], dtype=np.float32))
+def direction_xy(directions: DirectionSet, device: torch.device = CPU) -> torch.Tensor:
+    """(n, 2) float32 on ``device``: the x, y of each unit direction (z implied)."""
+    return torch.from_numpy(np.ascontiguousarray(directions.xyz[:, :2], dtype=np.float32)
+                            ).to(device)  # fmt: skip
 
 
 def binary16(t: torch.Tensor) -> np.ndarray:
     """``t`` as stored: clamped to ±:data:`FP16_MAX` and rounded to binary16 (numpy)."""
-    return t.detach().clamp(-FP16_MAX, FP16_MAX).to(torch.float16).numpy().copy()
+    return t.detach().clamp(-FP16_MAX, FP16_MAX).to(torch.float16).cpu().numpy().copy()
 
 
-def as_f32(a: np.ndarray) -> torch.Tensor:
-    """A stored binary16 array as a float32 tensor (exact: every binary16 is a float32)."""
-    return torch.from_numpy(np.asarray(a, dtype=np.float32))
+def as_f32(a: np.ndarray, device: torch.device = CPU) -> torch.Tensor:
+    """A stored binary16 array as a float32 tensor on ``device`` (exact: every binary16 is a
+    float32)."""
+    return torch.from_numpy(np.asarray(a, dtype=np.float32)).to(device)
+
+
+def to_device(layers: Layers, device: torch.device) -> Layers:
+    """``layers`` on ``device`` (the same tensors where they are there already)."""
+    return [(w.to(device), b.to(device)) for w, b in layers]
 
 
 # -- MLPs -------------------------------------------------------------------------------------
-def init_mlp(sizes: Sequence[int], gen: torch.Generator) -> Layers:
+def init_mlp(sizes: Sequence[int], gen: torch.Generator, device: torch.device = CPU) -> Layers:
     """Layers (W (out, in), b (out,)) for widths ``sizes``, drawn U(±1/√fan_in) like
-    ``torch.nn.Linear`` but from ``gen``; they require gradients."""
+    ``torch.nn.Linear`` but from the CPU generator ``gen`` (the same weights on every device),
+    then moved to ``device``; they require gradients."""
     layers: Layers = []
     for fan_in, fan_out in itertools.pairwise(sizes):
         bound = 1.0 / math.sqrt(fan_in)
-        w = (torch.rand(fan_out, fan_in, generator=gen) * 2 - 1) * bound
-        b = (torch.rand(fan_out, generator=gen) * 2 - 1) * bound
-        layers.append((w.requires_grad_(), b.requires_grad_()))
+        w = (torch.rand(fan_out, fan_in, generator=gen, device=CPU) * 2 - 1) * bound
+        b = (torch.rand(fan_out, generator=gen, device=CPU) * 2 - 1) * bound
+        layers.append((w.to(device).requires_grad_(), b.to(device).requires_grad_()))
     return layers
 
 
@@ -207,6 +288,11 @@ class HeldOut:
     lights: torch.Tensor
     views: torch.Tensor
 
+    def to(self, device: torch.device) -> HeldOut:
+        """The same queries on ``device`` (itself where they are there already)."""
+        return HeldOut(*(t.to(device) for t in (self.rows, self.values, self.lights,
+                                                 self.views)))  # fmt: skip
+
 
 def heldout_pairs(taken: np.ndarray, n_pairs: int, per_texel: int,
                   gen: torch.Generator) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
@@ -214,7 +300,7 @@ def heldout_pairs(taken: np.ndarray, n_pairs: int, per_texel: int,
     that are not in that row: (row index (m,), pair (m,)), at most ``per_texel`` per row
     (fewer where a row leaves fewer free pairs among the draws)."""
     k = taken.shape[0]
-    draws = torch.randint(0, n_pairs, (k, 4 * per_texel), generator=gen).numpy()
+    draws = torch.randint(0, n_pairs, (k, 4 * per_texel), generator=gen, device=CPU).numpy()
     row_keys = np.sort(taken.astype(np.int64) + (np.arange(k, dtype=np.int64) * n_pairs)[:, None],
                        axis=None)  # fmt: skip
     keys = draws.astype(np.int64) + (np.arange(k, dtype=np.int64) * n_pairs)[:, None]
@@ -253,6 +339,17 @@ class SamplePool:
     shared_pairs: np.ndarray | None = None
     heldout: HeldOut | None = None
 
+    def to(self, device: torch.device) -> SamplePool:
+        """The pool's tensors on ``device`` (the pool itself where they are there already);
+        ``texels`` and ``shared_pairs`` stay NumPy arrays."""
+        if device == self.values.device:
+            return self
+        return SamplePool(self.values.to(device), self.lights.to(device),
+                          self.views.to(device), self.texels,
+                          None if self.shared is None else self.shared.to(device),
+                          self.shared_pairs,
+                          None if self.heldout is None else self.heldout.to(device))  # fmt: skip
+
     def take(self, rows: torch.Tensor, cols: torch.Tensor
              ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:  # fmt: skip
         """(values (…, 3), light index, view index) at pool rows ``rows`` and sample
@@ -276,12 +373,16 @@ def read_pool(
     values at the flat pairs ``shared_pairs`` (light·V + view) if given, plus ``heldout``
     held-out queries (:class:`HeldOut`) on each of at most ``heldout_texels`` random texels
     of them: pairs outside that texel's samples, and outside ``shared_pairs`` unless these
-    cover half the grid or more (a tiny direction set, where nothing would be left)."""
+    cover half the grid or more (a tiny direction set, where nothing would be left).
+
+    The pool is read on the CPU (:meth:`SamplePool.to` moves it): its random draws are the
+    same whatever device trains on it."""
     h, w, nl, nv, _ = btf.shape
     want = np.arange(h * w) if texels is None else np.unique(np.asarray(texels, np.int64))
     judged = np.zeros(want.size, bool)
     if heldout > 0:
-        judged[torch.randperm(want.size, generator=gen)[:heldout_texels].numpy()] = True
+        judged[torch.randperm(want.size, generator=gen, device=CPU)[:heldout_texels]
+               .numpy()] = True  # fmt: skip
     held: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
     offset = 0
     row_bytes = 12 * w * nl * nv
@@ -298,7 +399,8 @@ def read_pool(
                 continue
             block = btf.region(slice(r0, r1), slice(None)).reshape((r1 - r0) * w, nl * nv, 3)
             block = np.log1p(np.maximum(block[sel - r0 * w], 0))
-            pairs = torch.randint(0, nl * nv, (sel.size, n_samples), generator=gen).numpy()
+            pairs = torch.randint(0, nl * nv, (sel.size, n_samples), generator=gen,
+                                  device=CPU).numpy()  # fmt: skip
             vals.append(np.take_along_axis(block, pairs[..., None], axis=1))
             lis.append((pairs // nv).astype(np.int16))
             vis.append((pairs % nv).astype(np.int16))
@@ -338,8 +440,14 @@ class NeuralBTF(BTF):
     ``code`` (H, W, n) is the per-texel input (latents or a neural texture), ``layers`` the
     MLP's (W (out, in), b (out,)) whose first layer takes [code, ω_i.xy, ω_o.xy]; ``head`` maps
     the output to linear RGB (:func:`output`), clamped at 0. All arrays are binary16
-    (:func:`binary16`); they are decoded in float32. Queries are evaluated ``batch`` at a time.
+    (:func:`binary16`); they are decoded in float32. Queries are evaluated ``batch`` at a time,
+    on ``device`` (:func:`resolve_device`; its tables are built there, the answers are NumPy
+    arrays). A pickle holds the stored arrays only: the copy builds its tables again, on
+    ``device`` where PyTorch finds it, else on the CPU.
     """
+
+    #: what :meth:`_build` derives from the stored arrays (not pickled)
+    _TABLES = ("_net", "_texel", "_light", "_view", "_w_light", "_w_view")
 
     def __init__(
         self,
@@ -354,22 +462,41 @@ class NeuralBTF(BTF):
         attrs: dict[str, Any] | None = None,
         batch: int = BATCH,
         threads: int | None = None,
+        device: str | torch.device | None = None,
     ) -> None:
-        h, w, n = code.shape
+        h, w, _ = code.shape
         super().__init__(h, w, lights, views, name, attrs)
         self.code = np.asarray(code, dtype=np.float16)
         self.layers = [(np.asarray(a, np.float16), np.asarray(b, np.float16)) for a, b in layers]
         self.head, self.slope = head, float(slope)
         self.batch, self.threads = max(1, int(batch)), threads
-        net = [(as_f32(a), as_f32(b)) for a, b in self.layers]
+        self.device = resolve_device(device)
+        self._build()
+
+    def _build(self) -> None:
+        """The decoding tables on :attr:`device`: the network in float32, the per-texel,
+        per-light and per-view terms of its first layer."""
+        dev, n = self.device, self.code.shape[-1]
+        net = [(as_f32(a, dev), as_f32(b, dev)) for a, b in self.layers]
         w0, b0 = net[0]
         self._net = net
-        self._texel = as_f32(self.code).reshape(h * w, n) @ w0[:, :n].T + b0
+        self._texel = as_f32(self.code, dev).reshape(-1, n) @ w0[:, :n].T + b0
         self._light, self._view = direction_terms(
-            w0, n, direction_xy(lights), direction_xy(views)
+            w0, n, direction_xy(self.lights, dev), direction_xy(self.views, dev)
         )
         self._w_light = w0[:, n:n + 2].T.contiguous()
         self._w_view = w0[:, n + 2:n + 4].T.contiguous()
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = {k: v for k, v in self.__dict__.items() if k not in self._TABLES}
+        state["device"] = str(self.device)
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state)
+        dev = torch.device(state.get("device", "cpu"))
+        self.device = dev if dev.type == "cpu" or torch.cuda.is_available() else CPU
+        self._build()
 
     def stored(self) -> dict[str, np.ndarray]:
         """Every stored array by name (binary16): ``code``, ``layer{i}.weight``/``.bias``."""
@@ -387,8 +514,9 @@ class NeuralBTF(BTF):
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
         r, c, li, vi = self.indices(rows, cols, lights, views)
-        tex = torch.from_numpy((r[:, None] * self.width + c[None, :]).ravel())
-        li_t, vi_t = torch.from_numpy(li), torch.from_numpy(vi)
+        dev = self.device
+        tex = torch.from_numpy((r[:, None] * self.width + c[None, :]).ravel()).to(dev)
+        li_t, vi_t = torch.from_numpy(li).to(dev), torch.from_numpy(vi).to(dev)
         out = np.empty((tex.numel(), li.size, vi.size, 3), dtype=np.float32)
         n_v = max(vi.size, 1)
         per_tex = li.size * n_v
@@ -401,7 +529,7 @@ class NeuralBTF(BTF):
                 for l0 in range(0, li.size, kl):
                     pre = tk + self._light[li_t[l0:l0 + kl]][None, :, None] + view_term
                     val = self._decode(pre.reshape(-1, pre.shape[-1]))
-                    out[t0:t0 + kt, l0:l0 + kl] = val.reshape(*pre.shape[:3], 3).numpy()
+                    out[t0:t0 + kt, l0:l0 + kl] = val.reshape(*pre.shape[:3], 3).cpu().numpy()
         return out.reshape(r.size, c.size, li.size, vi.size, 3)
 
     def lookup(self, rows: np.ndarray, cols: np.ndarray, wi: np.ndarray, wo: np.ndarray
@@ -415,15 +543,17 @@ class NeuralBTF(BTF):
         if not (r.shape == c.shape == wi.shape[:1] == wo.shape[:1]) or wi.shape != wo.shape:
             raise BTFInputError(f"{self.label}: lookup needs rows, cols (n,) and wi, wo (n, 3), "
                                 f"got {r.shape}, {c.shape}, {wi.shape}, {wo.shape}")  # fmt: skip
-        tex = torch.from_numpy(r * self.width + c)
-        li_xy, vi_xy = torch.from_numpy(wi[:, :2].copy()), torch.from_numpy(wo[:, :2].copy())
+        dev = self.device
+        tex = torch.from_numpy(r * self.width + c).to(dev)
+        li_xy = torch.from_numpy(wi[:, :2].copy()).to(dev)
+        vi_xy = torch.from_numpy(wo[:, :2].copy()).to(dev)
         out = np.empty((r.size, 3), dtype=np.float32)
         with torch.inference_mode(), torch_threads(self.threads):
             for s in range(0, r.size, self.batch):
                 e = s + self.batch
                 pre = torch.addmm(self._texel[tex[s:e]], li_xy[s:e], self._w_light)
                 pre.addmm_(vi_xy[s:e], self._w_view)
-                out[s:e] = self._decode(pre).numpy()
+                out[s:e] = self._decode(pre).cpu().numpy()
         return out
 
     def query(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
@@ -436,12 +566,12 @@ class NeuralBTF(BTF):
         if len(sizes) != 1:
             raise BTFInputError(f"{self.label}: query arrays differ in length: "
                                 f"{[a.size for a in arrays]}")  # fmt: skip
-        r, c, li, vi = (torch.from_numpy(a) for a in arrays)
+        r, c, li, vi = (torch.from_numpy(a).to(self.device) for a in arrays)
         out = np.empty((r.numel(), 3), dtype=np.float32)
         with torch.inference_mode(), torch_threads(self.threads):
             for s in range(0, r.numel(), self.batch):
                 e = s + self.batch
                 pre = (self._texel[r[s:e] * self.width + c[s:e]] + self._light[li[s:e]]
                        + self._view[vi[s:e]])  # fmt: skip
-                out[s:e] = self._decode(pre).numpy()
+                out[s:e] = self._decode(pre).cpu().numpy()
         return out

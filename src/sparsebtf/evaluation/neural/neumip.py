@@ -43,6 +43,7 @@ from ._torch import (
     output,
     read_pool,
     seed_generator,
+    step_generator,
     tail,
     torch_threads,
 )
@@ -110,10 +111,10 @@ def blur_fades_at(span: float, recipe: NeuMIPRecipe = RECIPE) -> float:
     return t * span / recipe.reference_iterations
 
 
-def circular_blur(n: int, sigma: float) -> torch.Tensor:
+def circular_blur(n: int, sigma: float, device: torch.device | str = "cpu") -> torch.Tensor:
     """(n, n) row-normalised Gaussian weights over the wrapped distance (the texture wraps):
-    ``blur(T) = G_H · T · G_Wᵀ``."""
-    i = torch.arange(n, dtype=torch.float32)
+    ``blur(T) = G_H · T · G_Wᵀ``, on ``device``."""
+    i = torch.arange(n, dtype=torch.float32, device=device)
     d = (i[:, None] - i[None, :]).abs()
     d = torch.minimum(d, n - d)
     g = torch.exp(-0.5 * (d / sigma) ** 2)
@@ -150,8 +151,9 @@ class NeuMIPMethod(NeuralMethod):
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
+        device: str | None = None,
     ) -> None:
-        super().__init__(seed, threads, progress)
+        super().__init__(seed, threads, progress, device)
         self.max_queries_per_texel = float(max_queries_per_texel)
         self.eval_every = float(eval_every)
         self.tolerance = float(tolerance)
@@ -166,10 +168,11 @@ class NeuMIPMethod(NeuralMethod):
 
     @classmethod
     def from_config(cls, config: Any) -> NeuMIPMethod:
+        device = cls.config_device(config)
         if getattr(config, "name", "full") == "quick":
             return cls(max_queries_per_texel=QUICK_CAP, blur_queries_per_texel=QUICK_CAP / 2,
-                       eval_every=QUICK_CAP / 40, pool=3000)  # fmt: skip
-        return cls()
+                       eval_every=QUICK_CAP / 40, pool=3000, device=device)  # fmt: skip
+        return cls(device=device)
 
     @property
     def rule(self) -> StopRule:
@@ -202,9 +205,10 @@ class NeuMIPMethod(NeuralMethod):
             return [self._too_small(b, hw) for b in budgets]
         gen = seed_generator(self.seed_, "neumip", btf.name)
         out: list[Coding] = []
+        dev = self.device_
         with torch_threads(self.threads):
             pool = read_pool(btf, self.pool, gen, progress=self.progress, heldout=self.heldout,
-                             heldout_texels=self.heldout_texels)
+                             heldout_texels=self.heldout_texels).to(dev)
             trained: dict[int, tuple[NeuralBTF, dict[str, Any]]] = {}
             for budget, c in zip(budgets, sizes, strict=True):
                 if c < 1:
@@ -226,12 +230,15 @@ class NeuMIPMethod(NeuralMethod):
         t0 = time.perf_counter()
         r = self.recipe
         h, w = btf.height, btf.width
+        dev = pool.values.device  # everything runs on the pool's device
         gen = seed_generator(self.seed_, "neumip", btf.name, channels)
-        texture = (torch.randn(h, w, channels, generator=gen) * r.texture_std).requires_grad_()
-        mlp = init_mlp(r.mlp_sizes(channels), gen)
-        lxy, vxy = direction_xy(btf.lights), direction_xy(btf.views)
+        texture = (torch.randn(h, w, channels, generator=gen, device="cpu") * r.texture_std
+                   ).to(dev).requires_grad_()  # fmt: skip
+        mlp = init_mlp(r.mlp_sizes(channels), gen, dev)
+        step = step_generator(gen, dev, self.seed_, "neumip", btf.name, channels)
+        lxy, vxy = direction_xy(btf.lights, dev), direction_xy(btf.views, dev)
         n, s = pool.values.shape[:2]
-        rows = torch.arange(n)[:, None]
+        rows = torch.arange(n, device=dev)[:, None]
         span = self.blur_queries_per_texel
 
         def loss(tex: torch.Tensor, y_log: torch.Tensor, li: torch.Tensor,
@@ -245,9 +252,9 @@ class NeuMIPMethod(NeuralMethod):
 
         def loss_at(_: int, queries: float) -> torch.Tensor:
             sigma = blur_sigma(queries, span, r)
-            tex = torch.einsum("ih,hwc,jw->ijc", circular_blur(h, sigma), texture,
-                               circular_blur(w, sigma)).reshape(n, channels)  # fmt: skip
-            cols = torch.randint(0, s, (n, self.queries_per_step), generator=gen)
+            tex = torch.einsum("ih,hwc,jw->ijc", circular_blur(h, sigma, dev), texture,
+                               circular_blur(w, sigma, dev)).reshape(n, channels)  # fmt: skip
+            cols = torch.randint(0, s, (n, self.queries_per_step), generator=step, device=dev)
             return loss(tex, *pool.take(rows, cols))
 
         ho = pool.heldout
@@ -261,7 +268,8 @@ class NeuMIPMethod(NeuralMethod):
                                    f"neumip {btf.name} C={channels}", self.progress)  # fmt: skip
         rec = NeuralBTF(binary16(texture), [(binary16(a), binary16(b)) for a, b in mlp],
                         btf.lights, btf.views, head="neumip", slope=0.0,
-                        name=f"neumip-{btf.name}-C{channels}", threads=self.threads)  # fmt: skip
+                        name=f"neumip-{btf.name}-C{channels}", threads=self.threads,
+                        device=dev)  # fmt: skip
         seconds = time.perf_counter() - t0
         self.record(seconds, fit)
         info = {"channels": channels, "pool_per_texel": s, "train_seconds": round(seconds, 3),

@@ -37,6 +37,7 @@ from ..methods.base import MATCHINGS, PAPER, Budget, Coding, FitContext
 from ._base import NeuralMethod
 from ._convergence import StopRule, train_to_convergence
 from ._torch import (
+    CPU,
     HeldOut,
     Layers,
     NeuralBTF,
@@ -52,7 +53,9 @@ from ._torch import (
     mlp_params,
     read_pool,
     seed_generator,
+    step_generator,
     tail,
+    to_device,
     torch_threads,
 )
 
@@ -175,8 +178,9 @@ class RGJW20Method(NeuralMethod):
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
+        device: str | None = None,
     ) -> None:
-        super().__init__(seed, threads, progress)
+        super().__init__(seed, threads, progress, device)
         self.max_queries_per_texel = float(max_queries_per_texel)
         self.eval_every = float(eval_every)
         self.tolerance = float(tolerance)
@@ -195,9 +199,10 @@ class RGJW20Method(NeuralMethod):
 
     @classmethod
     def from_config(cls, config: Any) -> RGJW20Method:
+        device = cls.config_device(config)
         if getattr(config, "name", "full") == "quick":
-            return cls(max_queries_per_texel=QUICK_CAP, eval_every=QUICK_CAP / 40)
-        return cls()
+            return cls(max_queries_per_texel=QUICK_CAP, eval_every=QUICK_CAP / 40, device=device)
+        return cls(device=device)
 
     @property
     def rule(self) -> StopRule:
@@ -228,27 +233,29 @@ class RGJW20Method(NeuralMethod):
         super().fit(train, context)
         if not train:
             raise BTFInputError(f"{self.label}: fit needs at least one training material")
-        base = (_fingerprint(train), self.recipe, self._effort(), self.seed_)
+        dev = self.device_
+        base = (_fingerprint(train), self.recipe, self._effort(), self.seed_, str(dev))
         sizes = self.sizes_for(context)
         missing = [s for s in sizes if (*base, s) not in _TRAINED]
         if missing:
             with torch_threads(self.threads):
-                pool, lxy, vxy = self._training_pool(train)
+                pool, lxy, vxy = self._training_pool(train, dev)
                 for size in missing:
                     _TRAINED[(*base, size)] = self._train(pool, lxy, vxy, size)
         self.models_ = {s: _TRAINED[(*base, s)] for s in sizes}
         return self
 
-    def _training_pool(self, train: Sequence[BTF]
+    def _training_pool(self, train: Sequence[BTF], device: torch.device
                        ) -> tuple[SamplePool, torch.Tensor, torch.Tensor]:  # fmt: skip
         """Up to ``train_texels`` random texels of every training material, ``pool`` samples
-        each, in one pool whose direction indices point into the concatenated tables."""
+        each, in one pool whose direction indices point into the concatenated tables (read on
+        the CPU, returned on ``device``)."""
         gen = seed_generator(self.seed_, "rgjw20-data")
         parts, lights, views = [], [], []
         offset_l = offset_v = 0
         for btf in train:
             hw = btf.height * btf.width
-            texels = torch.randperm(hw, generator=gen)[: self.train_texels].numpy()
+            texels = torch.randperm(hw, generator=gen, device="cpu")[: self.train_texels].numpy()
             p = read_pool(btf, self.pool, gen, texels=texels, progress=self.progress,
                           heldout=self.heldout, heldout_texels=self.heldout_texels)
             p.lights += offset_l
@@ -268,24 +275,26 @@ class RGJW20Method(NeuralMethod):
                           torch.cat([p.lights for p in parts]),
                           torch.cat([p.views for p in parts]),
                           np.concatenate([p.texels for p in parts]), heldout=held)  # fmt: skip
-        return pool, torch.cat(lights), torch.cat(views)
+        return pool.to(device), torch.cat(lights).to(device), torch.cat(views).to(device)
 
     def _train(self, pool: SamplePool, lxy: torch.Tensor, vxy: torch.Tensor,
                size: int) -> _Model:  # fmt: skip
         t0 = time.perf_counter()
         r = self.recipe
+        dev = pool.values.device  # everything runs on the pool's device
         gen = seed_generator(self.seed_, "rgjw20", size)
-        model = _Model(size, init_mlp(r.sample_sizes(), gen), init_mlp(r.pooled_sizes(size), gen),
-                       [])  # fmt: skip
-        dec = init_mlp(r.decoder_sizes(size), gen)
+        model = _Model(size, init_mlp(r.sample_sizes(), gen, dev),
+                       init_mlp(r.pooled_sizes(size), gen, dev), [])  # fmt: skip
+        dec = init_mlp(r.decoder_sizes(size), gen, dev)
+        step = step_generator(gen, dev, self.seed_, "rgjw20", size)
         n, s = pool.values.shape[:2]
         b = min(self.texels_per_step, n)
         e = max(1, min(self.encoder_samples, s - 1))
         q = max(1, min(self.loss_samples, s - e))
 
         def loss_at(_: int, __: float) -> torch.Tensor:
-            rows = torch.randint(0, n, (b, 1), generator=gen)
-            order = torch.rand(b, s, generator=gen).argsort(dim=1)
+            rows = torch.randint(0, n, (b, 1), generator=step, device=dev)
+            order = torch.rand(b, s, generator=step, device=dev).argsort(dim=1)
             z = encode(model, *pool.take(rows, order[:, :e]), lxy, vxy, r.slope)
             y, li, vi = pool.take(rows, order[:, e:e + q])
             return F.mse_loss(decode_latents(dec, z, li, vi, lxy, vxy, r.slope), y)
@@ -294,8 +303,8 @@ class RGJW20Method(NeuralMethod):
         ho_texels, ho_index = torch.unique(ho.rows, return_inverse=True)
 
         def heldout() -> float:
-            z = encode(model, *pool.take(ho_texels[:, None], torch.arange(e)), lxy, vxy,
-                       r.slope)  # fmt: skip
+            z = encode(model, *pool.take(ho_texels[:, None], torch.arange(e, device=dev)), lxy,
+                       vxy, r.slope)  # fmt: skip
             pred = decode_latents(dec, z[ho_index], ho.lights[:, None], ho.views[:, None],
                                   lxy, vxy, r.slope)[:, 0]  # fmt: skip
             return float(F.mse_loss(pred, ho.values))
@@ -307,6 +316,8 @@ class RGJW20Method(NeuralMethod):
             for wb in layers:
                 for t in wb:
                     t.requires_grad_(False)
+        # kept on the CPU (a checkpoint, a Dask task): coding moves them to its device
+        model.sample, model.pooled = to_device(model.sample, CPU), to_device(model.pooled, CPU)
         model.decoder16 = [(binary16(w), binary16(bb)) for w, bb in dec]
         seconds = time.perf_counter() - t0
         self.record(seconds, fit)
@@ -352,10 +363,12 @@ class RGJW20Method(NeuralMethod):
         gen = seed_generator(self.seed_, "rgjw20-code", btf.name)
         out: list[Coding] = []
         done: dict[int, tuple[NeuralBTF, dict[str, Any]]] = {}
+        dev = self.device_
         with torch_threads(self.threads):
             pool = read_pool(btf, self.code_samples, gen, progress=self.progress,
-                             heldout=self.coding_heldout, heldout_texels=self.heldout_texels)
-            lxy, vxy = direction_xy(btf.lights), direction_xy(btf.views)
+                             heldout=self.coding_heldout, heldout_texels=self.heldout_texels
+                             ).to(dev)  # fmt: skip
+            lxy, vxy = direction_xy(btf.lights, dev), direction_xy(btf.views, dev)
             for budget in budgets:
                 want = budget.material_bytes // (2 * hw)
                 fits = [s for s in self.models_ if s <= want]
@@ -377,16 +390,20 @@ class RGJW20Method(NeuralMethod):
                    model: _Model) -> tuple[NeuralBTF, dict[str, Any]]:  # fmt: skip
         r = self.recipe
         n = pool.values.shape[0]
+        dev = pool.values.device  # everything runs on the pool's device
+        enc = replace(model, sample=to_device(model.sample, dev),
+                      pooled=to_device(model.pooled, dev))  # fmt: skip
         with torch.no_grad():
             chunk = max(1, (1 << 17) // pool.values.shape[1])  # samples per encoder pass
-            z = torch.cat([encode(model, *pool.take(torch.arange(i, min(i + chunk, n))[:, None],
-                                                    torch.arange(pool.values.shape[1])),
+            cols = torch.arange(pool.values.shape[1], device=dev)
+            z = torch.cat([encode(enc, *pool.take(torch.arange(i, min(i + chunk, n),
+                                                               device=dev)[:, None], cols),
                                   lxy, vxy, r.slope) for i in range(0, n, chunk)])  # fmt: skip
         z, refine = self._refine(btf, pool, lxy, vxy, model, z)
         latents = binary16(z).reshape(btf.height, btf.width, model.latents)
         rec = NeuralBTF(latents, model.decoder16, btf.lights, btf.views, head="log1p",
                         slope=r.slope, name=f"{self.name}-{btf.name}-L{model.latents}",
-                        threads=self.threads)  # fmt: skip
+                        threads=self.threads, device=dev)  # fmt: skip
         shared = model.info
         info = {"latent_size": model.latents, "code_samples": pool.values.shape[1],
                 "converged": bool(shared["converged"]) and refine.get("converged", True),
@@ -430,10 +447,12 @@ class RGJW20FineTunedMethod(RGJW20Method):
 
     @classmethod
     def from_config(cls, config: Any) -> RGJW20FineTunedMethod:
+        device = cls.config_device(config)
         if getattr(config, "name", "full") == "quick":
             return cls(max_queries_per_texel=QUICK_CAP, eval_every=QUICK_CAP / 40,
-                       finetune_max_queries_per_texel=FINETUNE_CAP / 4)  # fmt: skip
-        return cls()
+                       finetune_max_queries_per_texel=FINETUNE_CAP / 4,
+                       device=device)  # fmt: skip
+        return cls(device=device)
 
     @property
     def finetune_rule(self) -> StopRule:
@@ -460,14 +479,16 @@ class RGJW20FineTunedMethod(RGJW20Method):
                 model: _Model, z: torch.Tensor) -> tuple[torch.Tensor, dict[str, Any]]:  # fmt: skip
         t0 = time.perf_counter()
         r = self.recipe
+        dev = pool.values.device
         gen = seed_generator(self.seed_, "rgjw20-ft", btf.name, model.latents)
-        dec = [(as_f32(w), as_f32(b)) for w, b in model.decoder16]
+        step = step_generator(gen, dev, self.seed_, "rgjw20-ft", btf.name, model.latents)
+        dec = [(as_f32(w, dev), as_f32(b, dev)) for w, b in model.decoder16]
         z = z.clone().requires_grad_()
         n, s = pool.values.shape[:2]
-        rows = torch.arange(n)[:, None]
+        rows = torch.arange(n, device=dev)[:, None]
 
         def loss_at(_: int, __: float) -> torch.Tensor:
-            cols = torch.randint(0, s, (n, self.finetune_queries), generator=gen)
+            cols = torch.randint(0, s, (n, self.finetune_queries), generator=step, device=dev)
             y, li, vi = pool.take(rows, cols)
             return F.mse_loss(decode_latents(dec, z, li, vi, lxy, vxy, r.slope), y)
 

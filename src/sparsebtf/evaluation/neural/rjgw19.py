@@ -29,6 +29,7 @@ from ._base import NeuralMethod, largest_size
 from ._convergence import StopRule, train_to_convergence
 from ._torch import (
     NeuralBTF,
+    SamplePool,
     binary16,
     decode_latents,
     direction_xy,
@@ -37,6 +38,7 @@ from ._torch import (
     mlp_params,
     read_pool,
     seed_generator,
+    step_generator,
     tail,
     torch_threads,
 )
@@ -115,8 +117,9 @@ class RJGW19Method(NeuralMethod):
         seed: int | None = None,
         threads: int | None = None,
         progress: bool | None = None,
+        device: str | None = None,
     ) -> None:
-        super().__init__(seed, threads, progress)
+        super().__init__(seed, threads, progress, device)
         self.max_queries_per_texel = float(max_queries_per_texel)
         self.eval_every = float(eval_every)
         self.tolerance = float(tolerance)
@@ -131,9 +134,10 @@ class RJGW19Method(NeuralMethod):
 
     @classmethod
     def from_config(cls, config: Any) -> RJGW19Method:
+        device = cls.config_device(config)
         if getattr(config, "name", "full") == "quick":
-            return cls(max_queries_per_texel=QUICK_CAP, pool=3000)
-        return cls()
+            return cls(max_queries_per_texel=QUICK_CAP, pool=3000, device=device)
+        return cls(device=device)
 
     @property
     def rule(self) -> StopRule:
@@ -167,11 +171,12 @@ class RJGW19Method(NeuralMethod):
             return [self._too_small(b, hw) for b in budgets]
         nl, nv = len(btf.lights), len(btf.views)
         gen = seed_generator(self.seed_, "rjgw19", btf.name)
-        probes = np.sort(torch.randperm(nl * nv, generator=gen)[: self.recipe.encoder_pairs]
-                         .numpy())  # fmt: skip
+        probes = np.sort(torch.randperm(nl * nv, generator=gen, device="cpu")
+                         [: self.recipe.encoder_pairs].numpy())  # fmt: skip
+        dev = self.device_
         with torch_threads(self.threads):
             pool = read_pool(btf, self.pool, gen, shared_pairs=probes, progress=self.progress,
-                             heldout=self.heldout, heldout_texels=self.heldout_texels)
+                             heldout=self.heldout, heldout_texels=self.heldout_texels).to(dev)
             trained: dict[int, tuple[NeuralBTF, dict[str, Any]]] = {}
             for budget, size in zip(budgets, sizes, strict=True):
                 if size < 1:
@@ -189,17 +194,20 @@ class RJGW19Method(NeuralMethod):
                                  f"latent per texel ({2 * texels} B) and the per-material "
                                  f"decoder ({dec} B at L = 1)")  # fmt: skip
 
-    def _train(self, btf: BTF, pool: Any, size: int) -> tuple[NeuralBTF, dict[str, Any]]:
+    def _train(self, btf: BTF, pool: SamplePool, size: int) -> tuple[NeuralBTF, dict[str, Any]]:
         """Train the encoder and decoder of latent size ``size`` on ``pool``; the coding's
-        reconstruction from the binary16 latents and weights."""
+        reconstruction from the binary16 latents and weights. Everything runs on the pool's
+        device."""
         t0 = time.perf_counter()
         r = self.recipe
+        dev = pool.values.device
         gen = seed_generator(self.seed_, "rjgw19", btf.name, size)
         pairs = pool.shared.shape[1]
-        enc = init_mlp(r.encoder_sizes(size, pairs), gen)
-        dec = init_mlp(r.decoder_sizes(size), gen)
+        enc = init_mlp(r.encoder_sizes(size, pairs), gen, dev)
+        dec = init_mlp(r.decoder_sizes(size), gen, dev)
+        step = step_generator(gen, dev, self.seed_, "rjgw19", btf.name, size)
         x = pool.shared.reshape(pool.shared.shape[0], -1)  # (texels, 3·pairs)
-        lxy, vxy = direction_xy(btf.lights), direction_xy(btf.views)
+        lxy, vxy = direction_xy(btf.lights, dev), direction_xy(btf.views, dev)
         n, s = pool.values.shape[:2]
         b = min(self.texels_per_step, n)
 
@@ -207,8 +215,8 @@ class RJGW19Method(NeuralMethod):
             return tail(F.linear(xb, *enc[0]), enc, r.slope)
 
         def loss_at(_: int, __: float) -> torch.Tensor:
-            rows = torch.randint(0, n, (b,), generator=gen)
-            cols = torch.randint(0, s, (b, self.queries_per_step), generator=gen)
+            rows = torch.randint(0, n, (b,), generator=step, device=dev)
+            cols = torch.randint(0, s, (b, self.queries_per_step), generator=step, device=dev)
             y, li, vi = pool.take(rows[:, None], cols)
             return F.mse_loss(decode_latents(dec, encode(x[rows]), li, vi, lxy, vxy, r.slope), y)
 
@@ -229,7 +237,7 @@ class RJGW19Method(NeuralMethod):
         latents = binary16(z).reshape(btf.height, btf.width, size)
         rec = NeuralBTF(latents, [(binary16(w), binary16(bb)) for w, bb in dec], btf.lights,
                         btf.views, head="log1p", slope=r.slope, name=f"rjgw19-{btf.name}-L{size}",
-                        threads=self.threads)  # fmt: skip
+                        threads=self.threads, device=dev)  # fmt: skip
         seconds = time.perf_counter() - t0
         self.record(seconds, fit)
         info = {"latent_size": size, "encoder_params": mlp_params(r.encoder_sizes(size, pairs)),
