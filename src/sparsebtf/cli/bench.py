@@ -46,6 +46,10 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
         from dataclasses import replace
 
         cfg = replace(cfg, objectives=_objectives(args.objective))
+    if (device := _device(args)) is not None:
+        from dataclasses import replace
+
+        cfg = replace(cfg, torch_device=device)
     result = run_quality(Path(args.out), cfg, materials=args.materials or (), seed=args.seed,
                          previous=args.previous, methods=_methods(args), resume=args.resume,
                          **cluster_options(args))
@@ -75,6 +79,30 @@ def _objectives(text: str) -> tuple[str, ...]:
     if len(set(names)) != len(names):
         raise BTFInputError(f"--objective: {text!r} names an objective twice")
     return tuple(names)
+
+
+def _device(args: argparse.Namespace) -> str | None:
+    """``--device``, checked before any training (an unknown name, or CUDA that PyTorch does
+    not find here, is one error line; with a remote scheduler only the name is checked: its
+    workers are other machines). Without it, ``$SPARSEBTF_TORCH_DEVICE`` is checked the same
+    way and stays each worker's own default (None)."""
+    import os
+
+    from ..errors import BTFInputError
+    from ..execution import SCHEDULER_ENV
+
+    remote = bool(args.scheduler or os.environ.get(SCHEDULER_ENV, "").strip())
+    try:
+        from ..evaluation.neural._torch import check_device, resolve_device
+    except ImportError:
+        if args.device is not None:
+            raise BTFInputError("--device: PyTorch is not installed; the neural methods need "
+                                "it (pip install 'sparsebtf[neural]')") from None
+        return None
+    if args.device is None:
+        resolve_device(None, available=not remote)
+        return None
+    return check_device(args.device, "--device", available=not remote)
 
 
 def _methods(args: argparse.Namespace) -> list[str]:
@@ -160,6 +188,11 @@ def register(sub: Any) -> None:
     q.add_argument("--method", action="append", metavar="PACKAGE.MODULE:CLASS",
                    help="also compare your own sparsebtf.evaluation.methods.Method subclass "
                    "(repeatable; see docs/benchmarks.md, 'Your own method')")
+    q.add_argument("--device", metavar="cpu|cuda|cuda:N|auto",
+                   help="torch device of the neural methods' trainings and decodes (default "
+                   "$SPARSEBTF_TORCH_DEVICE, else cpu; auto: cuda when PyTorch finds a GPU). "
+                   "GPU runs are not bit-identical to CPU runs; every neural row records its "
+                   "device (docs/neural-baselines.md, 'On a GPU')")
     q.add_argument("--docs", metavar="DIR",
                    help="also write DIR/results.md and DIR/results/*.png from this run")
     q.add_argument("--json", action="store_true", help="print the verdicts as JSON")

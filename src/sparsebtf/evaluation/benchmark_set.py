@@ -166,6 +166,10 @@ class BenchConfig:
     #: batch size (0: not measured); the large batch's size
     speed_seconds: float = 1.0
     speed_batch: int = 65536
+    #: the torch device of the neural methods ("cpu", "cuda", "cuda:N", "auto"; None:
+    #: ``$SPARSEBTF_TORCH_DEVICE`` where each method runs, else the CPU;
+    #: :func:`~sparsebtf.evaluation.neural._torch.resolve_device`); ``bench quality --device``
+    torch_device: str | None = None
 
     @classmethod
     def quick(cls) -> BenchConfig:

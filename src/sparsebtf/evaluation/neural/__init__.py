@@ -1,4 +1,4 @@
-"""The neural baselines of the paper's Table 3, rebuilt small in PyTorch (CPU).
+"""The neural baselines of the paper's Table 3, rebuilt small in PyTorch (on the CPU or a GPU).
 
 * :mod:`.rgjw20` — [RGJW20] "Unified Neural Encoding of BTFs": one set encoder and one
   decoder shared by every material; a new material costs one encoder pass per texel

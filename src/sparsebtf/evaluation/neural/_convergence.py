@@ -98,6 +98,7 @@ def train_to_convergence(
     rule: StopRule,
     desc: str,
     progress: bool | None,
+    lazy: bool | None = None,
 ) -> dict[str, Any]:
     """Adam on ``loss_at(step, queries_per_texel_so_far)`` until ``rule`` says stop.
 
@@ -106,9 +107,18 @@ def train_to_convergence(
     ``converged``, ``loss_curve`` [(queries per texel, held-out loss)], ``iterations``,
     ``queries_per_texel``, ``cpu_seconds``, ``lr_drops`` (the efforts they happened at),
     ``heldout_loss`` (final) and the mean training loss of the first and last tenth of steps.
+    It runs where ``params`` are (their device); ``cpu_seconds`` is this process's CPU time,
+    on a GPU too. ``lazy``: read the training losses at each evaluation instead of after every
+    step (the same numbers; None: on a GPU, where a read waits for the device).
     """
     t_cpu = time.process_time()
-    opt = torch.optim.Adam(list(params), lr=lr[0])
+    params = list(params)
+    opt = torch.optim.Adam(params, lr=lr[0])
+    # on a GPU the training losses are read at each evaluation, not after every step (a
+    # read waits for the device); on the CPU each is read when it is computed, as always
+    if lazy is None:
+        lazy = bool(params) and params[0].device.type != "cpu"
+    pending: list[torch.Tensor] = []
     rate, floor = float(lr[0]), float(min(lr))
     max_steps = max(1, math.ceil(rule.max_queries_per_texel / queries_per_step))
     every = max(1, round(rule.eval_every / queries_per_step))
@@ -118,6 +128,9 @@ def train_to_convergence(
     since, converged, step = 0.0, False, 0
 
     def evaluate() -> None:
+        if pending:
+            losses.extend(torch.stack(pending).tolist())
+            pending.clear()
         with torch.no_grad():
             h = float(heldout())
             curve.append((round(step * queries_per_step, 3), h if math.isfinite(h) else math.inf))
@@ -129,7 +142,10 @@ def train_to_convergence(
             loss = loss_at(step, step * queries_per_step)
             loss.backward()
             opt.step()
-            losses.append(float(loss.detach()))
+            if lazy:
+                pending.append(loss.detach())
+            else:
+                losses.append(float(loss.detach()))
             step += 1
             pb.update(1)
             if step % every and step < max_steps:
@@ -146,6 +162,8 @@ def train_to_convergence(
                 drops.append(since)
             if rule.max_seconds is not None and time.process_time() - t_cpu > rule.max_seconds:
                 break
+    if pending:
+        losses.extend(torch.stack(pending).tolist())
     k = max(1, len(losses) // 10)
     arr = np.asarray(losses)
     return {"converged": converged, "loss_curve": [list(p) for p in curve],

@@ -44,12 +44,14 @@ from ...errors import BTFInputError, OptionError
 
 __all__ = [
     "BATCH",
+    "CPU",
     "DEVICE_ENV",
     "FP16_MAX",
     "HeldOut",
     "NeuralBTF",
     "SamplePool",
     "binary16",
+    "check_device",
     "decode_latents",
     "direction_terms",
     "direction_xy",
@@ -87,43 +89,50 @@ def _no_cuda() -> str:
             "driver and CUDA_VISIBLE_DEVICES, or use device 'cpu'")  # fmt: skip
 
 
-def resolve_device(spec: str | torch.device | None = None) -> torch.device:
+def resolve_device(spec: str | torch.device | None = None, what: str = "device",
+                   available: bool = True) -> torch.device:  # fmt: skip
     """The torch device of the neural methods: ``spec`` is ``"cpu"``, ``"cuda"``,
     ``"cuda:N"`` or ``"auto"`` (CUDA when ``torch.cuda.is_available()``, else the CPU); None or
     blank: ``$SPARSEBTF_TORCH_DEVICE``, else ``"cpu"``. An unknown name, or CUDA where PyTorch
-    finds none, is one :class:`~sparsebtf.errors.OptionError` line."""
-    where = "device"
+    finds none, is one :class:`~sparsebtf.errors.OptionError` line that starts with ``what``;
+    ``available=False`` checks the name only (a device of a remote cluster's workers)."""
+    where = what
     if spec is None or (isinstance(spec, str) and not spec.strip()):
         env = os.environ.get(DEVICE_ENV, "").strip()
         if not env:
-            return CPU
+            return torch.device("cpu")
         spec, where = env, f"${DEVICE_ENV}"
     text = str(spec).strip().lower()
+    # a new device object, never the host's :data:`CPU`: tests/test_neural_device.py tells the
+    # configured device from the host's CPU (pools, initial weights) by identity
     if text == "auto":
-        return torch.device("cuda") if torch.cuda.is_available() else CPU
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if text == "cpu":
-        return CPU
+        return torch.device("cpu")
     m = re.fullmatch(r"cuda(?::(\d+))?", text)
     if m is None:
-        raise OptionError(f"{where} {str(spec)!r}: unknown device; expected cpu, cuda, cuda:N "
+        raise OptionError(where, f" {str(spec)!r}: unknown device; expected cpu, cuda, cuda:N "
                           "or auto")  # fmt: skip
+    if not available:
+        return torch.device(text)
     if not torch.cuda.is_available():
-        raise OptionError(f"{where} {text!r} requested but torch.cuda.is_available() is False "
+        raise OptionError(where, f" {text!r} requested but torch.cuda.is_available() is False "
                           f"({_no_cuda()})")  # fmt: skip
     if m.group(1) is not None and int(m.group(1)) >= torch.cuda.device_count():
-        raise OptionError(f"{where} {text!r} requested but PyTorch sees "
+        raise OptionError(where, f" {text!r} requested but PyTorch sees "
                           f"{torch.cuda.device_count()} CUDA device(s) (cuda:0 to "
                           f"cuda:{torch.cuda.device_count() - 1})")  # fmt: skip
     return torch.device(text)
 
 
-def check_device(spec: str | torch.device | None) -> str | None:
-    """``spec`` as a method keeps it (stripped, lower case; None or blank: None, that is
-    :func:`resolve_device`'s default where the method runs), after checking that it
-    resolves here."""
+def check_device(spec: str | torch.device | None, what: str = "device",
+                 available: bool = True) -> str | None:  # fmt: skip
+    """``spec`` as a method or a configuration keeps it (stripped, lower case; None or blank:
+    None, that is :func:`resolve_device`'s default where the method runs), after checking
+    that it resolves here (``available=False``: its name only)."""
     if spec is None or (isinstance(spec, str) and not spec.strip()):
         return None
-    resolve_device(spec)
+    resolve_device(spec, what, available)
     return str(spec).strip().lower()
 
 
@@ -342,8 +351,6 @@ class SamplePool:
     def to(self, device: torch.device) -> SamplePool:
         """The pool's tensors on ``device`` (the pool itself where they are there already);
         ``texels`` and ``shared_pairs`` stay NumPy arrays."""
-        if device == self.values.device:
-            return self
         return SamplePool(self.values.to(device), self.lights.to(device),
                           self.views.to(device), self.texels,
                           None if self.shared is None else self.shared.to(device),
@@ -495,7 +502,7 @@ class NeuralBTF(BTF):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         dev = torch.device(state.get("device", "cpu"))
-        self.device = dev if dev.type == "cpu" or torch.cuda.is_available() else CPU
+        self.device = dev if dev.type == "cpu" or torch.cuda.is_available() else torch.device("cpu")
         self._build()
 
     def stored(self) -> dict[str, np.ndarray]:
