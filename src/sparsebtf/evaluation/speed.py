@@ -108,6 +108,9 @@ def single_value_lookup(rec: BTF) -> tuple[Lookup, dict[str, Any]]:
         if torch is not None:
             info.update(backend="torch", threads=int(torch.get_num_threads()),
                         threads_of="torch")  # fmt: skip
+            device = getattr(rec, "device", None)
+            if isinstance(device, torch.device) and device.type != "cpu":
+                info["backend"] = f"torch {device}"  # a GPU's decode (neural methods)
         else:
             info.update(backend=type(rec).__name__, threads=_blas_threads(), threads_of="BLAS")
         return query, info
