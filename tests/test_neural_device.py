@@ -187,6 +187,11 @@ def test_a_pickled_reconstruction_builds_its_tables_again(monkeypatch):
     other = NeuralBTF.__new__(NeuralBTF)
     other.__setstate__(state)
     assert other.device == torch.device("cpu")
+    _fake_cuda(monkeypatch, True, count=1)
+    state["device"] = "cuda:1"  # a second GPU this machine lacks
+    other = NeuralBTF.__new__(NeuralBTF)
+    other.__setstate__(state)
+    assert other.device == torch.device("cpu")
 
 
 # -- the command line ------------------------------------------------------------------------

@@ -502,7 +502,9 @@ class NeuralBTF(BTF):
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state)
         dev = torch.device(state.get("device", "cpu"))
-        self.device = dev if dev.type == "cpu" or torch.cuda.is_available() else torch.device("cpu")
+        usable = dev.type == "cpu" or (torch.cuda.is_available()
+                                       and (dev.index or 0) < torch.cuda.device_count())
+        self.device = dev if usable else torch.device("cpu")
         self._build()
 
     def stored(self) -> dict[str, np.ndarray]:
