@@ -14,17 +14,20 @@ trip, ``Preprocessor.inverse(forward(reference))``, in float32).
 
 The residual (reference − decoded) of ``--residual-level`` (32) is factorised
 (:mod:`sparsebtf.evaluation.residual`, a randomised SVD, conservative: its Ritz values never
-exceed the true singular values) in each layout: ``texels`` (H·W × L·V·3) and ``directions``
-(L·V × H·W·3). Per rank r: the share of the residual's energy removed (ideal), the linear MSE
-of clamp(decoded + rank-r correction with binary16 factors, 0), the bytes r·(rows + cols)·2
-added to the level's, the coder's own MSE at those total bytes (log-log interpolation over its
-τ curve; none beyond the largest τ coded) and a sparse correction's (the largest |residual|
-values stored exactly at 6 bytes each) at the same added bytes. ``--pca``: per-material linear
-PCA (:mod:`sparsebtf.evaluation.baselines`) at the level's bytes and at each total.
+exceed the true singular values; ``--exact-spectrum N``: also the exact share from the Gram
+matrix's eigenvalues where the smaller side is at most N) in each layout: ``texels``
+(H·W × L·V·3) and ``directions`` (L·V × H·W·3). Per rank r: the share of the residual's
+energy removed (ideal), the linear MSE of clamp(decoded + rank-r correction with binary16
+factors, 0), the bytes r·(rows + cols)·2 added to the level's, the coder's own MSE at those
+total bytes (log-log interpolation over its τ curve; none beyond the largest τ coded) and a
+sparse correction's (the largest |residual| values stored exactly at 6 bytes each) at the same
+added bytes. ``--pca``: per-material linear PCA (:mod:`sparsebtf.evaluation.baselines`) at the
+level's bytes and at each total.
 
     python benchmarks/bench_glossy_residual.py BTF [--objectives log linear]
         [--levels 16 32 64 128] [--tau-factors 4 16] [--log-offset auto|release|OFFSET]
-        [--ranks 1 2 4 8 16] [--layouts texels directions] [--pca] [--seed 0] [--json]
+        [--ranks 1 2 4 8 16] [--layouts texels directions] [--pca] [--exact-spectrum N]
+        [--seed 0] [--json]
 """
 
 from __future__ import annotations
@@ -47,6 +50,7 @@ from sparsebtf.evaluation.methods.sparse import coded_row
 from sparsebtf.evaluation.residual import (
     LAYOUTS,
     error_split,
+    gram_spectrum,
     low_rank_curve,
     residual_matrix,
     sparse_values_curve,
@@ -79,7 +83,8 @@ def at_bytes(curve: list[dict[str, Any]], nbytes: float) -> float | None:
 
 
 def residual_rows(dec: np.ndarray, ref: np.ndarray, level_bytes: int, curve: list[dict[str, Any]],
-                  layouts: list[str], ranks: list[int], seed: int) -> dict[str, Any]:  # fmt: skip
+                  layouts: list[str], ranks: list[int], seed: int,
+                  exact_below: int = 0) -> dict[str, Any]:  # fmt: skip
     """The low-rank and sparse corrections of ``ref − dec`` per layout and rank."""
     res = ref - dec
     n = res.size
@@ -101,6 +106,10 @@ def residual_rows(dec: np.ndarray, ref: np.ndarray, level_bytes: int, curve: lis
                 "sparse_mse": sp["sse_left"] / n, "sparse_values": sp["values"],
             })  # fmt: skip
             del fixed, corr
+        if exact_below and min(m.shape) <= exact_below:
+            ev = gram_spectrum(m)
+            for row in rows:
+                row["removed_exact"] = float(ev[: row["rank"]].sum() / ev.sum())
         out[layout] = {"shape": list(m.shape), "ranks": rows,
                        "singular_values": [float(x) for x in fit.s],
                        "seconds": time.perf_counter() - t0}  # fmt: skip
@@ -132,7 +141,8 @@ def pca_rows(btf: Any, ref: np.ndarray, budgets: list[int], seed: int) -> list[d
 
 def run(spec: str, objectives: list[str], log_offset: str, levels: list[int],
         tau_factors: list[int], ranks: list[int], layouts: list[str], residual_level: int,
-        residual_objectives: list[str] | None, pca: bool, seed: int) -> dict[str, Any]:  # fmt: skip
+        residual_objectives: list[str] | None, pca: bool, seed: int,
+        exact_below: int = 0) -> dict[str, Any]:  # fmt: skip
     model = load_bundled()
     btf = open_btf(spec)
     ref = np.asarray(btf.to_array(), dtype=np.float32)
@@ -176,7 +186,8 @@ def run(spec: str, objectives: list[str], log_offset: str, levels: list[int],
         if residual_objectives is None or obj in residual_objectives:
             assert dec_at is not None
             entry["residual"] = residual_rows(dec_at, ref, curve[at]["material_bytes"],
-                                              curve[:-1], layouts, ranks, seed)  # fmt: skip
+                                              curve[:-1], layouts, ranks, seed,
+                                              exact_below)  # fmt: skip
         out["objectives"][obj] = entry
         del dec_at, coded
     if pca:
@@ -210,7 +221,9 @@ def _rows(data: dict[str, Any]) -> list[tuple[str, str]]:
                 cm = r["coder_mse_at_total"]
                 rows.append((f"    rank {r['rank']}", (
                     f"+{r['bytes']:,d} B (total {r['total_bytes']:,d}): removes "
-                    f"{r['removed_ideal']:.1%} of the residual energy; MSE "
+                    f"{r['removed_ideal']:.1%} of the residual energy"
+                    + (f" (exact {r['removed_exact']:.1%})" if "removed_exact" in r else "")
+                    + "; MSE "
                     f"{r['corrected_mse']:.4g} ({r['corrected_share_above']:.1%} above 1); "
                     f"coder at the same bytes {'-' if cm is None else f'{cm:.4g}'}; sparse "
                     f"values ({r['sparse_values']:,d}) {r['sparse_mse']:.4g}")))
@@ -235,13 +248,16 @@ def main() -> None:
     ap.add_argument("--residual-objectives", nargs="*", choices=OBJECTIVES,
                     help="objectives whose residual is factorised (default: all)")
     ap.add_argument("--pca", action="store_true", help="linear PCA at the same bytes")
+    ap.add_argument("--exact-spectrum", type=int, default=0, metavar="N",
+                    help="also the exact energy removed (Gram eigenvalues) in layouts whose "
+                         "smaller side is at most N")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", action="store_true")
     a = ap.parse_args()
     if a.residual_level not in a.levels:
         ap.error(f"--residual-level {a.residual_level} is not among --levels")
     data = run(a.btf, a.objectives, a.log_offset, a.levels, a.tau_factors, a.ranks, a.layouts,
-               a.residual_level, a.residual_objectives, a.pca, a.seed)
+               a.residual_level, a.residual_objectives, a.pca, a.seed, a.exact_spectrum)
     data["machine"] = machine()
     report(_rows(data), data, a.json)
 

@@ -11,6 +11,7 @@ from sparsebtf.errors import BTFInputError
 from sparsebtf.evaluation.residual import (
     LAYOUTS,
     error_split,
+    gram_spectrum,
     low_rank,
     low_rank_bytes,
     low_rank_curve,
@@ -66,6 +67,8 @@ def test_low_rank_matches_numpy_svd(layout):
     # a sketch as wide as the smaller side: the direct SVD
     fit, rows = low_rank_curve(m, [1, 2, 4], oversample=min(m.shape))
     np.testing.assert_allclose(fit.s, s_np[:4], rtol=1e-5)
+    np.testing.assert_allclose(gram_spectrum(m, chunk=50)[: len(s_np)], s_np**2, rtol=1e-6,
+                               atol=1e-9 * s_np[0] ** 2)  # fmt: skip
     # a narrow sketch on this flat (noise) spectrum: Ritz values never above the truth
     narrow, _ = low_rank_curve(m, [1, 2, 4], oversample=4, power_iters=2)
     assert np.all(narrow.s <= s_np[:4] * (1 + 1e-5))

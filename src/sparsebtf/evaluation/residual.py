@@ -20,6 +20,7 @@ __all__ = [
     "LAYOUTS",
     "LowRank",
     "error_split",
+    "gram_spectrum",
     "low_rank",
     "low_rank_bytes",
     "low_rank_curve",
@@ -131,6 +132,18 @@ def low_rank(m: np.ndarray, rank: int, *, oversample: int = 10, power_iters: int
     r = min(rank, len(s))
     return LowRank(u[:, :r].astype(np.float32), s[:r].copy(), vt[:r].astype(np.float32),
                    energy)  # fmt: skip
+
+
+def gram_spectrum(m: np.ndarray, chunk: int = 4096) -> np.ndarray:
+    """Every squared singular value of ``m``, largest first: the eigenvalues of the Gram
+    matrix of its smaller side, accumulated in float64 over blocks of ``chunk`` of the larger
+    (exact to rounding; a check of :func:`low_rank`'s sketch)."""
+    a = m if m.shape[0] <= m.shape[1] else m.T
+    g = np.zeros((a.shape[0], a.shape[0]))
+    for j in range(0, a.shape[1], chunk):
+        b = np.asarray(a[:, j : j + chunk], dtype=np.float64)
+        g += b @ b.T
+    return np.clip(np.linalg.eigvalsh(g)[::-1], 0, None)
 
 
 def low_rank_curve(m: np.ndarray, ranks: list[int] | tuple[int, ...], **keywords: Any
