@@ -16,7 +16,8 @@ The residual (reference − decoded) of ``--residual-level`` (32) is factorised
 (:mod:`sparsebtf.evaluation.residual`, a randomised SVD, conservative: its Ritz values never
 exceed the true singular values; ``--exact-spectrum N``: also the exact share from the Gram
 matrix's eigenvalues where the smaller side is at most N) in each layout: ``texels``
-(H·W × L·V·3) and ``directions`` (L·V × H·W·3). Per rank r: the share of the residual's
+(H·W × L·V·3), ``directions`` (L·V × H·W·3) and ``channels`` (per channel H·W × L·V, the
+total rank shared by singular value, PCA's layout). Per rank r: the share of the residual's
 energy removed (ideal), the linear MSE of clamp(decoded + rank-r correction with binary16
 factors, 0), the bytes r·(rows + cols)·2 added to the level's, the coder's own MSE at those
 total bytes (log-log interpolation over its τ curve; none beyond the largest τ coded) and a
@@ -26,7 +27,7 @@ level's bytes and at each total.
 
     python benchmarks/bench_glossy_residual.py BTF [--objectives log linear]
         [--levels 16 32 64 128] [--tau-factors 4 16] [--log-offset auto|release|OFFSET]
-        [--ranks 1 2 4 8 16] [--layouts texels directions] [--pca] [--exact-spectrum N]
+        [--ranks 1 2 4 8 16] [--layouts texels directions channels] [--pca] [--exact-spectrum N]
         [--seed 0] [--json]
 """
 
@@ -49,8 +50,10 @@ from sparsebtf.evaluation.benchmark_set import (
 from sparsebtf.evaluation.methods.sparse import coded_row
 from sparsebtf.evaluation.residual import (
     LAYOUTS,
+    channels_correction,
     error_split,
     gram_spectrum,
+    low_rank_channels,
     low_rank_curve,
     residual_matrix,
     sparse_values_curve,
@@ -91,12 +94,20 @@ def residual_rows(dec: np.ndarray, ref: np.ndarray, level_bytes: int, curve: lis
     out: dict[str, Any] = {}
     for layout in layouts:
         t0 = time.perf_counter()
-        m = residual_matrix(res, layout)
-        fit, rows = low_rank_curve(m, ranks, oversample=16, power_iters=3, seed=seed)
+        if layout == "channels":
+            fits, rows = low_rank_channels(res, ranks, oversample=16, power_iters=3, seed=seed)
+            m, svals = None, [[float(x) for x in f.s] for f in fits]
+        else:
+            m = residual_matrix(res, layout)
+            fit, rows = low_rank_curve(m, ranks, oversample=16, power_iters=3, seed=seed)
+            svals = [float(x) for x in fit.s]
         sparse = sparse_values_curve(res, [r["bytes"] for r in rows])
         for row, sp in zip(rows, sparse, strict=True):
-            left, right = fit.factors16(min(row["rank"], len(fit.s)))
-            corr = unflatten_residual(left @ right, res.shape, layout)
+            if layout == "channels":
+                corr = channels_correction(fits, tuple(row["ranks"]), res.shape)
+            else:
+                left, right = fit.factors16(min(row["rank"], len(fit.s)))
+                corr = unflatten_residual(left @ right, res.shape, layout)
             fixed = np.maximum(dec + corr, 0)
             total = level_bytes + row["bytes"]
             row.update({
@@ -106,12 +117,13 @@ def residual_rows(dec: np.ndarray, ref: np.ndarray, level_bytes: int, curve: lis
                 "sparse_mse": sp["sse_left"] / n, "sparse_values": sp["values"],
             })  # fmt: skip
             del fixed, corr
-        if exact_below and min(m.shape) <= exact_below:
+        if m is not None and exact_below and min(m.shape) <= exact_below:
             ev = gram_spectrum(m)
             for row in rows:
                 row["removed_exact"] = float(ev[: row["rank"]].sum() / ev.sum())
-        out[layout] = {"shape": list(m.shape), "ranks": rows,
-                       "singular_values": [float(x) for x in fit.s],
+        shape = list(m.shape) if m is not None else [3, res.shape[0] * res.shape[1],
+                                                     res.shape[2] * res.shape[3]]  # fmt: skip
+        out[layout] = {"shape": shape, "ranks": rows, "singular_values": svals,
                        "seconds": time.perf_counter() - t0}  # fmt: skip
         del m
     return out
@@ -216,10 +228,11 @@ def _rows(data: dict[str, Any]) -> list[tuple[str, str]]:
                          f"{r['mse_below']:.4g})"))  # fmt: skip
         for layout, res in e.get("residual", {}).items():
             rows.append((f"  residual {data['residual_level']}, {layout}",
-                         f"{res['shape'][0]}x{res['shape'][1]} ({res['seconds']:.0f} s)"))
+                         "x".join(map(str, res["shape"])) + f" ({res['seconds']:.0f} s)"))
             for r in res["ranks"]:
                 cm = r["coder_mse_at_total"]
-                rows.append((f"    rank {r['rank']}", (
+                split = f" ({'/'.join(map(str, r['ranks']))})" if "ranks" in r else ""
+                rows.append((f"    rank {r['rank']}{split}", (
                     f"+{r['bytes']:,d} B (total {r['total_bytes']:,d}): removes "
                     f"{r['removed_ideal']:.1%} of the residual energy"
                     + (f" (exact {r['removed_exact']:.1%})" if "removed_exact" in r else "")
@@ -243,7 +256,7 @@ def main() -> None:
                     help="also code at these multiples of the last level's tau")
     ap.add_argument("--log-offset", default="auto")
     ap.add_argument("--ranks", nargs="+", type=int, default=list(RANKS))
-    ap.add_argument("--layouts", nargs="+", choices=LAYOUTS, default=list(LAYOUTS))
+    ap.add_argument("--layouts", nargs="+", choices=LAYOUTS, default=["texels", "directions"])
     ap.add_argument("--residual-level", type=int, default=32)
     ap.add_argument("--residual-objectives", nargs="*", choices=OBJECTIVES,
                     help="objectives whose residual is factorised (default: all)")

@@ -19,10 +19,13 @@ from ..errors import BTFInputError
 __all__ = [
     "LAYOUTS",
     "LowRank",
+    "allocate_channel_ranks",
+    "channels_correction",
     "error_split",
     "gram_spectrum",
     "low_rank",
     "low_rank_bytes",
+    "low_rank_channels",
     "low_rank_curve",
     "residual_matrix",
     "sparse_values_curve",
@@ -31,8 +34,10 @@ __all__ = [
 
 #: arrangements of a (H, W, L, V, 3) residual as a matrix: one row per texel and a column per
 #: (light, view, channel) ("texels"), or one row per (light, view) and a column per (texel,
-#: channel) ("directions")
-LAYOUTS = ("texels", "directions")
+#: channel) ("directions"); "channels": a texels × (light, view) matrix per channel, the
+#: total rank shared by singular value as the PCA baseline shares it
+#: (:func:`low_rank_channels`)
+LAYOUTS = ("texels", "directions", "channels")
 #: bytes of one stored value of a sparse correction: binary16 value + 32-bit location
 SPARSE_VALUE_BYTES = 6
 
@@ -62,7 +67,8 @@ def error_split(dec: np.ndarray, ref: np.ndarray, threshold: float = 1.0) -> dic
 
 
 def residual_matrix(res: np.ndarray, layout: str) -> np.ndarray:
-    """The (H, W, L, V, C) residual ``res`` as a 2D matrix of ``layout`` (:data:`LAYOUTS`)."""
+    """The (H, W, L, V, C) residual ``res`` as a 2D matrix of ``layout`` ("texels" or
+    "directions")."""
     if res.ndim != 5:
         raise BTFInputError(f"a residual is (H, W, L, V, C), got shape {res.shape}")
     h, w, nl, nv, c = res.shape
@@ -182,3 +188,47 @@ def sparse_values_curve(
         n = min(int(b) // value_bytes, sq.size)
         out.append({"bytes": int(b), "values": n, "sse_left": max(total - float(cum[n]), 0.0)})
     return out
+
+
+def allocate_channel_ranks(fits: list[LowRank], total: int) -> tuple[int, ...]:
+    """Split ``total`` rank over the channels' factorisations greedily by σ² (largest
+    energy first), as :func:`~sparsebtf.evaluation.baselines.allocate_ranks` does."""
+    sq = np.concatenate([f.s**2 for f in fits])
+    owner = np.concatenate([np.full(len(f.s), c) for c, f in enumerate(fits)])
+    order = np.argsort(-sq, kind="stable")[: max(int(total), 0)]
+    return tuple(int(x) for x in np.bincount(owner[order], minlength=len(fits)))
+
+
+def channels_correction(fits: list[LowRank], ranks: tuple[int, ...],
+                        shape: tuple[int, ...]) -> np.ndarray:  # fmt: skip
+    """The (H, W, L, V, C) correction of per-channel factors of ``ranks`` (binary16)."""
+    h, w, nl, nv, _ = shape
+    out = np.zeros(shape, dtype=np.float32)
+    for ch, (fit, r) in enumerate(zip(fits, ranks, strict=True)):
+        if r:
+            left, right = fit.factors16(r)
+            out[..., ch] = (left @ right).reshape(h, w, nl, nv)
+    return out
+
+
+def low_rank_channels(res: np.ndarray, ranks: list[int] | tuple[int, ...], **keywords: Any
+                      ) -> tuple[list[LowRank], list[dict[str, Any]]]:  # fmt: skip
+    """The "channels" layout: per channel of the (H, W, L, V, C) ``res`` a texels × (lights ·
+    views) factorisation; for each total rank R of ``ranks`` the split over the channels by
+    σ² (:func:`allocate_channel_ranks`), the share of ||res||² it removes (ideal), the squared
+    error left with binary16 factors (measured) and the bytes R · (texels + lights · views) · 2
+    (:func:`~sparsebtf.evaluation.baselines.pca_bytes`'s count)."""
+    h, w, nl, nv, c = res.shape
+    top = max(ranks)
+    fits = [low_rank(res[..., ch].reshape(h * w, nl * nv), top, **keywords) for ch in range(c)]
+    energy = sum(f.energy for f in fits)
+    out = []
+    for total in ranks:
+        split = allocate_channel_ranks(fits, total)
+        kept = sum(float((f.s[:r] ** 2).sum()) for f, r in zip(fits, split, strict=True))
+        left = float(np.square(res - channels_correction(fits, split, res.shape),
+                               dtype=np.float64).sum())  # fmt: skip
+        out.append({"rank": int(total), "ranks": list(split),
+                    "removed_ideal": kept / energy if energy > 0 else 0.0, "sse_left": left,
+                    "bytes": low_rank_bytes(total, h * w, nl * nv)})  # fmt: skip
+    return fits, out
