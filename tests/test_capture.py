@@ -246,11 +246,12 @@ def test_the_issue_command_and_the_output_is_a_btf_like_any(tmp_path, capsys, mo
     assert code == 0 and json.loads(out)["psnr_rgb"] > 10
 
 
-@pytest.mark.parametrize("name", ["plane", "woven", "pebbles", "leather", "metal", "copper"])
+@pytest.mark.parametrize("name", ["plane", "woven", "pebbles", "leather", "metal", "copper",
+                                  "copper-mirror", "copper-rough", "brushed"])  # fmt: skip
 def test_every_builtin_sample_runs(tmp_path, name):
     from sparsebtf.data.capture import SAMPLES
 
-    assert name in SAMPLES and len(SAMPLES) == 6
+    assert name in SAMPLES and len(SAMPLES) == 9
     out = capture(name, tmp_path / f"{name}.h5", size=4, directions="tiny7", spp=2, seed=1)
     a, _, _ = read(out)
     assert a.shape == (4, 4, 7, 7, 3) and np.isfinite(a).all() and a.max() > 0.01
