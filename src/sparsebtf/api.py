@@ -19,7 +19,7 @@ import re
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any, overload
 
-from .constraints import wrong_type
+from .constraints import is_array, wrong_type
 from .errors import BTFInputError
 
 if TYPE_CHECKING:
@@ -33,26 +33,6 @@ __all__ = ["Target", "decode", "encode", "load_model", "parse_target"]
 
 #: What a model argument may be, in a refusal.
 _MODEL = "a Model, a bundled model's name ('sparsebtf models' lists them), a model file's path"
-#: What one BTF may be, in a refusal, and how an array becomes one.
-_BTF = "a BTF, a path or a synth: spec"
-ARRAY_HINT = ("an array is no BTF: wrap it as sparsebtf.data.btf.ArrayBTF(data, lights, views) "
-              "with the directions of sparsebtf.data.directions (ubo2014() …)")
-
-
-def _is_array(value: Any) -> bool:
-    return hasattr(value, "shape") and hasattr(value, "dtype") and hasattr(value, "__array__")
-
-
-def check_btf(function: str, argument: str, value: Any) -> None:
-    """Refuse ``value`` unless it is one BTF: a :class:`~sparsebtf.data.btf.BTF`, a path or a
-    ``synth:`` spec (an array is named as such, with how to wrap it)."""
-    from .data.btf import BTF
-
-    if not isinstance(value, BTF | str | os.PathLike):
-        raise wrong_type(function, argument, _BTF, value,
-                         ARRAY_HINT if _is_array(value) else "")  # fmt: skip
-
-
 #: What :func:`encode`'s ``target`` accepts (see :func:`parse_target`).
 Target = None | str | Sequence[int] | Mapping[str, int]
 
@@ -187,19 +167,15 @@ def encode(
     from .codec.options import EncodeOptions
     from .data.btf import BTF
     from .execution import Execution
+    from .open import BTF_ARGUMENT, check_btf_list
 
     if options is not None and not isinstance(options, EncodeOptions):
         raise wrong_type("encode", "options", "an EncodeOptions or None", options)
     if execution is not None and not isinstance(execution, Execution):
         raise wrong_type("encode", "execution", "an Execution or None", execution)
     if not isinstance(btf_or_btfs, BTF | str | os.PathLike):
-        if _is_array(btf_or_btfs) or not isinstance(btf_or_btfs, Iterable) or isinstance(
-                btf_or_btfs, bytes | Mapping):  # fmt: skip
-            raise wrong_type("encode", "btf_or_btfs", _BTF + ", or a list of them",
-                             btf_or_btfs, ARRAY_HINT if _is_array(btf_or_btfs) else "")
-        btf_or_btfs = list(btf_or_btfs)
-        for i, one in enumerate(btf_or_btfs):
-            check_btf("encode", f"btf_or_btfs[{i}]", one)
+        btf_or_btfs = check_btf_list("encode", "btf_or_btfs", btf_or_btfs,
+                                     BTF_ARGUMENT + ", or a list of them")  # fmt: skip
     _check_model("encode", model)
     kind, value = parse_target(target)
     for key in ("tau", "target_bytes", "target_ratio"):
@@ -264,6 +240,7 @@ def decode(
     encoding); the wrong model is refused (:class:`~sparsebtf.errors.ModelMismatchError`).
     """
     from .model import CodedBTF, Model
+    from .open import ARRAY_HINT
     from .patch_tree import AdaptiveCodedBTF
     from .runtime.adaptive import decoded_view
     from .runtime.dense import coded_btf_view
@@ -287,7 +264,7 @@ def decode(
     if not isinstance(coded, CodedBTF):
         raise wrong_type("decode", "coded", "a coded BTF (sparsebtf.encode's result) or a coded "
                          ".h5 file's path", coded, ARRAY_HINT.split(":")[0] + " (nor a coded one)"
-                         if _is_array(coded) else "")  # fmt: skip
+                         if is_array(coded) else "")  # fmt: skip
     if model is not None:
         coded.attach(_model_of(model, "decode"))
     elif coded.model is None:

@@ -40,6 +40,7 @@ __all__ = [
     "check_option",
     "describe",
     "given",
+    "is_array",
     "wrong_type",
 ]
 
@@ -169,11 +170,17 @@ def _shown(value: Any) -> str:
     return text if len(text) <= 80 else text[:77] + "..."
 
 
+def is_array(value: Any) -> bool:
+    """Whether ``value`` is an array (NumPy's, or any with a shape and a dtype), as a refusal
+    names it."""
+    return hasattr(value, "shape") and hasattr(value, "dtype")
+
+
 def given(value: Any) -> str:
     """What was given, short, for a refusal: an array by its type, shape and dtype (never its
     values), anything else as its (shortened) repr and its type's name."""
     kind = type(value)
-    if hasattr(value, "shape") and hasattr(value, "dtype"):
+    if is_array(value):
         module = kind.__module__.split(".")[0]
         return (f"a {module}.{kind.__name__} of shape {tuple(value.shape)} and dtype "
                 f"{value.dtype}")  # fmt: skip

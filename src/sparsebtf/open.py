@@ -16,10 +16,12 @@ Which reader a file gets is the format registry's (:mod:`sparsebtf.formats.regis
 from __future__ import annotations
 
 import os
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 
 from ._h5check import HDF5_ERRORS, read_str_attr
 from ._hdf5 import open_h5, read_error
+from .constraints import is_array, wrong_type
 from .data.btf import BTF
 from .errors import FileFormatError
 from .formats.registry import FORMATS, formats_for
@@ -68,6 +70,35 @@ def parse_synth_spec(spec: str) -> dict[str, object]:
     return out
 
 
+#: What one BTF may be, in a refusal, and how an array becomes one.
+BTF_ARGUMENT = "a BTF, a path or a synth: spec"
+ARRAY_HINT = ("an array is no BTF: wrap it as sparsebtf.data.btf.ArrayBTF(data, lights, views) "
+              "with the directions of sparsebtf.data.directions (ubo2014() …)")
+
+
+def array_hint(value: object) -> str:
+    """:data:`ARRAY_HINT` where ``value`` is an array (how to wrap it), else nothing."""
+    return ARRAY_HINT if is_array(value) else ""
+
+
+def check_btf(function: str, argument: str, value: object) -> None:
+    """Refuse ``value`` unless it is one BTF: a :class:`~sparsebtf.data.btf.BTF`, a path or a
+    ``synth:`` spec (an array is named as such, with how to wrap it)."""
+    if not isinstance(value, BTF | str | os.PathLike):
+        raise wrong_type(function, argument, BTF_ARGUMENT, value, array_hint(value))
+
+
+def check_btf_list(function: str, argument: str, value: object, expected: str) -> list:
+    """``value`` as a list of BTFs, each checked by :func:`check_btf`; an array, bytes, a
+    mapping or anything not iterable is refused as a whole (``expected``: what it must be)."""
+    if is_array(value) or isinstance(value, bytes | Mapping) or not isinstance(value, Iterable):
+        raise wrong_type(function, argument, expected, value, array_hint(value))
+    out = list(value)
+    for i, one in enumerate(out):
+        check_btf(function, f"{argument}[{i}]", one)
+    return out
+
+
 def open_btf(
     source: str | os.PathLike[str],
     model_path: str | os.PathLike[str] | None = None,
@@ -77,12 +108,9 @@ def open_btf(
     a file's BTF has ``source`` = the path, so messages name the file, not the material."""
     if not isinstance(source, str | os.PathLike) or not isinstance(
             model_path, str | os.PathLike | None):  # fmt: skip
-        from .api import ARRAY_HINT
-        from .constraints import wrong_type
-
         if not isinstance(source, str | os.PathLike):
-            hint = ARRAY_HINT if hasattr(source, "dtype") and hasattr(source, "shape") else ""
-            raise wrong_type("open_btf", "source", "a path or a synth: spec", source, hint)
+            raise wrong_type("open_btf", "source", "a path or a synth: spec", source,
+                             array_hint(source))
         raise wrong_type("open_btf", "model_path", "a model file's path or None", model_path)
     s = str(source)
     if s.startswith("synth:"):

@@ -15,7 +15,7 @@ import hashlib
 import math
 import os
 import time
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -198,8 +198,8 @@ def train(
 def _check_inputs(btfs: Any, options: Any, execution: Any) -> list[Any]:
     """:func:`train`'s arguments of the wrong type, refused in one line each (one BTF or
     path where a list belongs: say so, not iterate the path's characters); the list."""
-    from ..api import check_btf
     from ..constraints import wrong_type
+    from ..open import check_btf_list
     if options is not None and not isinstance(options, TrainOptions):
         raise wrong_type("train", "options", "a TrainOptions or None", options)
     if execution is not None and not isinstance(execution, Execution):
@@ -208,16 +208,7 @@ def _check_inputs(btfs: Any, options: Any, execution: Any) -> list[Any]:
     if isinstance(btfs, BTF | str | os.PathLike):
         one = repr(btfs) if isinstance(btfs, str) else "btf"
         raise wrong_type("train", "btfs", what, btfs, f"for one, give [{one}]")
-    if (hasattr(btfs, "shape") and hasattr(btfs, "dtype")) or isinstance(btfs, bytes | Mapping) \
-            or not isinstance(btfs, Iterable):  # fmt: skip
-        from ..api import ARRAY_HINT
-
-        raise wrong_type("train", "btfs", what, btfs,
-                         ARRAY_HINT if hasattr(btfs, "dtype") else "")  # fmt: skip
-    out = list(btfs)
-    for i, one in enumerate(out):
-        check_btf("train", f"btfs[{i}]", one)
-    return out
+    return check_btf_list("train", "btfs", btfs, what)
 
 
 def join_patch_sizes(models: Sequence[Model]) -> Model:
