@@ -23,10 +23,9 @@ from .coded_file import (
     CODED_SCHEMA_VERSION,
     load_coded,
     load_coded_with_model,
-    pack_locations,
     save_coded,
-    unpack_locations,
 )
+from .locations import pack_locations, unpack_locations
 from .model_file import MODEL_FORMAT, MODEL_SCHEMA_VERSION, load_model, save_model
 
 # registers the reader and writers of adaptive patch sizes (schema 4) with the coded file's

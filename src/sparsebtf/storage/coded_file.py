@@ -73,6 +73,7 @@ from ..points.preprocessing import RELEASE_LOG_OFFSET, STD_MODES, Standardizatio
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 from .coded_schema import NO_CLAMP, check_required
 from .coded_streams import read_streams, stored_values, write_streams
+from .locations import pack_locations, unpack_locations
 from .model_file import exact_dtype
 
 if TYPE_CHECKING:
@@ -84,9 +85,7 @@ __all__ = [
     "WRITABLE_SCHEMAS",
     "coded_image",
     "load_coded",
-    "pack_locations",
     "save_coded",
-    "unpack_locations",
 ]
 
 CODED_FORMAT = "sparsebtf-coded"
@@ -100,59 +99,6 @@ ADAPTIVE_IO: dict[str, Callable[..., Any]] = {}
 #: Schemas :func:`save_coded` can write (2: the uncompressed Table 4 layout, for old readers).
 WRITABLE_SCHEMAS = (2, 3)
 _MAX_SIDE = 2**20  # texels per side
-
-
-# --------------------------------------------------------------------------- location packing
-
-
-def pack_locations(locations: np.ndarray, mode_sizes: tuple[int, ...] | list[int]) -> np.ndarray:
-    """Pack (NNZ, N) multi-indices into (NNZ, w) uint8, w = :func:`location_width`.
-
-    The packed value is the column-major linear index ``l1 + m1·l2 + m1·m2·l3 + …`` (the
-    release's storage order, MATLAB's ``sub2ind``), written as w little-endian bytes.
-    """
-    sizes = tuple(int(m) for m in mode_sizes)
-    loc = np.asarray(locations)
-    if loc.ndim != 2 or loc.shape[1] != len(sizes):
-        raise BTFInputError(f"locations must have shape (NNZ, {len(sizes)}), got {loc.shape}")
-    width = location_width(sizes)
-    if loc.shape[0] == 0:
-        return np.zeros((0, width), dtype=np.uint8)
-    loc = loc.astype(np.int64, copy=False)
-    bad = (loc < 0) | (loc >= np.array(sizes, dtype=np.int64))
-    if bad.any():
-        row, col = (int(x[0]) for x in np.nonzero(bad))
-        raise BTFInputError(
-            f"location {row} has index {int(loc[row, col])} on mode {col + 1}, outside "
-            f"[0, {sizes[col]})"
-        )
-    strides = np.cumprod((1, *sizes[:-1]), dtype=np.int64)
-    linear = (loc @ strides).astype("<u4")
-    return np.ascontiguousarray(linear.view(np.uint8).reshape(-1, 4)[:, :width])
-
-
-def unpack_locations(packed: np.ndarray, mode_sizes: tuple[int, ...] | list[int]) -> np.ndarray:
-    """Inverse of :func:`pack_locations`: (NNZ, w) uint8 → (NNZ, N) int32 multi-indices."""
-    sizes = tuple(int(m) for m in mode_sizes)
-    b = np.asarray(packed)
-    width = location_width(sizes)
-    if b.ndim != 2 or b.shape[1] != width or b.dtype != np.uint8:
-        raise BTFInputError(
-            f"packed locations for modes {sizes} must be (NNZ, {width}) uint8, got "
-            f"{b.shape} {b.dtype}"
-        )
-    full = np.zeros((b.shape[0], 4), dtype=np.uint8)
-    full[:, :width] = b
-    linear = full.view("<u4").reshape(-1).astype(np.int64)
-    total = int(np.prod(sizes, dtype=np.int64))
-    if linear.size and int(linear.max()) >= total:
-        i = int(np.argmax(linear >= total))
-        raise BTFInputError(
-            f"packed location {i} decodes to linear index {int(linear[i])}, outside the "
-            f"{total} entries of a data point"
-        )
-    idx = np.unravel_index(linear, sizes, order="F")
-    return np.stack(idx, axis=1).astype(np.int32) if sizes else np.zeros((b.shape[0], 0), np.int32)
 
 
 # --------------------------------------------------------------------------- writing
