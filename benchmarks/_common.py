@@ -123,3 +123,26 @@ def small_job() -> tuple[Any, Any]:
     from tests.conftest import smooth_btf, tiny_model
 
     return smooth_btf(7, size=16), tiny_model(1)
+
+
+def pca_reconstructions(btf: Any, budgets: list[int], seed: int = 0
+                        ) -> list[tuple[int, list[int], int, np.ndarray]]:  # fmt: skip
+    """Per-material linear PCA of ``btf`` at each byte budget, fitted once at the largest:
+    (budget, ranks per channel, bytes, the reconstruction as a dense array) per budget."""
+    from sparsebtf.evaluation.baselines import (
+        allocate_ranks,
+        fit_pca,
+        pca_bytes,
+        pca_rank_for_budget,
+        pca_reconstruction,
+    )
+
+    n_tex, n_ang = btf.height * btf.width, len(btf.lights) * len(btf.views)
+    top = max(1, pca_rank_for_budget(max(budgets), n_tex, n_ang))
+    fit = fit_pca(btf, top, domain="linear", seed=seed, progress=False)
+    out = []
+    for b in budgets:
+        ranks = allocate_ranks(fit, pca_rank_for_budget(b, n_tex, n_ang))
+        out.append((int(b), list(ranks), pca_bytes(ranks, n_tex, n_ang),
+                    pca_reconstruction(fit, ranks, btf).to_array()))
+    return out

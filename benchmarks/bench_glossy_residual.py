@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from _common import machine, report
+from _common import machine, pca_reconstructions, report
 from sparsebtf.codec import encode_levels
 from sparsebtf.evaluation.benchmark_set import (
     PAPER_TABLE4_RATIOS,
@@ -131,24 +131,8 @@ def residual_rows(dec: np.ndarray, ref: np.ndarray, level_bytes: int, curve: lis
 
 def pca_rows(btf: Any, ref: np.ndarray, budgets: list[int], seed: int) -> list[dict[str, Any]]:
     """Per-material linear PCA at each byte budget: ranks, bytes, the highlight split."""
-    from sparsebtf.evaluation.baselines import (
-        allocate_ranks,
-        fit_pca,
-        pca_bytes,
-        pca_rank_for_budget,
-        pca_reconstruction,
-    )
-
-    n_tex, n_ang = btf.height * btf.width, len(btf.lights) * len(btf.views)
-    top = max(1, pca_rank_for_budget(max(budgets), n_tex, n_ang))
-    fit = fit_pca(btf, top, domain="linear", seed=seed, progress=False)
-    out = []
-    for b in budgets:
-        ranks = allocate_ranks(fit, pca_rank_for_budget(b, n_tex, n_ang))
-        rec = pca_reconstruction(fit, ranks, btf).to_array()
-        out.append({"budget": int(b), "ranks": list(ranks),
-                    "bytes": pca_bytes(ranks, n_tex, n_ang), **_split(rec, ref)})  # fmt: skip
-    return out
+    return [{"budget": b, "ranks": ranks, "bytes": n, **_split(rec, ref)}
+            for b, ranks, n, rec in pca_reconstructions(btf, budgets, seed)]
 
 
 def run(spec: str, objectives: list[str], log_offset: str, levels: list[int],

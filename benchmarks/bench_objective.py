@@ -37,7 +37,7 @@ from typing import Any
 
 import numpy as np
 
-from _common import machine, report
+from _common import machine, pca_reconstructions, report
 from sparsebtf.codec import encode_levels
 from sparsebtf.display import tone_map
 from sparsebtf.evaluation.benchmark_set import (
@@ -84,24 +84,10 @@ def lod_curve(coded: Any, ref: np.ndarray, p: int) -> dict[str, Any]:
 
 def pca_at(btf: Any, ref: np.ndarray, material_bytes: int) -> dict[str, Any]:
     """Per-material linear PCA at ``material_bytes`` and twice them: ranks, bytes, MSE."""
-    from sparsebtf.evaluation.baselines import (
-        allocate_ranks,
-        fit_pca,
-        pca_bytes,
-        pca_rank_for_budget,
-        pca_reconstruction,
-    )
-
-    n_tex, n_ang = btf.height * btf.width, len(btf.lights) * len(btf.views)
-    top = max(1, pca_rank_for_budget(2 * material_bytes, n_tex, n_ang))
-    fit = fit_pca(btf, top, domain="linear", seed=0, progress=False)
-    out = {}
-    for factor in (1, 2):
-        ranks = allocate_ranks(fit, pca_rank_for_budget(factor * material_bytes, n_tex, n_ang))
-        rec = pca_reconstruction(fit, ranks, btf).to_array().astype(np.float64)
-        out[f"{factor}x"] = {"ranks": list(ranks), "bytes": pca_bytes(ranks, n_tex, n_ang),
-                             "mse_linear": float(((rec - ref) ** 2).mean())}
-    return out
+    found = pca_reconstructions(btf, [material_bytes, 2 * material_bytes], seed=0)
+    return {f"{factor}x": {"ranks": ranks, "bytes": n,
+                           "mse_linear": float(((rec.astype(np.float64) - ref) ** 2).mean())}
+            for factor, (_, ranks, n, rec) in zip((1, 2), found, strict=True)}
 
 
 def run(spec: str, objectives: list[str], log_offset: str, levels: list[int],
