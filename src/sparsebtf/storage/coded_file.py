@@ -451,7 +451,7 @@ def _read_codes(
     g: h5py.Group, where: str, n_points: int, schema: int
 ) -> tuple[SparseCodes, int | None]:
     sizes = _mode_sizes(g, where)
-    k = _dictionary_count(g, where, schema)
+    k = _dictionary_count(g, where)
     membership = read_array(g, "membership", where, kinds="u", shape=(n_points,))
     counts = read_array(g, "counts", where, kinds="u", shape=(n_points,)).astype(np.int64)
     errors = read_array(g, "errors", where, kinds="f", shape=(n_points,))
@@ -461,7 +461,7 @@ def _read_codes(
     else:
         values, locations = _read_packed(g, where, sizes, total)
     # after the data agree among themselves (their own messages are the more telling)
-    _check_size_attrs(g, where, schema, {
+    _check_size_attrs(g, where, {
         "n_points": (n_points, "the texture's grid (schema 4: its tree's nodes)"),
         "nnz": (total, "the sum of 'counts'"),
         "location_bytes": (location_width(sizes), "the width 'mode_sizes' needs"),
@@ -480,33 +480,22 @@ def _read_codes(
     return codes, k
 
 
-def _dictionary_count(g: h5py.Group, where: str, schema: int) -> int | None:
-    """``n_dictionaries`` (K): required from schema 3 (the writer always records it), checked
-    against the memberships by :func:`~sparsebtf._semantic.validate_coded` and against the
-    model's K when one is attached; older files may lack it."""
-    if schema < 3 and "n_dictionaries" not in g.attrs:
-        return None
+def _dictionary_count(g: h5py.Group, where: str) -> int | None:
+    """``n_dictionaries`` (K): required from schema 3 (:mod:`.coded_schema`; the writer always
+    records it), checked against the memberships by :func:`~sparsebtf._semantic.validate_coded`
+    and against the model's K when one is attached; older files may lack it."""
     if "n_dictionaries" not in g.attrs:
-        raise FileFormatError(
-            f"{where}: missing attribute 'n_dictionaries', which every schema-3 coded file "
-            f"carries (this file says schema {schema}); the file is damaged"
-        )
+        return None
     return read_int_attr(g, "n_dictionaries", where, 1, 2**32)
 
 
-def _check_size_attrs(g: h5py.Group, where: str, schema: int,
-                      expected: dict[str, tuple[int, str]]) -> None:  # fmt: skip
+def _check_size_attrs(g: h5py.Group, where: str, expected: dict[str, tuple[int, str]]) -> None:
     """The channel's counts (``n_points``, ``nnz``, ``location_bytes``) must equal what its
     data give: a count that disagrees is damage, even where the reader need not use it.
-    Required from schema 3; checked when present in older files."""
+    Required from schema 3 (:mod:`.coded_schema`); checked when present in older files."""
     for key, (want, source) in expected.items():
         if key not in g.attrs:
-            if schema < 3:
-                continue
-            raise FileFormatError(
-                f"{where}: missing attribute {key!r}, which every schema-3 coded file carries "
-                f"(this file says schema {schema}); the file is damaged"
-            )
+            continue
         found = read_int_attr(g, key, where)
         if found != want:
             raise FileFormatError(

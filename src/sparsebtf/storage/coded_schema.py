@@ -34,7 +34,8 @@ NO_CLAMP = ("clamp", "none")
 class Required:
     """One field a coded file must carry from schema ``since`` on.
 
-    group : the HDF5 group holding it ("" for the root; "codes/*" for each channel's group).
+    group : the HDF5 group holding it ("" for the root; "codes/*" for each channel's group,
+        "sizes/*/*" for each patch size's channel groups of schema 4).
     name : the attribute or dataset name; kind : "attribute" or "dataset".
     unless : an attribute (name, value) of ``group`` that states the field's absence.
     """
@@ -57,6 +58,9 @@ REQUIRED_SINCE: tuple[Required, ...] = (
     Required("codes/*", "nnz", "attribute", 3),
     Required("codes/*", "location_bytes", "attribute", 3),
     Required("codes/*", "n_dictionaries", "attribute", 3),
+    # schema 4 (adaptive patch sizes): the same counts in each size's channel groups
+    *(Required("sizes/*/*", n, "attribute", 4)
+      for n in ("n_points", "nnz", "location_bytes", "n_dictionaries")),
     Required("stats", "eps", "attribute", 3),
     Required("stats", "bound", "dataset", 3, unless=NO_CLAMP),
     *(Required(g, n, k, 3) for g in ("lights", "views")
@@ -89,12 +93,11 @@ def check_required(f: h5py.File, schema: int, where: str) -> None:
 
 
 def _groups(f: h5py.File, pattern: str) -> list[str]:
-    """The paths ``pattern`` names in ``f`` that exist ("codes/*": every channel group)."""
+    """The paths ``pattern`` names in ``f`` that exist ("codes/*": every channel group;
+    "sizes/*/*": every channel group of every patch size)."""
     if pattern.endswith("/*"):
-        parent = pattern[:-2]
-        if parent not in f or not isinstance(f[parent], h5py.Group):
-            return []
-        return [f"{parent}/{name}" for name in f[parent]]
+        return [f"{parent}/{name}" for parent in _groups(f, pattern[:-2])
+                if isinstance(f[parent], h5py.Group) for name in f[parent]]  # fmt: skip
     return [pattern] if pattern == "" or pattern in f else []
 
 
