@@ -44,7 +44,7 @@ from .._semantic import check_directions
 from ..errors import BTFInputError, FileFormatError, SparseBTFError
 from .btf import BTF, Index
 from .chunks import ChunkReader
-from .directions import DirectionSet, from_vectors
+from .directions import DirectionSet, from_vectors, unit_vectors
 
 __all__ = [
     "DEFAULT_CHUNK", "FORMAT", "SCHEMA_VERSION", "DenseFileBTF", "chunk_cache_bytes",
@@ -93,12 +93,6 @@ def read_directions(group: h5py.Group, where: str) -> DirectionSet:
 ANGLE_TOLERANCE = 1e-5
 
 
-def angle_vectors(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
-    """Unit vectors of polar angles ``theta`` and azimuths ``phi`` (radians), (n, 3)."""
-    st = np.sin(theta)
-    return np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=1)
-
-
 def check_angles(group: h5py.Group, key: str, xyz: np.ndarray, where: str) -> None:
     """The table's ``theta`` or ``phi`` dataset: (n,) finite radians giving back ``xyz``.
 
@@ -110,7 +104,7 @@ def check_angles(group: h5py.Group, key: str, xyz: np.ndarray, where: str) -> No
     exact = from_vectors(xyz.astype(np.float64))
     theta = angles if key == "theta" else exact.theta
     phi = angles if key == "phi" else exact.phi
-    off = np.abs(angle_vectors(theta.astype(np.float64), phi.astype(np.float64)) - exact.xyz)
+    off = np.abs(unit_vectors(theta.astype(np.float64), phi.astype(np.float64)) - exact.xyz)
     # (at the pole any azimuth gives the same vector: there only θ is checked, by nature)
     worst = int(np.argmax(off.max(axis=1)))
     if float(off[worst].max()) > ANGLE_TOLERANCE:

@@ -34,6 +34,7 @@ __all__ = [
     "tiny",
     "ubo2003",
     "ubo2014",
+    "unit_vectors",
 ]
 
 
@@ -143,6 +144,13 @@ if HAVE_NUMBA:
         return idx, dist
 
 
+def unit_vectors(theta: np.ndarray, phi: np.ndarray) -> np.ndarray:
+    """Unit vectors (n, 3) of polar angles θ (from the normal) and azimuths φ (radians),
+    unchecked: :func:`from_angles` checks them first."""
+    st = np.sin(theta)
+    return np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=1)
+
+
 def from_angles(theta: np.ndarray, phi: np.ndarray, name: str = "custom") -> DirectionSet:
     """Build a set from polar angle θ (from the normal) and azimuth φ, radians."""
     theta = np.asarray(theta, dtype=np.float64).ravel()
@@ -169,8 +177,7 @@ def from_angles(theta: np.ndarray, phi: np.ndarray, name: str = "custom") -> Dir
             f"direction {bad}: polar angle {float(theta[bad]) * 180 / np.pi:.3f}° is outside "
             "[0°, 90°]"
         )
-    st = np.sin(theta)
-    xyz = np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=1)
+    xyz = unit_vectors(theta, phi)
     wrapped = (phi + np.pi) % (2 * np.pi) - np.pi
     return DirectionSet(xyz=xyz, theta=theta, phi=wrapped, name=name)
 
