@@ -1,17 +1,24 @@
 """Where a renderer's lookup spends its time: SparseBTF's Eq. 5/6 against the neural decoders
 and against this machine's gather/FMA floor, all in one run on the same queries.
 
-The material: a coded BTF at UBO2014 angular resolution (151 × 151 directions, 10 × 10
-patches, ``--size`` texels square, K = 8 random orthonormal dictionaries per channel) at the
-release's τ = (885, 64, 64): the cost of a lookup depends on τ, K and the angular size, not
-on the values. Queries (seeded): renderer-style — texels anywhere, continuous light and view
-directions on the upper hemisphere — in three orders:
+The materials (``--materials``), both at UBO2014 angular resolution (151 × 151 directions,
+10 × 10 patches, ``--size`` texels square) and the release's τ = (885, 64, 64), SparseBTF(32):
+
+* ``captured``: the built-in woven sample captured by ``sparsebtf capture`` (1 spp, cached)
+  and coded with the bundled release model, every point at exactly τ (ε = 0): the columns
+  a real code uses, which the lookup's compact factors exploit (``runtime/compact.py``);
+* ``synthetic``: K = 8 random orthonormal dictionaries per channel and τ coefficients per
+  point at random locations — the worst case for the compact factors (a point uses almost
+  every column), which no encoder produces.
+
+Queries (seeded): renderer-style — texels anywhere, continuous light and view directions
+on the upper hemisphere — in three orders:
 
 * ``random``: as they come;
 * ``wavefront``: the same queries sorted by data point (a wavefront renderer's batch);
 * ``brdf``: one texel, many directions (an apparent BRDF).
 
-Timed, per order (queries/s, best of ``--repeat`` calls of ``--queries`` queries):
+Timed, per material and order (queries/s, best of ``--repeat`` calls of ``--queries``):
 
 * ``RuntimeBTF.evaluate`` (numba; every interpolation scheme), and for the two release
   schemes the previous lookup, rebuilt from the same kernels (a search of all directions per
@@ -23,10 +30,12 @@ Timed, per order (queries/s, best of ``--repeat`` calls of ``--queries`` queries
   per coefficient) and the same terms summed across 32 queries of a point at once (contiguous
   vector loads). A lookup cannot beat the floor of its loop without skipping coefficients.
 
-Per query it reports the coefficients summed, the bytes read (coefficients at 8 bytes, and
-the dictionary rows), and cycles per query at ``--ghz`` (default: the first CPU's clock).
+Per query it reports the coefficients summed, the factor entries built (the compact lists'
+lengths summed over Y, U and V, light and view rows once per neighbour), and cycles per query
+at ``--ghz`` (default: the first CPU's clock) × the threads.
 
-    python benchmarks/bench_lookup.py [--size 30] [--queries 65536] [--repeat 5] [--json]
+    python benchmarks/bench_lookup.py [--size 30] [--materials captured,synthetic]
+                                      [--queries 65536] [--repeat 5] [--json]
 """
 
 from __future__ import annotations
@@ -168,14 +177,32 @@ def floors(rt: RuntimeBTF, texel: np.ndarray, repeat: int) -> dict[str, float]:
     return {"per query": n / t_query, "lanes": n / t_lanes}
 
 
-def per_query_cost(rt: RuntimeBTF, kl: int, kv: int) -> tuple[int, int]:
-    """(coefficients summed, bytes read) per query: coefficients at 8 bytes (float32 value,
-    uint32 location) and, per channel, the dictionary rows read (two spatial, kl + kv
-    angular)."""
-    coef = sum(int(rt.tau[ch]) for ch in "YUV")
-    m = rt.meta["mode_sizes"]
-    rows = 3 * (m[0] + m[1] + kl * m[2] + kv * m[3]) * rt.dtype.itemsize
-    return coef, 8 * coef + rows
+def per_query_cost(rt: RuntimeBTF, kl: int, kv: int) -> tuple[float, float]:
+    """(coefficients summed, factor entries built) per query, averaged over the points: the
+    compact lists of every channel (pairs, kl light rows, kv view rows; ``runtime/compact``);
+    the lookup before them built 2 + 2 + kl·151 + kv·151 entries per channel."""
+    coef = entries = 0.0
+    for ch in "YUV":
+        off = rt._channels[ch]["offsets"]
+        coef += float(np.mean(np.minimum(np.diff(off), rt.tau[ch])))
+        n12, n3, n4 = rt._layout(ch).mean_sizes()
+        entries += n12 + kl * n3 + kv * n4
+    return coef, entries
+
+
+def material(kind: str, size: int, seed: int) -> RuntimeBTF:
+    """The benchmark's coded material ``kind`` ("captured" or "synthetic"), SparseBTF(32)."""
+    if kind == "synthetic":
+        return RuntimeBTF(synthetic_coded(size=size, tau=TAU, seed=seed))
+    if kind != "captured":
+        raise SystemExit(f"unknown material {kind!r}: captured or synthetic")
+    import sparsebtf as sb
+    from sparsebtf.data.capture import cached_capture
+
+    btf = cached_capture("woven", size, seed=seed, spp=1)
+    tau = (TAU["Y"], TAU["U"], TAU["V"])
+    return RuntimeBTF(sb.encode(btf, target=tau, options=sb.EncodeOptions(eps=0.0,
+                                                                          progress=False)))
 
 
 def _ghz() -> float:
@@ -192,6 +219,8 @@ def _ghz() -> float:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", type=int, default=30, help="texels square (multiple of 10)")
+    ap.add_argument("--materials", default="captured,synthetic",
+                    help="comma-separated: captured, synthetic")  # fmt: skip
     ap.add_argument("--queries", type=int, default=65536)
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--latents", type=int, default=12, help="neural code size per texel")
@@ -206,52 +235,61 @@ def main() -> None:
     threads = len(os.sched_getaffinity(0))
     torch.set_num_threads(threads)
     ghz = args.ghz or _ghz()
-    rt = RuntimeBTF(synthetic_coded(size=args.size, tau=TAU, seed=args.seed))
-    qs = queries(rt, args.queries, args.seed)
     nets = neural_decoders(args.size, args.latents, args.seed)
     n = args.queries
-    res: dict[str, dict] = {}
 
     def rate(fn) -> float:
         return n / best_of(fn, args.repeat)
 
-    for order, (tex, wi, wo) in qs.items():
-        r: dict[str, float] = {}
-        q = {"texel": tex, "wi": wi, "wo": wo}
-        for scheme in SCHEMES:
-            r[f"SparseBTF {scheme}"] = rate(
-                lambda s=scheme, q=q: rt.evaluate(q["wi"], q["wo"], texel=q["texel"],
-                                                  interpolation=s))  # fmt: skip
-        for scheme in ("nearest", "linear"):
-            r[f"previous lookup {scheme}"] = rate(
-                lambda s=scheme, q=q: previous_evaluate(rt, q["wi"], q["wo"], q["texel"], s))
-        for label, net in nets.items():
-            r[label] = rate(lambda m=net, q=q: m.lookup(q["texel"][:, 0], q["texel"][:, 1],
-                                                        q["wi"], q["wo"]))  # fmt: skip
-        fl = floors(rt, tex, args.repeat)
-        r["floor: gather/FMA per query"] = fl["per query"]
-        r[f"floor: {GROUP} lanes per point"] = fl["lanes"]
-        res[order] = r
-    coef, nbytes = per_query_cost(rt, 2, 2)
-    best_neural = {o: max(v for k, v in r.items() if "decoder" in k) for o, r in res.items()}
+    res: dict[str, dict[str, dict[str, float]]] = {}
+    cost: dict[str, dict[str, float]] = {}
+    for kind in args.materials.split(","):
+        rt = material(kind, args.size, args.seed)
+        qs = queries(rt, n, args.seed)
+        rt.evaluate(*qs["random"][1:], texel=qs["random"][0])  # compile, build the lists
+        coef, entries = per_query_cost(rt, 2, 2)
+        cost[kind] = {"coefficients": coef, "factor_entries_linear": entries}
+        res[kind] = {}
+        for order, (tex, wi, wo) in qs.items():
+            r: dict[str, float] = {}
+            q = {"texel": tex, "wi": wi, "wo": wo}
+            for scheme in SCHEMES:
+                r[f"SparseBTF {scheme}"] = rate(
+                    lambda s=scheme, q=q, rt=rt: rt.evaluate(q["wi"], q["wo"], texel=q["texel"],
+                                                      interpolation=s))  # fmt: skip
+            for scheme in ("nearest", "linear"):
+                r[f"previous lookup {scheme}"] = rate(
+                    lambda s=scheme, q=q, rt=rt: previous_evaluate(rt, q["wi"], q["wo"], q["texel"],
+                                                            s))  # fmt: skip
+            for label, net in nets.items():
+                r[label] = rate(lambda m=net, q=q: m.lookup(q["texel"][:, 0], q["texel"][:, 1],
+                                                            q["wi"], q["wo"]))  # fmt: skip
+            fl = floors(rt, tex, args.repeat)
+            r["floor: gather/FMA per query"] = fl["per query"]
+            r[f"floor: {GROUP} lanes per point"] = fl["lanes"]
+            res[kind][order] = r
+    best_neural = {k: {o: max(v for lab, v in r.items() if "decoder" in lab)
+                       for o, r in per.items()} for k, per in res.items()}  # fmt: skip
     rows: list[tuple[str, str]] = [
-        ("material", f"{args.size}x{args.size} texels, 151x151 directions, tau "
-                     f"{TAU['Y']}/{TAU['U']}/{TAU['V']}, float32"),
-        ("per query", f"{coef} coefficients, {nbytes:,} bytes read (linear), "
-                      f"{threads} threads, {ghz:.2f} GHz"),
+        ("materials", f"{args.size}x{args.size} texels, 151x151 directions, tau "
+                      f"{TAU['Y']}/{TAU['U']}/{TAU['V']}, float32; {threads} threads, "
+                      f"{ghz:.2f} GHz"),
     ]  # fmt: skip
-    for order, r in res.items():
-        rows.append((f"-- {order} ({n} queries)", "queries/s   cycles/query   vs best neural   "
-                                                   "vs lane floor"))  # fmt: skip
-        for label, v in r.items():
-            cyc = threads * ghz * 1e9 / v
-            rows.append((f"  {label}", f"{v / 1e6:7.2f} M   {cyc:10,.0f}   "
-                         f"{v / best_neural[order]:10.2f}x   "
-                         f"{v / r[f'floor: {GROUP} lanes per point']:8.2f}x"))  # fmt: skip
+    for kind, per in res.items():
+        rows.append((f"== {kind}", f"{cost[kind]['coefficients']:.0f} coefficients, "
+                     f"{cost[kind]['factor_entries_linear']:.0f} factor entries per linear "
+                     "query"))  # fmt: skip
+        for order, r in per.items():
+            rows.append((f"-- {order} ({n} queries)", "queries/s   cycles/query   "
+                         "vs best neural   vs lane floor"))  # fmt: skip
+            for label, v in r.items():
+                cyc = threads * ghz * 1e9 / v
+                rows.append((f"  {label}", f"{v / 1e6:7.2f} M   {cyc:10,.0f}   "
+                             f"{v / best_neural[kind][order]:10.2f}x   "
+                             f"{v / r[f'floor: {GROUP} lanes per point']:8.2f}x"))  # fmt: skip
     report(rows, {"machine": machine(), "threads": threads, "ghz": ghz, "queries": n,
                   "size": args.size, "tau": TAU, "latents": args.latents,
-                  "coefficients_per_query": coef, "bytes_per_query": nbytes,
-                  "queries_per_second": res, "best_neural": best_neural},
+                  "per_query": cost, "queries_per_second": res, "best_neural": best_neural},
            args.json)  # fmt: skip
 
 

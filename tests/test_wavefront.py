@@ -10,6 +10,7 @@ from sparsebtf.codec import encode
 from sparsebtf.data.directions import k_nearest, ubo2014
 from sparsebtf.runtime import DirectionIndex, RuntimeBTF, angular_weights, kernels
 from sparsebtf.runtime.angular import SCHEMES
+from sparsebtf.runtime.compact import DENSE_FRACTION, compact_layout
 from sparsebtf.runtime.wavefront import (
     _group_numpy,
     group_by_point,
@@ -74,10 +75,26 @@ def test_angular_weights_with_a_table_equal_the_scan(scheme, coded):
     q = _dirs(rng, 400)
     k = 4 if scheme == "gaussian" else None
     kk = {"nearest": 1, "linear": 2, "barycentric": 3, "gaussian": 4}[scheme]
+    q[:7] = coded.lights.xyz[:7] * 3.0  # sampled directions (exact hits), not unit length
     a = angular_weights(coded.lights, q, scheme, k)
     b = angular_weights(coded.lights, q, scheme, k, table=DirectionIndex(coded.lights, kk))
     assert np.array_equal(a[0], b[0])
-    np.testing.assert_array_equal(a[1], b[1])
+    if scheme == "gaussian":  # exp and the row sum may differ from NumPy's in the last bit
+        np.testing.assert_allclose(b[1], a[1], rtol=1e-14, atol=1e-16)
+    else:
+        np.testing.assert_array_equal(a[1], b[1])
+
+
+@pytest.mark.parametrize("table", [False, True])
+def test_bad_query_directions_are_refused_with_or_without_a_table(coded, table):
+    from sparsebtf.errors import BTFInputError
+
+    q = _dirs(np.random.default_rng(2), 10)
+    q[4] = 0.0
+    q[6, 1] = np.nan
+    index = DirectionIndex(coded.lights, 2) if table else None
+    with pytest.raises(BTFInputError, match=r"direction 4 is zero or not finite \(2 such"):
+        angular_weights(coded.lights, q, "linear", table=index)
 
 
 def _sums_inputs(coded, n, rng, scheme="linear"):
@@ -101,26 +118,30 @@ def test_both_loops_equal_the_reference_sum(coded, loop, scheme, width):
     for ch in "YUV":
         arr = rt._channels[ch]
         full = float(rt.tau[ch])
-        for tau in (np.full(n, full), np.full(n, 3.0), rng.uniform(0, full, n),
-                    rng.integers(0, int(full) + 1, n).astype(float)):  # fmt: skip
+        # every mode as a whole row (0), lists wherever a point leaves columns unused (1),
+        # and the default: both kinds of factor in one lookup
+        layouts = [compact_layout(arr["offsets"], arr["locations"], (4, 4, 13, 13), f)
+                   for f in (0.0, 1.0, DENSE_FRACTION)]  # fmt: skip
+        for tau, lay in itertools.product(
+                (np.full(n, full), np.full(n, 3.0), rng.uniform(0, full, n),
+                 rng.integers(0, int(full) + 1, n).astype(float)), layouts):  # fmt: skip
             ref = kernels.separable_sum(arr, pts, i1, i2, li, lw, vi, vw, tau, "numpy")
-            got = separable_sums(arr, pts, i1, i2, li, lw, vi, vw, tau, groups, loop, width)
+            got = separable_sums(arr, pts, i1, i2, li, lw, vi, vw, tau, groups, loop, width,
+                                 layout=lay)  # fmt: skip
             scale = np.abs(ref).max()
             np.testing.assert_allclose(got, ref, rtol=0, atol=2e-6 * scale)
     assert np.abs(ref).max() > 0
+    assert any(lay.o3[-1] < 13 * coded.n_points for lay in layouts)  # some lists were short
 
 
 @numba_only
 def test_the_loop_choice_follows_the_terms():
-    """The grouped loop pays for a channel with many coefficients per point and many queries
-    per point, not for a few coefficients or a query alone on its point."""
-    rng = np.random.default_rng(0)
-    d = {f"dict{i}": rng.normal(size=(2, m, m)).astype(np.float32)
-         for i, m in zip((1, 2, 3, 4), (10, 10, 151, 151), strict=True)}  # fmt: skip
-    ch = {**d, "offsets": np.array([0, 885, 1770])}
-    assert grouped_pays(ch, np.full(100, 885.0), 2, 2, 32)
-    assert not grouped_pays(ch, np.full(100, 64.0), 2, 2, 32)
-    assert not grouped_pays(ch, np.full(100, 885.0), 2, 2, 1)
+    """The grouped loop pays for a channel with many queries per point, not for a query
+    alone on its point."""
+    ch = {"offsets": np.array([0, 885, 1770])}
+    assert grouped_pays(ch, np.full(100, 885.0), 32)
+    assert grouped_pays(ch, np.full(100, 64.0), 32)
+    assert not grouped_pays(ch, np.full(100, 885.0), 1)
 
 
 @numba_only

@@ -49,6 +49,9 @@ Scheme = Literal["nearest", "linear", "barycentric", "gaussian"]
 SCHEMES: tuple[str, ...] = ("nearest", "linear", "barycentric", "gaussian")
 DEFAULT_K = {"nearest": 1, "linear": 2, "barycentric": 3, "gaussian": 4}
 _CHUNK = 1 << 16
+#: Schemes whose weights :meth:`DirectionIndex.weights` computes in the same compiled pass as
+#: the search (barycentric solves a 3×3 system per query in NumPy).
+_FUSED = {"nearest": 0, "linear": 1, "gaussian": 2}
 
 
 def _as_xyz(directions: DirectionSet | np.ndarray) -> np.ndarray:
@@ -139,6 +142,9 @@ def angular_weights(
         raise BTFInputError(f"k must be in [1, {xyz.shape[0]}], got {kk}")
     if scheme == "gaussian" and not (np.isfinite(beta) and beta >= 0):
         raise BTFInputError(f"beta must be finite and >= 0, got {beta}")
+    if (table is not None and table.k == kk and HAVE_NUMBA
+            and scheme in _FUSED):  # fmt: skip
+        return table.weights(query, scheme, beta)
     q = _unit_queries(query, "query")
     n = q.shape[0]
     index = np.empty((n, kk), dtype=np.int32)
@@ -267,8 +273,106 @@ class DirectionIndex:
         return _table_knn_nb(self.xyz, self.offsets, self.indices, q, self.k,
                              self.n_phi, self.n_elevation)  # fmt: skip
 
+    def weights(self, query: np.ndarray, scheme: str, beta: float = 20.0
+                ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+        """:func:`angular_weights` of raw queries (n, 3) for "nearest", "linear" or
+        "gaussian" (k = this index's k) in one compiled pass: normalise, search, weigh —
+        the same neighbours and weights as the NumPy steps (tested), without their passes
+        over the batch. Needs numba."""
+        q = np.asarray(query, dtype=np.float64)
+        if q.ndim != 2 or q.shape[1] != 3:
+            raise BTFInputError(f"query directions must have shape (n, 3), got {q.shape}")
+        idx, w, bad = _table_weights_nb(
+            self.xyz, self.offsets, self.indices, np.ascontiguousarray(q), self.k,
+            self.n_phi, self.n_elevation, _FUSED[scheme], float(beta))  # fmt: skip
+        if bad.size:
+            raise BTFInputError(
+                f"query direction {int(bad[0])} is zero or not finite ({bad.size} such "
+                "directions)"
+            )
+        return idx, w
+
 
 if HAVE_NUMBA:
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def _table_weights_nb(xyz, offsets, indices, q, k, n_phi, n_elevation, scheme, beta):
+        # _unit_queries, DirectionIndex.k_nearest and the scheme's weights of angular_weights
+        # per query, in their order of operations (the same values). One or two neighbours
+        # (nearest, linear) are kept in registers while the candidate list is scanned.
+        n = q.shape[0]
+        m = xyz.shape[0]
+        ok = np.empty(n, dtype=np.bool_)
+        if k > 2:
+            unit = np.empty((n, 3))
+            for i in _nb.prange(n):
+                x, y, z = q[i, 0], q[i, 1], q[i, 2]
+                norm = np.sqrt(x * x + y * y + z * z)
+                ok[i] = np.isfinite(norm) and norm != 0.0
+                if not ok[i]:
+                    norm = 1.0
+                unit[i, 0] = x / norm
+                unit[i, 1] = y / norm
+                unit[i, 2] = z / norm
+            idx, d2 = _table_knn_nb(xyz, offsets, indices, unit, k, n_phi, n_elevation)
+            w = np.empty((n, k))
+            for i in _nb.prange(n):
+                t = 0.0
+                for j in range(k):
+                    w[i, j] = np.exp(-beta * (d2[i, j] - d2[i, 0]))
+                    t += w[i, j]
+                for j in range(k):
+                    w[i, j] /= t
+            return idx, w, np.flatnonzero(~ok)
+        idx = np.empty((n, k), dtype=np.int32)
+        w = np.empty((n, k))
+        for i in _nb.prange(n):
+            x, y, z = q[i, 0], q[i, 1], q[i, 2]
+            norm = np.sqrt(x * x + y * y + z * z)
+            ok[i] = np.isfinite(norm) and norm != 0.0
+            if not ok[i]:
+                norm = 1.0
+            qx, qy, qz = x / norm, y / norm, z / norm
+            s0 = 0
+            s1 = m
+            below = qz < 0.0
+            if not below:
+                el = np.arcsin(min(qz, 1.0))
+                az = np.arctan2(qy, qx)
+                e = min(np.int64(el * (2 / np.pi) * n_elevation), n_elevation - 1)
+                a = min(max(np.int64((az + np.pi) * (0.5 / np.pi) * n_phi), 0), n_phi - 1)
+                c = e * n_phi + a
+                s0 = offsets[c]
+                s1 = offsets[c + 1]
+            b0 = np.inf
+            b1 = np.inf
+            j0 = 0
+            j1 = 0
+            for t in range(s0, s1):
+                j = t if below else indices[t]
+                d = max(2.0 - 2.0 * (qx * xyz[j, 0] + qy * xyz[j, 1] + qz * xyz[j, 2]), 0.0)
+                if d < b0:  # strictly: a tie keeps the lower index first, as the scan does
+                    b1, j1 = b0, j0
+                    b0, j0 = d, j
+                elif d < b1:
+                    b1, j1 = d, j
+            idx[i, 0] = j0
+            if k == 1:
+                w[i, 0] = 1.0
+                continue
+            idx[i, 1] = j1
+            if scheme == 2:
+                e1 = np.exp(-beta * (b1 - b0))
+                t = 1.0 + e1
+                w[i, 0] = 1.0 / t
+                w[i, 1] = e1 / t
+            else:
+                d0 = np.sqrt(b0)
+                d1 = np.sqrt(b1)
+                w0 = 0.5 + 0.5 * (d1 - d0) / d1 if d1 > 0 else 0.5
+                w[i, 0] = w0
+                w[i, 1] = 1.0 - w0
+        return idx, w, np.flatnonzero(~ok)
 
     @_nb.njit(parallel=True, cache=True, nogil=True)
     def _table_knn_nb(xyz, offsets, indices, q, k, n_phi, n_elevation):

@@ -30,6 +30,7 @@ from ..points.grid import PatchGrid
 from ..points.preprocessing import inverse_log_transform
 from . import kernels, wavefront
 from .angular import DEFAULT_K, SCHEMES, DirectionIndex, Scheme, angular_weights, neighbour_table
+from .compact import CompactLayout, channel_layout
 
 __all__ = ["NO_BOUND", "Domain", "RuntimeBTF", "query_texels", "texels_from_uv"]
 
@@ -130,6 +131,7 @@ class RuntimeBTF:
         self.log_offset = float(st.log_offset)
         self._bound = None if st.bound is None else np.asarray(st.bound, dtype=np.float64)
         self._indices: dict[tuple[str, int], DirectionIndex] = {}
+        self._layouts: dict[str, CompactLayout] = {}
         self.meta: dict[str, Any] = {
             "name": coded.name,
             "height": coded.height,
@@ -246,6 +248,14 @@ class RuntimeBTF:
             if index is None:
                 index = self._indices[(which, kk)] = DirectionIndex(dirs, kk)
         return angular_weights(dirs, q, scheme, k, beta, table=index)
+
+    def _layout(self, ch: str) -> CompactLayout:
+        """The channel's compact columns (:mod:`.compact`), built on the first compiled
+        lookup and kept."""
+        lay = self._layouts.get(ch)
+        if lay is None:
+            lay = self._layouts[ch] = channel_layout(self._channels[ch])
+        return lay
 
     def _select_backend(self, backend: str) -> str:
         if backend == "auto":
@@ -388,7 +398,8 @@ class RuntimeBTF:
         x = np.empty((n, 3), dtype=np.float64)
         for c, ch in enumerate(CHANNELS):
             x[:, c] = wavefront.separable_sums(self._channels[ch], pts, i1, i2, li, lw, vi, vw,
-                                               kernels._per_query(caps[ch], n), groups)  # fmt: skip
+                                               kernels._per_query(caps[ch], n), groups,
+                                               layout=self._layout(ch))  # fmt: skip
         matrix = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
         return wavefront.finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
                                 self.log_offset, output == "rgb")  # fmt: skip
