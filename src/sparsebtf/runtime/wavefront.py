@@ -58,6 +58,7 @@ GROUP = 32
 _CHUNK = 256
 _TASK = 16
 _LOW16, _LOW8, _AT3, _AT4 = np.uint64(0xFFFF), np.uint64(0xFF), np.uint64(16), np.uint64(24)
+_LOW20, _AT20, _AT40 = np.uint64(0xFFFFF), np.uint64(20), np.uint64(40)
 
 
 def _group_numpy(pts: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -96,78 +97,59 @@ if HAVE_NUMBA:
         starts[g] = n
         return order, starts
 
-    # Indexing note for every loop below: an index numba cannot prove non-negative (o + j,
-    # j·n + e) gets a wraparound test per access, and that test stops LLVM from vectorising
-    # the loop (measured: 6x slower lane sums). So the loops index 1-D views (a slice taken
-    # once) with the bare loop counter, which is known to be >= 0.
+    # Indexing note for every loop below: numba tests every signed index for wraparound
+    # (a negative index counts from the end), and that test stops LLVM from vectorising the
+    # loop (measured: 6x slower lane sums); a view taken per query (d[k, row]) costs a
+    # reference count. So the hot loops index with unsigned integers (np.uint64: no test).
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _lanes(t, f, m, rows, width):
-        # (m, rows) query-major f -> (rows, width) lane-major t.
-        for x in range(rows):
-            tx = t[x * width:(x + 1) * width]
-            fx = f[x:]
-            for j in range(m):
-                tx[j] = fx[j * rows]
-
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _factors(f12, f3, f4, st, k, p1, p2, n12, c3, n3, c4, n4, d1, d2, d3, d4, u1, u2, li,
-                 lw, vi, vw):  # fmt: skip
-        # One query's compact factors, entry x at f[x * st] (st = 1: a query's own rows; st =
-        # the group width: a lane of the lane-major tables): f12 the pairs' products U1·U2,
-        # f3 and f4 the light and view rows interpolated at the point's columns (p1, p2, c3,
-        # c4: the point's lists). A list as long as the mode is the whole mode in order
-        # (compact.py): contiguous loads instead of gathers. Unsigned strides: numba does not
-        # test an unsigned index for wraparound.
-        us = np.uint64(st)
-        r1 = d1[k, u1]
-        r2 = d2[k, u2]
-        m2 = r2.shape[0]
-        if n12 == r1.shape[0] * m2:
-            for x in range(r1.shape[0]):
-                a = r1[x]
-                fx = f12[x * m2 * st:]
-                for y in range(np.uint64(m2)):
-                    fx[y * us] = a * r2[y]
+    def _factors(t12, t3, t4, j, st, k, p1, p2, a12, n12, c3, a3, n3, c4, a4, n4, d1, d2, d3,
+                 d4, u1, u2, li, lw, vi, vw, q):  # fmt: skip
+        # Query q's compact factors, entry x at t[j + x·st] (st = 1: a query's own rows; st =
+        # the group width: lane j of the lane-major tables): t12 the pairs' products U1·U2,
+        # t3 and t4 the light and view rows interpolated at the point's columns (the lists
+        # p1, p2 from a12, c3 from a3, c4 from a4). A list as long as the mode is the whole
+        # mode in order (compact.py): contiguous loads instead of gathers. All unsigned.
+        m1 = np.uint64(d1.shape[2])
+        m2 = np.uint64(d2.shape[2])
+        if n12 == m1 * m2:
+            for x in range(m1):
+                f = d1[k, u1, x]
+                for y in range(m2):
+                    t12[j + (x * m2 + y) * st] = f * d2[k, u2, y]
         else:
-            for e in range(np.uint64(n12)):
-                f12[e * us] = r1[p1[e]] * r2[p2[e]]
-        _row(f3, us, n3, c3, d3, k, li, lw)
-        _row(f4, us, n4, c4, d4, k, vi, vw)
+            for e in range(n12):
+                t12[j + e * st] = d1[k, u1, p1[a12 + e]] * d2[k, u2, p2[a12 + e]]
+        _row(t3, j, st, n3, c3, a3, d3, k, li, lw, q)
+        _row(t4, j, st, n4, c4, a4, d4, k, vi, vw, q)
 
     @_nb.njit(cache=True, nogil=True, inline="always")
-    def _row(f, us, cnt, col, d, k, rows, w):
-        # f[x·us] = Σ_a w_a U[rows_a, col_x], x < cnt: Eq. 6's row at the point's columns.
-        # One and two neighbours (nearest, linear) write each entry once; more add up.
-        dense = cnt == d.shape[2]
-        r0 = d[k, rows[0]]
-        w0 = w[0]
-        if rows.shape[0] == 2:
-            r1 = d[k, rows[1]]
-            w1 = w[1]
+    def _row(t, j, st, cnt, col, a0, d, k, rows, w, q):
+        # t[j + x·st] = Σ_a w[q, a] U[rows[q, a], col_x], x < cnt: Eq. 6's row at the point's
+        # columns. One and two neighbours (nearest, linear) write each entry once.
+        dense = cnt == np.uint64(d.shape[2])
+        r0 = np.uint64(rows[q, 0])
+        w0 = w[q, 0]
+        if rows.shape[1] == 2:
+            r1 = np.uint64(rows[q, 1])
+            w1 = w[q, 1]
             if dense:
-                for x in range(np.uint64(cnt)):
-                    f[x * us] = w0 * r0[x] + w1 * r1[x]
+                for x in range(cnt):
+                    t[j + x * st] = w0 * d[k, r0, x] + w1 * d[k, r1, x]
             else:
-                for x in range(np.uint64(cnt)):
-                    c = col[x]
-                    f[x * us] = w0 * r0[c] + w1 * r1[c]
+                for x in range(cnt):
+                    c = np.uint64(col[a0 + x])
+                    t[j + x * st] = w0 * d[k, r0, c] + w1 * d[k, r1, c]
             return
-        if dense:
-            for x in range(np.uint64(cnt)):
-                f[x * us] = w0 * r0[x]
-        else:
-            for x in range(np.uint64(cnt)):
-                f[x * us] = w0 * r0[col[x]]
-        for a in range(1, rows.shape[0]):
-            wa = w[a]
-            ra = d[k, rows[a]]
-            if dense:
-                for x in range(np.uint64(cnt)):
-                    f[x * us] += wa * ra[x]
-            else:
-                for x in range(np.uint64(cnt)):
-                    f[x * us] += wa * ra[col[x]]
+        for x in range(cnt):
+            c = x if dense else np.uint64(col[a0 + x])
+            t[j + x * st] = w0 * d[k, r0, c]
+        for a in range(1, rows.shape[1]):
+            ra = np.uint64(rows[q, a])
+            wa = w[q, a]
+            for x in range(cnt):
+                c = x if dense else np.uint64(col[a0 + x])
+                t[j + x * st] += wa * d[k, ra, c]
 
     @_nb.njit(parallel=True, cache=True, nogil=True, fastmath=True)
     def _grouped_nb(vals, code, need, offs, memb, p1, p2, o12, c3, o3, c4, o4, d1, d2, d3, d4,
@@ -175,7 +157,9 @@ if HAVE_NUMBA:
                     w4):  # fmt: skip
         # ``width`` is a run-time value on purpose: with a compile-time trip count LLVM
         # unrolls the lane loops into scalar code instead of vectorising them. Scratch is
-        # allocated once per task of _TASK groups (w12, w3, w4: the longest lists).
+        # allocated once per task of _TASK groups (w12, w3, w4: the longest lists). The
+        # group's body stays in this function: a call per group passing the ~40 arrays cost
+        # ~130 cycles per query.
         n = pts.shape[0]
         n_groups = starts.shape[0] - 1
         out = np.empty(n, dtype=np.float64)
@@ -183,76 +167,70 @@ if HAVE_NUMBA:
         for task in _nb.prange((n_groups + _TASK - 1) // _TASK):
             tq = np.empty(width, dtype=np.float64)
             acc = np.empty(width, dtype=dt)
-            f12 = np.empty(width * w12, dtype=dt)
-            f3 = np.empty(width * w3, dtype=dt)
-            f4 = np.empty(width * w4, dtype=dt)
             t12 = np.empty(width * w12, dtype=dt)
             r3 = np.empty(width * w3, dtype=dt)
             r4 = np.empty(width * w4, dtype=dt)
             for g in range(task * _TASK, min(n_groups, (task + 1) * _TASK)):
-                _group(g, vals, code, need, offs, memb, p1, p2, o12, c3, o3, c4, o4, d1, d2,
-                       d3, d4, i1, i2, li, lw, vi, vw, tau, order, starts, pts, width, out, tq,
-                       acc, f12, f3, f4, t12, r3, r4)  # fmt: skip
+                q0 = starts[g]
+                m = starts[g + 1] - q0
+                p = pts[order[q0]]
+                k = memb[p]
+                s0 = offs[p]
+                cnt = offs[p + 1] - s0
+                t_lo = np.inf
+                t_hi = 0.0
+                for j in range(m):
+                    t = tau[order[q0 + j]]
+                    tq[j] = t
+                    t_lo = min(t_lo, t)
+                    t_hi = max(t_hi, t)
+                top = min(cnt, np.int64(np.ceil(t_hi)))
+                if top == 0:
+                    for j in range(m):
+                        out[order[q0 + j]] = 0.0
+                    continue
+                # The lists the group's longest prefix uses (first-use order: a prefix).
+                nd = np.uint64(need[s0 + top - 1])
+                n12, n3, n4 = nd & _LOW20, (nd >> _AT20) & _LOW20, nd >> _AT40
+                ku = np.uint64(k)
+                uw = np.uint64(width)
+                # Lanes >= m are never read: the tables need no clearing.
+                for j in range(m):
+                    q = order[q0 + j]
+                    _factors(t12, r3, r4, np.uint64(j), uw, ku, p1, p2, np.uint64(o12[p]), n12,
+                             c3, np.uint64(o3[p]), n3, c4, np.uint64(o4[p]), n4, d1, d2, d3,
+                             d4, np.uint64(i1[q]), np.uint64(i2[q]), li, lw, vi, vw,
+                             q)  # fmt: skip
+                um = np.uint64(m)
+                for j in range(um):
+                    acc[j] = 0.0
+                full = min(cnt, np.int64(np.floor(t_lo)))
+                # Two terms per pass over the lanes: half the read-modify-writes of acc.
+                for s in range(s0, s0 + full - 1, 2):
+                    c = np.uint64(code[s])
+                    v = vals[s]
+                    a1, a3, a4 = (c & _LOW16) * uw, ((c >> _AT3) & _LOW8) * uw, (c >> _AT4) * uw
+                    c = np.uint64(code[s + 1])
+                    w = vals[s + 1]
+                    b1, b3, b4 = (c & _LOW16) * uw, ((c >> _AT3) & _LOW8) * uw, (c >> _AT4) * uw
+                    for j in range(um):
+                        acc[j] += (v * t12[a1 + j] * r3[a3 + j] * r4[a4 + j]
+                                   + w * t12[b1 + j] * r3[b3 + j] * r4[b4 + j])  # fmt: skip
+                for s in range(s0 + full - full % 2, s0 + top):
+                    c = np.uint64(code[s])
+                    v = vals[s]
+                    a1, a3, a4 = (c & _LOW16) * uw, ((c >> _AT3) & _LOW8) * uw, (c >> _AT4) * uw
+                    if s < s0 + full:
+                        for j in range(um):
+                            acc[j] += v * t12[a1 + j] * r3[a3 + j] * r4[a4 + j]
+                    else:  # a rank some lanes keep only partly (fractional or per-query τ)
+                        r = s - s0
+                        for j in range(um):
+                            f = min(1.0, max(0.0, tq[j] - r))
+                            acc[j] += v * f * t12[a1 + j] * r3[a3 + j] * r4[a4 + j]
+                for j in range(m):
+                    out[order[q0 + j]] = acc[j]
         return out
-
-    @_nb.njit(cache=True, nogil=True, fastmath=True)
-    def _group(g, vals, code, need, offs, memb, p1, p2, o12, c3, o3, c4, o4, d1, d2, d3, d4,
-               i1, i2, li, lw, vi, vw, tau, order, starts, pts, width, out, tq, acc, f12, f3,
-               f4, t12, r3, r4):  # fmt: skip
-        q0 = starts[g]
-        m = starts[g + 1] - q0
-        p = pts[order[q0]]
-        k = memb[p]
-        s0 = offs[p]
-        cnt = offs[p + 1] - s0
-        t_lo = np.inf
-        t_hi = 0.0
-        for j in range(m):
-            t = tau[order[q0 + j]]
-            tq[j] = t
-            t_lo = min(t_lo, t)
-            t_hi = max(t_hi, t)
-        top = min(cnt, np.int64(np.ceil(t_hi)))
-        if top == 0:
-            for j in range(m):
-                out[order[q0 + j]] = 0.0
-            return
-        # The lists the group's longest prefix uses (first-use order: a prefix).
-        nd = need[s0 + top - 1]
-        n12 = np.int64(nd & 0xFFFFF)
-        n3 = np.int64((nd >> 20) & 0xFFFFF)
-        n4 = np.int64(nd >> 40)
-        pp1, pp2 = p1[o12[p]:], p2[o12[p]:]
-        pc3, pc4 = c3[o3[p]:], c4[o4[p]:]
-        # Lanes >= m are never read: the tables need no clearing. Each query's factors are
-        # built contiguously first, then transposed into the lane-major tables: 2.5x faster
-        # than writing the tables column by column.
-        for j in range(m):
-            q = order[q0 + j]
-            _factors(t12[j:], r3[j:], r4[j:], width, k, pp1, pp2, n12, pc3, n3, pc4, n4, d1, d2,
-                     d3, d4, i1[q], i2[q], li[q], lw[q], vi[q], vw[q])  # fmt: skip
-        for j in range(m):
-            acc[j] = 0.0
-        full = min(cnt, np.int64(np.floor(t_lo)))
-        for s in range(s0, top + s0):
-            c = code[s]
-            v = vals[s]
-            o = (c & 0xFFFF) * width
-            a12 = t12[o:o + width]
-            o = ((c >> 16) & 0xFF) * width
-            a3 = r3[o:o + width]
-            o = (c >> 24) * width
-            a4 = r4[o:o + width]
-            if s < s0 + full:
-                for j in range(m):
-                    acc[j] += v * a12[j] * a3[j] * a4[j]
-            else:  # a rank some lanes keep only partly (fractional or per-query τ)
-                r = s - s0
-                for j in range(m):
-                    f = min(1.0, max(0.0, tq[j] - r))
-                    acc[j] += v * f * a12[j] * a3[j] * a4[j]
-        for j in range(m):
-            out[order[q0 + j]] = acc[j]
 
     @_nb.njit(cache=True, nogil=True, inline="always")
     def _term(v, c, t12, r3, r4):
@@ -282,11 +260,11 @@ if HAVE_NUMBA:
                 if top == 0:
                     out[q] = 0.0
                     continue
-                nd = need[s0 + top - 1]
-                _factors(t12, r3, r4, 1, memb[p], p1[o12[p]:], p2[o12[p]:], np.int64(nd & 0xFFFFF),
-                         c3[o3[p]:], np.int64((nd >> 20) & 0xFFFFF), c4[o4[p]:],
-                         np.int64(nd >> 40), d1, d2, d3, d4, i1[q], i2[q], li[q], lw[q], vi[q],
-                         vw[q])  # fmt: skip
+                nd = np.uint64(need[s0 + top - 1])
+                _factors(t12, r3, r4, np.uint64(0), np.uint64(1), np.uint64(memb[p]), p1, p2,
+                         np.uint64(o12[p]), nd & _LOW20, c3, np.uint64(o3[p]),
+                         (nd >> _AT20) & _LOW20, c4, np.uint64(o4[p]), nd >> _AT40, d1, d2, d3,
+                         d4, np.uint64(i1[q]), np.uint64(i2[q]), li, lw, vi, vw, q)  # fmt: skip
                 # The prefix as views from 0 (see the indexing note) and an unsigned code:
                 # no wraparound tests. Four partial sums: one would chain every term on
                 # the add before it.
