@@ -25,7 +25,7 @@ def test_the_compact_codes_name_the_same_columns(dense_fraction, spread):
     counts = rng.integers(0, 40, 9)
     counts[3] = 0  # a point without coefficients
     offsets, loc, packed = _codes(rng, counts, spread)
-    lay = compact_layout(offsets, packed, SIZES, dense_fraction)
+    lay = compact_layout(offsets, packed, rng.normal(size=packed.size), SIZES, dense_fraction)
     code = lay.code.astype(np.int64)
     need = lay.need.astype(np.int64)
     e, a, b = code & 0xFFFF, (code >> 16) & 0xFF, code >> 24
@@ -58,8 +58,36 @@ def test_the_compact_codes_name_the_same_columns(dense_fraction, spread):
 def test_a_point_using_most_of_a_mode_keeps_the_whole_row():
     rng = np.random.default_rng(0)
     offsets, loc, packed = _codes(rng, [200, 3], 13)
-    lay = compact_layout(offsets, packed, SIZES, 0.5)
+    lay = compact_layout(offsets, packed, np.ones(packed.size), SIZES, 0.5)
     # point 0 uses every light column: the row, in order; point 1 three at most: a list
     assert np.array_equal(lay.col3[:13], np.arange(13)) and lay.o3[1] == 13
     assert lay.o3[2] - lay.o3[1] == np.unique(loc[200:, 2]).size
     assert lay.mean_sizes()[1] == pytest.approx((13 + lay.o3[2] - lay.o3[1]) / 2)
+
+
+@pytest.mark.parametrize("spread", [2, 13])
+def test_the_pairs_regroup_every_coefficient_under_its_light_and_view_columns(spread):
+    rng = np.random.default_rng(spread)
+    counts = rng.integers(0, 40, 7)
+    counts[2] = 0
+    offsets, loc, packed = _codes(rng, counts, spread)
+    values = rng.normal(size=packed.size)
+    lay = compact_layout(offsets, packed, values, SIZES, 0.5)
+    code = lay.code.astype(np.int64)
+    assert lay.pstart[0] == 0 and lay.pstart[-1] == packed.size
+    assert lay.opair[-1] == lay.pab.size == lay.pstart.size - 1
+    for p in range(counts.size):
+        s = slice(offsets[p], offsets[p + 1])
+        mine = {(int(c & 0xFFFF), int((c >> 16) & 0xFF), int(c >> 24), float(v))
+                for c, v in zip(code[s], values[s], strict=True)}  # fmt: skip
+        got = set()
+        pairs = set()
+        for r in range(lay.opair[p], lay.opair[p + 1]):
+            a, b = int(lay.pab[r] & 0xFFFF), int(lay.pab[r] >> 16)
+            assert (a, b) not in pairs  # one entry per pair
+            pairs.add((a, b))
+            for t in range(lay.pstart[r], lay.pstart[r + 1]):
+                got.add((int(lay.pe12[t]), a, b, float(lay.pvalues[t])))
+        assert got == mine
+        assert sum(lay.pstart[r + 1] - lay.pstart[r]
+                   for r in range(lay.opair[p], lay.opair[p + 1])) == counts[p]  # fmt: skip

@@ -120,7 +120,8 @@ def test_both_loops_equal_the_reference_sum(coded, loop, scheme, width):
         full = float(rt.tau[ch])
         # every mode as a whole row (0), lists wherever a point leaves columns unused (1),
         # and the default: both kinds of factor in one lookup
-        layouts = [compact_layout(arr["offsets"], arr["locations"], (4, 4, 13, 13), f)
+        layouts = [compact_layout(arr["offsets"], arr["locations"], arr["values"], (4, 4, 13, 13),
+                                  f)
                    for f in (0.0, 1.0, DENSE_FRACTION)]  # fmt: skip
         for tau, lay in itertools.product(
                 (np.full(n, full), np.full(n, 3.0), rng.uniform(0, full, n),

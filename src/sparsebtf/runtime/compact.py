@@ -16,7 +16,7 @@ decreasing magnitude), and recodes each coefficient as compact indices
 at coefficient s, how many entries of each list it uses (``n12 | n3 << 20 | n4 << 40``). A
 lookup then builds ``n12 + kl·n3 + kv·n4`` factor entries instead of
 ``m1 + m2 + kl·m3 + kv·m4``, and a term is three loads (v·t12[e]·r3[a]·r4[b]) instead of four.
-Built once per channel, O(nnz log nnz) in NumPy; 8 bytes per coefficient beside the codes.
+Built once per channel, O(nnz log nnz) in NumPy; 18 bytes per coefficient beside the codes.
 """
 
 from __future__ import annotations
@@ -39,10 +39,21 @@ class CompactLayout(NamedTuple):
     (nnz,) uint64 list lengths of each prefix n12 | n3<<20 | n4<<40; per point p the pairs
     ``pair1[o12[p]:o12[p+1]]``, ``pair2[…]`` (l1, l2), the light columns ``col3[o3[p]:o3[p+1]]``
     and view columns ``col4[o4[p]:o4[p+1]]``, each in order of first use; ``widest`` the
-    longest lists (n12, n3, n4) of any point (scratch sizes)."""
+    longest lists (n12, n3, n4) of any point (scratch sizes).
+
+    The same coefficients grouped by their (light, view) column pair, for sums over a point's
+    whole list: Σ_s v_s·t12[e_s]·r3[a_s]·r4[b_s] = Σ_pairs r3[a]·r4[b]·Σ_{s in pair} v_s·t12[e_s]
+    (one table load per coefficient instead of three). Pair r of point p
+    (``opair[p] <= r < opair[p+1]``) has compact columns ``pab[r]`` = a | b<<16 and the
+    coefficients ``pvalues[pstart[r]:pstart[r+1]]`` with pair indices ``pe12[…]``."""
 
     code: np.ndarray
     need: np.ndarray
+    pvalues: np.ndarray
+    pe12: np.ndarray
+    pab: np.ndarray
+    pstart: np.ndarray
+    opair: np.ndarray
     pair1: np.ndarray
     pair2: np.ndarray
     o12: np.ndarray
@@ -107,11 +118,13 @@ def _lists(point: np.ndarray, column: np.ndarray, m: int, n_points: int, dense_f
     return new_cols, new_off, np.where(d, column, local), np.where(d, m, need)
 
 
-def compact_layout(offsets: np.ndarray, locations: np.ndarray, sizes: tuple[int, ...],
+def compact_layout(offsets: np.ndarray, locations: np.ndarray, values: np.ndarray,
+                   sizes: tuple[int, ...],
                    dense_fraction: float | tuple[float, float, float] = DENSE_FRACTION
                    ) -> CompactLayout:  # fmt: skip
     """The :class:`CompactLayout` of one channel from its ``offsets`` (P+1,), packed
-    ``locations`` (nnz,) uint32 l1 | l2<<8 | l3<<16 | l4<<24 and the four mode ``sizes``.
+    ``locations`` (nnz,) uint32 l1 | l2<<8 | l3<<16 | l4<<24, ``values`` (nnz,) and the four
+    mode ``sizes``.
     A point that uses more than ``dense_fraction`` of a mode's columns (of the m1·m2 pairs)
     keeps the whole mode, in order: its list is 0 … m−1, its indices the columns themselves.
     ``dense_fraction``: one for all, or (pairs, light, view).
@@ -131,11 +144,23 @@ def compact_layout(offsets: np.ndarray, locations: np.ndarray, sizes: tuple[int,
     code = (e12 | (a3 << 16) | (b4 << 24)).astype(np.uint32)
     need = (n12 | (n3 << 20) | (n4 << 40)).astype(np.uint64)
 
+    # the (light, view) pairs: coefficients sorted by point, then view and light column
+    order = np.lexsort((a3, b4, point))
+    key = (point * 256 + b4) * 256 + a3
+    ks = key[order]
+    cut = np.flatnonzero(np.diff(ks)) + 1 if ks.size else np.zeros(0, dtype=np.int64)
+    first = np.concatenate(([0], cut)) if ks.size else cut
+    pstart = np.concatenate((first, [ks.size])).astype(np.int64)
+    opair = np.zeros(n_points + 1, dtype=np.int64)
+    np.cumsum(np.bincount(point[order][first], minlength=n_points), out=opair[1:])
+    pab = (a3[order][first] | (b4[order][first] << 16)).astype(np.uint32)
+
     def widest(o: np.ndarray) -> int:
         return int(np.max(np.diff(o), initial=0))
 
     return CompactLayout(
-        code, need,
+        code, need, np.ascontiguousarray(np.asarray(values)[order]),
+        e12[order].astype(np.uint16), pab, pstart, opair,
         (c12 // m2).astype(np.int32), (c12 % m2).astype(np.int32), o12.astype(np.int32),
         c3.astype(np.int32), o3.astype(np.int32), c4.astype(np.int32), o4.astype(np.int32),
         (widest(o12), widest(o3), widest(o4)),
@@ -146,4 +171,4 @@ def channel_layout(ch: dict[str, np.ndarray]) -> CompactLayout:
     """:func:`compact_layout` of a runtime channel's arrays (``offsets``, ``locations``,
     ``dict1`` … ``dict4``, as :meth:`~sparsebtf.runtime.RuntimeBTF.arrays` names them)."""
     sizes = tuple(ch[f"dict{i}"].shape[2] for i in range(1, 5))
-    return compact_layout(ch["offsets"], ch["locations"], sizes)
+    return compact_layout(ch["offsets"], ch["locations"], ch["values"], sizes)

@@ -59,6 +59,7 @@ _CHUNK = 256
 _TASK = 16
 _LOW16, _LOW8, _AT3, _AT4 = np.uint64(0xFFFF), np.uint64(0xFF), np.uint64(16), np.uint64(24)
 _LOW20, _AT20, _AT40 = np.uint64(0xFFFFF), np.uint64(20), np.uint64(40)
+_AT16 = np.uint64(16)
 
 
 def _group_numpy(pts: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -153,8 +154,8 @@ if HAVE_NUMBA:
 
     @_nb.njit(parallel=True, cache=True, nogil=True, fastmath=True)
     def _grouped_nb(vals, code, need, offs, memb, p1, p2, o12, c3, o3, c4, o4, d1, d2, d3, d4,
-                    pts, i1, i2, li, lw, vi, vw, tau, order, starts, width, w12, w3,
-                    w4):  # fmt: skip
+                    pts, i1, i2, li, lw, vi, vw, tau, order, starts, width, w12, w3, w4,
+                    pvals, pe12, pab, pstart, opair):  # fmt: skip
         # ``width`` is a run-time value on purpose: with a compile-time trip count LLVM
         # unrolls the lane loops into scalar code instead of vectorising them. Scratch is
         # allocated once per task of _TASK groups (w12, w3, w4: the longest lists). The
@@ -167,6 +168,7 @@ if HAVE_NUMBA:
         for task in _nb.prange((n_groups + _TASK - 1) // _TASK):
             tq = np.empty(width, dtype=np.float64)
             acc = np.empty(width, dtype=dt)
+            inner = np.empty(width, dtype=dt)
             t12 = np.empty(width * w12, dtype=dt)
             r3 = np.empty(width * w3, dtype=dt)
             r4 = np.empty(width * w4, dtype=dt)
@@ -205,6 +207,24 @@ if HAVE_NUMBA:
                 for j in range(um):
                     acc[j] = 0.0
                 full = min(cnt, np.int64(np.floor(t_lo)))
+                if full == cnt:
+                    # Every lane sums the whole list: by (light, view) column pair, one table
+                    # load per coefficient and the pair's r3·r4 once (compact.py).
+                    for r in range(opair[p], opair[p + 1]):
+                        ab = np.uint64(pab[r])
+                        a3, a4 = (ab & _LOW16) * uw, (ab >> _AT16) * uw
+                        for j in range(um):
+                            inner[j] = 0.0
+                        for s in range(pstart[r], pstart[r + 1]):
+                            v = pvals[s]
+                            a1 = np.uint64(pe12[s]) * uw
+                            for j in range(um):
+                                inner[j] += v * t12[a1 + j]
+                        for j in range(um):
+                            acc[j] += inner[j] * r3[a3 + j] * r4[a4 + j]
+                    for j in range(m):
+                        out[order[q0 + j]] = acc[j]
+                    continue
                 # Two terms per pass over the lanes: half the read-modify-writes of acc.
                 for s in range(s0, s0 + full - 1, 2):
                     c = np.uint64(code[s])
@@ -365,7 +385,8 @@ def separable_sums(
         if groups is None:
             raise ValueError("the grouped loop needs groups (group_by_point)")
         return _grouped_nb(*args, groups[0], groups[1], int(width),
-                           *(max(w, 1) for w in lay.widest))  # fmt: skip
+                           *(max(w, 1) for w in lay.widest), lay.pvalues, lay.pe12, lay.pab,
+                           lay.pstart, lay.opair)  # fmt: skip
     if loop != "query":
         raise ValueError(f"loop must be 'auto', 'grouped' or 'query', got {loop!r}")
     return _per_query_nb(*args, *(max(w, 1) for w in lay.widest))
