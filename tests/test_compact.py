@@ -70,7 +70,7 @@ def test_the_pairs_regroup_every_coefficient_under_its_light_and_view_columns(sp
     rng = np.random.default_rng(spread)
     counts = rng.integers(0, 40, 7)
     counts[2] = 0
-    offsets, loc, packed = _codes(rng, counts, spread)
+    offsets, _, packed = _codes(rng, counts, spread)
     values = rng.normal(size=packed.size)
     lay = compact_layout(offsets, packed, values, SIZES, 0.5)
     code = lay.code.astype(np.int64)
