@@ -85,6 +85,30 @@ def test_angular_weights_with_a_table_equal_the_scan(scheme, coded):
         np.testing.assert_array_equal(a[1], b[1])
 
 
+@numba_only
+def test_the_fused_weights_find_the_scans_neighbours_on_cell_borders():
+    """The compiled weights place a query in its grid cell with an approximate atan2
+    (within 1e-8 rad): queries on every elevation and azimuth border of the grid, and near
+    them, still get the full scan's neighbours."""
+    from sparsebtf.runtime.angular import _atan2, _atan_poly
+
+    rng = np.random.default_rng(4)
+    y, x = rng.normal(size=(2, 20000))
+    y[:4], x[:4] = [0.0, 1.0, -1.0, 0.0], [1.0, 0.0, 0.0, -1.0]  # the axes
+    got = np.array([_atan2(a, b, _atan_poly()) for a, b in zip(y, x, strict=True)])
+    assert np.max(np.abs(got - np.arctan2(y, x))) < 1e-8
+    dirs = ubo2014()
+    el = (np.arange(65) * (np.pi / 2) / 64)[:, None] + np.array([-1e-9, 0.0, 1e-9])
+    az = (np.arange(256) * (2 * np.pi) / 256 - np.pi)[:, None] + np.array([-1e-9, 0.0, 1e-9])
+    e, a = np.meshgrid(el.ravel(), az.ravel()[::5], indexing="ij")
+    e = np.clip(e, 0.0, np.pi / 2)
+    q = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], -1).reshape(-1, 3)
+    for k, scheme in ((1, "nearest"), (2, "linear")):
+        idx, _ = DirectionIndex(dirs, k).weights(q, scheme)
+        ref, _ = k_nearest(dirs.xyz, q / np.linalg.norm(q, axis=1, keepdims=True), k)
+        assert np.array_equal(idx, ref)
+
+
 @pytest.mark.parametrize("table", [False, True])
 def test_bad_query_directions_are_refused_with_or_without_a_table(coded, table):
     from sparsebtf.errors import BTFInputError

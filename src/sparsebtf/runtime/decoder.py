@@ -395,14 +395,27 @@ class RuntimeBTF:
         # A handful of queries cannot fill a group: skip the sort.
         few = n < 2 * wavefront.GROUP
         groups = None if few else wavefront.group_by_point(pts, self.coded.n_points)
+        order = None
+        if groups is not None:
+            # Every query input in group order once: the three channels' loops then read
+            # them sequentially (in arrival order each would gather them at random).
+            order = groups[0]
+            pts, i1, i2, li, lw, vi, vw = (a[order] for a in (pts, i1, i2, li, lw, vi, vw))
+            caps = {ch: t[order] if isinstance(t, np.ndarray) else t for ch, t in caps.items()}
+            groups = (np.arange(n, dtype=np.int64), groups[1])
         x = np.empty((n, 3), dtype=np.float64)
         for c, ch in enumerate(CHANNELS):
             x[:, c] = wavefront.separable_sums(self._channels[ch], pts, i1, i2, li, lw, vi, vw,
                                                kernels._per_query(caps[ch], n), groups,
                                                layout=self._layout(ch))  # fmt: skip
         matrix = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
-        return wavefront.finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
-                                self.log_offset, output == "rgb")  # fmt: skip
+        out = wavefront.finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
+                               self.log_offset, output == "rgb")  # fmt: skip
+        if order is None:
+            return out
+        back = np.empty_like(out)
+        back[order] = out
+        return back
 
     def image(
         self,
