@@ -400,8 +400,10 @@ class RuntimeBTF:
             # Every query input in group order once: the three channels' loops then read
             # them sequentially (in arrival order each would gather them at random).
             order = groups[0]
-            pts, i1, i2, li, lw, vi, vw = (a[order] for a in (pts, i1, i2, li, lw, vi, vw))
-            caps = {ch: t[order] if isinstance(t, np.ndarray) else t for ch, t in caps.items()}
+            pts, i1, i2, li, lw, vi, vw = (wavefront.rows_in_order(a, order)
+                                           for a in (pts, i1, i2, li, lw, vi, vw))  # fmt: skip
+            caps = {ch: wavefront.rows_in_order(t, order) if isinstance(t, np.ndarray) else t
+                    for ch, t in caps.items()}  # fmt: skip
             groups = (np.arange(n, dtype=np.int64), groups[1])
         x = np.empty((n, 3), dtype=np.float64)
         for c, ch in enumerate(CHANNELS):
@@ -411,11 +413,7 @@ class RuntimeBTF:
         matrix = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
         out = wavefront.finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
                                self.log_offset, output == "rgb")  # fmt: skip
-        if order is None:
-            return out
-        back = np.empty_like(out)
-        back[order] = out
-        return back
+        return out if order is None else wavefront.rows_in_order(out, order, back=True)
 
     def image(
         self,

@@ -45,6 +45,7 @@ __all__ = [
     "finish",
     "group_by_point",
     "grouped_pays",
+    "rows_in_order",
     "separable_sums",
 ]
 
@@ -304,6 +305,38 @@ if HAVE_NUMBA:
                     acc += min(1.0, t - full) * _term(vv[full], cv[full], t12, r3, r4)
                 out[q] = acc
         return out
+
+
+if HAVE_NUMBA:
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def _take_nb(a, order):
+        # out[i] = a[order[i]] (numba types a tuple concatenation, not a starred tuple)
+        out = np.empty((order.shape[0],) + a.shape[1:], dtype=a.dtype)  # noqa: RUF005
+        for i in _nb.prange(order.shape[0]):
+            out[i] = a[order[i]]
+        return out
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def _put_nb(a, order):
+        # out[order[i]] = a[i]
+        out = np.empty_like(a)
+        for i in _nb.prange(order.shape[0]):
+            out[order[i]] = a[i]
+        return out
+
+
+def rows_in_order(a: np.ndarray, order: np.ndarray, back: bool = False) -> np.ndarray:
+    """``a[order]`` for 1-D or 2-D ``a`` and an int64 permutation ``order`` (``back``: the
+    inverse, ``out[order] = a``): a parallel gather where numba is present (NumPy's fancy
+    indexing runs on one thread)."""
+    if HAVE_NUMBA and a.ndim in (1, 2):
+        return (_put_nb if back else _take_nb)(np.ascontiguousarray(a), order)
+    if not back:
+        return a[order]
+    out = np.empty_like(a)
+    out[order] = a
+    return out
 
 
 def group_by_point(pts: np.ndarray, n_points: int, width: int = GROUP
