@@ -5,8 +5,9 @@ r3[l3] = Σ_a wl_a U3[L_a, l3] and the view row r4[l4] = Σ_b wv_b U4[V_b, l4], 
 columns the point's kept coefficients name. Coded materials use few of them: the bundled
 ensembles put a point's energy on a handful of columns (measured on the authors' carpet07 and
 felt05 U/V codes at τ = 64: 7–22 light columns, 8–9 view columns and 4–9 (l1, l2) pairs of
-the 151, 151 and 100; a captured weave's Y at τ = 885: 11 light, 95 view columns, 75 pairs),
-so building the factors over all 10 + 10 + 151 + 151 columns per query is mostly wasted work.
+the 151, 151 and 100; a captured 40×40 weave's Y at τ = 885: 12 light, 73 view columns, 50
+pairs), so building the factors over all 10 + 10 + 151 + 151 columns per query is mostly
+wasted work.
 
 :func:`compact_layout` lists, per point, the distinct (l1, l2) pairs, light columns and view
 columns **in the order the coefficients first name them** (coefficients are stored by
@@ -15,7 +16,8 @@ decreasing magnitude), and recodes each coefficient as compact indices
 τ' coefficients needs are a prefix of each list too: ``need[s]`` holds, for the prefix ending
 at coefficient s, how many entries of each list it uses (``n12 | n3 << 20 | n4 << 40``). A
 lookup then builds ``n12 + kl·n3 + kv·n4`` factor entries instead of
-``m1 + m2 + kl·m3 + kv·m4``, and a term is three loads (v·t12[e]·r3[a]·r4[b]) instead of four.
+``m1 + m2 + kl·m3 + kv·m4``, and a term is three loads (v·t12[e]·r3[a]·r4[b]) instead of four
+(with the coefficients also grouped by (light, view) column pair, one: :class:`CompactLayout`).
 Built once per channel, O(nnz log nnz) in NumPy; 18 bytes per coefficient beside the codes.
 """
 
