@@ -51,8 +51,8 @@ SCHEMES: tuple[str, ...] = ("nearest", "linear", "barycentric", "gaussian")
 DEFAULT_K = {"nearest": 1, "linear": 2, "barycentric": 3, "gaussian": 4}
 _CHUNK = 1 << 16
 #: Schemes whose weights :meth:`DirectionIndex.weights` computes in the same compiled pass as
-#: the search (barycentric solves a 3×3 system per query in NumPy).
-_FUSED = {"nearest": 0, "linear": 1, "gaussian": 2}
+#: the search (every one).
+_FUSED = {"nearest": 0, "linear": 1, "gaussian": 2, "barycentric": 3}
 
 
 def _as_xyz(directions: DirectionSet | np.ndarray) -> np.ndarray:
@@ -285,10 +285,10 @@ class DirectionIndex:
 
     def weights(self, query: np.ndarray, scheme: str, beta: float = 20.0
                 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-        """:func:`angular_weights` of raw queries (n, 3) for "nearest", "linear" or
-        "gaussian" (k = this index's k) in one compiled pass: normalise, search, weigh —
-        the same neighbours and weights as the NumPy steps (tested), without their passes
-        over the batch. Needs numba."""
+        """:func:`angular_weights` of raw queries (n, 3) for any scheme (k = this index's k)
+        in one compiled pass: normalise, search, weigh — the same neighbours and weights as
+        the NumPy steps (tested; barycentric and Gaussian weights to rounding), without
+        their passes over the batch. Needs numba."""
         q = np.asarray(query, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != 3:
             raise BTFInputError(f"query directions must have shape (n, 3), got {q.shape}")
@@ -324,6 +324,43 @@ if HAVE_NUMBA:
             a = np.pi - a
         return -a if y < 0 else a
 
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _barycentric_row(xyz, q, idx, d2, w):
+        # _barycentric for one query: Cramer's rule for [x0 x1 x2] b = q (np.linalg.solve's
+        # LU gives the same weights to rounding), the same clipping, renormalising and
+        # fallback to the release's 2-NN weights on a degenerate triangle.
+        a, b, c = xyz[idx[0]], xyz[idx[1]], xyz[idx[2]]
+        c0 = b[1] * c[2] - b[2] * c[1]
+        c1 = b[2] * c[0] - b[0] * c[2]
+        c2 = b[0] * c[1] - b[1] * c[0]
+        det = a[0] * c0 + a[1] * c1 + a[2] * c2
+        ok = abs(det) > 1e-9
+        s = 0.0
+        if ok:
+            # b_j = det(m with column j replaced by q) / det
+            w[0] = (q[0] * c0 + q[1] * c1 + q[2] * c2) / det
+            w[1] = (a[0] * (q[1] * c[2] - q[2] * c[1]) + a[1] * (q[2] * c[0] - q[0] * c[2])
+                    + a[2] * (q[0] * c[1] - q[1] * c[0])) / det  # fmt: skip
+            w[2] = (a[0] * (b[1] * q[2] - b[2] * q[1]) + a[1] * (b[2] * q[0] - b[0] * q[2])
+                    + a[2] * (b[0] * q[1] - b[1] * q[0])) / det  # fmt: skip
+            s = w[0] + w[1] + w[2]
+            ok = s > 0
+        t = 0.0
+        if ok:
+            for j in range(3):
+                w[j] = max(w[j] / s, 0.0)
+                t += w[j]
+            ok = t > 0
+        if ok:
+            for j in range(3):
+                w[j] /= t
+            return
+        d0 = np.sqrt(d2[0])
+        d1 = np.sqrt(d2[1])
+        w[0] = 0.5 + 0.5 * (d1 - d0) / d1 if d1 > 0 else 0.5
+        w[1] = 1.0 - w[0]
+        w[2] = 0.0
+
     @_nb.njit(parallel=True, cache=True, nogil=True)
     def _table_weights_nb(xyz, offsets, indices, q, k, n_phi, n_elevation, scheme, beta, poly):
         # _unit_queries, DirectionIndex.k_nearest and the scheme's weights of angular_weights
@@ -347,6 +384,9 @@ if HAVE_NUMBA:
             idx, d2 = _table_knn_nb(xyz, offsets, indices, unit, k, n_phi, n_elevation)
             w = np.empty((n, k))
             for i in _nb.prange(n):
+                if scheme == 3:
+                    _barycentric_row(xyz, unit[i], idx[i], d2[i], w[i])
+                    continue
                 t = 0.0
                 for j in range(k):
                     w[i, j] = np.exp(-beta * (d2[i, j] - d2[i, 0]))
