@@ -14,12 +14,14 @@ light columns and view columns the point's coefficients name, in order of first 
 query builds t12[e] = U1[i1, l1_e]·U2[i2, l2_e], r3 and r4 at those columns only (a level of
 detail τ' needs a prefix of each list) and a term is v·t12[e]·r3[a]·r4[b].
 
-The queries are first sorted by data point (a counting sort, O(n + P)) and cut into groups of
-at most :data:`GROUP` queries of one point. A group lays its per-query factors out
-lane-major — ``T12[e, j]``, ``R3[a, j]``, ``R4[b, j]`` — so one coefficient is read once for
-the whole group and its term is three contiguous vector loads and three multiplies across the
-group's lanes j: SIMD over queries, not gathers per query. The price is transposing the
-factors, so a lone query on a point is answered by the per-query loop instead
+The queries are first sorted by data point (a counting sort, O(n + P)), their inputs put in
+that order once (:func:`rows_in_order`), and cut into groups of at most :data:`GROUP` queries
+of one point. A group writes its per-query factors lane-major — ``T12[e, j]``, ``R3[a, j]``,
+``R4[b, j]`` — so one coefficient is read once for the whole group and its term is three
+contiguous vector loads across the group's lanes j: SIMD over queries, not gathers per query.
+Where every lane sums the point's whole list, the coefficients go by (light, view) column
+pair instead: Σ_pairs R3[a]·R4[b]·Σ v·T12[e], one table load per coefficient. A lone query
+on a point pays a group's vector overhead for one lane, so it takes the per-query loop
 (:func:`grouped_pays`); a renderer's wavefront (many queries per point) gets the full
 speed-up, and so do random queries on any texture with more queries than points.
 ``benchmarks/bench_lookup.py`` measures both orders against this machine's gather/FMA floor.
