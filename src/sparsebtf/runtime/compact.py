@@ -18,7 +18,8 @@ at coefficient s, how many entries of each list it uses (``n12 | n3 << 20 | n4 <
 lookup then builds ``n12 + kl·n3 + kv·n4`` factor entries instead of
 ``m1 + m2 + kl·m3 + kv·m4``, and a term is three loads (v·t12[e]·r3[a]·r4[b]) instead of four
 (with the coefficients also grouped by (light, view) column pair, one: :class:`CompactLayout`).
-Built once per channel, O(nnz log nnz) in NumPy; 18 bytes per coefficient beside the codes.
+Built once per channel, O(nnz log nnz) in NumPy (about 1 s for the Y channel of a 400 × 400
+material at τ 885); 18 bytes per coefficient and 8 per (light, view) pair beside the codes.
 """
 
 from __future__ import annotations
@@ -162,7 +163,7 @@ def compact_layout(offsets: np.ndarray, locations: np.ndarray, values: np.ndarra
 
     return CompactLayout(
         code, need, np.ascontiguousarray(np.asarray(values)[order]),
-        e12[order].astype(np.uint16), pab, pstart, opair,
+        e12[order].astype(np.uint16), pab, pstart.astype(np.int32), opair.astype(np.int32),
         (c12 // m2).astype(np.int32), (c12 % m2).astype(np.int32), o12.astype(np.int32),
         c3.astype(np.int32), o3.astype(np.int32), c4.astype(np.int32), o4.astype(np.int32),
         (widest(o12), widest(o3), widest(o4)),
