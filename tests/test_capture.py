@@ -406,8 +406,9 @@ def test_quality_benchmark_on_captured_materials(tmp_path, monkeypatch):
     assert cfg.source == "capture" and cfg.classes == CAPTURE_CLASSES
     result = run_quality(tmp_path / "run", cfg, log=lambda m: None, methods=TINY_METHODS)
     captured = sorted(p.name for p in (tmp_path / "cache").glob("capture-*.h5"))
-    assert len(captured) == 8  # 2 training, 5 test, 1 Table-5 (true black: the test metal12)
+    # 2 training, 8 test, 1 Table-5 (true black: the test metal12)
+    assert len(captured) == 11
     rows = {r["material"] for r in result["rows"]}
-    assert {"woven12", "pebbles12", "leather12", "metal12", "copper12",
-            "metal12+black"} <= rows  # fmt: skip
+    assert {"woven12", "pebbles12", "leather12", "metal12", "copper12", "brushed12",
+            "copper-mirror12", "copper-rough12", "metal12+black"} <= rows  # fmt: skip
     assert (tmp_path / "run" / "results.md").exists()

@@ -161,6 +161,38 @@ def test_bench_writes_json_tables_and_figures(tiny_run):
     assert "## Verdicts" in md and "figure3.png" in md and "## True black" in md
 
 
+def test_test_classes_restrict_the_test_set_and_keep_its_rows(tiny_run, tmp_path, capsys):
+    """``test_classes`` (``bench quality --test-classes``) tests some of the classes: the
+    training is the whole run's, so each test material's rows are the whole run's."""
+    from sparsebtf.evaluation.benchmark_set import CAPTURE_CLASSES
+
+    cfg = replace(tiny_config(), test_classes=("stone",), table5_materials=(),
+                  black_materials=(), render_spp=0, speed_seconds=0.0)  # fmt: skip
+    assert cfg.test_set() == [("stone", 12)] and cfg.train_set() == tiny_config().train_set()
+    glossy = replace(BenchConfig.quick().captured(), test_classes=("copper-rough", "brushed"))
+    assert glossy.test_set() == [("brushed", 12), ("copper-rough", 12)]  # the classes' order
+    assert {c for c, _ in glossy.train_set()} == set(CAPTURE_CLASSES) - {"copper-rough"}
+    with pytest.raises(BTFInputError, match="test classes felt: not among"):
+        replace(cfg, test_classes=("felt",)).test_set()
+    result = tiny_bench(tmp_path, ("sparsebtf",), cfg)
+    tests = [r for r in result["rows"] if r["set"] == "test"]
+    assert {r["material"] for r in tests} == {"stone12"}
+    whole = {(r["level"], r["material_bytes"]): r["mse_rgb"] for r in tiny_run[1]["rows"]
+             if r["material"] == "stone12" and r["method"] == "sparsebtf"}
+    assert len(whole) > 2  # the levels and Figure 3's curve points
+    assert {(r["level"], r["material_bytes"]): r["mse_rgb"] for r in tests} == whole
+    md = (tmp_path / "run" / "results.md").read_text()
+    assert "--test-classes stone" in md and "1 unseen test materials (classes stone)" in md
+    # the command line: a class not in the source, or one named twice, is one clear line
+    for bad, msg in (("carpet,copper", "test classes copper: not among"),
+                     ("stone,stone", "twice")):
+        assert main(["bench", "quality", "--quick", "--test-classes", bad,
+                     "--out", str(tmp_path / "x")]) == 2  # fmt: skip
+        err = capsys.readouterr().err
+        assert msg in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+
+
 def test_bench_renders_figure8_and_measures_decode_speed(tiny_run):
     """Figure 8 (each method's level-32 reconstruction rendered beside the reference) and
     Table 1's decode speed land in results.json and results.md."""

@@ -32,6 +32,11 @@ def cmd_bench_quality(args: argparse.Namespace) -> int:
         BenchConfig.paper_crop() if args.paper_crop else BenchConfig())  # fmt: skip
     if args.source == "capture":
         cfg = cfg.captured()
+    if args.test_classes is not None:
+        from dataclasses import replace
+
+        cfg = replace(cfg, test_classes=_test_classes(args.test_classes))
+        cfg.test_set()  # an unknown class is one error line, before any material is made
     if args.log_offset is not None:
         from dataclasses import replace
 
@@ -78,6 +83,18 @@ def _objectives(text: str) -> tuple[str, ...]:
             raise BTFInputError(f"--objective: {e}") from None
     if len(set(names)) != len(names):
         raise BTFInputError(f"--objective: {text!r} names an objective twice")
+    return tuple(names)
+
+
+def _test_classes(text: str) -> tuple[str, ...]:
+    """``--test-classes a,b,…``: the test set's classes, each once."""
+    from ..errors import BTFInputError
+
+    names = [t.strip() for t in text.split(",") if t.strip()]
+    if not names:
+        raise BTFInputError("--test-classes: name at least one class")
+    if len(set(names)) != len(names):
+        raise BTFInputError(f"--test-classes: {text!r} names a class twice")
     return tuple(names)
 
 
@@ -167,6 +184,10 @@ def register(sub: Any) -> None:
                    help="materials: synth (height-field ray-marcher, default) or capture "
                    "(Mitsuba 3 renders of the built-in samples of 'sparsebtf capture': true "
                    "black, high dynamic range; rendered once into the cache)")
+    q.add_argument("--test-classes", metavar="A,B,...",
+                   help="test only these of the source's classes (comma-separated; default "
+                   "all); the training, Table-5 and true-black materials stay, so each test "
+                   "material's rows are those of the whole run")
     q.add_argument("--log-offset", default=None, metavar="auto|release|OFFSET",
                    help="log offset of every SparseBTF encode (default auto; release = the "
                    "authors' 1e-5; see 'sparsebtf encode --help')")

@@ -162,6 +162,7 @@ def render_markdown(
         f"- Command: `sparsebtf bench quality{' --quick' if cfg['name'] == 'quick' else ''}"
         f"{' --seed ' + str(result['seed']) if result['seed'] else ''}"
         f"{' --source capture' if cfg.get('source') == 'capture' else ''}"
+        f"{' --test-classes ' + ','.join(cfg['test_classes']) if cfg.get('test_classes') else ''}"
         f"{''.join(' --materials ' + m for m in result.get('extra_materials', []))}"
         f"{_offset_flag(cfg)}"
         f"{_objective_flag(cfg)}"
@@ -175,7 +176,9 @@ def render_markdown(
         f"- Materials: {_source_text(cfg)}, {cfg['directions']} directions; {cfg['n_train']} "
         "training "
         f"materials of {cfg['train_size']}x{cfg['train_size']} texels (seeds "
-        f"{cfg['train_seeds']}), {len(_materials(result, 'test'))} unseen test materials of "
+        f"{cfg['train_seeds']}), {len(_materials(result, 'test'))} unseen test materials"
+        f"{' (classes ' + ', '.join(cfg['test_classes']) + ')' if cfg.get('test_classes') else ''}"
+        " of "
         f"{cfg['test_size']}x{cfg['test_size']} (seeds {cfg['test_seeds']}), Table-5 "
         f"materials of {cfg['table5_size']}x{cfg['table5_size']}.",
         f"- Models: K = {cfg['n_dictionaries']} dictionaries per channel, tau_l = "
