@@ -356,8 +356,8 @@ def group_by_point(pts: np.ndarray, n_points: int, width: int = GROUP
     return _group_numpy(np.asarray(pts, dtype=np.int64), int(width))
 
 
-#: Relative costs of the two loops, measured with ``benchmarks/bench_lookup.py``'s material
-#: on a Xeon (Sapphire Rapids, AVX-512), cycles on one thread: a coefficient summed for a
+#: Relative costs of the two loops, measured on ``benchmarks/bench_lookup.py``'s captured
+#: material on an AMD EPYC (Zen 4, AVX-512), cycles on one thread: a coefficient summed for a
 #: whole group across its lanes, and for one query. Only their ratio picks the loop: the
 #: grouped one pays from about four queries per group.
 _GROUP_TERM, _QUERY_TERM = 22.0, 5.5
