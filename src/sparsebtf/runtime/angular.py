@@ -361,6 +361,17 @@ if HAVE_NUMBA:
         w[1] = 1.0 - w[0]
         w[2] = 0.0
 
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _unit(q, i):
+        # _unit_queries for query i: q / |q| and whether |q| is finite and non-zero (a bad
+        # query is divided by 1 and reported).
+        x, y, z = q[i, 0], q[i, 1], q[i, 2]
+        norm = np.sqrt(x * x + y * y + z * z)
+        good = np.isfinite(norm) and norm != 0.0
+        if not good:
+            norm = 1.0
+        return x / norm, y / norm, z / norm, good
+
     @_nb.njit(parallel=True, cache=True, nogil=True)
     def _table_weights_nb(xyz, offsets, indices, q, k, n_phi, n_elevation, scheme, beta, poly):
         # _unit_queries, DirectionIndex.k_nearest and the scheme's weights of angular_weights
@@ -373,14 +384,7 @@ if HAVE_NUMBA:
         if k > 2:
             unit = np.empty((n, 3))
             for i in _nb.prange(n):
-                x, y, z = q[i, 0], q[i, 1], q[i, 2]
-                norm = np.sqrt(x * x + y * y + z * z)
-                ok[i] = np.isfinite(norm) and norm != 0.0
-                if not ok[i]:
-                    norm = 1.0
-                unit[i, 0] = x / norm
-                unit[i, 1] = y / norm
-                unit[i, 2] = z / norm
+                unit[i, 0], unit[i, 1], unit[i, 2], ok[i] = _unit(q, i)
             idx, d2 = _table_knn_nb(xyz, offsets, indices, unit, k, n_phi, n_elevation)
             w = np.empty((n, k))
             for i in _nb.prange(n):
@@ -397,12 +401,7 @@ if HAVE_NUMBA:
         idx = np.empty((n, k), dtype=np.int32)
         w = np.empty((n, k))
         for i in _nb.prange(n):
-            x, y, z = q[i, 0], q[i, 1], q[i, 2]
-            norm = np.sqrt(x * x + y * y + z * z)
-            ok[i] = np.isfinite(norm) and norm != 0.0
-            if not ok[i]:
-                norm = 1.0
-            qx, qy, qz = x / norm, y / norm, z / norm
+            qx, qy, qz, ok[i] = _unit(q, i)
             s0 = 0
             s1 = m
             below = qz < 0.0
