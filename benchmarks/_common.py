@@ -102,6 +102,19 @@ def synthetic_coded(
                     f"synthetic{size}", {}, model)  # fmt: skip
 
 
+def captured_coded(size: int = 30, seed: int = 0) -> CodedBTF:
+    """The built-in woven sample captured at 1 spp (``sparsebtf capture woven``, cached) and
+    coded with the bundled release model at τ = (885, 64, 64), every point at exactly τ
+    (ε = 0): a real code's sparsity pattern, which the compiled lookup and the plugin's pair
+    sums exploit (``synthetic_coded``'s random locations are their worst case)."""
+    import sparsebtf as sb
+    from sparsebtf.data.capture import cached_capture
+
+    btf = cached_capture("woven", size, seed=seed, spp=1)
+    return sb.encode(btf, target=(TAU["Y"], TAU["U"], TAU["V"]),
+                     options=sb.EncodeOptions(eps=0.0, progress=False))  # fmt: skip
+
+
 def cpu_seconds() -> float:
     """User + system CPU time of this process so far (every thread)."""
     r = resource.getrusage(resource.RUSAGE_SELF)

@@ -49,7 +49,7 @@ import os
 
 import numpy as np
 
-from _common import TAU, best_of, machine, report, synthetic_coded
+from _common import TAU, best_of, captured_coded, machine, report, synthetic_coded
 from sparsebtf.colour import yuv_to_rgb
 from sparsebtf.points.preprocessing import inverse_log_transform
 from sparsebtf.runtime import RuntimeBTF, angular_weights, kernels
@@ -219,13 +219,7 @@ def material(kind: str, size: int, seed: int) -> RuntimeBTF:
         return RuntimeBTF(synthetic_coded(size=size, tau=TAU, seed=seed))
     if kind != "captured":
         raise SystemExit(f"unknown material {kind!r}: captured or synthetic")
-    import sparsebtf as sb
-    from sparsebtf.data.capture import cached_capture
-
-    btf = cached_capture("woven", size, seed=seed, spp=1)
-    tau = (TAU["Y"], TAU["U"], TAU["V"])
-    return RuntimeBTF(sb.encode(btf, target=tau, options=sb.EncodeOptions(eps=0.0,
-                                                                          progress=False)))
+    return RuntimeBTF(captured_coded(size, seed))
 
 
 def _ghz() -> float:

@@ -19,8 +19,9 @@ the two reference halves, long renders). Before rendering, a
 BSDF-level check: the relative variance of sample()'s weight eval/pdf at three incidences.
 
 **Time per sample** (``--time-size``², ``--time-spp``): the benchmark material of
-``_common.synthetic_coded`` (K = 8 random dictionaries, 40×40 texels) at τ = (885, 64, 64) and
-a quarter of it, and the dense reference plugin on a 20×20-texel table, each with both
+``_common.synthetic_coded`` (K = 8 random dictionaries, 40×40 texels; ``--time-material
+captured``: ``_common.captured_coded``, the woven sample coded with the release model) at
+τ = (885, 64, 64) and a quarter of it, and the dense reference plugin on a 20×20-texel table, each with both
 samplers; best of ``--repeat`` interleaved rounds after one render each that compiles the
 kernels.
 
@@ -51,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from _common import TAU, cpu_seconds, machine, report, synthetic_coded
+from _common import TAU, captured_coded, cpu_seconds, machine, report, synthetic_coded
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.data.directions import ubo2014
 
@@ -258,7 +259,8 @@ def timing(render: Renderer, args: argparse.Namespace) -> dict[str, Any]:
     import sparsebtf.mitsuba as sbm
     from sparsebtf.runtime import RuntimeBTF
 
-    full = RuntimeBTF(synthetic_coded(40))
+    full = RuntimeBTF(captured_coded(40) if args.time_material == "captured"
+                      else synthetic_coded(40))  # fmt: skip
     quarter_tau = {ch: t // 4 for ch, t in TAU.items()}
     rng = np.random.default_rng(1)
     d = ubo2014()
@@ -479,6 +481,9 @@ def main() -> None:
     ap.add_argument("--time-size", type=int, default=128, help="timing renders: image side")
     ap.add_argument("--time-spp", type=int, default=8, help="timing renders: spp")
     ap.add_argument("--repeat", type=int, default=3, help="timed renders per setting")
+    ap.add_argument("--time-material", default="synthetic", choices=["synthetic", "captured"],
+                    help="timing renders: the coded material (synthetic: random coefficient "
+                    "locations; captured: the woven sample coded with the release model)")
     ap.add_argument("--no-lobe", action="store_true",
                     help="skip the analytic glossy material (a mirror lobe, sky only)")
     ap.add_argument("--integrator", default="path", choices=sorted(INTEGRATORS),

@@ -28,7 +28,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-__all__ = ["DENSE_FRACTION", "CompactLayout", "channel_layout", "compact_layout"]
+__all__ = ["DENSE_FRACTION", "CompactLayout", "channel_layout", "compact_layout", "pair_groups"]
 
 #: A point using more than this fraction of a mode's columns keeps the whole mode: a full
 #: dictionary row is summed with contiguous vector loads (~16 entries per instruction), a list
@@ -121,6 +121,21 @@ def _lists(point: np.ndarray, column: np.ndarray, m: int, n_points: int, dense_f
     return new_cols, new_off, np.where(d, column, local), np.where(d, m, need)
 
 
+def pair_groups(point: np.ndarray, l3: np.ndarray, l4: np.ndarray, n_points: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """The coefficients of every point grouped by (light, view) column pair: ``order`` (nnz,)
+    sorts them by point, view and light column; pair r holds ``order[pstart[r]:pstart[r+1]]``
+    and point p the pairs ``opair[p]:opair[p+1]``; ``first`` (n_pairs,) is each pair's first
+    position in ``order``. ``point``, ``l3``, ``l4``: (nnz,) per coefficient, by point."""
+    order = np.lexsort((l3, l4, point))
+    key = ((point * 256 + l4) * 256 + l3)[order]
+    first = np.flatnonzero(np.diff(key, prepend=-1)) if key.size else np.zeros(0, np.int64)
+    pstart = np.concatenate((first, [key.size])).astype(np.int64)
+    opair = np.zeros(n_points + 1, dtype=np.int64)
+    np.cumsum(np.bincount(point[order][first], minlength=n_points), out=opair[1:])
+    return order, pstart, opair, first
+
+
 def compact_layout(offsets: np.ndarray, locations: np.ndarray, values: np.ndarray,
                    sizes: tuple[int, ...],
                    dense_fraction: float | tuple[float, float, float] = DENSE_FRACTION
@@ -147,15 +162,7 @@ def compact_layout(offsets: np.ndarray, locations: np.ndarray, values: np.ndarra
     code = (e12 | (a3 << 16) | (b4 << 24)).astype(np.uint32)
     need = (n12 | (n3 << 20) | (n4 << 40)).astype(np.uint64)
 
-    # the (light, view) pairs: coefficients sorted by point, then view and light column
-    order = np.lexsort((a3, b4, point))
-    key = (point * 256 + b4) * 256 + a3
-    ks = key[order]
-    cut = np.flatnonzero(np.diff(ks)) + 1 if ks.size else np.zeros(0, dtype=np.int64)
-    first = np.concatenate(([0], cut)) if ks.size else cut
-    pstart = np.concatenate((first, [ks.size])).astype(np.int64)
-    opair = np.zeros(n_points + 1, dtype=np.int64)
-    np.cumsum(np.bincount(point[order][first], minlength=n_points), out=opair[1:])
+    order, pstart, opair, first = pair_groups(point, (loc >> 16) & 0xFF, loc >> 24, n_points)
     pab = (a3[order][first] | (b4[order][first] << 16)).astype(np.uint32)
 
     def widest(o: np.ndarray) -> int:
