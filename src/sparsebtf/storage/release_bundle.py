@@ -2,9 +2,11 @@
 
 ::
 
-    python -m sparsebtf.storage.release_bundle ../shared/official            # rebuild
-    python -m sparsebtf.storage.release_bundle ../shared/official --check    # compare only
-    python -m sparsebtf.storage.release_bundle ../shared/official --measure  # precision table
+    python -m sparsebtf.storage.release_bundle RELEASE_DIR            # rebuild
+    python -m sparsebtf.storage.release_bundle RELEASE_DIR --check    # compare only
+    python -m sparsebtf.storage.release_bundle RELEASE_DIR --measure  # precision table
+
+``RELEASE_DIR``: a folder with the files of the authors' GitHub release (docs/format.md §8).
 
 The conversion: the fp64 ``DictEnsOrth4D{Y,U,V}.mat`` ensembles and ``bonn_angles.bin``
 (:func:`~sparsebtf.storage.release.release_model`), every dictionary entry rounded to float32
@@ -190,7 +192,8 @@ def main(argv: list[str] | None = None) -> int:
         prog="python -m sparsebtf.storage.release_bundle",
         description="Build (or check) the bundled 'release' model from the authors' files.",
     )
-    p.add_argument("folder", help="folder with the release files (e.g. ../shared/official)")
+    p.add_argument("folder", help="folder with the files of the authors' GitHub release "
+                   "(DictEnsOrth4D*.mat, bonn_angles.bin, ...)")
     p.add_argument("--out", help="folder to write into (default: the package's models/)")
     p.add_argument("--check", action="store_true",
                    help="only compare the bundled files with a fresh conversion")
