@@ -21,9 +21,9 @@ BSDF-level check: the relative variance of sample()'s weight eval/pdf at three i
 **Time per sample** (``--time-size``², ``--time-spp``): the benchmark material of
 ``_common.synthetic_coded`` (K = 8 random dictionaries, 40×40 texels; ``--time-material
 captured``: ``_common.captured_coded``, the woven sample coded with the release model) at
-τ = (885, 64, 64) and a quarter of it, and the dense reference plugin on a 20×20-texel table, each with both
-samplers; best of ``--repeat`` interleaved rounds after one render each that compiles the
-kernels.
+τ = (885, 64, 64) and a quarter of it, and the dense reference plugin on a 20×20-texel
+table, each with both samplers; best of ``--repeat`` interleaved rounds after one render each
+that compiles the kernels.
 
 **Level of detail** (``--lod``, alone): ``lod = off`` vs ``auto`` on the glossy class, felt
 (the noise part's trained codes) and a synthetic carpet coded on the bundled model:
