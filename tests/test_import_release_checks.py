@@ -85,6 +85,35 @@ def test_a_complete_folder_imports(tmp_path, capsys):
     assert names == ["m.h5", "mat.coded.h5"]
 
 
+def test_a_write_failing_part_way_leaves_no_file_of_the_run(tmp_path, capsys, monkeypatch):
+    """The model file is written first; when a coded file cannot be written after it (a full
+    disk), the model file goes too: no half-written set of outputs."""
+    import sparsebtf.storage as storage
+    from sparsebtf.errors import OutputError
+
+    def full_disk(_coded, path, *_args, **_kw):  # what save_coded raises on a full disk
+        raise OutputError(f"no space left on device while writing {path}; nothing was written")
+
+    monkeypatch.setattr(storage, "save_coded", full_disk)
+    code, err, names = _import(release_folder(tmp_path / "rel"), tmp_path / "out", capsys)
+    assert code == 2 and "no space left on device" in _one_error_line(err)
+    assert names == []  # the model file written before it is gone too
+
+
+def test_a_system_error_is_one_line_not_a_traceback(tmp_path, capsys, monkeypatch):
+    """An OSError no check anticipated (a lost mount mid-write) ends the command in one line
+    that names it, exit 2."""
+    import sparsebtf.storage as storage
+
+    def lost(*_args, **_kw):
+        raise OSError(5, "Input/output error", str(tmp_path / "out" / "mat.coded.h5"))
+
+    monkeypatch.setattr(storage, "save_coded", lost)
+    code, err, names = _import(release_folder(tmp_path / "rel"), tmp_path / "out", capsys)
+    assert code == 2 and "Input/output error" in _one_error_line(err) and "mat.coded.h5" in err
+    assert names == []
+
+
 @pytest.mark.parametrize("std", [5e-324, 1e-40, 0.0, 41.0])
 def test_std_that_the_coded_file_cannot_store_is_refused(tmp_path, capsys, std):
     """σ = 5e-324 passes σ > 0 in float64 but is stored (float32) as 0.0, which decode refuses;

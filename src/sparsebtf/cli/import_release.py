@@ -42,17 +42,25 @@ def run(args: argparse.Namespace) -> int:
             f"{args.folder}: no Coeffs_BTF_<name>_<eps>_<CH>.bin files, so nothing to write "
             "(-o MODEL.h5 writes the dictionaries alone as a model)"
         )
-    if args.output:
-        save_model(model, args.output)
-        model_path = str(Path(args.output).resolve())
     out_dir = Path(args.coded_dir or (Path(args.output).resolve().parent if args.output else "."))
-    written = {}
-    for name, c in coded.items():
+    written: dict[str, str] = {}
+    done: list[Path] = []  # each file is written whole (temporary + rename); on a failure
+    try:  # part way (a full disk) the files of this run are removed: no half-written set
         if args.output:
-            c.params["model_file"] = model_path
-        path = out_dir / f"{name}.coded.h5"
-        save_coded(c, path)
-        written[name] = str(path)
+            save_model(model, args.output)
+            done.append(Path(args.output))
+            model_path = str(Path(args.output).resolve())
+        for name, c in coded.items():
+            if args.output:
+                c.params["model_file"] = model_path
+            path = out_dir / f"{name}.coded.h5"
+            save_coded(c, path)
+            done.append(path)
+            written[name] = str(path)
+    except BaseException:
+        for path in done:
+            path.unlink(missing_ok=True)
+        raise
     if args.json:
         print_json({"model": args.output or args.model, "content_hash": model.content_hash,
                     "coded": written, "notes": notes})

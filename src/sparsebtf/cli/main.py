@@ -169,6 +169,10 @@ def _main(argv: Sequence[str] | None) -> int:
         return 130
     except BrokenPipeError:
         return _stdout_gone()
+    except OSError as e:  # the system refused a read or write (a full disk, a lost mount):
+        # one line that says what and where, as for bad input; outputs are never half-written
+        print(f"sparsebtf: error: {e}", file=sys.stderr)
+        return 2
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
