@@ -60,9 +60,9 @@ GROUP = 32
 #: allocated once per task).
 _CHUNK = 256
 _TASK = 16
-_LOW16, _LOW8, _AT3, _AT4 = np.uint64(0xFFFF), np.uint64(0xFF), np.uint64(16), np.uint64(24)
-_LOW20, _AT20, _AT40 = np.uint64(0xFFFFF), np.uint64(20), np.uint64(40)
-_AT16 = np.uint64(16)
+#: The unsigned masks and shifts of compact.py's packed words (code, need, pab).
+_LOW8, _LOW16, _LOW20 = np.uint64(0xFF), np.uint64(0xFFFF), np.uint64(0xFFFFF)
+_SH16, _SH20, _SH24, _SH40 = np.uint64(16), np.uint64(20), np.uint64(24), np.uint64(40)
 
 
 def _group_numpy(pts: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -105,6 +105,18 @@ if HAVE_NUMBA:
     # (a negative index counts from the end), and that test stops LLVM from vectorising the
     # loop (measured: 6x slower lane sums); a view taken per query (d[k, row]) costs a
     # reference count. So the hot loops index with unsigned integers (np.uint64: no test).
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _split_code(c):
+        # a coefficient's compact code e | a<<16 | b<<24 as unsigned (e, a, b)
+        u = np.uint64(c)
+        return u & _LOW16, (u >> _SH16) & _LOW8, u >> _SH24
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _split_need(nd):
+        # a prefix's list lengths n12 | n3<<20 | n4<<40 as unsigned (n12, n3, n4)
+        u = np.uint64(nd)
+        return u & _LOW20, (u >> _SH20) & _LOW20, u >> _SH40
 
     @_nb.njit(cache=True, nogil=True, inline="always")
     def _factors(t12, t3, t4, j, st, k, p1, p2, a12, n12, c3, a3, n3, c4, a4, n4, d1, d2, d3,
@@ -195,8 +207,7 @@ if HAVE_NUMBA:
                         out[order[q0 + j]] = 0.0
                     continue
                 # The lists the group's longest prefix uses (first-use order: a prefix).
-                nd = np.uint64(need[s0 + top - 1])
-                n12, n3, n4 = nd & _LOW20, (nd >> _AT20) & _LOW20, nd >> _AT40
+                n12, n3, n4 = _split_need(need[s0 + top - 1])
                 ku = np.uint64(k)
                 uw = np.uint64(width)
                 # Lanes >= m are never read: the tables need no clearing.
@@ -215,7 +226,7 @@ if HAVE_NUMBA:
                     # load per coefficient and the pair's r3·r4 once (compact.py).
                     for r in range(opair[p], opair[p + 1]):
                         ab = np.uint64(pab[r])
-                        a3, a4 = (ab & _LOW16) * uw, (ab >> _AT16) * uw
+                        a3, a4 = (ab & _LOW16) * uw, (ab >> _SH16) * uw
                         for j in range(um):
                             inner[j] = 0.0
                         for s in range(pstart[r], pstart[r + 1]):
@@ -230,19 +241,19 @@ if HAVE_NUMBA:
                     continue
                 # Two terms per pass over the lanes: half the read-modify-writes of acc.
                 for s in range(s0, s0 + full - 1, 2):
-                    c = np.uint64(code[s])
+                    e, a, b = _split_code(code[s])
                     v = vals[s]
-                    a1, a3, a4 = (c & _LOW16) * uw, ((c >> _AT3) & _LOW8) * uw, (c >> _AT4) * uw
-                    c = np.uint64(code[s + 1])
+                    a1, a3, a4 = e * uw, a * uw, b * uw
+                    e, a, b = _split_code(code[s + 1])
                     w = vals[s + 1]
-                    b1, b3, b4 = (c & _LOW16) * uw, ((c >> _AT3) & _LOW8) * uw, (c >> _AT4) * uw
+                    b1, b3, b4 = e * uw, a * uw, b * uw
                     for j in range(um):
                         acc[j] += (v * t12[a1 + j] * r3[a3 + j] * r4[a4 + j]
                                    + w * t12[b1 + j] * r3[b3 + j] * r4[b4 + j])  # fmt: skip
                 for s in range(s0 + full - full % 2, s0 + top):
-                    c = np.uint64(code[s])
+                    e, a, b = _split_code(code[s])
                     v = vals[s]
-                    a1, a3, a4 = (c & _LOW16) * uw, ((c >> _AT3) & _LOW8) * uw, (c >> _AT4) * uw
+                    a1, a3, a4 = e * uw, a * uw, b * uw
                     if s < s0 + full:
                         for j in range(um):
                             acc[j] += v * t12[a1 + j] * r3[a3 + j] * r4[a4 + j]
@@ -258,15 +269,15 @@ if HAVE_NUMBA:
     @_nb.njit(cache=True, nogil=True, inline="always")
     def _term(v, c, t12, r3, r4):
         # v·t12[e]·r3[a]·r4[b] of compact code c = e | a<<16 | b<<24, unsigned throughout.
-        u = np.uint64(c)
-        return v * t12[u & _LOW16] * r3[(u >> _AT3) & _LOW8] * r4[u >> _AT4]
+        e, a, b = _split_code(c)
+        return v * t12[e] * r3[a] * r4[b]
 
     @_nb.njit(parallel=True, cache=True, nogil=True, fastmath=True)
     def _per_query_nb(vals, code, need, offs, memb, p1, p2, o12, c3, o3, c4, o4, d1, d2, d3,
                       d4, pts, i1, i2, li, lw, vi, vw, tau, w12, w3, w4):  # fmt: skip
-        # The reference's loop, in the dictionaries' dtype, over compact factors, with the
-        # fully kept prefix apart from the one partly kept rank (no clip per term). Scratch
-        # is allocated once per chunk of queries, not per query.
+        # The reference's loop over compact factors (terms in the dictionaries' dtype, summed
+        # in float64), with the fully kept prefix apart from the one partly kept rank (no
+        # clip per term). Scratch is allocated once per chunk of queries, not per query.
         n = pts.shape[0]
         out = np.empty(n, dtype=np.float64)
         n_chunks = (n + _CHUNK - 1) // _CHUNK
@@ -283,25 +294,17 @@ if HAVE_NUMBA:
                 if top == 0:
                     out[q] = 0.0
                     continue
-                nd = np.uint64(need[s0 + top - 1])
+                n12, n3, n4 = _split_need(need[s0 + top - 1])
                 _factors(t12, r3, r4, np.uint64(0), np.uint64(1), np.uint64(memb[p]), p1, p2,
-                         np.uint64(o12[p]), nd & _LOW20, c3, np.uint64(o3[p]),
-                         (nd >> _AT20) & _LOW20, c4, np.uint64(o4[p]), nd >> _AT40, d1, d2, d3,
-                         d4, np.uint64(i1[q]), np.uint64(i2[q]), li, lw, vi, vw, q)  # fmt: skip
-                # The prefix as views from 0 (see the indexing note) and an unsigned code:
-                # no wraparound tests. Four partial sums: one would chain every term on
-                # the add before it.
+                         np.uint64(o12[p]), n12, c3, np.uint64(o3[p]), n3, c4, np.uint64(o4[p]),
+                         n4, d1, d2, d3, d4, np.uint64(i1[q]), np.uint64(i2[q]), li, lw, vi, vw,
+                         q)  # fmt: skip
+                # the prefix as views from 0: no wraparound tests (see the indexing note)
                 full = min(cnt, np.int64(np.floor(t)))
                 cv = code[s0:s0 + top]
                 vv = vals[s0:s0 + top]
-                a0 = a1 = a2 = a3 = 0.0
-                for s in range(0, full - 3, 4):
-                    a0 += _term(vv[s], cv[s], t12, r3, r4)
-                    a1 += _term(vv[s + 1], cv[s + 1], t12, r3, r4)
-                    a2 += _term(vv[s + 2], cv[s + 2], t12, r3, r4)
-                    a3 += _term(vv[s + 3], cv[s + 3], t12, r3, r4)
-                acc = (a0 + a1) + (a2 + a3)
-                for s in range((full // 4) * 4, full):
+                acc = 0.0
+                for s in range(full):
                     acc += _term(vv[s], cv[s], t12, r3, r4)
                 if full < top:
                     acc += min(1.0, t - full) * _term(vv[full], cv[full], t12, r3, r4)
