@@ -88,23 +88,24 @@ def test_angular_weights_with_a_table_equal_the_scan(scheme, coded):
 
 @numba_only
 def test_the_fused_weights_find_the_scans_neighbours_on_cell_borders():
-    """The compiled weights place a query in its grid cell with an approximate atan2
-    (within 1e-8 rad): queries on every elevation and azimuth border of the grid, and near
-    them, still get the full scan's neighbours."""
-    from sparsebtf.runtime.angular import _atan2, _atan_poly
+    """The compiled weights place a query in its grid cell with an approximate float32
+    atan2 (within 5e-7 rad): queries on every elevation and azimuth border of the grid, and
+    near them, still get the full scan's neighbours."""
+    from sparsebtf.runtime.angular import _atan2f, _atan_poly_f32
 
     rng = np.random.default_rng(4)
-    y, x = rng.normal(size=(2, 20000))
+    y, x = rng.normal(size=(2, 20000)).astype(np.float32)
     y[:4], x[:4] = [0.0, 1.0, -1.0, 0.0], [1.0, 0.0, 0.0, -1.0]  # the axes
-    got = np.array([_atan2(a, b, _atan_poly()) for a, b in zip(y, x, strict=True)])
-    assert np.max(np.abs(got - np.arctan2(y, x))) < 1e-8
+    got = np.array([_atan2f(a, b, _atan_poly_f32()) for a, b in zip(y, x, strict=True)])
+    assert np.max(np.abs(got - np.arctan2(y.astype(np.float64), x))) < 5e-7
     dirs = ubo2014()
-    el = (np.arange(65) * (np.pi / 2) / 64)[:, None] + np.array([-1e-9, 0.0, 1e-9])
-    az = (np.arange(256) * (2 * np.pi) / 256 - np.pi)[:, None] + np.array([-1e-9, 0.0, 1e-9])
-    e, a = np.meshgrid(el.ravel(), az.ravel()[::5], indexing="ij")
+    near = np.array([-1e-6, -1e-9, 0.0, 1e-9, 1e-6])  # float32 cells err by up to ~3e-7 rad
+    el = (np.arange(65) * (np.pi / 2) / 64)[:, None] + near
+    az = (np.arange(256) * (2 * np.pi) / 256 - np.pi)[:, None] + near
+    e, a = np.meshgrid(el.ravel(), az.ravel()[::3], indexing="ij")
     e = np.clip(e, 0.0, np.pi / 2)
     q = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], -1).reshape(-1, 3)
-    for k, scheme in ((1, "nearest"), (2, "linear")):
+    for k, scheme in ((1, "nearest"), (2, "linear"), (3, "barycentric"), (4, "gaussian")):
         idx, _ = DirectionIndex(dirs, k).weights(q, scheme)
         ref, _ = k_nearest(dirs.xyz, q / np.linalg.norm(q, axis=1, keepdims=True), k)
         assert np.array_equal(idx, ref)

@@ -50,6 +50,8 @@ Scheme = Literal["nearest", "linear", "barycentric", "gaussian"]
 SCHEMES: tuple[str, ...] = ("nearest", "linear", "barycentric", "gaussian")
 DEFAULT_K = {"nearest": 1, "linear": 2, "barycentric": 3, "gaussian": 4}
 _CHUNK = 1 << 16
+#: Queries per pass of the compiled weights (:meth:`DirectionIndex.weights`).
+_BLOCK = 128
 #: Schemes whose weights :meth:`DirectionIndex.weights` computes in the same compiled pass as
 #: the search (every one).
 _FUSED = {"nearest": 0, "linear": 1, "gaussian": 2, "barycentric": 3}
@@ -258,6 +260,12 @@ def _atan_poly(degree: int = 8) -> np.ndarray:
     return np.linalg.lstsq(basis, np.arctan(t), rcond=None)[0]
 
 
+@functools.cache
+def _atan_poly_f32() -> tuple[np.float32, ...]:
+    """:func:`_atan_poly`'s 9 coefficients as a float32 tuple (the compiled cell's)."""
+    return tuple(np.float32(c) for c in _atan_poly())
+
+
 class DirectionIndex:
     """The k-nearest search of one direction set, by table: each query scans the
     :func:`candidate_lists` of its grid cell (UBO2014, k = 2: 2.7 candidates on average)
@@ -293,8 +301,8 @@ class DirectionIndex:
         if q.ndim != 2 or q.shape[1] != 3:
             raise BTFInputError(f"query directions must have shape (n, 3), got {q.shape}")
         idx, w, bad = _table_weights_nb(
-            self.xyz, self.offsets, self.indices, np.ascontiguousarray(q), self.k,
-            self.n_phi, self.n_elevation, _FUSED[scheme], float(beta), _atan_poly())  # fmt: skip
+            self.xyz, self.offsets, self.indices, np.ascontiguousarray(q), self.k, self.n_phi,
+            self.n_elevation, _FUSED[scheme], float(beta), _atan_poly_f32())  # fmt: skip
         if bad.size:
             raise BTFInputError(
                 f"query direction {int(bad[0])} is zero or not finite ({bad.size} such "
@@ -305,23 +313,22 @@ class DirectionIndex:
 
 if HAVE_NUMBA:
 
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _atan2(y, x, poly):
-        # atan2 within 1e-8 rad (_atan_poly): the grid cell of a query on a cell border may
-        # come out as its neighbour, whose list is complete for it too (candidate_lists'
-        # margin is 2e-5 rad); np.arctan2 and np.arcsin cost 3x as much.
+    @_nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+    def _atan2f(y, x, p):
+        # atan2 in float32 with _atan_poly's polynomial (p: its 9 coefficients, float32),
+        # within 5e-7 rad: a query on a cell border may land in its neighbour cell, whose
+        # list is complete for it too (candidate_lists' margin, 2e-5 rad, covers float32
+        # cells). Branch-free, so a block of queries runs in vector registers; np.arctan2
+        # and np.arcsin are library calls that do not.
         ax, ay = abs(x), abs(y)
         hi = max(ax, ay)
-        t = min(ax, ay) / hi if hi > 0 else 0.0
+        t = min(ax, ay) / hi if hi > 0 else np.float32(0.0)
         u = t * t
-        p = poly[poly.shape[0] - 1]
-        for i in range(poly.shape[0] - 2, -1, -1):
-            p = p * u + poly[i]
-        a = t * p
-        if ay > ax:
-            a = np.pi / 2 - a
-        if x < 0:
-            a = np.pi - a
+        s = ((((((((p[8] * u + p[7]) * u + p[6]) * u + p[5]) * u + p[4]) * u + p[3]) * u
+               + p[2]) * u + p[1]) * u + p[0])  # fmt: skip
+        a = t * s
+        a = np.float32(np.pi / 2) - a if ay > ax else a
+        a = np.float32(np.pi) - a if x < 0 else a
         return -a if y < 0 else a
 
     @_nb.njit(cache=True, nogil=True, inline="always")
@@ -361,87 +368,135 @@ if HAVE_NUMBA:
         w[1] = 1.0 - w[0]
         w[2] = 0.0
 
-    @_nb.njit(cache=True, nogil=True, inline="always")
-    def _unit(q, i):
-        # _unit_queries for query i: q / |q| and whether |q| is finite and non-zero (a bad
-        # query is divided by 1 and reported).
-        x, y, z = q[i, 0], q[i, 1], q[i, 2]
-        norm = np.sqrt(x * x + y * y + z * z)
-        good = np.isfinite(norm) and norm != 0.0
-        if not good:
-            norm = 1.0
-        return x / norm, y / norm, z / norm, good
-
-    @_nb.njit(parallel=True, cache=True, nogil=True)
-    def _table_weights_nb(xyz, offsets, indices, q, k, n_phi, n_elevation, scheme, beta, poly):
+    @_nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+    def _table_weights_nb(xyz, offsets, indices, q, k, n_phi, n_elevation, scheme, beta, p):
         # _unit_queries, DirectionIndex.k_nearest and the scheme's weights of angular_weights
-        # per query, in their order of operations (the same values). One or two neighbours
-        # (nearest, linear) are kept in registers while the candidate list is scanned, and
-        # the grid cell comes from _atan2.
+        # in their order of operations (the same values), a block of _BLOCK queries at a
+        # time, one step per loop: the arithmetic steps (normalise, grid cell, linear
+        # weights) vectorise; fused with the list scan into one loop per query, none did
+        # (measured: twice the time). Indices are unsigned where a loop should vectorise
+        # (numba's wraparound test on signed ones stops LLVM).
         n = q.shape[0]
         m = xyz.shape[0]
         ok = np.empty(n, dtype=np.bool_)
-        if k > 2:
-            unit = np.empty((n, 3))
-            for i in _nb.prange(n):
-                unit[i, 0], unit[i, 1], unit[i, 2], ok[i] = _unit(q, i)
-            idx, d2 = _table_knn_nb(xyz, offsets, indices, unit, k, n_phi, n_elevation)
-            w = np.empty((n, k))
-            for i in _nb.prange(n):
-                if scheme == 3:
-                    _barycentric_row(xyz, unit[i], idx[i], d2[i], w[i])
-                    continue
-                t = 0.0
-                for j in range(k):
-                    w[i, j] = np.exp(-beta * (d2[i, j] - d2[i, 0]))
-                    t += w[i, j]
-                for j in range(k):
-                    w[i, j] /= t
-            return idx, w, np.flatnonzero(~ok)
         idx = np.empty((n, k), dtype=np.int32)
         w = np.empty((n, k))
-        for i in _nb.prange(n):
-            qx, qy, qz, ok[i] = _unit(q, i)
-            s0 = 0
-            s1 = m
-            below = qz < 0.0
-            if not below:
-                el = _atan2(qz, np.sqrt(qx * qx + qy * qy), poly)
-                az = _atan2(qy, qx, poly)
-                e = min(np.int64(el * (2 / np.pi) * n_elevation), n_elevation - 1)
-                a = min(max(np.int64((az + np.pi) * (0.5 / np.pi) * n_phi), 0), n_phi - 1)
-                c = e * n_phi + a
-                s0 = offsets[c]
-                s1 = offsets[c + 1]
-            b0 = np.inf
-            b1 = np.inf
-            j0 = 0
-            j1 = 0
-            for t in range(s0, s1):
-                j = t if below else indices[t]
-                d = max(2.0 - 2.0 * (qx * xyz[j, 0] + qy * xyz[j, 1] + qz * xyz[j, 2]), 0.0)
-                if d < b0:  # strictly: a tie keeps the lower index first, as the scan does
-                    b1, j1 = b0, j0
-                    b0, j0 = d, j
-                elif d < b1:
-                    b1, j1 = d, j
-            idx[i, 0] = j0
-            if k == 1:
-                w[i, 0] = 1.0
-                continue
-            idx[i, 1] = j1
-            if scheme == 2:
-                e1 = np.exp(-beta * (b1 - b0))
-                t = 1.0 + e1
-                w[i, 0] = 1.0 / t
-                w[i, 1] = e1 / t
-            else:
-                d0 = np.sqrt(b0)
-                d1 = np.sqrt(b1)
-                w0 = 0.5 + 0.5 * (d1 - d0) / d1 if d1 > 0 else 0.5
-                w[i, 0] = w0
-                w[i, 1] = 1.0 - w0
+        d2 = np.empty((n, k))
+        top_e = np.float32(n_elevation - 1)
+        top_a = np.float32(n_phi - 1)
+        to_e = np.float32(2 / np.pi * n_elevation)
+        to_a = np.float32(0.5 / np.pi * n_phi)
+        for blk in _nb.prange((n + _BLOCK - 1) // _BLOCK):
+            i0 = np.uint64(blk * _BLOCK)
+            um = np.uint64(min(_BLOCK, n - blk * _BLOCK))
+            ux = np.empty(_BLOCK)
+            uy = np.empty(_BLOCK)
+            uz = np.empty(_BLOCK)
+            cell = np.empty(_BLOCK, dtype=np.int64)
+            for j in range(um):  # q / |q|; a zero or non-finite query is divided by 1
+                x, y, z = q[i0 + j, 0], q[i0 + j, 1], q[i0 + j, 2]
+                norm = np.sqrt(x * x + y * y + z * z)
+                good = np.isfinite(norm) and norm != 0.0
+                ok[i0 + j] = good
+                norm = norm if good else 1.0
+                ux[j] = x / norm
+                uy[j] = y / norm
+                uz[j] = z / norm
+            for j in range(um):  # the cell of cell_of's grid; -1: scan every direction
+                x, y, z = np.float32(ux[j]), np.float32(uy[j]), np.float32(uz[j])
+                fe = _atan2f(z, np.sqrt(x * x + y * y), p) * to_e
+                fa = (_atan2f(y, x, p) + np.float32(np.pi)) * to_a
+                # clamped by comparisons, so NaN (a bad query) converts to a finite cell
+                fe = fe if fe < top_e else top_e
+                fe = fe if fe > 0 else np.float32(0.0)
+                fa = fa if fa < top_a else top_a
+                fa = fa if fa > 0 else np.float32(0.0)
+                c = np.int64(fe) * n_phi + np.int64(fa)
+                cell[j] = c if uz[j] >= 0.0 and ok[i0 + j] else -1
+            for j in range(um):  # the scan of the cell's list (below the horizon: all N)
+                i = i0 + j
+                c = cell[j]
+                lo = np.int64(0) if c < 0 else np.int64(offsets[c])
+                hi = np.int64(m) if c < 0 else np.int64(offsets[c + 1])
+                if k > 2:
+                    _insert_scan(xyz, indices, ux[j], uy[j], uz[j], lo, hi, c < 0, k,
+                                 idx[i], d2[i])  # fmt: skip
+                    continue
+                b0 = np.inf
+                b1 = np.inf
+                j0 = 0
+                j1 = 0
+                for t in range(lo, hi):
+                    jj = t if c < 0 else indices[t]
+                    d = max(2.0 - 2.0 * (ux[j] * xyz[jj, 0] + uy[j] * xyz[jj, 1]
+                                         + uz[j] * xyz[jj, 2]), 0.0)  # fmt: skip
+                    # strictly less: a tie keeps the lower index first, as the scan does
+                    first = d < b0
+                    second = d < b1
+                    b1 = b0 if first else (d if second else b1)
+                    j1 = j0 if first else (jj if second else j1)
+                    b0 = d if first else b0
+                    j0 = jj if first else j0
+                idx[i, 0] = j0
+                d2[i, 0] = b0
+                if k == 2:
+                    idx[i, 1] = j1
+                    d2[i, 1] = b1
+            _weigh_block(xyz, ux, uy, uz, idx[i0:i0 + um],
+                         d2[i0:i0 + um], w[i0:i0 + um], scheme, beta)  # fmt: skip
         return idx, w, np.flatnonzero(~ok)
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _insert_scan(xyz, indices, qx, qy, qz, lo, hi, every, k, idx, dist):
+        # The k nearest of entries lo..hi of a cell's list (every: of all directions) by
+        # insertion, nearest first, ties to the lower index: data.directions._knn_nb's scan.
+        cnt = 0
+        for t in range(lo, hi):
+            j = t if every else indices[t]
+            d = max(2.0 - 2.0 * (qx * xyz[j, 0] + qy * xyz[j, 1] + qz * xyz[j, 2]), 0.0)
+            if cnt < k:
+                cnt += 1
+            elif d >= dist[k - 1]:
+                continue
+            pos = cnt - 1
+            while pos > 0 and dist[pos - 1] > d:
+                dist[pos] = dist[pos - 1]
+                idx[pos] = idx[pos - 1]
+                pos -= 1
+            dist[pos] = d
+            idx[pos] = j
+
+    @_nb.njit(cache=True, nogil=True, error_model="numpy")
+    def _weigh_block(xyz, ux, uy, uz, idx, d2, w, scheme, beta):
+        # angular_weights' weights of a block from its neighbours' squared distances d2.
+        um = np.uint64(w.shape[0])
+        k = w.shape[1]
+        if scheme == 0:
+            for j in range(um):
+                w[j, 0] = 1.0
+            return
+        if scheme == 1:  # the release's 2-NN weights; sqrt of a max(·, 0): an intrinsic
+            lin = np.empty(um)
+            for j in range(um):
+                d0 = np.sqrt(max(d2[j, 0], 0.0))
+                d1 = np.sqrt(max(d2[j, 1], 0.0))
+                lin[j] = 0.5 + 0.5 * (d1 - d0) / d1 if d1 > 0 else 0.5
+            for j in range(um):
+                w[j, 0] = lin[j]
+                w[j, 1] = 1.0 - lin[j]
+            return
+        u = np.empty(3)
+        for j in range(um):
+            if scheme == 3:
+                u[0], u[1], u[2] = ux[j], uy[j], uz[j]
+                _barycentric_row(xyz, u, idx[j], d2[j], w[j])
+                continue
+            t = 0.0
+            for a in range(k):
+                w[j, a] = np.exp(-beta * (d2[j, a] - d2[j, 0]))
+                t += w[j, a]
+            for a in range(k):
+                w[j, a] /= t
 
     @_nb.njit(parallel=True, cache=True, nogil=True)
     def _table_knn_nb(xyz, offsets, indices, q, k, n_phi, n_elevation):
