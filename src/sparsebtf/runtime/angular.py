@@ -43,6 +43,7 @@ __all__ = [
     "angular_weights",
     "candidate_lists",
     "cell_of",
+    "neighbour_count",
     "neighbour_table",
 ]
 
@@ -52,6 +53,7 @@ DEFAULT_K = {"nearest": 1, "linear": 2, "barycentric": 3, "gaussian": 4}
 _CHUNK = 1 << 16
 #: Queries per pass of the compiled weights (:meth:`DirectionIndex.weights`).
 _BLOCK = 128
+_NO_ORDER = np.empty(0, dtype=np.int64)
 #: Schemes whose weights :meth:`DirectionIndex.weights` computes in the same compiled pass as
 #: the search (every one).
 _FUSED = {"nearest": 0, "linear": 1, "gaussian": 2, "barycentric": 3}
@@ -133,18 +135,8 @@ def angular_weights(
     -------
     index : (n, k) int32, nearest first. weight : (n, k) float64, rows summing to 1.
     """
-    if scheme not in SCHEMES:
-        raise BTFInputError(f"unknown interpolation {scheme!r}; choose one of {', '.join(SCHEMES)}")
     xyz = _as_xyz(directions)
-    kk = DEFAULT_K[scheme]
-    if k is not None:
-        if scheme != "gaussian" and k != kk:
-            raise BTFInputError(f"interpolation {scheme!r} uses k = {kk}, got k = {k}")
-        kk = int(k)
-    if not 1 <= kk <= xyz.shape[0]:
-        raise BTFInputError(f"k must be in [1, {xyz.shape[0]}], got {kk}")
-    if scheme == "gaussian" and not (np.isfinite(beta) and beta >= 0):
-        raise BTFInputError(f"beta must be finite and >= 0, got {beta}")
+    kk = neighbour_count(scheme, k, beta, xyz.shape[0])
     if (table is not None and table.k == kk and HAVE_NUMBA
             and scheme in _FUSED):  # fmt: skip
         return table.weights(query, scheme, beta)
@@ -168,6 +160,23 @@ def angular_weights(
         index[s : s + _CHUNK] = idx
         weight[s : s + _CHUNK] = w
     return index, weight
+
+
+def neighbour_count(scheme: str, k: int | None, beta: float, n_directions: int) -> int:
+    """The k of ``scheme`` (:func:`angular_weights`' rules: only "gaussian" takes a choice,
+    1 <= k <= the directions; β finite and >= 0), or one line saying which is wrong."""
+    if scheme not in SCHEMES:
+        raise BTFInputError(f"unknown interpolation {scheme!r}; choose one of {', '.join(SCHEMES)}")
+    kk = DEFAULT_K[scheme]
+    if k is not None:
+        if scheme != "gaussian" and k != kk:
+            raise BTFInputError(f"interpolation {scheme!r} uses k = {kk}, got k = {k}")
+        kk = int(k)
+    if not 1 <= kk <= n_directions:
+        raise BTFInputError(f"k must be in [1, {n_directions}], got {kk}")
+    if scheme == "gaussian" and not (np.isfinite(beta) and beta >= 0):
+        raise BTFInputError(f"beta must be finite and >= 0, got {beta}")
+    return kk
 
 
 def neighbour_table(
@@ -291,21 +300,24 @@ class DirectionIndex:
         return _table_knn_nb(self.xyz, self.offsets, self.indices, q, self.k,
                              self.n_phi, self.n_elevation)  # fmt: skip
 
-    def weights(self, query: np.ndarray, scheme: str, beta: float = 20.0
-                ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    def weights(self, query: np.ndarray, scheme: str, beta: float = 20.0,
+                order: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """:func:`angular_weights` of raw queries (n, 3) for any scheme (k = this index's k)
         in one compiled pass: normalise, search, weigh — the same neighbours and weights as
         the NumPy steps (tested; barycentric and Gaussian weights to rounding), without
-        their passes over the batch. Needs numba."""
+        their passes over the batch. ``order`` (n,) int64, a permutation: row i answers
+        query ``order[i]`` (the runtime's group order, read in place). Needs numba."""
         q = np.asarray(query, dtype=np.float64)
         if q.ndim != 2 or q.shape[1] != 3:
             raise BTFInputError(f"query directions must have shape (n, 3), got {q.shape}")
+        o = _NO_ORDER if order is None else np.ascontiguousarray(order, dtype=np.int64)
         idx, w, bad = _table_weights_nb(
-            self.xyz, self.offsets, self.indices, np.ascontiguousarray(q), self.k, self.n_phi,
-            self.n_elevation, _FUSED[scheme], float(beta), _atan_poly_f32())  # fmt: skip
+            self.xyz, self.offsets, self.indices, np.ascontiguousarray(q), o, self.k,
+            self.n_phi, self.n_elevation, _FUSED[scheme], float(beta),
+            _atan_poly_f32())  # fmt: skip
         if bad.size:
             raise BTFInputError(
-                f"query direction {int(bad[0])} is zero or not finite ({bad.size} such "
+                f"query direction {int(bad.min())} is zero or not finite ({bad.size} such "
                 "directions)"
             )
         return idx, w
@@ -369,7 +381,8 @@ if HAVE_NUMBA:
         w[2] = 0.0
 
     @_nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-    def _table_weights_nb(xyz, offsets, indices, q, k, n_phi, n_elevation, scheme, beta, p):
+    def _table_weights_nb(xyz, offsets, indices, q, order, k, n_phi, n_elevation, scheme,
+                          beta, p):  # fmt: skip
         # _unit_queries, DirectionIndex.k_nearest and the scheme's weights of angular_weights
         # in their order of operations (the same values), a block of _BLOCK queries at a
         # time, one step per loop: the arithmetic steps (normalise, grid cell, linear
@@ -378,6 +391,7 @@ if HAVE_NUMBA:
         # (numba's wraparound test on signed ones stops LLVM).
         n = q.shape[0]
         m = xyz.shape[0]
+        ordered = order.shape[0] > 0
         ok = np.empty(n, dtype=np.bool_)
         idx = np.empty((n, k), dtype=np.int32)
         w = np.empty((n, k))
@@ -394,7 +408,8 @@ if HAVE_NUMBA:
             uz = np.empty(_BLOCK)
             cell = np.empty(_BLOCK, dtype=np.int64)
             for j in range(um):  # q / |q|; a zero or non-finite query is divided by 1
-                x, y, z = q[i0 + j, 0], q[i0 + j, 1], q[i0 + j, 2]
+                r = np.uint64(order[i0 + j]) if ordered else i0 + j
+                x, y, z = q[r, 0], q[r, 1], q[r, 2]
                 norm = np.sqrt(x * x + y * y + z * z)
                 good = np.isfinite(norm) and norm != 0.0
                 ok[i0 + j] = good
@@ -444,7 +459,8 @@ if HAVE_NUMBA:
                     d2[i, 1] = b1
             _weigh_block(xyz, ux, uy, uz, idx[i0:i0 + um],
                          d2[i0:i0 + um], w[i0:i0 + um], scheme, beta)  # fmt: skip
-        return idx, w, np.flatnonzero(~ok)
+        bad = np.flatnonzero(~ok)
+        return idx, w, order[bad] if ordered else bad
 
     @_nb.njit(cache=True, nogil=True, inline="always")
     def _insert_scan(xyz, indices, qx, qy, qz, lo, hi, every, k, idx, dist):

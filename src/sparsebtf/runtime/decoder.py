@@ -34,7 +34,14 @@ from ..patch_tree import refuse_adaptive
 from ..points.grid import PatchGrid
 from ..points.preprocessing import inverse_log_transform
 from . import kernels, wavefront
-from .angular import DEFAULT_K, SCHEMES, DirectionIndex, Scheme, angular_weights, neighbour_table
+from .angular import (
+    SCHEMES,
+    DirectionIndex,
+    Scheme,
+    angular_weights,
+    neighbour_count,
+    neighbour_table,
+)
 from .compact import CompactLayout, channel_layout
 
 __all__ = ["NO_BOUND", "Domain", "RuntimeBTF", "query_texels", "texels_from_uv"]
@@ -235,6 +242,16 @@ class RuntimeBTF:
     # -- evaluation -----------------------------------------------------------------------------
     def _texels(self, uv: np.ndarray | None, texel: np.ndarray | None, n: int):
         h, w, p = self.coded.height, self.coded.width, self.coded.patch
+        if kernels.HAVE_NUMBA and (uv is None) != (texel is None):
+            # query_texels and PatchGrid.locate in one compiled pass; a batch it does not
+            # take (a wrong shape or dtype, a bad query) goes on to their one-line errors
+            t = np.asarray(uv, dtype=np.float64) if uv is not None else np.asarray(texel)
+            if (t.ndim == 2 and t.shape == (n, 2) and t.dtype.kind in "fiu"
+                    and (uv is not None or t.dtype.kind in "iu")):  # fmt: skip
+                pts, i1, i2, _, n_bad = wavefront.locate_nb(
+                    np.ascontiguousarray(t), h, w, p, uv is not None)  # fmt: skip
+                if not n_bad:
+                    return pts, i1, i2
         row, col = query_texels(uv, texel, h, w)
         if row.shape[0] != n:
             raise BTFInputError(f"{row.shape[0]} texels for {n} direction pairs")
@@ -242,17 +259,19 @@ class RuntimeBTF:
         return pts.astype(np.int64), i1.astype(np.int64), i2.astype(np.int64)
 
     def _weights(self, which: str, q: np.ndarray, scheme: str, k: int | None, beta: float,
-                 table: bool) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+                 table: bool, order: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
         """Neighbours and weights of light or view queries; with ``table`` the search scans
-        grid-cell candidate lists (:class:`DirectionIndex`, built once per set and k)."""
+        grid-cell candidate lists (:class:`DirectionIndex`, built once per set and k), and
+        ``order`` (a permutation) puts row i on query ``order[i]``."""
         dirs = self.coded.lights if which == "lights" else self.coded.views
-        index = None
-        kk = DEFAULT_K.get(scheme, 0) if k is None else int(k)
-        if table and 1 <= kk <= len(dirs):
-            index = self._indices.get((which, kk))
-            if index is None:
-                index = self._indices[(which, kk)] = DirectionIndex(dirs, kk)
-        return angular_weights(dirs, q, scheme, k, beta, table=index)
+        if not table:
+            return angular_weights(dirs, q, scheme, k, beta)
+        kk = neighbour_count(scheme, k, beta, len(dirs))
+        index = self._indices.get((which, kk))
+        if index is None:
+            index = self._indices[(which, kk)] = DirectionIndex(dirs, kk)
+        return index.weights(q, scheme, beta, order)
 
     def _layout(self, ch: str) -> CompactLayout:
         """The channel's compact columns (:mod:`.compact`), built on the first compiled
@@ -361,11 +380,11 @@ class RuntimeBTF:
         caps = self._run_tau(tau, pts.size)
         be = self._select_backend(backend)
         fast = be == "numba"
+        if fast and domain == "standardized":
+            return self._evaluate_compiled(pts, i1, i2, wi, wo, (interpolation, k, beta), caps,
+                                           output, release_matrix)  # fmt: skip
         li, lw = self._weights("lights", wi, interpolation, k, beta, fast)
         vi, vw = self._weights("views", wo, interpolation, k, beta, fast)
-        if fast and domain == "standardized":
-            return self._evaluate_compiled(pts, i1, i2, li, lw, vi, vw, caps, output,
-                                           release_matrix)  # fmt: skip
         # Neighbour-pair weights and statistics: (n, kl, kv).
         w2 = lw[:, :, None] * vw[:, None, :]
         s = self._mean.shape[0]
@@ -391,11 +410,13 @@ class RuntimeBTF:
             np.minimum(log_rgb, bound[:, None], out=log_rgb)
         return inverse_log_transform(log_rgb, self.log_offset).astype(np.float32)
 
-    def _evaluate_compiled(self, pts, i1, i2, li, lw, vi, vw, caps, output, release_matrix
+    def _evaluate_compiled(self, pts, i1, i2, wi, wo, scheme, caps, output, release_matrix
                            ) -> np.ndarray:  # fmt: skip
-        """The numba path of :meth:`evaluate` (domain "standardized"): the sums of Eq. 6 by
-        :func:`~sparsebtf.runtime.wavefront.separable_sums` (queries grouped by data point
-        where that pays), then de-standardisation, colour, bound and exp fused per query."""
+        """The numba path of :meth:`evaluate` (domain "standardized"): queries grouped by
+        data point where that pays, the angular weights found in group order, the sums of
+        Eq. 6 by :func:`~sparsebtf.runtime.wavefront.separable_sums`, then
+        de-standardisation, colour, bound and exp fused per query, each answer written back
+        to its query's row."""
         n = pts.size
         # A handful of queries cannot fill a group: skip the sort.
         few = n < 2 * wavefront.GROUP
@@ -405,20 +426,20 @@ class RuntimeBTF:
             # Every query input in group order once: the three channels' loops then read
             # them sequentially (in arrival order each would gather them at random).
             order = groups[0]
-            pts, i1, i2, li, lw, vi, vw = (wavefront.rows_in_order(a, order)
-                                           for a in (pts, i1, i2, li, lw, vi, vw))  # fmt: skip
+            pts, i1, i2 = (wavefront.rows_in_order(a, order) for a in (pts, i1, i2))
             caps = {ch: wavefront.rows_in_order(t, order) if isinstance(t, np.ndarray) else t
                     for ch, t in caps.items()}  # fmt: skip
             groups = (np.arange(n, dtype=np.int64), groups[1])
+        li, lw = self._weights("lights", wi, *scheme, True, order)
+        vi, vw = self._weights("views", wo, *scheme, True, order)
         x = np.empty((n, 3), dtype=np.float64)
         for c, ch in enumerate(CHANNELS):
             x[:, c] = wavefront.separable_sums(self._channels[ch], pts, i1, i2, li, lw, vi, vw,
                                                kernels._per_query(caps[ch], n), groups,
                                                layout=self._layout(ch))  # fmt: skip
         matrix = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
-        out = wavefront.finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
-                               self.log_offset, output == "rgb")  # fmt: skip
-        return out if order is None else wavefront.rows_in_order(out, order, back=True)
+        return wavefront.finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
+                                self.log_offset, output == "rgb", order)  # fmt: skip
 
     def image(
         self,

@@ -42,6 +42,9 @@ from .._numba import HAVE_NUMBA
 from .._numba import numba as _nb
 from .compact import CompactLayout, channel_layout
 
+if HAVE_NUMBA:
+    from .._lanes import lanes_fma, lanes_load, lanes_mul, lanes_store, lanes_zeros
+
 __all__ = [
     "GROUP",
     "finish",
@@ -63,6 +66,8 @@ _TASK = 16
 #: The unsigned masks and shifts of compact.py's packed words (code, need, pab).
 _LOW8, _LOW16, _LOW20 = np.uint64(0xFF), np.uint64(0xFFFF), np.uint64(0xFFFFF)
 _SH16, _SH20, _SH24, _SH40 = np.uint64(16), np.uint64(20), np.uint64(24), np.uint64(40)
+#: Lane offsets of the register sums (GROUP = 2 Lanes values of 16).
+_U0, _U16, _U32 = np.uint64(0), np.uint64(16), np.uint64(32)
 
 
 def _group_numpy(pts: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -221,9 +226,31 @@ if HAVE_NUMBA:
                 for j in range(um):
                     acc[j] = 0.0
                 full = min(cnt, np.int64(np.floor(t_lo)))
-                if full == cnt:
+                if full == cnt and uw == _U32:
                     # Every lane sums the whole list: by (light, view) column pair, one table
-                    # load per coefficient and the pair's r3·r4 once (compact.py).
+                    # load per coefficient and the pair's r3·r4 once (compact.py); the 32
+                    # lanes as two Lanes values, held in registers (_lanes.py).
+                    x0 = lanes_zeros(acc)
+                    x1 = lanes_zeros(acc)
+                    for r in range(opair[p], opair[p + 1]):
+                        ab = np.uint64(pab[r])
+                        a3, a4 = (ab & _LOW16) * uw, (ab >> _SH16) * uw
+                        s0 = lanes_zeros(acc)
+                        s1 = lanes_zeros(acc)
+                        for s in range(pstart[r], pstart[r + 1]):
+                            v = pvals[s]
+                            a1 = np.uint64(pe12[s]) * uw
+                            s0 = lanes_fma(s0, v, lanes_load(t12, a1))
+                            s1 = lanes_fma(s1, v, lanes_load(t12, a1 + _U16))
+                        x0 = lanes_fma(x0, s0, lanes_mul(lanes_load(r3, a3), lanes_load(r4, a4)))
+                        x1 = lanes_fma(x1, s1, lanes_mul(lanes_load(r3, a3 + _U16),
+                                                         lanes_load(r4, a4 + _U16)))  # fmt: skip
+                    lanes_store(acc, _U0, x0)
+                    lanes_store(acc, _U16, x1)
+                    for j in range(m):
+                        out[order[q0 + j]] = acc[j]
+                    continue
+                if full == cnt:  # the same for other widths, lane loops through memory
                     for r in range(opair[p], opair[p + 1]):
                         ab = np.uint64(pab[r])
                         a3, a4 = (ab & _LOW16) * uw, (ab >> _SH16) * uw
@@ -331,6 +358,41 @@ if HAVE_NUMBA:
         return out
 
 
+if HAVE_NUMBA:
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def locate_nb(t, height, width, patch, from_uv):
+        # decoder.query_texels and PatchGrid.locate in one pass: (row, col) from uv
+        # (wrapping, ⌊frac·size⌋) or from integer texels, then the point (row block fastest)
+        # and the texel in its patch; bad[q]: uv not finite or texel outside the texture.
+        n = t.shape[0]
+        nrb = height // patch
+        pts = np.empty(n, dtype=np.int64)
+        i1 = np.empty(n, dtype=np.int64)
+        i2 = np.empty(n, dtype=np.int64)
+        bad = np.zeros(n, dtype=np.bool_)
+        n_bad = 0
+        for q in _nb.prange(n):
+            if from_uv:
+                u, v = t[q, 0], t[q, 1]
+                if not (np.isfinite(u) and np.isfinite(v)):
+                    bad[q] = True
+                    n_bad += 1
+                    u = v = 0.0
+                row = min(np.int64((v - np.floor(v)) * height), height - 1)
+                col = min(np.int64((u - np.floor(u)) * width), width - 1)
+            else:
+                row, col = np.int64(t[q, 0]), np.int64(t[q, 1])
+                if row < 0 or row >= height or col < 0 or col >= width:
+                    bad[q] = True
+                    n_bad += 1
+                    row = col = 0
+            pts[q] = row // patch + nrb * (col // patch)
+            i1[q] = row % patch
+            i2[q] = col % patch
+        return pts, i1, i2, bad, n_bad
+
+
 def rows_in_order(a: np.ndarray, order: np.ndarray, back: bool = False) -> np.ndarray:
     """``a[order]`` for 1-D or 2-D ``a`` and an int64 permutation ``order`` (``back``: the
     inverse, ``out[order] = a``): a parallel gather where numba is present (NumPy's fancy
@@ -433,10 +495,12 @@ def separable_sums(
 if HAVE_NUMBA:
 
     @_nb.njit(parallel=True, cache=True, nogil=True, fastmath=True)
-    def _finish_nb(x, li, lw, vi, vw, mean, std, bound, m, log_offset, bounded, rgb):
+    def _finish_nb(x, li, lw, vi, vw, mean, std, bound, m, log_offset, bounded, rgb, order):
         # de-standardise with the interpolated statistics (Eq. 6), YUV -> RGB, the bound
-        # interpolated with the same weights, exp: the reference's NumPy steps, per query.
+        # interpolated with the same weights, exp: the reference's NumPy steps, per query;
+        # row q of the inputs answers query order[q] (none given: q).
         n = x.shape[0]
+        ordered = order.shape[0] > 0
         kl = li.shape[1]
         kv = vi.shape[1]
         s = mean.shape[0]
@@ -460,16 +524,20 @@ if HAVE_NUMBA:
                 v = m[c, 0] * yuv[0] + m[c, 1] * yuv[1] + m[c, 2] * yuv[2]
                 if bounded:
                     v = min(v, bq)
-                out[q, c] = np.exp(v) - log_offset if rgb else yuv[c]
+                r = order[q] if ordered else np.int64(q)
+                out[r, c] = np.exp(v) - log_offset if rgb else yuv[c]
         return out
 
 
 def finish(x: np.ndarray, li: np.ndarray, lw: np.ndarray, vi: np.ndarray, vw: np.ndarray,
            mean: np.ndarray, std: np.ndarray, bound: np.ndarray | None, matrix: np.ndarray,
-           log_offset: float, rgb: bool) -> np.ndarray:  # fmt: skip
+           log_offset: float, rgb: bool, order: np.ndarray | None = None
+           ) -> np.ndarray:  # fmt: skip
     """The runtime's steps after the sums, fused per query: ``x`` (n, 3) standardised Y, U, V
     sums → (n, 3) float32 linear RGB (``rgb``) or log-YUV. ``mean``/``std`` (S, L, V),
-    ``bound`` (L, V) or None, ``matrix`` the (3, 3) YUV → RGB matrix."""
+    ``bound`` (L, V) or None, ``matrix`` the (3, 3) YUV → RGB matrix; ``order`` (n,) a
+    permutation: input row q is written to output row ``order[q]``."""
     b = np.zeros((1, 1)) if bound is None else bound
+    o = np.empty(0, dtype=np.int64) if order is None else np.ascontiguousarray(order)
     return _finish_nb(x, li, lw, vi, vw, mean, std, b, np.ascontiguousarray(matrix),
-                      float(log_offset), bound is not None, bool(rgb))  # fmt: skip
+                      float(log_offset), bound is not None, bool(rgb), o)  # fmt: skip
