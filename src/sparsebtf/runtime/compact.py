@@ -66,6 +66,11 @@ class CompactLayout(NamedTuple):
     o4: np.ndarray
     widest: tuple[int, int, int]
 
+    @property
+    def widest_pairs(self) -> int:
+        """The most (light, view) column pairs of any point."""
+        return int(np.max(np.diff(self.opair), initial=0))
+
     def mean_sizes(self) -> tuple[float, float, float]:
         """Mean list lengths (n12, n3, n4) over the points: the factor entries of a query."""
         p = max(self.o12.size - 1, 1)

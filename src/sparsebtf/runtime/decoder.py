@@ -420,7 +420,11 @@ class RuntimeBTF:
         n = pts.size
         # A handful of queries cannot fill a group: skip the sort.
         few = n < 2 * wavefront.GROUP
-        groups = None if few else wavefront.group_by_point(pts, self.coded.n_points)
+        groups = None
+        if not few:
+            key, n_keys = wavefront.grouping_key(pts, i1, i2, self.coded.n_points,
+                                                 self.coded.patch)  # fmt: skip
+            groups = wavefront.group_by_point(key, n_keys)
         order = None
         if groups is not None:
             # Every query input in group order once: the three channels' loops then read

@@ -50,6 +50,7 @@ __all__ = [
     "finish",
     "group_by_point",
     "grouped_pays",
+    "grouping_key",
     "rows_in_order",
     "separable_sums",
 ]
@@ -67,7 +68,7 @@ _TASK = 16
 _LOW8, _LOW16, _LOW20 = np.uint64(0xFF), np.uint64(0xFFFF), np.uint64(0xFFFFF)
 _SH16, _SH20, _SH24, _SH40 = np.uint64(16), np.uint64(20), np.uint64(24), np.uint64(40)
 #: Lane offsets of the register sums (GROUP = 2 Lanes values of 16).
-_U0, _U16, _U32 = np.uint64(0), np.uint64(16), np.uint64(32)
+_U0, _U1, _U16, _U32 = np.uint64(0), np.uint64(1), np.uint64(16), np.uint64(32)
 
 
 def _group_numpy(pts: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
@@ -131,6 +132,13 @@ if HAVE_NUMBA:
         # t3 and t4 the light and view rows interpolated at the point's columns (the lists
         # p1, p2 from a12, c3 from a3, c4 from a4). A list as long as the mode is the whole
         # mode in order (compact.py): contiguous loads instead of gathers. All unsigned.
+        _products(t12, j, st, k, p1, p2, a12, n12, d1, d2, u1, u2)
+        _row(t3, j, st, n3, c3, a3, d3, k, li, lw, q)
+        _row(t4, j, st, n4, c4, a4, d4, k, vi, vw, q)
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _products(t12, j, st, k, p1, p2, a12, n12, d1, d2, u1, u2):
+        # t12[j + e·st] = U1[i1, l1_e]·U2[i2, l2_e] over the point's pair list (or all pairs)
         m1 = np.uint64(d1.shape[2])
         m2 = np.uint64(d2.shape[2])
         if n12 == m1 * m2:
@@ -141,8 +149,6 @@ if HAVE_NUMBA:
         else:
             for e in range(n12):
                 t12[j + e * st] = d1[k, u1, p1[a12 + e]] * d2[k, u2, p2[a12 + e]]
-        _row(t3, j, st, n3, c3, a3, d3, k, li, lw, q)
-        _row(t4, j, st, n4, c4, a4, d4, k, vi, vw, q)
 
     @_nb.njit(cache=True, nogil=True, inline="always")
     def _row(t, j, st, cnt, col, a0, d, k, rows, w, q):
@@ -175,7 +181,7 @@ if HAVE_NUMBA:
     @_nb.njit(parallel=True, cache=True, nogil=True, fastmath=True)
     def _grouped_nb(vals, code, need, offs, memb, p1, p2, o12, c3, o3, c4, o4, d1, d2, d3, d4,
                     pts, i1, i2, li, lw, vi, vw, tau, order, starts, width, w12, w3, w4,
-                    pvals, pe12, pab, pstart, opair):  # fmt: skip
+                    pvals, pe12, pab, pstart, opair, wpairs):  # fmt: skip
         # ``width`` is a run-time value on purpose: with a compile-time trip count LLVM
         # unrolls the lane loops into scalar code instead of vectorising them. Scratch is
         # allocated once per task of _TASK groups (w12, w3, w4: the longest lists). The
@@ -192,6 +198,8 @@ if HAVE_NUMBA:
             t12 = np.empty(width * w12, dtype=dt)
             r3 = np.empty(width * w3, dtype=dt)
             r4 = np.empty(width * w4, dtype=dt)
+            psum = np.empty(wpairs, dtype=dt)  # a texel's pair sums, kept for its next group
+            last = np.int64(-1)
             for g in range(task * _TASK, min(n_groups, (task + 1) * _TASK)):
                 q0 = starts[g]
                 m = starts[g + 1] - q0
@@ -215,6 +223,49 @@ if HAVE_NUMBA:
                 n12, n3, n4 = _split_need(need[s0 + top - 1])
                 ku = np.uint64(k)
                 uw = np.uint64(width)
+                um = np.uint64(m)
+                full = min(cnt, np.int64(np.floor(t_lo)))
+                qa = order[q0]
+                one_texel = True
+                for j in range(1, m):
+                    q = order[q0 + j]
+                    one_texel &= (i1[q] == i1[qa]) & (i2[q] == i2[qa])
+                if full == cnt and uw == _U32 and one_texel:
+                    # Every lane sums the whole list and every lane is on one texel (queries
+                    # grouped by texel, group_by_point): the spatial factors are the group's,
+                    # so a pair's Σ v·t12 is one scalar for all lanes — and for the next
+                    # groups on the same texel, which reuse it — and only the angular rows
+                    # are per lane.
+                    r0 = opair[p]
+                    texel = (p * d1.shape[1] + i1[qa]) * d2.shape[1] + i2[qa]
+                    if texel != last:
+                        last = texel
+                        _products(t12, _U0, _U1, ku, p1, p2, np.uint64(o12[p]), n12, d1, d2,
+                                  np.uint64(i1[qa]), np.uint64(i2[qa]))  # fmt: skip
+                        for r in range(r0, opair[p + 1]):
+                            s = pstart[r]
+                            sv = pvals[s] * t12[np.uint64(pe12[s])]
+                            for s in range(pstart[r] + 1, pstart[r + 1]):
+                                sv += pvals[s] * t12[np.uint64(pe12[s])]
+                            psum[r - r0] = sv
+                    for j in range(um):
+                        q = order[q0 + j]
+                        _row(r3, j, uw, n3, c3, np.uint64(o3[p]), d3, ku, li, lw, q)
+                        _row(r4, j, uw, n4, c4, np.uint64(o4[p]), d4, ku, vi, vw, q)
+                    x0 = lanes_zeros(acc)
+                    x1 = lanes_zeros(acc)
+                    for r in range(r0, opair[p + 1]):
+                        ab = np.uint64(pab[r])
+                        a3, a4 = (ab & _LOW16) * uw, (ab >> _SH16) * uw
+                        sv = psum[r - r0]
+                        x0 = lanes_fma(x0, sv, lanes_mul(lanes_load(r3, a3), lanes_load(r4, a4)))
+                        x1 = lanes_fma(x1, sv, lanes_mul(lanes_load(r3, a3 + _U16),
+                                                         lanes_load(r4, a4 + _U16)))  # fmt: skip
+                    lanes_store(acc, _U0, x0)
+                    lanes_store(acc, _U16, x1)
+                    for j in range(m):
+                        out[order[q0 + j]] = acc[j]
+                    continue
                 # Lanes >= m are never read: the tables need no clearing.
                 for j in range(m):
                     q = order[q0 + j]
@@ -222,10 +273,8 @@ if HAVE_NUMBA:
                              c3, np.uint64(o3[p]), n3, c4, np.uint64(o4[p]), n4, d1, d2, d3,
                              d4, np.uint64(i1[q]), np.uint64(i2[q]), li, lw, vi, vw,
                              q)  # fmt: skip
-                um = np.uint64(m)
                 for j in range(um):
                     acc[j] = 0.0
-                full = min(cnt, np.int64(np.floor(t_lo)))
                 if full == cnt and uw == _U32:
                     # Every lane sums the whole list: by (light, view) column pair, one table
                     # load per coefficient and the pair's r3·r4 once (compact.py); the 32
@@ -406,6 +455,25 @@ def rows_in_order(a: np.ndarray, order: np.ndarray, back: bool = False) -> np.nd
     return out
 
 
+#: Queries per texel, on average, from which the runtime groups queries by texel rather than
+#: by data point only: a group on one texel shares its spatial factors, so a coefficient
+#: costs one scalar term for the whole group instead of a term per lane, but texels with few
+#: queries leave groups part empty (break-even near 9 lanes a group on the captured material
+#: of ``benchmarks/bench_lookup.py``; a margin above it).
+TEXEL_GROUPING = 12.0
+
+
+def grouping_key(pts: np.ndarray, i1: np.ndarray, i2: np.ndarray, n_points: int, patch: int
+                 ) -> tuple[np.ndarray, int]:  # fmt: skip
+    """The key :func:`group_by_point` sorts a batch by, and its number of values: the data
+    point, or (point, texel in the patch) where the batch has :data:`TEXEL_GROUPING` queries
+    per texel or more."""
+    texels = n_points * patch * patch
+    if pts.size < TEXEL_GROUPING * texels:
+        return pts, n_points
+    return (pts * patch + i1) * patch + i2, texels
+
+
 def group_by_point(pts: np.ndarray, n_points: int, width: int = GROUP
                    ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Queries sorted by data point and cut into groups of at most ``width`` of one point.
@@ -486,7 +554,7 @@ def separable_sums(
             raise ValueError("the grouped loop needs groups (group_by_point)")
         return _grouped_nb(*args, groups[0], groups[1], int(width),
                            *(max(w, 1) for w in lay.widest), lay.pvalues, lay.pe12, lay.pab,
-                           lay.pstart, lay.opair)  # fmt: skip
+                           lay.pstart, lay.opair, max(lay.widest_pairs, 1))  # fmt: skip
     if loop != "query":
         raise ValueError(f"loop must be 'auto', 'grouped' or 'query', got {loop!r}")
     return _per_query_nb(*args, *(max(w, 1) for w in lay.widest))
