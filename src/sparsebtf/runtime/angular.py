@@ -54,6 +54,9 @@ _CHUNK = 1 << 16
 #: Queries per pass of the compiled weights (:meth:`DirectionIndex.weights`).
 _BLOCK = 128
 _NO_ORDER = np.empty(0, dtype=np.int64)
+#: Entries of a cell's list every k <= 2 query scans (UBO2014, k = 2: lists of 2, 3 or 4 for
+#: 97 % of queries, 7 at most).
+_HEAD = 4
 #: Schemes whose weights :meth:`DirectionIndex.weights` computes in the same compiled pass as
 #: the search (every one).
 _FUSED = {"nearest": 0, "linear": 1, "gaussian": 2, "barycentric": 3}
@@ -290,6 +293,10 @@ class DirectionIndex:
         self.k = int(k)
         self.n_phi, self.n_elevation = int(n_phi), int(n_elevation)
         self.offsets, self.indices = candidate_lists(self.xyz, self.k, n_phi, n_elevation)
+        # each list's first _HEAD entries, a short one padded with repeats of its last
+        pos = np.minimum(self.offsets[:-1, None] + np.arange(_HEAD),
+                         self.offsets[1:, None] - 1)  # fmt: skip
+        self.head = np.ascontiguousarray(self.indices[pos].ravel())
 
     def k_nearest(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(index (n, k) int32, squared chord distance (n, k) float64) of unit queries (n, 3),
@@ -312,7 +319,7 @@ class DirectionIndex:
             raise BTFInputError(f"query directions must have shape (n, 3), got {q.shape}")
         o = _NO_ORDER if order is None else np.ascontiguousarray(order, dtype=np.int64)
         idx, w, bad = _table_weights_nb(
-            self.xyz, self.offsets, self.indices, np.ascontiguousarray(q), o, self.k,
+            self.xyz, self.offsets, self.indices, self.head, np.ascontiguousarray(q), o, self.k,
             self.n_phi, self.n_elevation, _FUSED[scheme], float(beta),
             _atan_poly_f32())  # fmt: skip
         if bad.size:
@@ -381,8 +388,8 @@ if HAVE_NUMBA:
         w[2] = 0.0
 
     @_nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-    def _table_weights_nb(xyz, offsets, indices, q, order, k, n_phi, n_elevation, scheme,
-                          beta, p):  # fmt: skip
+    def _table_weights_nb(xyz, offsets, indices, head, q, order, k, n_phi, n_elevation,
+                          scheme, beta, p):  # fmt: skip
         # _unit_queries, DirectionIndex.k_nearest and the scheme's weights of angular_weights
         # in their order of operations (the same values), a block of _BLOCK queries at a
         # time, one step per loop: the arithmetic steps (normalise, grid cell, linear
@@ -441,11 +448,27 @@ if HAVE_NUMBA:
                 b1 = np.inf
                 j0 = 0
                 j1 = 0
+                if c >= 0:
+                    # the list's first _HEAD entries, padded with repeats of its last: a scan
+                    # of fixed length (no mispredicted loop exit) for 97 % of queries
+                    base = np.uint64(c) * np.uint64(_HEAD)
+                    for t in range(np.uint64(_HEAD)):
+                        jj = np.int64(head[base + t])
+                        d = max(2.0 - 2.0 * (ux[j] * xyz[jj, 0] + uy[j] * xyz[jj, 1]
+                                             + uz[j] * xyz[jj, 2]), 0.0)  # fmt: skip
+                        # strictly less: a tie keeps the lower index first, as the scan
+                        # does; a repeat never takes the place it already holds
+                        first = d < b0
+                        second = d < b1 and jj != j0
+                        b1 = b0 if first else (d if second else b1)
+                        j1 = j0 if first else (jj if second else j1)
+                        b0 = d if first else b0
+                        j0 = jj if first else j0
+                    lo += _HEAD
                 for t in range(lo, hi):
                     jj = t if c < 0 else indices[t]
                     d = max(2.0 - 2.0 * (ux[j] * xyz[jj, 0] + uy[j] * xyz[jj, 1]
                                          + uz[j] * xyz[jj, 2]), 0.0)  # fmt: skip
-                    # strictly less: a tie keeps the lower index first, as the scan does
                     first = d < b0
                     second = d < b1
                     b1 = b0 if first else (d if second else b1)
