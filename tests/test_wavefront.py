@@ -211,3 +211,48 @@ def test_evaluate_compiled_without_a_bound_and_with_every_group_shape(coded):
     np.testing.assert_allclose(rt.evaluate(wi[:1], wo[:1], texel=t0, backend="numba"),
                                rt.evaluate(wi[:1], wo[:1], texel=t0, backend="numpy"),
                                rtol=1e-5)  # fmt: skip
+
+
+@numba_only
+def test_the_finishing_exp_is_within_4e16_of_numpys():
+    """The runtime's exp (plain arithmetic, so it vectorises) against np.exp over the range a
+    decoded log value takes and the clamps at both ends; NaN stays NaN."""
+    from sparsebtf._numba import numba as nb
+    from sparsebtf.runtime.wavefront import _exp
+
+    f = nb.njit(lambda a: np.array([_exp(t) for t in a]))
+    x = np.concatenate([np.random.default_rng(5).uniform(-60.0, 12.0, 20000),
+                        [0.0, -0.0, 1e-300, np.log(2.0), -np.log(2.0) / 2, 700.0, -700.0]])
+    np.testing.assert_allclose(f(x), np.exp(x), rtol=4e-16, atol=0)
+    lo, hi, nan = f(np.array([-800.0, 800.0, np.nan]))
+    np.testing.assert_allclose([lo, hi], np.exp([-708.0, 709.0]), rtol=4e-16, atol=0)
+    assert np.isnan(nan)
+
+
+@numba_only
+@pytest.mark.parametrize("std_mode", ["shared", "per_channel"])
+@pytest.mark.parametrize("scheme", SCHEMES)
+def test_texel_groups_equal_numpy(std_mode, scheme):
+    """A batch with many queries per texel is grouped by texel: a group's pair sums are
+    shared by its lanes and kept for the next group on that texel, also across groups that
+    keep only part of the list (per-query τ) — against the reference, with shared and
+    per-channel statistics."""
+    from sparsebtf.runtime.wavefront import TEXEL_GROUPING, grouping_key
+
+    coded = encode(smooth_btf(9), tiny_model(), tau=(40, 8, 8), eps=0.0, std_mode=std_mode,
+                   progress=False)  # fmt: skip
+    rt = RuntimeBTF(coded)
+    assert rt._mean.shape[0] == (3 if std_mode == "per_channel" else 1)
+    rng = np.random.default_rng(11)
+    texels = coded.height * coded.width
+    n = int(TEXEL_GROUPING * texels) + 500
+    texel = rng.integers(0, [coded.height, coded.width], (n, 2))
+    texel[: n // 3] = (3, 5)  # one texel with many groups
+    wi, wo = _dirs(rng, n), _dirs(rng, n)
+    pts, i1, i2 = rt._texels(None, texel, n)
+    assert grouping_key(pts, i1, i2, coded.n_points, coded.patch)[1] == texels
+    tau = np.where(rng.uniform(size=(n, 3)) < 0.8, 1.0, rng.uniform(size=(n, 3)))
+    for kw in ({}, {"tau": tau * np.array([rt.tau[c] for c in "YUV"])}):
+        a = rt.evaluate(wi, wo, texel=texel, interpolation=scheme, backend="numpy", **kw)
+        b = rt.evaluate(wi, wo, texel=texel, interpolation=scheme, backend="numba", **kw)
+        np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-5 * np.abs(a).max())

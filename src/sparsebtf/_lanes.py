@@ -10,7 +10,7 @@ registers (``benchmarks/bench_lookup.py``). numba has no vector type to hold the
 module adds one — :data:`Lanes` values are LLVM vectors of 16 elements (float32 or float64,
 the array's dtype), which LLVM keeps in registers across loops — and the handful of
 operations the sums need. Loads and stores are unchecked: the caller keeps ``i + 16`` within
-the array.
+the array. Beside them, :func:`pow2` (2^k from exponent bits) for the runtime's exp.
 
 Only imported where numba is (``sparsebtf._numba.HAVE_NUMBA``).
 """
@@ -23,7 +23,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic, models, register_model
 
 __all__ = ["WIDTH", "Lanes", "lanes_add", "lanes_fma", "lanes_load", "lanes_mul",
-           "lanes_store", "lanes_zeros"]  # fmt: skip
+           "lanes_store", "lanes_zeros", "pow2"]  # fmt: skip
 
 #: Elements per :data:`Lanes` value (one AVX-512 register of float32).
 WIDTH = 16
@@ -147,3 +147,18 @@ def lanes_add(typingctx, a, b):
         return builder.fadd(args[0], args[1])
 
     return a(a, b), codegen
+
+
+@intrinsic
+def pow2(typingctx, k):
+    """2.0**k as float64 for an integer k in [-1022, 1023], from its exponent bits (plain
+    integer and bit operations, so a loop around it vectorises; ``np.ldexp`` is a call)."""
+    if not isinstance(k, types.Integer):
+        return None
+
+    def codegen(context, builder, sig, args):
+        i64 = ir.IntType(64)
+        e = builder.add(context.cast(builder, args[0], k, types.int64), i64(1023))
+        return builder.bitcast(builder.shl(e, i64(52)), ir.DoubleType())
+
+    return types.float64(k), codegen
