@@ -437,9 +437,11 @@ class RuntimeBTF:
         li, lw = self._weights("lights", wi, *scheme, True, order)
         vi, vw = self._weights("views", wo, *scheme, True, order)
         x = np.empty((n, 3), dtype=np.float64)
+        dt = self._channels["Y"]["values"].dtype  # the sums' weights in it, converted once
+        lw_s, vw_s = lw.astype(dt, copy=False), vw.astype(dt, copy=False)
         for c, ch in enumerate(CHANNELS):
-            x[:, c] = wavefront.separable_sums(self._channels[ch], pts, i1, i2, li, lw, vi, vw,
-                                               kernels._per_query(caps[ch], n), groups,
+            x[:, c] = wavefront.separable_sums(self._channels[ch], pts, i1, i2, li, lw_s, vi,
+                                               vw_s, kernels._per_query(caps[ch], n), groups,
                                                layout=self._layout(ch))  # fmt: skip
         matrix = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
         return wavefront.finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,

@@ -20,7 +20,11 @@ of one point. A group writes its per-query factors lane-major — ``T12[e, j]``,
 ``R4[b, j]`` — so one coefficient is read once for the whole group and its term is three
 contiguous vector loads across the group's lanes j: SIMD over queries, not gathers per query.
 Where every lane sums the point's whole list, the coefficients go by (light, view) column
-pair instead: Σ_pairs R3[a]·R4[b]·Σ v·T12[e], one table load per coefficient. A lone query
+pair instead: Σ_pairs R3[a]·R4[b]·Σ v·T12[e], one table load per coefficient, the group's 32
+lanes held in vector registers (:mod:`sparsebtf._lanes`). A batch with many queries per texel
+(:data:`TEXEL_GROUPING`) is grouped by texel: the group's T12 is one row, a pair's Σ v·t12 one
+scalar for every lane (and for the next groups on that texel), so a coefficient costs a
+scalar term per group and only the angular rows are built per lane. A lone query
 on a point pays a group's vector overhead for one lane, so it takes the per-query loop
 (:func:`grouped_pays`); a renderer's wavefront (many queries per point) gets the full
 speed-up, and so do random queries on any texture with more queries than points.
@@ -542,7 +546,7 @@ def separable_sums(
     if layout is None:
         layout = channel_layout(ch)
     dt = ch["values"].dtype
-    lw, vw = lw.astype(dt), vw.astype(dt)
+    lw, vw = lw.astype(dt, copy=False), vw.astype(dt, copy=False)
     if loop == "auto":
         per = pts.size / max(groups[1].size - 1, 1) if groups is not None else 1.0
         loop = "grouped" if groups is not None and grouped_pays(
