@@ -464,9 +464,11 @@ def rows_in_order(a: np.ndarray, order: np.ndarray, back: bool = False) -> np.nd
 #: Queries per texel, on average, from which the runtime groups queries by texel rather than
 #: by data point only: a group on one texel shares its spatial factors, so a coefficient
 #: costs one scalar term for the whole group instead of a term per lane, but texels with few
-#: queries leave groups part empty (break-even near 9 lanes a group on the captured material
-#: of ``benchmarks/bench_lookup.py``; a margin above it).
-TEXEL_GROUPING = 12.0
+#: queries leave groups part empty. Measured on ``benchmarks/bench_lookup.py``'s captured
+#: material, both groupings alternated in one process: texel groups run at 0.30×, 0.50×,
+#: 0.63× and 0.88× the rate of point groups at 2, 4, 8 and 12 queries per texel, 1.0× at 16,
+#: 1.06–1.5× from 20 on.
+TEXEL_GROUPING = 20.0
 
 
 def grouping_key(pts: np.ndarray, i1: np.ndarray, i2: np.ndarray, n_points: int, patch: int
