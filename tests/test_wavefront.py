@@ -233,26 +233,57 @@ def test_the_finishing_exp_is_within_4e16_of_numpys():
 @pytest.mark.parametrize("std_mode", ["shared", "per_channel"])
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_texel_groups_equal_numpy(std_mode, scheme):
-    """A batch with many queries per texel is grouped by texel: a group's pair sums are
-    shared by its lanes and kept for the next group on that texel, also across groups that
-    keep only part of the list (per-query τ) — against the reference, with shared and
-    per-channel statistics."""
-    from sparsebtf.runtime.wavefront import TEXEL_GROUPING, grouping_key
+    """A texel with many queries gets groups of its own: a group's pair sums are shared by
+    its lanes and kept for the next group on that texel, also across groups that keep only
+    part of the list (per-query τ); the other queries share groups — against the reference,
+    with shared and per-channel statistics."""
+    from sparsebtf.runtime.wavefront import TEXEL_GROUPING, group_queries
 
     coded = encode(smooth_btf(9), tiny_model(), tau=(40, 8, 8), eps=0.0, std_mode=std_mode,
                    progress=False)  # fmt: skip
     rt = RuntimeBTF(coded)
     assert rt._mean.shape[0] == (3 if std_mode == "per_channel" else 1)
     rng = np.random.default_rng(11)
-    texels = coded.height * coded.width
-    n = int(TEXEL_GROUPING * texels) + 500
-    texel = rng.integers(0, [coded.height, coded.width], (n, 2))
-    texel[: n // 3] = (3, 5)  # one texel with many groups
+    n = 2400
+    texel = rng.integers(0, [coded.height, coded.width], (n, 2))  # ~12 a texel: shared groups
+    texel[:1600] = (3, 5)  # one texel with many groups
+    texel[1600 : 1600 + TEXEL_GROUPING] = (6, 1)  # one at least at the threshold
     wi, wo = _dirs(rng, n), _dirs(rng, n)
     pts, i1, i2 = rt._texels(None, texel, n)
-    assert grouping_key(pts, i1, i2, coded.n_points, coded.patch)[1] == texels
+    order, starts = group_queries(pts, i1, i2, coded.n_points, coded.patch)
+    one = [np.unique(texel[order[a:b]], axis=0).shape[0] == 1
+           for a, b in itertools.pairwise(starts)]  # fmt: skip
+    assert 0 < sum(one) < len(one)  # both kinds of group
     tau = np.where(rng.uniform(size=(n, 3)) < 0.8, 1.0, rng.uniform(size=(n, 3)))
     for kw in ({}, {"tau": tau * np.array([rt.tau[c] for c in "YUV"])}):
         a = rt.evaluate(wi, wo, texel=texel, interpolation=scheme, backend="numpy", **kw)
         b = rt.evaluate(wi, wo, texel=texel, interpolation=scheme, backend="numba", **kw)
         np.testing.assert_allclose(b, a, rtol=1e-5, atol=1e-5 * np.abs(a).max())
+
+
+@numba_only
+def test_texel_groups_hold_one_texel_and_the_rest_share():
+    """group_queries: every query once, every group of one point and at most GROUP wide; a
+    texel with TEXEL_GROUPING queries or more in groups of its own, every other texel's
+    queries in shared groups; below the threshold everywhere, the point groups."""
+    from sparsebtf.runtime.wavefront import GROUP, TEXEL_GROUPING, group_queries
+
+    rng = np.random.default_rng(3)
+    n_points, patch = 6, 4
+    pts = rng.integers(0, n_points, 4000)
+    i1, i2 = rng.integers(0, patch, (2, pts.size))
+    pts[:900], i1[:900], i2[:900] = 2, 1, 3  # a heavy texel
+    order, starts = group_queries(pts, i1, i2, n_points, patch)
+    assert np.array_equal(np.sort(order), np.arange(pts.size))
+    key = (pts * patch + i1) * patch + i2
+    heavy = np.bincount(key, minlength=n_points * patch**2) >= TEXEL_GROUPING
+    for a, b in itertools.pairwise(starts):
+        g = order[a:b]
+        assert 0 < g.size <= GROUP and np.unique(pts[g]).size == 1
+        if heavy[key[g]].any():  # a heavy texel's group holds that texel alone
+            assert np.unique(key[g]).size == 1
+    few = rng.integers(0, n_points * patch**2, 50)  # no texel at the threshold: the point
+    p2 = few // patch**2  # groups (queries in texel order within a point)
+    o2, s2 = group_queries(p2, few // patch % patch, few % patch, n_points, patch)
+    ref = group_by_point(p2, n_points)
+    assert np.array_equal(s2, ref[1]) and np.array_equal(p2[o2], p2[ref[0]])

@@ -420,11 +420,8 @@ class RuntimeBTF:
         n = pts.size
         # A handful of queries cannot fill a group: skip the sort.
         few = n < 2 * wavefront.GROUP
-        groups = None
-        if not few:
-            key, n_keys = wavefront.grouping_key(pts, i1, i2, self.coded.n_points,
-                                                 self.coded.patch)  # fmt: skip
-            groups = wavefront.group_by_point(key, n_keys)
+        groups = None if few else wavefront.group_queries(pts, i1, i2, self.coded.n_points,
+                                                          self.coded.patch)  # fmt: skip
         order = None
         if groups is not None:
             # Every query input in group order once: the three channels' loops then read

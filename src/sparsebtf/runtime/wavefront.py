@@ -21,13 +21,13 @@ of one point. A group writes its per-query factors lane-major — ``T12[e, j]``,
 contiguous vector loads across the group's lanes j: SIMD over queries, not gathers per query.
 Where every lane sums the point's whole list, the coefficients go by (light, view) column
 pair instead: Σ_pairs R3[a]·R4[b]·Σ v·T12[e], one table load per coefficient, the group's 32
-lanes held in vector registers (:mod:`sparsebtf._lanes`). A batch with many queries per texel
-(:data:`TEXEL_GROUPING`) is grouped by texel: the group's T12 is one row, a pair's Σ v·t12 one
-scalar for every lane (and for the next groups on that texel), so a coefficient costs a
-scalar term per group and only the angular rows are built per lane. A lone query
-on a point pays a group's vector overhead for one lane, so it takes the per-query loop
-(:func:`grouped_pays`); a renderer's wavefront (many queries per point) gets the full
-speed-up, and so do random queries on any texture with more queries than points.
+lanes held in vector registers (:mod:`sparsebtf._lanes`). A texel with many queries
+(:data:`TEXEL_GROUPING`) gets groups of its own (:func:`group_queries`): the group's T12 is
+one row, a pair's Σ v·t12 one scalar for every lane (and for the next groups on that texel),
+so a coefficient costs a scalar term per group and only the angular rows are built per lane.
+A lone query on a point pays a group's vector overhead for one lane, so it takes the
+per-query loop (:func:`grouped_pays`); a renderer's wavefront (many queries per point) gets
+the full speed-up, and so do random queries on any texture with more queries than points.
 ``benchmarks/bench_lookup.py`` measures both orders against this machine's gather/FMA floor.
 
 Level of detail per query (fractional τ, :func:`~sparsebtf.runtime.kernels.prefix_weights`)
@@ -53,8 +53,8 @@ __all__ = [
     "GROUP",
     "finish",
     "group_by_point",
+    "group_queries",
     "grouped_pays",
-    "grouping_key",
     "rows_in_order",
     "separable_sums",
 ]
@@ -461,25 +461,73 @@ def rows_in_order(a: np.ndarray, order: np.ndarray, back: bool = False) -> np.nd
     return out
 
 
-#: Queries per texel, on average, from which the runtime groups queries by texel rather than
-#: by data point only: a group on one texel shares its spatial factors, so a coefficient
-#: costs one scalar term for the whole group instead of a term per lane, but texels with few
-#: queries leave groups part empty. Measured on ``benchmarks/bench_lookup.py``'s captured
-#: material, both groupings alternated in one process: texel groups run at 0.30×, 0.50×,
-#: 0.63× and 0.88× the rate of point groups at 2, 4, 8 and 12 queries per texel, 1.0× at 16,
-#: 1.06–1.5× from 20 on.
-TEXEL_GROUPING = 20.0
+#: Queries on one texel from which the runtime gives that texel groups of its own: a group on
+#: one texel shares its spatial factors, so a coefficient costs one scalar term for the whole
+#: group instead of a term per lane, but a texel with few queries leaves its groups part
+#: empty. Measured on ``benchmarks/bench_lookup.py``'s captured material, both groupings
+#: alternated in one process (every texel with about the same number of queries): texel
+#: groups run at 0.30×, 0.50×, 0.63× and 0.88× the rate of point groups at 2, 4, 8 and 12
+#: queries per texel, 1.0× at 16, 1.06–1.5× from 20 on.
+TEXEL_GROUPING = 16
+#: Texel keys per query above which :func:`group_queries` does not count queries per texel
+#: (a huge texture under a small batch: its two counting arrays would outweigh the batch).
+_TEXEL_KEYS_PER_QUERY = 4
 
 
-def grouping_key(pts: np.ndarray, i1: np.ndarray, i2: np.ndarray, n_points: int, patch: int
-                 ) -> tuple[np.ndarray, int]:  # fmt: skip
-    """The key :func:`group_by_point` sorts a batch by, and its number of values: the data
-    point, or (point, texel in the patch) where the batch has :data:`TEXEL_GROUPING` queries
-    per texel or more."""
-    texels = n_points * patch * patch
-    if pts.size < TEXEL_GROUPING * texels:
-        return pts, n_points
-    return (pts * patch + i1) * patch + i2, texels
+if HAVE_NUMBA:
+
+    @_nb.njit(cache=True, nogil=True)
+    def _group_texels_nb(tkey, n_points, per_point, width, threshold):
+        # A counting sort by texel key (point·per_point + texel); per point, the texels with
+        # >= threshold queries first, each cut into groups of its own, then the point's other
+        # queries (in texel order) cut into shared groups of up to ``width``.
+        n = tkey.shape[0]
+        n_keys = n_points * per_point
+        count = np.zeros(n_keys, dtype=np.int64)
+        for q in range(n):
+            count[tkey[q]] += 1
+        pos = np.empty(n_keys, dtype=np.int64)
+        starts = np.empty(n + 1, dtype=np.int64)
+        g = 0
+        cur = 0
+        for p in range(n_points):
+            k0 = p * per_point
+            for t in range(k0, k0 + per_point):
+                if count[t] >= threshold:
+                    pos[t] = cur
+                    for s in range(cur, cur + count[t], width):
+                        starts[g] = s
+                        g += 1
+                    cur += count[t]
+            rest = cur
+            for t in range(k0, k0 + per_point):
+                if count[t] < threshold:
+                    pos[t] = cur
+                    cur += count[t]
+            for s in range(rest, cur, width):
+                starts[g] = s
+                g += 1
+        starts[g] = n
+        order = np.empty(n, dtype=np.int64)
+        for q in range(n):
+            t = tkey[q]
+            order[pos[t]] = q
+            pos[t] += 1
+        return order, starts[: g + 1].copy()
+
+
+def group_queries(pts: np.ndarray, i1: np.ndarray, i2: np.ndarray, n_points: int, patch: int,
+                  width: int = GROUP) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """The runtime's groups: (``order``, ``starts``) as :func:`group_by_point` gives them, but
+    a texel with :data:`TEXEL_GROUPING` queries or more gets groups of its own (the grouped
+    loop then shares its spatial factors); every group holds queries of one point."""
+    per_point = patch * patch
+    if (not HAVE_NUMBA or n_points * per_point > _TEXEL_KEYS_PER_QUERY * max(pts.size, 1)
+            or pts.size < TEXEL_GROUPING):  # fmt: skip
+        return group_by_point(pts, n_points, width)
+    tkey = (np.asarray(pts, dtype=np.int64) * patch + i1) * patch + i2
+    return _group_texels_nb(tkey, int(n_points), int(per_point), int(width),
+                            int(TEXEL_GROUPING))  # fmt: skip
 
 
 def group_by_point(pts: np.ndarray, n_points: int, width: int = GROUP
