@@ -287,3 +287,33 @@ def test_texel_groups_hold_one_texel_and_the_rest_share():
     o2, s2 = group_queries(p2, few // patch % patch, few % patch, n_points, patch)
     ref = group_by_point(p2, n_points)
     assert np.array_equal(s2, ref[1]) and np.array_equal(p2[o2], p2[ref[0]])
+
+
+@numba_only
+def test_the_compiled_texel_pass_names_the_first_bad_query(coded):
+    """locate_nb stands in for query_texels and PatchGrid.locate: the same points and texels,
+    and a bad query anywhere in the batch gets query_texels' message with its index."""
+    from sparsebtf.errors import BTFInputError
+    from sparsebtf.points.grid import PatchGrid
+    from sparsebtf.runtime.decoder import query_texels
+    from sparsebtf.runtime.wavefront import locate_nb
+
+    rng = np.random.default_rng(9)
+    h, w, p = coded.height, coded.width, coded.patch
+    uv = rng.uniform(-3, 3, (300, 2))
+    uv[:3] = [[0.0, 0.0], [1.0 - 1e-17, 0.999999999], [-1e-300, 2.0]]  # edges of the wrap
+    texel = rng.integers(0, [h, w], (300, 2))
+    for t, from_uv in ((uv, True), (texel, False)):
+        pts, i1, i2, _, n_bad = locate_nb(t, h, w, p, from_uv)
+        row, col = query_texels(t if from_uv else None, None if from_uv else t, h, w)
+        ref = PatchGrid(h, w, p).locate(row, col)
+        assert n_bad == 0 and all(np.array_equal(a, b) for a, b in zip((pts, i1, i2), ref,
+                                                                          strict=True))
+    rt = RuntimeBTF(coded)
+    wi = _dirs(rng, 300)
+    uv[[123, 200]] = np.nan
+    texel[57] = (h, 0)
+    for kw, msg in (({"uv": uv}, "uv 123 is not finite"),
+                    ({"texel": texel}, rf"texel 57 = \({h}, 0\) is outside")):  # fmt: skip
+        with pytest.raises(BTFInputError, match=msg):
+            rt.evaluate(wi, wi, **kw)
