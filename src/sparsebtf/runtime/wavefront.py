@@ -157,6 +157,19 @@ if HAVE_NUMBA:
                 t12[j + e * st] = d1[k, u1, p1[a12 + e]] * d2[k, u2, p2[a12 + e]]
 
     @_nb.njit(cache=True, nogil=True, inline="always")
+    def _rows34(r3, r4, a3, a4, lane):
+        # r3[a]·r4[b] of a (light, view) pair on 16 lanes from ``lane`` (lane-major tables)
+        return lanes_mul(lanes_load(r3, a3 + lane), lanes_load(r4, a4 + lane))
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _put32(acc, x0, x1, out, order, q0, m):
+        # a group's two Lanes sums to the rows of its m queries
+        lanes_store(acc, _U0, x0)
+        lanes_store(acc, _U16, x1)
+        for j in range(m):
+            out[order[q0 + j]] = acc[j]
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
     def _row(t, j, st, cnt, col, a0, d, k, rows, w, q):
         # t[j + x·st] = Σ_a w[q, a] U[rows[q, a], col_x], x < cnt: Eq. 6's row at the point's
         # columns. One and two neighbours (nearest, linear) write each entry once.
@@ -264,13 +277,9 @@ if HAVE_NUMBA:
                         ab = np.uint64(pab[r])
                         a3, a4 = (ab & _LOW16) * uw, (ab >> _SH16) * uw
                         sv = psum[r - r0]
-                        x0 = lanes_fma(x0, sv, lanes_mul(lanes_load(r3, a3), lanes_load(r4, a4)))
-                        x1 = lanes_fma(x1, sv, lanes_mul(lanes_load(r3, a3 + _U16),
-                                                         lanes_load(r4, a4 + _U16)))  # fmt: skip
-                    lanes_store(acc, _U0, x0)
-                    lanes_store(acc, _U16, x1)
-                    for j in range(m):
-                        out[order[q0 + j]] = acc[j]
+                        x0 = lanes_fma(x0, sv, _rows34(r3, r4, a3, a4, _U0))
+                        x1 = lanes_fma(x1, sv, _rows34(r3, r4, a3, a4, _U16))
+                    _put32(acc, x0, x1, out, order, q0, m)
                     continue
                 # Lanes >= m are never read: the tables need no clearing.
                 for j in range(m):
@@ -297,13 +306,9 @@ if HAVE_NUMBA:
                             a1 = np.uint64(pe12[s]) * uw
                             s0 = lanes_fma(s0, v, lanes_load(t12, a1))
                             s1 = lanes_fma(s1, v, lanes_load(t12, a1 + _U16))
-                        x0 = lanes_fma(x0, s0, lanes_mul(lanes_load(r3, a3), lanes_load(r4, a4)))
-                        x1 = lanes_fma(x1, s1, lanes_mul(lanes_load(r3, a3 + _U16),
-                                                         lanes_load(r4, a4 + _U16)))  # fmt: skip
-                    lanes_store(acc, _U0, x0)
-                    lanes_store(acc, _U16, x1)
-                    for j in range(m):
-                        out[order[q0 + j]] = acc[j]
+                        x0 = lanes_fma(x0, s0, _rows34(r3, r4, a3, a4, _U0))
+                        x1 = lanes_fma(x1, s1, _rows34(r3, r4, a3, a4, _U16))
+                    _put32(acc, x0, x1, out, order, q0, m)
                     continue
                 if full == cnt:  # the same for other widths, lane loops through memory
                     for r in range(opair[p], opair[p + 1]):
