@@ -157,12 +157,17 @@ def atomic_output(path: str | os.PathLike[str]) -> Iterator[Path]:
         fd, tmp = tempfile.mkstemp(
             prefix=f".{target.name}.{_owner()}.", suffix=".part", dir=target.parent
         )
-        os.close(fd)
-        os.chmod(tmp, 0o666 & ~_umask())
     except OSError as e:
         raise output_error(e, target, any_errno=True) from None  # type: ignore[misc]
     tmp_path = Path(tmp)
+    # From here on the temporary is removed on any way out: a SIGTERM (SystemExit) in the
+    # moment after its creation left it behind (seen on a loaded machine).
     try:
+        try:
+            os.close(fd)
+            os.chmod(tmp, 0o666 & ~_umask())
+        except OSError as e:
+            raise output_error(e, target, any_errno=True) from None  # type: ignore[misc]
         yield tmp_path
         try:
             os.replace(tmp_path, target)
