@@ -11,12 +11,8 @@ from sparsebtf.data.directions import k_nearest, ubo2014
 from sparsebtf.runtime import DirectionIndex, RuntimeBTF, angular_weights, kernels
 from sparsebtf.runtime.angular import SCHEMES
 from sparsebtf.runtime.compact import DENSE_FRACTION, compact_layout
-from sparsebtf.runtime.wavefront import (
-    _group_numpy,
-    group_by_point,
-    grouped_pays,
-    separable_sums,
-)
+from sparsebtf.runtime.grouping import _group_numpy, group_by_point
+from sparsebtf.runtime.wavefront import grouped_pays, separable_sums
 
 from .conftest import smooth_btf, tiny_model
 
@@ -218,7 +214,7 @@ def test_the_finishing_exp_is_within_4e16_of_numpys():
     """The runtime's exp (plain arithmetic, so it vectorises) against np.exp over the range a
     decoded log value takes and the clamps at both ends; NaN stays NaN."""
     from sparsebtf._numba import numba as nb
-    from sparsebtf.runtime.wavefront import _exp
+    from sparsebtf.runtime.finish import _exp
 
     f = nb.njit(lambda a: np.array([_exp(t) for t in a]))
     x = np.concatenate([np.random.default_rng(5).uniform(-60.0, 12.0, 20000),
@@ -237,7 +233,7 @@ def test_texel_groups_equal_numpy(std_mode, scheme):
     its lanes and kept for the next group on that texel, also across groups that keep only
     part of the list (per-query τ); the other queries share groups — against the reference,
     with shared and per-channel statistics."""
-    from sparsebtf.runtime.wavefront import TEXEL_GROUPING, group_queries
+    from sparsebtf.runtime.grouping import TEXEL_GROUPING, group_queries
 
     coded = encode(smooth_btf(9), tiny_model(), tau=(40, 8, 8), eps=0.0, std_mode=std_mode,
                    progress=False)  # fmt: skip
@@ -266,7 +262,7 @@ def test_texel_groups_hold_one_texel_and_the_rest_share():
     """group_queries: every query once, every group of one point and at most GROUP wide; a
     texel with TEXEL_GROUPING queries or more in groups of its own, every other texel's
     queries in shared groups; below the threshold everywhere, the point groups."""
-    from sparsebtf.runtime.wavefront import GROUP, TEXEL_GROUPING, group_queries
+    from sparsebtf.runtime.grouping import GROUP, TEXEL_GROUPING, group_queries
 
     rng = np.random.default_rng(3)
     n_points, patch = 6, 4
@@ -296,7 +292,7 @@ def test_the_compiled_texel_pass_names_the_first_bad_query(coded):
     from sparsebtf.errors import BTFInputError
     from sparsebtf.points.grid import PatchGrid
     from sparsebtf.runtime.decoder import query_texels
-    from sparsebtf.runtime.wavefront import locate_nb
+    from sparsebtf.runtime.grouping import locate_nb
 
     rng = np.random.default_rng(9)
     h, w, p = coded.height, coded.width, coded.patch

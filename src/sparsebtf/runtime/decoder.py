@@ -33,7 +33,7 @@ from ..model import CHANNELS, CodedBTF, TauSpec
 from ..patch_tree import refuse_adaptive
 from ..points.grid import PatchGrid
 from ..points.preprocessing import inverse_log_transform
-from . import kernels, wavefront
+from . import grouping, kernels, wavefront
 from .angular import (
     SCHEMES,
     DirectionIndex,
@@ -248,7 +248,7 @@ class RuntimeBTF:
             t = np.asarray(uv, dtype=np.float64) if uv is not None else np.asarray(texel)
             if (t.ndim == 2 and t.shape == (n, 2) and t.dtype.kind in "fiu"
                     and (uv is not None or t.dtype.kind in "iu")):  # fmt: skip
-                pts, i1, i2, _, n_bad = wavefront.locate_nb(
+                pts, i1, i2, _, n_bad = grouping.locate_nb(
                     np.ascontiguousarray(t), h, w, p, uv is not None)  # fmt: skip
                 if not n_bad:
                     return pts, i1, i2

@@ -22,9 +22,10 @@ contiguous vector loads across the group's lanes j: SIMD over queries, not gathe
 Where every lane sums the point's whole list, the coefficients go by (light, view) column
 pair instead: Σ_pairs R3[a]·R4[b]·Σ v·T12[e], one table load per coefficient, the group's 32
 lanes held in vector registers (:mod:`sparsebtf._lanes`). A texel with many queries
-(:data:`TEXEL_GROUPING`) gets groups of its own (:func:`group_queries`): the group's T12 is
-one row, a pair's Σ v·t12 one scalar for every lane (and for the next groups on that texel),
-so a coefficient costs a scalar term per group and only the angular rows are built per lane.
+(:data:`.grouping.TEXEL_GROUPING`) gets groups of its own
+(:func:`.grouping.group_queries`): the group's T12 is one row, a pair's Σ v·t12 one scalar
+for every lane (and for the next groups on that texel), so a coefficient costs a scalar term
+per group and only the angular rows are built per lane.
 A lone query on a point pays a group's vector overhead for one lane, so it takes the
 per-query loop (:func:`grouped_pays`); a renderer's wavefront (many queries per point) gets
 the full speed-up, and so do random queries on any texture with more queries than points.
@@ -38,16 +39,16 @@ lanes weigh by clip(τ_j − rank, 0, 1). Values equal the reference's to float3
 
 from __future__ import annotations
 
-import itertools
-
 import numpy as np
 
 from .._numba import HAVE_NUMBA
 from .._numba import numba as _nb
 from .compact import CompactLayout, channel_layout
+from .finish import finish
+from .grouping import GROUP, group_by_point, group_queries, rows_in_order
 
 if HAVE_NUMBA:
-    from .._lanes import lanes_fma, lanes_load, lanes_mul, lanes_store, lanes_zeros, pow2
+    from .._lanes import lanes_fma, lanes_load, lanes_mul, lanes_store, lanes_zeros
 
 __all__ = [
     "GROUP",
@@ -59,17 +60,10 @@ __all__ = [
     "separable_sums",
 ]
 
-#: Queries per group: lanes of the vector loops (32 float32 = two AVX-512 or four AVX2
-#: registers per table row; the tables of a UBO2014 group fit in L1/L2 even when every mode
-#: is whole: (100 + 151 + 151) rows × 32 × 4 bytes = 51 KB).
-GROUP = 32
-
 #: Queries per task of the per-query loop, groups per task of the grouped one (scratch is
 #: allocated once per task).
 _CHUNK = 256
 _TASK = 16
-#: Queries per block of the finishing step (its exp runs over a block in a loop of its own).
-_FINISH = 256
 #: The unsigned masks and shifts of compact.py's packed words (code, need, pab).
 _LOW8, _LOW16, _LOW20 = np.uint64(0xFF), np.uint64(0xFFFF), np.uint64(0xFFFFF)
 _SH16, _SH20, _SH24, _SH40 = np.uint64(16), np.uint64(20), np.uint64(24), np.uint64(40)
@@ -77,41 +71,7 @@ _SH16, _SH20, _SH24, _SH40 = np.uint64(16), np.uint64(20), np.uint64(24), np.uin
 _U0, _U1, _U16, _U32 = np.uint64(0), np.uint64(1), np.uint64(16), np.uint64(32)
 
 
-def _group_numpy(pts: np.ndarray, width: int) -> tuple[np.ndarray, np.ndarray]:
-    order = np.argsort(pts, kind="stable")
-    sp = pts[order]
-    cut = np.flatnonzero(sp[1:] != sp[:-1]) + 1
-    bounds = np.concatenate(([0], cut, [sp.size]))
-    starts = [np.arange(a, b, width) for a, b in itertools.pairwise(bounds)]
-    return order, np.concatenate([*starts, [sp.size]]).astype(np.int64)
-
-
 if HAVE_NUMBA:
-
-    @_nb.njit(cache=True, nogil=True)
-    def _group_nb(pts, n_points, width):
-        n = pts.shape[0]
-        count = np.zeros(n_points + 1, dtype=np.int64)
-        for q in range(n):
-            count[pts[q] + 1] += 1
-        n_groups = 0
-        for p in range(n_points):
-            n_groups += (count[p + 1] + width - 1) // width
-            count[p + 1] += count[p]
-        order = np.empty(n, dtype=np.int64)
-        fill = count[:n_points].copy()
-        for q in range(n):
-            p = pts[q]
-            order[fill[p]] = q
-            fill[p] += 1
-        starts = np.empty(n_groups + 1, dtype=np.int64)
-        g = 0
-        for p in range(n_points):
-            for s in range(count[p], count[p + 1], width):
-                starts[g] = s
-                g += 1
-        starts[g] = n
-        return order, starts
 
     # Indexing note for every loop below: numba tests every signed index for wraparound
     # (a negative index counts from the end), and that test stops LLVM from vectorising the
@@ -399,156 +359,6 @@ if HAVE_NUMBA:
         return out
 
 
-if HAVE_NUMBA:
-
-    @_nb.njit(parallel=True, cache=True, nogil=True)
-    def _take_nb(a, order):
-        # out[i] = a[order[i]] (numba types a tuple concatenation, not a starred tuple)
-        out = np.empty((order.shape[0],) + a.shape[1:], dtype=a.dtype)  # noqa: RUF005
-        for i in _nb.prange(order.shape[0]):
-            out[i] = a[order[i]]
-        return out
-
-    @_nb.njit(parallel=True, cache=True, nogil=True)
-    def _put_nb(a, order):
-        # out[order[i]] = a[i]
-        out = np.empty_like(a)
-        for i in _nb.prange(order.shape[0]):
-            out[order[i]] = a[i]
-        return out
-
-
-if HAVE_NUMBA:
-
-    @_nb.njit(parallel=True, cache=True, nogil=True)
-    def locate_nb(t, height, width, patch, from_uv):
-        # decoder.query_texels and PatchGrid.locate in one pass: (row, col) from uv
-        # (wrapping, ⌊frac·size⌋) or from integer texels, then the point (row block fastest)
-        # and the texel in its patch; bad[q]: uv not finite or texel outside the texture.
-        n = t.shape[0]
-        nrb = height // patch
-        pts = np.empty(n, dtype=np.int64)
-        i1 = np.empty(n, dtype=np.int64)
-        i2 = np.empty(n, dtype=np.int64)
-        bad = np.zeros(n, dtype=np.bool_)
-        n_bad = 0
-        for q in _nb.prange(n):
-            if from_uv:
-                u, v = t[q, 0], t[q, 1]
-                if not (np.isfinite(u) and np.isfinite(v)):
-                    bad[q] = True
-                    n_bad += 1
-                    u = v = 0.0
-                row = min(np.int64((v - np.floor(v)) * height), height - 1)
-                col = min(np.int64((u - np.floor(u)) * width), width - 1)
-            else:
-                row, col = np.int64(t[q, 0]), np.int64(t[q, 1])
-                if row < 0 or row >= height or col < 0 or col >= width:
-                    bad[q] = True
-                    n_bad += 1
-                    row = col = 0
-            pts[q] = row // patch + nrb * (col // patch)
-            i1[q] = row % patch
-            i2[q] = col % patch
-        return pts, i1, i2, bad, n_bad
-
-
-def rows_in_order(a: np.ndarray, order: np.ndarray, back: bool = False) -> np.ndarray:
-    """``a[order]`` for 1-D or 2-D ``a`` and an int64 permutation ``order`` (``back``: the
-    inverse, ``out[order] = a``): a parallel gather where numba is present (NumPy's fancy
-    indexing runs on one thread)."""
-    if HAVE_NUMBA and a.ndim in (1, 2):
-        return (_put_nb if back else _take_nb)(np.ascontiguousarray(a), order)
-    if not back:
-        return a[order]
-    out = np.empty_like(a)
-    out[order] = a
-    return out
-
-
-#: Queries on one texel from which the runtime gives that texel groups of its own: a group on
-#: one texel shares its spatial factors, so a coefficient costs one scalar term for the whole
-#: group instead of a term per lane, but a texel with few queries leaves its groups part
-#: empty. Measured on ``benchmarks/bench_lookup.py``'s captured material, both groupings
-#: alternated in one process (every texel with about the same number of queries): texel
-#: groups run at 0.30×, 0.50×, 0.63× and 0.88× the rate of point groups at 2, 4, 8 and 12
-#: queries per texel, 1.0× at 16, 1.06–1.5× from 20 on.
-TEXEL_GROUPING = 16
-#: Texel keys per query above which :func:`group_queries` does not count queries per texel
-#: (a huge texture under a small batch: its two counting arrays would outweigh the batch).
-_TEXEL_KEYS_PER_QUERY = 4
-
-
-if HAVE_NUMBA:
-
-    @_nb.njit(cache=True, nogil=True)
-    def _group_texels_nb(tkey, n_points, per_point, width, threshold):
-        # A counting sort by texel key (point·per_point + texel); per point, the texels with
-        # >= threshold queries first, each cut into groups of its own, then the point's other
-        # queries (in texel order) cut into shared groups of up to ``width``.
-        n = tkey.shape[0]
-        n_keys = n_points * per_point
-        count = np.zeros(n_keys, dtype=np.int64)
-        for q in range(n):
-            count[tkey[q]] += 1
-        pos = np.empty(n_keys, dtype=np.int64)
-        starts = np.empty(n + 1, dtype=np.int64)
-        g = 0
-        cur = 0
-        for p in range(n_points):
-            k0 = p * per_point
-            for t in range(k0, k0 + per_point):
-                if count[t] >= threshold:
-                    pos[t] = cur
-                    for s in range(cur, cur + count[t], width):
-                        starts[g] = s
-                        g += 1
-                    cur += count[t]
-            rest = cur
-            for t in range(k0, k0 + per_point):
-                if count[t] < threshold:
-                    pos[t] = cur
-                    cur += count[t]
-            for s in range(rest, cur, width):
-                starts[g] = s
-                g += 1
-        starts[g] = n
-        order = np.empty(n, dtype=np.int64)
-        for q in range(n):
-            t = tkey[q]
-            order[pos[t]] = q
-            pos[t] += 1
-        return order, starts[: g + 1].copy()
-
-
-def group_queries(pts: np.ndarray, i1: np.ndarray, i2: np.ndarray, n_points: int, patch: int,
-                  width: int = GROUP) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """The runtime's groups: (``order``, ``starts``) as :func:`group_by_point` gives them, but
-    a texel with :data:`TEXEL_GROUPING` queries or more gets groups of its own (the grouped
-    loop then shares its spatial factors); every group holds queries of one point."""
-    per_point = patch * patch
-    if (not HAVE_NUMBA or n_points * per_point > _TEXEL_KEYS_PER_QUERY * max(pts.size, 1)
-            or pts.size < TEXEL_GROUPING):  # fmt: skip
-        return group_by_point(pts, n_points, width)
-    tkey = (np.asarray(pts, dtype=np.int64) * patch + i1) * patch + i2
-    return _group_texels_nb(tkey, int(n_points), int(per_point), int(width),
-                            int(TEXEL_GROUPING))  # fmt: skip
-
-
-def group_by_point(pts: np.ndarray, n_points: int, width: int = GROUP
-                   ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
-    """Queries sorted by data point and cut into groups of at most ``width`` of one point.
-
-    ``pts`` (n,) int64 in [0, n_points). Returns ``order`` (n,) int64 (stable: queries of a
-    point keep their order) and ``starts`` (G + 1,) int64: group g is
-    ``order[starts[g]:starts[g + 1]]``.
-    """
-    if width < 1:
-        raise ValueError(f"width must be >= 1, got {width}")
-    if HAVE_NUMBA:
-        return _group_nb(np.ascontiguousarray(pts, dtype=np.int64), int(n_points), int(width))
-    return _group_numpy(np.asarray(pts, dtype=np.int64), int(width))
-
 
 #: Relative costs of the two loops, measured on ``benchmarks/bench_lookup.py``'s captured
 #: material on an AMD EPYC (Zen 4, AVX-512), cycles on one thread: a coefficient summed for a
@@ -619,102 +429,3 @@ def separable_sums(
     if loop != "query":
         raise ValueError(f"loop must be 'auto', 'grouped' or 'query', got {loop!r}")
     return _per_query_nb(*args, *(max(w, 1) for w in lay.widest))
-
-
-if HAVE_NUMBA:
-
-    @_nb.njit(cache=True, nogil=True, inline="always", error_model="numpy")
-    def _exp(x):
-        # e^x within 4e-16 relative for float64 x (np.exp: a library call per value, a third
-        # of the finishing step; this is plain arithmetic, so a loop of it vectorises):
-        # x = k·ln2 + r with |r| <= ln2/2 (Cody-Waite, fdlibm's split of ln2), e^r by its
-        # Taylor series to r^12 (remainder < 2e-16), times 2^k from exponent bits. x is
-        # clamped to [-708, 709] (e^x below float64's normal range rounds to float32 0
-        # anyway; above it, float32 overflows to inf the same).
-        y = x if x > -708.0 else -708.0
-        y = y if y < 709.0 else 709.0
-        k = np.floor(y * 1.4426950408889634 + 0.5)
-        r = (y - k * 6.93147180369123816490e-01) - k * 1.90821492927058770002e-10
-        p = 1.0 / 479001600.0
-        p = p * r + 1.0 / 39916800.0
-        p = p * r + 1.0 / 3628800.0
-        p = p * r + 1.0 / 362880.0
-        p = p * r + 1.0 / 40320.0
-        p = p * r + 1.0 / 5040.0
-        p = p * r + 1.0 / 720.0
-        p = p * r + 1.0 / 120.0
-        p = p * r + 1.0 / 24.0
-        p = p * r + 1.0 / 6.0
-        p = p * r + 0.5
-        p = p * r + 1.0
-        p = p * r + 1.0
-        e = p * pow2(np.int64(k))
-        return e if x == x else x  # NaN stays NaN
-
-    @_nb.njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-    def _finish_nb(x, li, lw, vi, vw, mean, std, bound, m, log_offset, bounded, rgb, order):
-        # de-standardise with the interpolated statistics (Eq. 6), YUV -> RGB, the bound
-        # interpolated with the same weights, exp: the reference's NumPy steps, per query,
-        # a block of _FINISH queries at a time (the exp in a loop of its own, vectorised);
-        # row q of the inputs answers query order[q] (none given: q).
-        n = x.shape[0]
-        ordered = order.shape[0] > 0
-        kl = li.shape[1]
-        kv = vi.shape[1]
-        s = mean.shape[0]
-        out = np.empty((n, 3), dtype=np.float32)
-        for blk in _nb.prange((n + _FINISH - 1) // _FINISH):
-            q0 = blk * _FINISH
-            nb_ = min(_FINISH, n - q0)
-            v = np.empty(3 * _FINISH)
-            for j in range(nb_):
-                q = q0 + j
-                # μ and σ interpolated once per statistics channel (S = 1: shared by Y, U, V)
-                mu0 = mu1 = mu2 = sd0 = sd1 = sd2 = bq = 0.0
-                for a in range(kl):
-                    for b in range(kv):
-                        w = lw[q, a] * vw[q, b]
-                        la, vb = li[q, a], vi[q, b]
-                        mu0 += w * mean[0, la, vb]
-                        sd0 += w * std[0, la, vb]
-                        if s == 3:
-                            mu1 += w * mean[1, la, vb]
-                            sd1 += w * std[1, la, vb]
-                            mu2 += w * mean[2, la, vb]
-                            sd2 += w * std[2, la, vb]
-                        if bounded:
-                            bq += w * bound[la, vb]
-                if s != 3:
-                    mu1 = mu2 = mu0
-                    sd1 = sd2 = sd0
-                y = x[q, 0] * sd0 + mu0
-                u = x[q, 1] * sd1 + mu1
-                w_ = x[q, 2] * sd2 + mu2
-                for c in range(3):
-                    t = m[c, 0] * y + m[c, 1] * u + m[c, 2] * w_ if rgb else (
-                        y if c == 0 else (u if c == 1 else w_))  # fmt: skip
-                    if rgb and bounded:
-                        t = min(t, bq)
-                    v[3 * j + c] = t
-            if rgb:
-                for i in range(np.uint64(3 * nb_)):
-                    v[i] = _exp(v[i]) - log_offset
-            for j in range(nb_):
-                r = order[q0 + j] if ordered else np.int64(q0 + j)
-                for c in range(3):
-                    out[r, c] = v[3 * j + c]
-        return out
-
-
-def finish(x: np.ndarray, li: np.ndarray, lw: np.ndarray, vi: np.ndarray, vw: np.ndarray,
-           mean: np.ndarray, std: np.ndarray, bound: np.ndarray | None, matrix: np.ndarray,
-           log_offset: float, rgb: bool, order: np.ndarray | None = None
-           ) -> np.ndarray:  # fmt: skip
-    """The runtime's steps after the sums, fused per query: ``x`` (n, 3) standardised Y, U, V
-    sums → (n, 3) float32 linear RGB (``rgb``) or log-YUV. ``mean``/``std`` (S, L, V),
-    ``bound`` (L, V) or None, ``matrix`` the (3, 3) YUV → RGB matrix; ``order`` (n,) a
-    permutation: input row q is written to output row ``order[q]``."""
-    b = np.zeros((1, 1)) if bound is None else bound
-    o = np.empty(0, dtype=np.int64) if order is None else np.ascontiguousarray(order)
-    return _finish_nb(x, li, lw, vi, vw, mean, std, b, np.ascontiguousarray(matrix),
-                      float(log_offset), bound is not None, bool(rgb), o)  # fmt: skip
