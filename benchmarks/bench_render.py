@@ -18,7 +18,10 @@ at equal time, cosine sampling with the spp the BTF sampler's time buys (time pe
 the two reference halves, long renders). Before rendering, a
 BSDF-level check: the relative variance of sample()'s weight eval/pdf at three incidences.
 
-**Time per sample** (``--time-size``², ``--time-spp``): the benchmark material of
+**Time per sample** (``--time-size``², ``--time-spp``), in Dr.Jit's symbolic mode (one
+megakernel; the coded lookups by the plugin's Dr.Jit kernel, ``backend = drjit``) and in its
+evaluated mode (``sparsebtf.mitsuba.evaluated()``; the coded lookups by the runtime's compiled
+kernel, ``backend = auto``; what ``render_material`` uses by default): the benchmark material of
 ``_common.synthetic_coded`` (K = 8 random dictionaries, 40×40 texels; ``--time-material
 captured``: ``_common.captured_coded``, the woven sample coded with the release model) at
 τ = (885, 64, 64) and a quarter of it, and the dense reference plugin on a 20×20-texel
@@ -128,10 +131,14 @@ class Renderer:
         self.mi, self.dr = mi, dr
 
     def __call__(self, bsdf: dict, light: str, size: int, spp: int, seed: int,
-                 max_pass: int = 256) -> tuple[np.ndarray, float]:
-        """(linear RGB image, render seconds); spp above ``max_pass`` in passes (new seeds).
-        ``self.cpu_seconds``: the CPU time of this process's threads during the render (less
-        at the mercy of other processes' load than the wall time)."""
+                 max_pass: int = 256, evaluated: bool = False) -> tuple[np.ndarray, float]:
+        """(linear RGB image, render seconds); spp above ``max_pass`` in passes (new seeds);
+        ``evaluated``: in Dr.Jit's evaluated mode (the plugin's lookups then go to the runtime's
+        compiled kernel). ``self.cpu_seconds``: the CPU time of this process's threads during
+        the render (less at the mercy of other processes' load than the wall time)."""
+        from contextlib import nullcontext
+
+        from sparsebtf.rendering.mitsuba import evaluated as evaluated_mode
         from sparsebtf.rendering.mitsuba import preload
         from sparsebtf.rendering.scenes import scene_dict
 
@@ -146,9 +153,10 @@ class Renderer:
         while done < spp:
             n = min(max_pass, spp - done)
             t, c = time.perf_counter(), cpu_seconds()
-            img = mi.render(scene, spp=n, seed=seed + 7919 * k)
-            dr.eval(img)
-            dr.sync_thread()
+            with evaluated_mode() if evaluated else nullcontext():
+                img = mi.render(scene, spp=n, seed=seed + 7919 * k)
+                dr.eval(img)
+                dr.sync_thread()
             seconds += time.perf_counter() - t
             self.cpu_seconds += cpu_seconds() - c
             acc = acc + np.array(img, dtype=np.float64)[..., :3] * n
@@ -276,22 +284,40 @@ def timing(render: Renderer, args: argparse.Namespace) -> dict[str, Any]:
     n = args.time_size**2 * args.time_spp
     out: dict[str, Any] = {"tau": TAU, "quarter_tau": quarter_tau, "ns_per_sample_per_pixel": {},
                            "all_seconds": {}, "first_render_seconds": {}}  # fmt: skip
-    runs = {f"{name}/{s}": {**p, "uv_scale": 2.0, "interpolation": "linear", "sampling": s}
-            for s in SAMPLERS for name, p in plugins.items()}  # fmt: skip
-    for k, b in runs.items():  # trace and compile every kernel first
-        out["first_render_seconds"][k] = render(b, "sky", args.time_size, args.time_spp, 0)[1]
+    # symbolic: one megakernel, the coded lookups in Dr.Jit (backend drjit); evaluated: Dr.Jit's
+    # wavefront mode, the coded lookups through the runtime's compiled kernel (backend auto)
+    runs = {f"{name}/{s}{'/evaluated' if ev else ''}": (
+                {**p, "uv_scale": 2.0, "interpolation": "linear", "sampling": s,
+                 **({"backend": "drjit"} if p["type"] == "sparsebtf" and not ev else {})}, ev)
+            for ev in (False, True) for s in SAMPLERS for name, p in plugins.items()}  # fmt: skip
+    for k, (b, ev) in runs.items():  # trace and compile every kernel first
+        out["first_render_seconds"][k] = render(b, "sky", args.time_size, args.time_spp, 0,
+                                                evaluated=ev)[1]  # fmt: skip
     for _ in range(args.repeat):  # interleaved rounds: a load change hits every setting alike
-        for k, b in runs.items():
-            sec = render(b, "sky", args.time_size, args.time_spp, 0)[1]
+        for k, (b, ev) in runs.items():
+            sec = render(b, "sky", args.time_size, args.time_spp, 0, evaluated=ev)[1]
             out["all_seconds"].setdefault(k, []).append(sec)
     for k, secs in out["all_seconds"].items():
         out["ns_per_sample_per_pixel"][k] = min(secs) / n * 1e9
     t = out["ns_per_sample_per_pixel"]
     for s in SAMPLERS:
+        # the dense table in its faster mode: the coded render against the best dense one
+        dense = min(t[f"dense_20x20/{s}"], t[f"dense_20x20/{s}/evaluated"])
         out[f"ratio_full_over_dense/{s}"] = t[f"full_tau/{s}"] / t[f"dense_20x20/{s}"]
         out[f"ratio_quarter_over_dense/{s}"] = t[f"quarter_tau/{s}"] / t[f"dense_20x20/{s}"]
-        log(f"  {s}: full {t[f'full_tau/{s}']:.0f} ns, quarter {t[f'quarter_tau/{s}']:.0f} ns,"
-            f" dense {t[f'dense_20x20/{s}']:.0f} ns per sample per pixel")
+        out[f"ratio_full_evaluated_over_best_dense/{s}"] = t[f"full_tau/{s}/evaluated"] / dense
+        out[f"ratio_quarter_evaluated_over_best_dense/{s}"] = (t[f"quarter_tau/{s}/evaluated"]
+                                                               / dense)  # fmt: skip
+        out[f"speedup_evaluated_over_symbolic/{s}"] = (t[f"full_tau/{s}"]
+                                                       / t[f"full_tau/{s}/evaluated"])  # fmt: skip
+        for mode, suffix in (("symbolic (Dr.Jit kernel)", ""),
+                             ("evaluated (runtime)", "/evaluated")):
+            log(f"  {s}, {mode}: full {t[f'full_tau/{s}{suffix}']:.0f} ns, quarter "
+                f"{t[f'quarter_tau/{s}{suffix}']:.0f} ns, dense "
+                f"{t[f'dense_20x20/{s}{suffix}']:.0f} ns per sample per pixel")
+        log(f"  {s}: full tau evaluated / best dense "
+            f"{out[f'ratio_full_evaluated_over_best_dense/{s}']:.2f}x; symbolic / dense "
+            f"{out[f'ratio_full_over_dense/{s}']:.2f}x")
     t = out["ns_per_sample_per_pixel"]
     out["ratio_btf_over_cosine_time/full_tau"] = t["full_tau/btf"] / t["full_tau/cosine"]
     return out
@@ -577,6 +603,12 @@ def main() -> None:
                          f"{tm[f'ratio_full_over_dense/{s}']:.2f}"))  # fmt: skip
             rows.append((f"ratio quarter tau / dense ({s})",
                          f"{tm[f'ratio_quarter_over_dense/{s}']:.2f}"))  # fmt: skip
+            rows.append((f"ratio full tau, evaluated (runtime) / best dense ({s})",
+                         f"{tm[f'ratio_full_evaluated_over_best_dense/{s}']:.2f}"))  # fmt: skip
+            rows.append((f"ratio quarter tau, evaluated (runtime) / best dense ({s})",
+                         f"{tm[f'ratio_quarter_evaluated_over_best_dense/{s}']:.2f}"))  # fmt: skip
+            rows.append((f"full tau: symbolic (Dr.Jit) / evaluated (runtime) ({s})",
+                         f"{tm[f'speedup_evaluated_over_symbolic/{s}']:.2f}x"))  # fmt: skip
     data["load_average_end"] = os.getloadavg()
     data["seconds"] = time.perf_counter() - t0
     rows.append(("load average start / end", f"{load0[0]:.1f} / {data['load_average_end'][0]:.1f}"))

@@ -29,11 +29,14 @@ import drjit as dr  # noqa: E402
 import mitsuba as mi  # noqa: E402
 
 import sparsebtf.mitsuba as sbm  # noqa: E402
+from sparsebtf.rendering.mitsuba import preload  # noqa: E402
 from sparsebtf.rendering.mitsuba.materials import BSDF_PER_BTF_VALUE  # noqa: E402
 from sparsebtf.rendering.render import compare_renders, render_material  # noqa: E402
 from sparsebtf.runtime import RuntimeBTF, angular_weights  # noqa: E402
 
 SCHEMES = ("nearest", "linear", "barycentric", "gaussian")
+#: The plugin's lookups: its Dr.Jit kernel, and the host runtime (numba) in evaluated calls.
+BACKENDS = ("drjit", "numba")
 
 
 @pytest.fixture(autouse=True)
@@ -126,24 +129,27 @@ def test_libllvm_from_a_pip_wheel_is_found_and_works():
     assert ok and int(version.split(".")[0]) >= 23, version
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("domain", ["standardized", "log"])
 @pytest.mark.parametrize("scheme", SCHEMES)
-def test_eval_equals_runtime_decoder(material, scheme, domain):
-    """eval(si, wo) = RuntimeBTF.evaluate(light = wo, view = si.wi, uv) (float32 tolerance)."""
+def test_eval_equals_runtime_decoder(material, scheme, domain, backend):
+    """eval(si, wo) = RuntimeBTF.evaluate(light = wo, view = si.wi, uv) (float32 tolerance),
+    through the Dr.Jit kernel and through the host runtime (a direct call is evaluated)."""
     wi, wo, uv = _queries(1)
-    bsdf = mi.load_dict(
-        {"type": "sparsebtf", "key": material["key"], "interpolation": scheme, "domain": domain}
-    )
+    bsdf = mi.load_dict({"type": "sparsebtf", "key": material["key"], "interpolation": scheme,
+                         "domain": domain, "backend": backend})  # fmt: skip
     got = _eval(bsdf, _si(wi, uv), wo)
     ref = material["rt"].evaluate(wo, wi, uv=uv, interpolation=scheme, domain=domain)
     np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=2e-5, atol=2e-6)
     assert np.ptp(ref) > 0.1  # the queries see a varied material
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("domain", ["standardized", "log"])
-def test_eval_clamps_to_the_bound_like_the_runtime_decoder(material, domain):
+def test_eval_clamps_to_the_bound_like_the_runtime_decoder(material, domain, backend):
     wi, wo, uv = _queries(2)
-    bsdf = mi.load_dict({"type": "sparsebtf", "key": material["key_tight"], "domain": domain})
+    bsdf = mi.load_dict({"type": "sparsebtf", "key": material["key_tight"], "domain": domain,
+                         "backend": backend})  # fmt: skip
     got = _eval(bsdf, _si(wi, uv), wo)
     ref = material["rt_tight"].evaluate(wo, wi, uv=uv, domain=domain)
     np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=2e-5, atol=2e-6)
@@ -191,16 +197,17 @@ def _np(x):
     return a.T if a.ndim == 2 and a.shape[0] in (2, 3) and a.shape[1] not in (2, 3) else a
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("sampling", ["cosine", "btf"])
 @pytest.mark.parametrize("mode", ["radiance", "importance"])
-def test_pdf_and_sample_weight_are_consistent(material, sampling, mode):
+def test_pdf_and_sample_weight_are_consistent(material, sampling, mode, backend):
     """bs.pdf is pdf(bs.wo) bit for bit, the weight is eval/pdf, on both sides (two-sided)."""
     wi, _, uv = _queries(3, 256)
     rng = np.random.default_rng(4)
     ctx = mi.BSDFContext(mi.TransportMode.Importance if mode == "importance" else
                          mi.TransportMode.Radiance)  # fmt: skip
     bsdf = mi.load_dict({"type": "sparsebtf", "key": material["key"], "two_sided": True,
-                         "sampling": sampling})  # fmt: skip
+                         "sampling": sampling, "backend": backend})  # fmt: skip
     for side in (1, -1):
         w_in = wi * np.array([1, 1, side], np.float32)
         si = _si(w_in, uv)
@@ -632,3 +639,91 @@ def test_a_lambertian_btf_renders_as_mitsubas_diffuse():
     want = np.array(diffuse.eval(mi.BSDFContext(), si, mi.Vector3f(light.T))).T
     np.testing.assert_allclose(got, want, rtol=1e-4, atol=1e-6)
     assert want.max() > 0.2  # not a comparison of zeros
+
+
+def _spy(rt, calls):
+    """``rt.evaluate`` counting its calls (the host path's) in ``calls``."""
+    plain = rt.evaluate
+
+    def evaluate(*args, **kwargs):
+        calls.append(len(args[0]))
+        return plain(*args, **kwargs)
+
+    rt.evaluate = evaluate
+    return rt
+
+
+def test_backend_auto_uses_the_runtime_in_evaluated_calls_only(material, monkeypatch):
+    """``backend = auto``: a direct call and a render in Dr.Jit's evaluated mode reach the
+    host runtime, a symbolic render (the megakernel) the Dr.Jit kernel; the renders agree, in
+    one pass and in passes (the same random numbers in both modes)."""
+    import sparsebtf.rendering.render as render_module
+
+    calls = []
+    key = sbm.add_material(_spy(RuntimeBTF(material["rt"].coded), calls), "test-spy")
+    wi, wo, uv = _queries(4, 64)
+    auto = mi.load_dict({"type": "sparsebtf", "key": key})
+    got = _eval(auto, _si(wi, uv), wo)
+    assert calls == [64]  # all 64 lanes active: one batch
+    ref = material["rt"].evaluate(wo, wi, uv=uv)
+    np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=2e-5, atol=2e-6)
+    jit = mi.load_dict({"type": "sparsebtf", "key": key, "backend": "drjit"})
+    _eval(jit, _si(wi, uv), wo)
+    assert calls == [64]
+    opts = {"scene": "sphere", "size": (16, 16), "spp": 2, "seed": 5, "lod": "off"}
+    plugin = {"type": "sparsebtf", "key": key, "uv_scale": 2.0, "interpolation": "linear"}
+    del calls[:]
+    sym = render_material(plugin, mode="symbolic", **opts)
+    assert calls == [] and sym["mode"] == "symbolic"
+    ev = render_material(plugin, **opts)  # auto: evaluated, the runtime answers
+    assert ev["mode"] == "evaluated" and len(calls) >= 2 and sum(calls) > 100
+    np.testing.assert_allclose(ev.image, sym.image, rtol=1e-4, atol=1e-6)
+    assert sym.image.mean() > 0.05
+    monkeypatch.setattr(render_module, "PASS_LANES", 200)  # 16·16·2 samples: 2 passes
+    sym2 = render_material(plugin, mode="symbolic", **opts)
+    ev2 = render_material(plugin, mode="evaluated", **opts)
+    np.testing.assert_allclose(ev2.image, sym2.image, rtol=1e-4, atol=1e-6)
+    assert np.abs(sym2.image - sym.image).max() > 1e-3  # other seeds: other noise
+
+
+def test_backend_numba_needs_evaluated_mode_and_the_flags_come_back(material):
+    flags = (dr.JitFlag.SymbolicCalls, dr.JitFlag.SymbolicLoops)
+    before = [dr.flag(f) for f in flags]
+    with pytest.raises(RuntimeError), sbm.evaluated():
+        assert not any(dr.flag(f) for f in flags)
+        raise RuntimeError("a render failed")
+    assert [dr.flag(f) for f in flags] == before and all(before)
+    plugin = {"type": "sparsebtf", "key": material["key"], "backend": "numba"}
+    with pytest.raises(Exception) as info:
+        render_material(plugin, scene="sphere", size=(8, 8), spp=1, mode="symbolic")
+    chain, e = [], info.value
+    while e is not None:
+        chain.append(str(e))
+        e = e.__cause__ or e.__context__
+    assert any("backend 'numba' needs Dr.Jit's evaluated mode" in m for m in chain), chain
+    with pytest.raises(BTFInputError, match="backend must be one of auto, drjit, numba"):
+        preload({"type": "sparsebtf", "key": material["key"], "backend": "cuda"})
+    with pytest.raises(BTFInputError, match="mode must be one of auto, symbolic, evaluated"):
+        render_material({"type": "sparsebtf", "key": material["key"]}, mode="wavefront")
+
+
+def test_lod_through_the_host_runtime_equals_the_runtime_at_per_query_tau(material):
+    """lod = auto on the host path: the per-query τ' the Dr.Jit kernel uses (the test above),
+    handed to RuntimeBTF.evaluate."""
+    from sparsebtf.runtime.lod import cone_texels_per_pixel, footprint_fraction, lod_tau
+
+    rng = np.random.default_rng(5)
+    n, cam, pixel = 300, np.array([0.5, 2.0, 6.0]), 0.004
+    first = rng.uniform(size=n) < 0.6
+    si, wi, uv, t, du, dv = _lod_si(rng, n, cam, first)
+    wo = _dirs(rng, n)
+    rt = material["rt"]
+    d = {"type": "sparsebtf", "key": material["key"], "uv_scale": 2.0, "backend": "numba",
+         "lod_camera": ",".join(map(str, cam)), "lod_pixel": pixel, "lod_later": 0.3}
+    got = _eval(mi.load_dict(d), si, wo)
+    h, w = rt.meta["height"], rt.meta["width"]
+    rho = cone_texels_per_pixel(t, pixel, wi[:, 2], du, dv, 1.0 / (h * w * 4.0))
+    tau = lod_tau(rt.tau, np.where(first, footprint_fraction(rho), 0.3))
+    ref = rt.evaluate(wo, wi, uv=uv * 2.0, tau=tau)
+    np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=5e-4, atol=2e-5)
+    assert np.abs(rt.evaluate(wo, wi, uv=uv * 2.0) - ref).max() > 1e-2

@@ -31,10 +31,12 @@ from __future__ import annotations
 from typing import Any
 
 from .llvm import LLVMImportOrderError
-from .rendering.mitsuba import DENSE_PLUGIN, PLUGIN, add_material, register, setup
+from .rendering.mitsuba import DENSE_PLUGIN, PLUGIN, add_material, evaluated, register, setup
 from .rendering.mitsuba import variant as _variant_state
 
-__all__ = ["DENSE_PLUGIN", "PLUGIN", "add_material", "register", "setup", "variant_message"]
+__all__ = [
+    "DENSE_PLUGIN", "PLUGIN", "add_material", "evaluated", "register", "setup", "variant_message",
+]
 
 variant_message: str  # annotation only: the value comes from __getattr__ below
 

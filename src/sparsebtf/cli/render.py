@@ -134,11 +134,13 @@ def cmd_render(args: argparse.Namespace) -> int:
         "seed": args.seed,
         "floor": args.floor,
         "backend": args.backend,
+        "mode": args.mode,
     }
     res = render_material(coded_bsdf, **opts)
     out: dict[str, Any] = {
         "output": str(args.output),
         "variant": res["variant"],
+        "mode": res["mode"],
         "scene": args.scene,
         "size": list(size),
         "spp": args.spp,
@@ -250,6 +252,9 @@ def register(sub: Any) -> None:
                    help="display exposure (default: 99th luminance percentile -> 0.9)")
     s.add_argument("--backend", choices=["auto", "llvm", "cuda", "scalar"], default="auto",
                    help="Mitsuba variant: auto (llvm_ad_rgb, else scalar_rgb), cuda, llvm, scalar")
+    s.add_argument("--mode", choices=["auto", "symbolic", "evaluated"], default="auto",
+                   help="Dr.Jit's mode: evaluated hands the coded lookups to the runtime's "
+                        "compiled kernel (auto: evaluated on llvm with numba, else symbolic)")
     s.add_argument("--save-raw", metavar="NPZ", help="also save the linear float renders (.npz)")
     s.add_argument("--json", action="store_true", help="print the numbers as JSON")
     s.set_defaults(func=cmd_render, checks={

@@ -25,6 +25,7 @@ __all__ = [
     "render_material",
     "save_side_by_side",
     "tonemap_srgb",
+    "uses_runtime",
 ]
 
 
@@ -32,6 +33,12 @@ __all__ = [
 #: a 32x32, 4 spp sphere render took 6.6 s on the 2-core development machine. Used only to
 #: warn before long renders (:func:`scalar_seconds`).
 SCALAR_SAMPLES_PER_SECOND = 600.0
+
+#: ``render_material``'s Dr.Jit modes (``mode``).
+MODES = ("auto", "symbolic", "evaluated")
+#: Samples per pass on a Dr.Jit variant: in evaluated mode each step's arrays are materialised
+#: (tens of floats a sample), so a pass of 2²¹ samples holds a few hundred MB.
+PASS_LANES = 1 << 21
 
 
 def scalar_seconds(size: tuple[int, int], spp: int, renders: int = 1) -> float:
@@ -41,7 +48,7 @@ def scalar_seconds(size: tuple[int, int], spp: int, renders: int = 1) -> float:
 
 class RenderResult(dict):
     """``image`` (H, W, 3) float32 linear RGB, ``seconds`` (render incl. JIT), ``variant``,
-    ``plugin`` (the BSDF's description)."""
+    ``plugin`` (the BSDF's description), ``mode`` (Dr.Jit's: symbolic or evaluated)."""
 
     @property
     def image(self) -> np.ndarray:
@@ -71,15 +78,23 @@ def render_material(
     backend: str = "auto",
     progress: bool | None = None,
     lod: str | None = None,
+    mode: str = "auto",
 ) -> RenderResult:
     """Render ``bsdf`` (a ``sparsebtf``/``sparsebtf_dense`` plugin dict) in a built-in scene.
 
     ``size`` is (width, height). Returns a :class:`RenderResult`; non-finite pixels raise.
-    A render expected to take more than a few seconds (the scalar variant) runs in passes
-    under a progress bar with ETA (``progress``: None = on a terminal). ``lod`` ("auto",
+    A render of more than :data:`PASS_LANES` samples, or expected to take more than a few
+    seconds (the scalar variant), runs in passes under a progress bar with ETA (``progress``:
+    None = on a terminal). ``lod`` ("auto",
     "off"; None: the plugin dict's own, default auto) sets a ``sparsebtf`` plugin's level of
     detail, with this scene's camera (:func:`.scenes.lod_camera`) unless the dict gives one.
+    ``mode``: Dr.Jit's "symbolic" (one megakernel) or "evaluated" (a kernel per step of the
+    wavefront) mode; "auto" is evaluated where a ``sparsebtf``
+    plugin's lookups can go to the runtime's compiled kernel (:func:`uses_runtime`), else
+    symbolic.
     """
+    if mode not in MODES:
+        raise BTFInputError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
     if spp < 1:
         raise BTFInputError(f"spp must be >= 1, got {spp}")
     w, h = (int(v) for v in size)
@@ -96,7 +111,15 @@ def render_material(
     sd = scene_dict(mi, loaded, scene, w, h, envmap, max_depth, floor)
     scn = mi.load_dict(sd)
     t1 = time.perf_counter()
-    arr = _render_passes(mi, dr, scn, int(spp), int(seed), variant, progress)
+    if mode == "auto":
+        mode = "evaluated" if uses_runtime(bsdf, variant) else "symbolic"
+    if mode == "evaluated" and not variant.startswith("scalar"):
+        from .mitsuba import evaluated
+
+        with evaluated():
+            arr = _render_passes(mi, dr, scn, int(spp), int(seed), variant, progress)
+    else:
+        arr = _render_passes(mi, dr, scn, int(spp), int(seed), variant, progress)
     t2 = time.perf_counter()
     if not np.all(np.isfinite(arr)):
         bad = int((~np.isfinite(arr)).any(axis=-1).sum())
@@ -107,7 +130,18 @@ def render_material(
         setup_seconds=t1 - t0,
         variant=variant,
         plugin=str(loaded),
+        mode=mode,
     )
+
+
+def uses_runtime(bsdf: dict[str, Any], variant: str) -> bool:
+    """Whether a ``sparsebtf`` plugin dict's lookups go to the runtime's compiled kernel in
+    Dr.Jit's evaluated mode (``backend`` auto or numba on an LLVM variant, numba installed):
+    5× faster than its Dr.Jit kernel in a megakernel (``benchmarks/bench_render.py``)."""
+    from ..runtime.kernels import HAVE_NUMBA
+
+    return (bsdf.get("type") == "sparsebtf" and variant.startswith("llvm") and HAVE_NUMBA
+            and bsdf.get("backend", "auto") in ("auto", "numba"))  # fmt: skip
 
 
 def with_lod(bsdf: dict[str, Any], lod: str | None, scene: str, width: int) -> dict[str, Any]:
@@ -128,18 +162,23 @@ def with_lod(bsdf: dict[str, Any], lod: str | None, scene: str, width: int) -> d
 def _render_passes(
     mi: Any, dr: Any, scn: Any, spp: int, seed: int, variant: str, progress: bool | None
 ) -> np.ndarray:
-    """``mi.render`` at ``spp``; the scalar variant renders up to 8 passes of fewer samples
-    (seeds ``seed·8 + i``) with a progress bar, their sample-weighted mean being the image."""
+    """``mi.render`` at ``spp`` in passes, their sample-weighted mean being the image: the
+    scalar variant renders up to 8 passes of fewer samples (seeds ``seed·8 + i``) with a
+    progress bar; a Dr.Jit variant passes of at most :data:`PASS_LANES` samples (seeds
+    ``seed·2¹⁶ + i`` when there are several), in either mode, so a coded render (evaluated)
+    and its dense reference (symbolic) draw the same random numbers."""
     from .._progress import bar
 
     w, h = scn.sensors()[0].film().size()
-    slow = variant.startswith("scalar") and scalar_seconds((w, h), spp) > 5
-    n = min(spp, 8) if slow else 1
+    scalar = variant.startswith("scalar")
+    slow = scalar and scalar_seconds((w, h), spp) > 5
+    n = (min(spp, 8) if slow else 1) if scalar else min(spp, -(-w * h * spp // PASS_LANES))
     counts = [spp // n + (i < spp % n) for i in range(n)]
     acc = None
-    with bar(spp, "render", "spp", progress if slow else False) as pb:
+    with bar(spp, "render", "spp", progress if slow or n > 1 else False) as pb:
         for i, k in enumerate(counts):
-            img = mi.render(scn, spp=k, seed=seed if n == 1 else seed * 8 + i)
+            pass_seed = seed if n == 1 else seed * 8 + i if scalar else (seed << 16) + i
+            img = mi.render(scn, spp=k, seed=pass_seed)
             dr.eval(img)
             dr.sync_thread()
             part = np.array(img, dtype=np.float64) * (k / spp)

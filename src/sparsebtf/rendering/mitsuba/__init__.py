@@ -31,6 +31,15 @@ of the query's grid cell (k-nearest by chord distance, as
 :func:`sparsebtf.runtime.angular.candidate_lists` are provably complete). On ``scalar_rgb``
 the lookup calls :meth:`RuntimeBTF.evaluate` per ray (tiny renders only).
 
+Evaluated mode. By default Dr.Jit records Mitsuba's virtual calls and loops into one
+megakernel, and the lookup above runs per lane inside it. Within :func:`evaluated` (Dr.Jit's
+``SymbolicCalls``/``SymbolicLoops`` off) each step of the path tracer is its own kernel over
+the whole wavefront, and the plugin hands its active lanes to the runtime's compiled lookup
+(``backend`` auto): the batch is grouped by data point and texel and summed in vector
+registers, several times faster than the per-lane Dr.Jit loop in a render
+(``benchmarks/bench_render.py``). :func:`sparsebtf.rendering.render.render_material` (and
+``sparsebtf render``) renders a ``sparsebtf`` material this way by default (``mode``).
+
 A material coded with adaptive patch sizes (``sparsebtf encode --adaptive-patches``; a
 :class:`sparsebtf.runtime.AdaptiveRuntimeBTF`) renders the same way: its data points are the
 tree's nodes (:meth:`AdaptiveRuntimeBTF.arrays`), the texel's node comes from a table of the
@@ -103,6 +112,15 @@ lod_later        float     fraction of τ at later path vertices (default 0.1)
 lod_sampled      float     at most this fraction for sample() at the first vertex (0.3)
 lod_min          float     the least fraction the footprint gives (default 0.5)
 lod_stats        boolean   count lookups and loop iterations per class (``lod_stats()``)
+backend          string    auto (default) | drjit | numba: who answers the lookups. drjit:
+                           the Dr.Jit kernel above, in any mode; numba: the runtime's
+                           compiled lookup (:meth:`RuntimeBTF.evaluate`: texel groups,
+                           register sums) on the active lanes of an *evaluated* call, so
+                           it needs Dr.Jit's evaluated mode (:func:`evaluated`); auto:
+                           numba where a call is evaluated on an LLVM variant with numba
+                           installed and no gradient is tracked, else Dr.Jit. The two agree
+                           within float32 rounding; an adaptive material's level of detail
+                           and ``lod_stats`` stay on Dr.Jit
 ================ ========= ==============================================================
 
 ``sparsebtf_dense`` — the uncompressed reference
@@ -130,13 +148,14 @@ from .materials import (
     preload,
     remove_material,
 )
-from .variant import register, setup
+from .variant import evaluated, register, setup
 
 __all__ = [
     "DENSE_PLUGIN",
     "PLUGIN",
     "add_material",
     "dense_table",
+    "evaluated",
     "load_runtime",
     "preload",
     "register",

@@ -300,7 +300,28 @@ def coded_params(props: Any) -> dict[str, Any]:
         raise BTFInputError(f"{PLUGIN}: domain must be standardized or log, got {domain!r}")
     prm["domain"] = domain
     prm.update(lod_params(props))
+    prm["backend"] = lookup_backend(props)
     return prm
+
+
+#: ``backend`` of the ``sparsebtf`` plugin: who answers a wavefront's lookups.
+BACKENDS = ("auto", "drjit", "numba")
+
+
+def lookup_backend(props: Any) -> str:
+    """``backend``: "drjit" (the Dr.Jit kernel, any mode), "numba" (the runtime's compiled
+    lookup, :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate`, on the host; needs Dr.Jit's
+    evaluated mode) or "auto" (numba where a lookup is evaluated on an LLVM variant, else Dr.Jit);
+    checked."""
+    from ...runtime.kernels import HAVE_NUMBA
+
+    backend = str(props.get("backend", "auto"))
+    if backend not in BACKENDS:
+        raise BTFInputError(f"{PLUGIN}: backend must be one of {', '.join(BACKENDS)}, "
+                            f"got {backend!r}")  # fmt: skip
+    if backend == "numba" and not HAVE_NUMBA:
+        raise BTFInputError(f"{PLUGIN}: backend 'numba' needs numba (pip install numba)")
+    return backend
 
 
 def lod_params(props: Any) -> dict[str, Any]:

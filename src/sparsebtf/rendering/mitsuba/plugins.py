@@ -21,7 +21,9 @@ import drjit as dr
 import mitsuba as mi
 import numpy as np
 
-from ...runtime.lod import COS_FLOOR
+from ...errors import BTFInputError
+from ...runtime.kernels import HAVE_NUMBA
+from ...runtime.lod import COS_FLOOR, lod_tau
 from . import sampling as np_sampling
 from .kernels import (
     Candidates,
@@ -87,6 +89,7 @@ class _Base(mi.BSDF):
     # A class attribute, not a module global: a reload for another variant rebinds the
     # module's globals, and classes already registered for this variant must keep theirs.
     _scalar: bool = not dr.is_jit_v(mi.Float)
+    _llvm: bool = dr.backend_v(mi.Float) == dr.JitBackend.LLVM
     prm: dict[str, Any]
 
     def _setup(self, source: tuple, level: tuple, tables: Any) -> None:
@@ -173,11 +176,18 @@ class _Base(mi.BSDF):
         known_set, sampled_set = self._sets(mode)
         uv, known, back, flip, active = self._frame(si, active)
         w = _flip(mi.Vector3f(wo), back, flip)
-        known_nb, w_nb = find_neighbours(mi, dr, self.prm,
-                                         [(self.cand[known_set], known),
-                                          (self.cand[sampled_set], w)], active)  # fmt: skip
-        value = self._value(mode, uv, known_nb, w_nb, active & (w.z > 0),
-                            self._level(si, known, active, sampled=False))
+        level = self._level(si, known, active, sampled=False)
+        if self._host(level, uv, known, w):
+            known_nb = None
+            if want_pdf and self.tables is not None:
+                (known_nb,) = find_neighbours(mi, dr, self.prm, [(self.cand[known_set], known)],
+                                              active)  # fmt: skip
+            value = self._host_value(mode, uv, known, w, active & (w.z > 0), level)
+        else:
+            known_nb, w_nb = find_neighbours(mi, dr, self.prm,
+                                             [(self.cand[known_set], known),
+                                              (self.cand[sampled_set], w)], active)  # fmt: skip
+            value = self._value(mode, uv, known_nb, w_nb, active & (w.z > 0), level)
         pdf = self._density(mode, uv, known_nb, w, active) if want_pdf else mi.Float(0.0)
         return value, pdf
 
@@ -192,25 +202,33 @@ class _Base(mi.BSDF):
         mode = self._mode(ctx)
         known_set, sampled_set = self._sets(mode)
         uv, known, back, flip, active = self._frame(si, active)
+        level = self._level(si, known, active, sampled=True)
+        host = self._host(level, uv, known)  # the value from the runtime: no neighbours of w needed
+        known_nb = w_nb = None
         if self.tables is None:
             w = mi.warp.square_to_cosine_hemisphere(sample2)
-            known_nb, w_nb = find_neighbours(mi, dr, self.prm,
-                                             [(self.cand[known_set], known),
-                                              (self.cand[sampled_set], w)], active)  # fmt: skip
+            if not host:
+                known_nb, w_nb = find_neighbours(mi, dr, self.prm,
+                                                 [(self.cand[known_set], known),
+                                                  (self.cand[sampled_set], w)], active)  # fmt: skip
         else:
             (known_nb,) = find_neighbours(mi, dr, self.prm, [(self.cand[known_set], known)],
                                           active)  # fmt: skip
             w = btf_sample(mi, dr, self.tables, mode, self._jit_row(uv), known_nb, sample1,
                            sample2, active)  # fmt: skip
-            (w_nb,) = find_neighbours(mi, dr, self.prm, [(self.cand[sampled_set], w)], active)
+            if not host:
+                (w_nb,) = find_neighbours(mi, dr, self.prm, [(self.cand[sampled_set], w)],
+                                          active)  # fmt: skip
         active = active & (w.z > 0)
         bs.wo = _flip(w, back, flip)
         bs.pdf = self._density(mode, uv, known_nb, w, active)
         bs.eta = 1.0
         bs.sampled_type = mi.UInt32(+_GLOSSY)
         bs.sampled_component = mi.UInt32(0)
-        value = self._value(mode, uv, known_nb, w_nb, active,
-                            self._level(si, known, active, sampled=True))
+        if host:
+            value = self._host_value(mode, uv, known, w, active, level)
+        else:
+            value = self._value(mode, uv, known_nb, w_nb, active, level)
         ok = active & (bs.pdf > 0)
         return bs, dr.select(ok, value / dr.select(ok, bs.pdf, 1.0), 0.0)
 
@@ -301,6 +319,14 @@ class _Base(mi.BSDF):
     def _jit_row(self, uv: Any) -> Any:
         return mi.UInt32(0)
 
+    def _host(self, level: Any, *arrays: Any) -> bool:
+        """Whether this lookup goes to the host runtime (:meth:`_host_value`), not Dr.Jit."""
+        return False
+
+    def _host_value(self, mode: str, uv: Any, known: Any, w: Any, active: Any,
+                    level: Any) -> Any:
+        raise NotImplementedError
+
     def _scalar_lookup(self, uv: np.ndarray, light: np.ndarray, view: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
@@ -386,6 +412,52 @@ class SparseBTFBSDF(_Base):
         if self.prm["sampling_tables"] != "patch":
             return mi.UInt32(0)
         return point_of(mi, dr, self.data, uv)[0]
+
+    def _host(self, level: Any, *arrays: Any) -> bool:
+        """``backend`` numba, or auto on an LLVM variant, in an evaluated call (Dr.Jit's
+        evaluated mode, :func:`~sparsebtf.rendering.mitsuba.evaluated`); Dr.Jit otherwise, and
+        for what the host path does not cover: the level of detail of an adaptive material and
+        ``lod_stats`` (which count the Dr.Jit kernel's loop iterations). ``auto`` also keeps
+        Dr.Jit where gradients are tracked (the host path is not differentiable)."""
+        backend = self.prm["backend"]
+        if backend == "drjit" or (backend == "auto" and (not self._llvm or not HAVE_NUMBA)):
+            return False
+        if dr.flag(dr.JitFlag.SymbolicScope):
+            if backend == "numba":
+                raise BTFInputError(
+                    f"{PLUGIN}: backend 'numba' needs Dr.Jit's evaluated mode (render inside "
+                    "sparsebtf.mitsuba.evaluated(), or use backend 'auto' or 'drjit')"
+                )  # fmt: skip
+            return False
+        if level is not None and (self.flat.get("adaptive") or self.prm["lod_stats"]):
+            return False
+        return backend == "numba" or not dr.grad_enabled(*arrays)
+
+    def _host_value(self, mode: str, uv: Any, known: Any, w: Any, active: Any,
+                    level: Any) -> Any:
+        """:meth:`RuntimeBTF.evaluate <sparsebtf.runtime.RuntimeBTF.evaluate>` on the active
+        lanes of an evaluated wavefront (NumPy views of Dr.Jit's arrays), the rest 0; the same
+        values as :func:`.kernels.coded_lookup` within float32 rounding."""
+        light, view = (known, w) if mode == "importance" else (w, known)
+        n = max(dr.width(uv), dr.width(light), dr.width(view), dr.width(active))
+        lanes = np.flatnonzero(np.broadcast_to(np.asarray(active, dtype=bool), (n,)))
+        out = np.zeros((3, n), dtype=np.float32)
+        if lanes.size:
+            def rows(v: Any, k: int) -> np.ndarray:  # (k, n) Dr.Jit → (lanes, k) float64
+                a = np.asarray(v, dtype=np.float64).reshape(k, -1)
+                return np.broadcast_to(a, (k, n))[:, lanes].T
+
+            p = self.prm
+            tau = None
+            if level is not None:
+                tau = lod_tau(self.meta["tau"], rows(level[0], 1)[:, 0])
+            rgb = self.rt.evaluate(
+                rows(light, 3), rows(view, 3), uv=rows(uv, 2), interpolation=p["interpolation"],
+                domain=p["domain"], k=p["k"] if p["interpolation"] == "gaussian" else None,
+                beta=p["beta"], tau=tau, backend="numba" if HAVE_NUMBA else "numpy",
+            )  # fmt: skip
+            out[:, lanes] = np.maximum(rgb, 0.0).T * BSDF_PER_BTF_VALUE
+        return mi.Color3f(out)
 
     def _scalar_row(self, uv: np.ndarray) -> int:
         if self.prm["sampling_tables"] != "patch":

@@ -10,12 +10,14 @@ this module leaves the choice of libLLVM open.
 from __future__ import annotations
 
 import importlib
+from collections.abc import Iterator
+from contextlib import contextmanager
 from types import ModuleType
 
 from ...errors import BTFInputError
 from .materials import DENSE_PLUGIN, PLUGIN
 
-__all__ = ["register", "setup", "variant_message"]
+__all__ = ["evaluated", "register", "setup", "variant_message"]
 
 #: Why the current variant was chosen (set by :func:`setup`).
 variant_message = ""
@@ -71,3 +73,32 @@ def register() -> str:
     mi.register_bsdf(DENSE_PLUGIN, lambda props: dense_cls(props))
     _registered.add(variant)
     return variant
+
+
+#: Dr.Jit's flags that record calls and loops symbolically (one megakernel per render).
+_SYMBOLIC_FLAGS = ("SymbolicCalls", "SymbolicLoops")
+
+
+@contextmanager
+def evaluated() -> Iterator[None]:
+    """Within the block Dr.Jit runs Mitsuba's virtual calls and loops in evaluated (wavefront)
+    mode; the flags are restored on leaving.
+
+    A wavefront of queries then reaches the ``sparsebtf`` plugin as arrays it can hand to the
+    runtime's compiled lookup (``backend`` auto or numba: texel groups, register sums,
+    :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate`) instead of tracing the Dr.Jit kernel into a
+    megakernel. Everything else in the scene runs in Dr.Jit's evaluated mode too: a kernel per
+    step and bounce instead of one, which costs time of its own (measured against the
+    megakernel in ``benchmarks/bench_render.py``).
+    """
+    import drjit as dr
+
+    flags = [getattr(dr.JitFlag, name) for name in _SYMBOLIC_FLAGS]
+    before = [dr.flag(f) for f in flags]
+    try:
+        for f in flags:
+            dr.set_flag(f, False)
+        yield
+    finally:
+        for f, b in zip(flags, before, strict=True):
+            dr.set_flag(f, b)
