@@ -553,8 +553,9 @@ def _lod_si(rng, n, cam, first):
 
 def test_lod_tau_per_query_equals_the_runtime_and_is_counted(material):
     """lod = auto: each lookup's τ' is the NumPy rule's (first vertex by footprint, later ones
-    a fraction), the value equals RuntimeBTF.evaluate at that per-query τ', and the loop
-    iterations the plugin counts per depth class are Σ min(count, ⌈τ'⌉)."""
+    a fraction), the value equals RuntimeBTF.evaluate at that per-query τ' through the Dr.Jit
+    kernel and through the host runtime, and the loop iterations the plugin counts per depth
+    class are Σ min(count, ⌈τ'⌉)."""
     from sparsebtf.runtime.lod import (
         MIN_FRACTION,
         cone_texels_per_pixel,
@@ -568,9 +569,10 @@ def test_lod_tau_per_query_equals_the_runtime_and_is_counted(material):
     si, wi, uv, t, du, dv = _lod_si(rng, n, cam, first)
     wo = _dirs(rng, n)
     rt = material["rt"]
-    bsdf = mi.load_dict({"type": "sparsebtf", "key": material["key"], "uv_scale": 2.0,
-                         "lod_camera": ",".join(map(str, cam)), "lod_pixel": pixel,
-                         "lod_later": 0.3, "lod_sampled": 0.2, "lod_stats": True})  # fmt: skip
+    d = {"type": "sparsebtf", "key": material["key"], "uv_scale": 2.0,
+         "lod_camera": ",".join(map(str, cam)), "lod_pixel": pixel, "lod_later": 0.3,
+         "lod_sampled": 0.2}  # fmt: skip
+    bsdf = mi.load_dict({**d, "lod_stats": True})  # counted: the Dr.Jit kernel
     got = _eval(bsdf, si, wo)
     h, w = rt.meta["height"], rt.meta["width"]
     rho = cone_texels_per_pixel(t, pixel, wi[:, 2], du, dv, 1.0 / (h * w * 4.0))
@@ -581,6 +583,8 @@ def test_lod_tau_per_query_equals_the_runtime_and_is_counted(material):
     tau = lod_tau(rt.tau, frac)
     ref = rt.evaluate(wo, wi, uv=uv * 2.0, tau=tau)
     np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=5e-4, atol=2e-5)
+    host = _eval(mi.load_dict({**d, "backend": "numba"}), si, wo)
+    np.testing.assert_allclose(host, np.maximum(ref, 0), rtol=5e-4, atol=2e-5)
     full = rt.evaluate(wo, wi, uv=uv * 2.0)
     assert np.abs(full - ref).max() > 1e-2  # the level of detail changed the values
     stats = bsdf.lod_stats()
@@ -706,24 +710,3 @@ def test_backend_numba_needs_evaluated_mode_and_the_flags_come_back(material):
     with pytest.raises(BTFInputError, match="mode must be one of auto, symbolic, evaluated"):
         render_material({"type": "sparsebtf", "key": material["key"]}, mode="wavefront")
 
-
-def test_lod_through_the_host_runtime_equals_the_runtime_at_per_query_tau(material):
-    """lod = auto on the host path: the per-query τ' the Dr.Jit kernel uses (the test above),
-    handed to RuntimeBTF.evaluate."""
-    from sparsebtf.runtime.lod import cone_texels_per_pixel, footprint_fraction, lod_tau
-
-    rng = np.random.default_rng(5)
-    n, cam, pixel = 300, np.array([0.5, 2.0, 6.0]), 0.004
-    first = rng.uniform(size=n) < 0.6
-    si, wi, uv, t, du, dv = _lod_si(rng, n, cam, first)
-    wo = _dirs(rng, n)
-    rt = material["rt"]
-    d = {"type": "sparsebtf", "key": material["key"], "uv_scale": 2.0, "backend": "numba",
-         "lod_camera": ",".join(map(str, cam)), "lod_pixel": pixel, "lod_later": 0.3}
-    got = _eval(mi.load_dict(d), si, wo)
-    h, w = rt.meta["height"], rt.meta["width"]
-    rho = cone_texels_per_pixel(t, pixel, wi[:, 2], du, dv, 1.0 / (h * w * 4.0))
-    tau = lod_tau(rt.tau, np.where(first, footprint_fraction(rho), 0.3))
-    ref = rt.evaluate(wo, wi, uv=uv * 2.0, tau=tau)
-    np.testing.assert_allclose(got, np.maximum(ref, 0), rtol=5e-4, atol=2e-5)
-    assert np.abs(rt.evaluate(wo, wi, uv=uv * 2.0) - ref).max() > 1e-2

@@ -22,8 +22,8 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic, models, register_model
 
-__all__ = ["WIDTH", "Lanes", "lanes_add", "lanes_fma", "lanes_load", "lanes_mul",
-           "lanes_store", "lanes_zeros", "pow2"]  # fmt: skip
+__all__ = ["WIDTH", "Lanes", "lanes_fma", "lanes_load", "lanes_mul", "lanes_store",
+           "lanes_zeros", "pow2"]  # fmt: skip
 
 #: Elements per :data:`Lanes` value (one AVX-512 register of float32).
 WIDTH = 16
@@ -133,18 +133,6 @@ def lanes_mul(typingctx, a, b):
 
     def codegen(context, builder, sig, args):
         return builder.fmul(args[0], args[1])
-
-    return a(a, b), codegen
-
-
-@intrinsic
-def lanes_add(typingctx, a, b):
-    """``a + b`` lane by lane."""
-    if not isinstance(a, Lanes) or b != a:
-        return None
-
-    def codegen(context, builder, sig, args):
-        return builder.fadd(args[0], args[1])
 
     return a(a, b), codegen
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import time
+from contextlib import nullcontext
 from pathlib import Path
 from typing import Any
 
@@ -87,13 +88,12 @@ def render_material(
     ``size`` is (width, height). Returns a :class:`RenderResult`; non-finite pixels raise.
     A render of more than :data:`PASS_LANES` samples, or expected to take more than a few
     seconds (the scalar variant), runs in passes under a progress bar with ETA (``progress``:
-    None = on a terminal). ``lod`` ("auto",
-    "off"; None: the plugin dict's own, default auto) sets a ``sparsebtf`` plugin's level of
-    detail, with this scene's camera (:func:`.scenes.lod_camera`) unless the dict gives one.
-    ``mode``: Dr.Jit's "symbolic" (one megakernel) or "evaluated" (a kernel per step of the
-    wavefront) mode; "auto" is evaluated where a ``sparsebtf``
-    plugin's lookups can go to the runtime's compiled kernel (:func:`uses_runtime`), else
-    symbolic.
+    None = on a terminal). ``lod`` ("auto", "off"; None: the plugin dict's own, default auto)
+    sets a ``sparsebtf`` plugin's level of detail, with this scene's camera
+    (:func:`.scenes.lod_camera`) unless the dict gives one. ``mode``: Dr.Jit's "symbolic" (one
+    megakernel) or "evaluated" (a kernel per step of the wavefront) mode; "auto" is evaluated
+    where a ``sparsebtf`` plugin's lookups can go to the runtime's compiled kernel
+    (:func:`uses_runtime`), else symbolic. The scalar variant has neither: symbolic.
     """
     if mode not in MODES:
         raise BTFInputError(f"mode must be one of {', '.join(MODES)}, got {mode!r}")
@@ -115,12 +115,11 @@ def render_material(
     t1 = time.perf_counter()
     if mode == "auto":
         mode = "evaluated" if uses_runtime(bsdf, variant) else "symbolic"
-    if mode == "evaluated" and not variant.startswith("scalar"):
-        from .mitsuba import evaluated
+    if variant.startswith("scalar"):
+        mode = "symbolic"
+    from .mitsuba import evaluated
 
-        with evaluated():
-            arr = _render_passes(mi, dr, scn, int(spp), int(seed), variant, progress)
-    else:
+    with evaluated() if mode == "evaluated" else nullcontext():
         arr = _render_passes(mi, dr, scn, int(spp), int(seed), variant, progress)
     t2 = time.perf_counter()
     if not np.all(np.isfinite(arr)):
@@ -138,12 +137,11 @@ def render_material(
 
 def uses_runtime(bsdf: dict[str, Any], variant: str) -> bool:
     """Whether a ``sparsebtf`` plugin dict's lookups go to the runtime's compiled kernel in
-    Dr.Jit's evaluated mode (``backend`` auto or numba on an LLVM variant, numba installed):
-    5× faster than its Dr.Jit kernel in a megakernel (``benchmarks/bench_render.py``)."""
-    from ..runtime.kernels import HAVE_NUMBA
+    Dr.Jit's evaluated mode (:func:`.mitsuba.materials.host_lookups`): 5× faster than its
+    Dr.Jit kernel in a megakernel (``benchmarks/bench_render.py``)."""
+    from .mitsuba.materials import host_lookups
 
-    return (bsdf.get("type") == "sparsebtf" and variant.startswith("llvm") and HAVE_NUMBA
-            and bsdf.get("backend", "auto") in ("auto", "numba"))  # fmt: skip
+    return bsdf.get("type") == "sparsebtf" and host_lookups(bsdf.get("backend", "auto"), variant)
 
 
 def with_lod(bsdf: dict[str, Any], lod: str | None, scene: str, width: int) -> dict[str, Any]:
@@ -179,7 +177,10 @@ def _render_passes(
     acc = None
     with bar(spp, "render", "spp", progress if slow or n > 1 else False) as pb:
         for i, k in enumerate(counts):
-            pass_seed = seed if n == 1 else seed * 8 + i if scalar else (seed << 16) + i
+            if n == 1:
+                pass_seed = seed
+            else:
+                pass_seed = seed * 8 + i if scalar else (seed << 16) + i
             img = mi.render(scn, spp=k, seed=pass_seed)
             dr.eval(img)
             dr.sync_thread()

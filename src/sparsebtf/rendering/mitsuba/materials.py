@@ -23,6 +23,7 @@ import numpy as np
 from ...errors import BTFInputError
 from ...points.preprocessing import RELEASE_LOG_OFFSET
 from ...runtime.angular import DEFAULT_K, SCHEMES
+from ...runtime.kernels import HAVE_NUMBA
 
 #: Mitsuba's ``eval`` returns f_r·cos θ; a BTF value is π·f_r·cos θ_light (docs/format.md,
 #: Conventions: a white Lambertian plane reads cos θ_light), so a plugin returns value / π, and
@@ -313,8 +314,6 @@ def lookup_backend(props: Any) -> str:
     lookup, :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate`, on the host; needs Dr.Jit's
     evaluated mode) or "auto" (numba where a lookup is evaluated on an LLVM variant, else Dr.Jit);
     checked."""
-    from ...runtime.kernels import HAVE_NUMBA
-
     backend = str(props.get("backend", "auto"))
     if backend not in BACKENDS:
         raise BTFInputError(f"{PLUGIN}: backend must be one of {', '.join(BACKENDS)}, "
@@ -322,6 +321,14 @@ def lookup_backend(props: Any) -> str:
     if backend == "numba" and not HAVE_NUMBA:
         raise BTFInputError(f"{PLUGIN}: backend 'numba' needs numba (pip install numba)")
     return backend
+
+
+def host_lookups(backend: str, variant: str) -> bool:
+    """Whether a ``sparsebtf`` plugin with this ``backend`` on ``variant`` answers its
+    evaluated calls with the runtime's compiled lookup: numba, or auto on an LLVM variant
+    with numba installed."""
+    return backend == "numba" or (backend == "auto" and variant.startswith("llvm")
+                                  and HAVE_NUMBA)  # fmt: skip
 
 
 def lod_params(props: Any) -> dict[str, Any]:

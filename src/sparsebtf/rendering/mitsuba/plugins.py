@@ -22,7 +22,6 @@ import mitsuba as mi
 import numpy as np
 
 from ...errors import BTFInputError
-from ...runtime.kernels import HAVE_NUMBA
 from ...runtime.lod import COS_FLOOR, lod_tau
 from . import sampling as np_sampling
 from .kernels import (
@@ -50,6 +49,7 @@ from .materials import (
     common_params,
     dense_sampling,
     flat_meta,
+    host_lookups,
     load_dense,
     load_runtime,
     source_id,
@@ -89,7 +89,7 @@ class _Base(mi.BSDF):
     # A class attribute, not a module global: a reload for another variant rebinds the
     # module's globals, and classes already registered for this variant must keep theirs.
     _scalar: bool = not dr.is_jit_v(mi.Float)
-    _llvm: bool = dr.backend_v(mi.Float) == dr.JitBackend.LLVM
+    _variant: str = mi.variant()
     prm: dict[str, Any]
 
     def _setup(self, source: tuple, level: tuple, tables: Any) -> None:
@@ -420,7 +420,7 @@ class SparseBTFBSDF(_Base):
         ``lod_stats`` (which count the Dr.Jit kernel's loop iterations). ``auto`` also keeps
         Dr.Jit where gradients are tracked (the host path is not differentiable)."""
         backend = self.prm["backend"]
-        if backend == "drjit" or (backend == "auto" and (not self._llvm or not HAVE_NUMBA)):
+        if not host_lookups(backend, self._variant):
             return False
         if dr.flag(dr.JitFlag.SymbolicScope):
             if backend == "numba":
@@ -454,7 +454,7 @@ class SparseBTFBSDF(_Base):
             rgb = self.rt.evaluate(
                 rows(light, 3), rows(view, 3), uv=rows(uv, 2), interpolation=p["interpolation"],
                 domain=p["domain"], k=p["k"] if p["interpolation"] == "gaussian" else None,
-                beta=p["beta"], tau=tau, backend="numba" if HAVE_NUMBA else "numpy",
+                beta=p["beta"], tau=tau, backend="numba",
             )  # fmt: skip
             out[:, lanes] = np.maximum(rgb, 0.0).T * BSDF_PER_BTF_VALUE
         return mi.Color3f(out)
