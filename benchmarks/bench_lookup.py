@@ -53,7 +53,7 @@ from _common import TAU, best_of, captured_coded, machine, report, synthetic_cod
 from sparsebtf.colour import yuv_to_rgb
 from sparsebtf.points.preprocessing import inverse_log_transform
 from sparsebtf.runtime import RuntimeBTF, angular_weights, kernels
-from sparsebtf.runtime.wavefront import GROUP, group_by_point
+from sparsebtf.runtime.grouping import GROUP, group_by_point
 
 SCHEMES = ("nearest", "linear", "barycentric", "gaussian")
 

@@ -43,6 +43,7 @@ from .angular import (
     neighbour_table,
 )
 from .compact import CompactLayout, channel_layout
+from .finish import finish
 
 __all__ = ["NO_BOUND", "Domain", "RuntimeBTF", "query_texels", "texels_from_uv"]
 
@@ -419,16 +420,16 @@ class RuntimeBTF:
         to its query's row."""
         n = pts.size
         # A handful of queries cannot fill a group: skip the sort.
-        few = n < 2 * wavefront.GROUP
-        groups = None if few else wavefront.group_queries(pts, i1, i2, self.coded.n_points,
-                                                          self.coded.patch)  # fmt: skip
+        few = n < 2 * grouping.GROUP
+        groups = None if few else grouping.group_queries(pts, i1, i2, self.coded.n_points,
+                                                         self.coded.patch)  # fmt: skip
         order = None
         if groups is not None:
             # Every query input in group order once: the three channels' loops then read
             # them sequentially (in arrival order each would gather them at random).
             order = groups[0]
-            pts, i1, i2 = (wavefront.rows_in_order(a, order) for a in (pts, i1, i2))
-            caps = {ch: wavefront.rows_in_order(t, order) if isinstance(t, np.ndarray) else t
+            pts, i1, i2 = (grouping.rows_in_order(a, order) for a in (pts, i1, i2))
+            caps = {ch: grouping.rows_in_order(t, order) if isinstance(t, np.ndarray) else t
                     for ch, t in caps.items()}  # fmt: skip
             groups = (np.arange(n, dtype=np.int64), groups[1])
         li, lw = self._weights("lights", wi, *scheme, True, order)
@@ -441,8 +442,8 @@ class RuntimeBTF:
                                                vw_s, kernels._per_query(caps[ch], n), groups,
                                                layout=self._layout(ch))  # fmt: skip
         matrix = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
-        return wavefront.finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
-                                self.log_offset, output == "rgb", order)  # fmt: skip
+        return finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
+                      self.log_offset, output == "rgb", order)  # fmt: skip
 
     def image(
         self,

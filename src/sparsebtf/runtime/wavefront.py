@@ -15,7 +15,8 @@ query builds t12[e] = U1[i1, l1_e]·U2[i2, l2_e], r3 and r4 at those columns onl
 detail τ' needs a prefix of each list) and a term is v·t12[e]·r3[a]·r4[b].
 
 The queries are first sorted by data point (a counting sort, O(n + P)), their inputs put in
-that order once (:func:`rows_in_order`), and cut into groups of at most :data:`GROUP` queries
+that order once (:func:`.grouping.rows_in_order`), and cut into groups of at most
+:data:`.grouping.GROUP` queries
 of one point. A group writes its per-query factors lane-major — ``T12[e, j]``, ``R3[a, j]``,
 ``R4[b, j]`` — so one coefficient is read once for the whole group and its term is three
 contiguous vector loads across the group's lanes j: SIMD over queries, not gathers per query.
@@ -44,21 +45,12 @@ import numpy as np
 from .._numba import HAVE_NUMBA
 from .._numba import numba as _nb
 from .compact import CompactLayout, channel_layout
-from .finish import finish
-from .grouping import GROUP, group_by_point, group_queries, rows_in_order
+from .grouping import GROUP
 
 if HAVE_NUMBA:
     from .._lanes import lanes_fma, lanes_load, lanes_mul, lanes_store, lanes_zeros
 
-__all__ = [
-    "GROUP",
-    "finish",
-    "group_by_point",
-    "group_queries",
-    "grouped_pays",
-    "rows_in_order",
-    "separable_sums",
-]
+__all__ = ["grouped_pays", "separable_sums"]
 
 #: Queries per task of the per-query loop, groups per task of the grouped one (scratch is
 #: allocated once per task).
@@ -402,7 +394,7 @@ def separable_sums(
 ) -> np.ndarray:
     """Eq. 6 for every query, (n,) float64, equal to
     :func:`~sparsebtf.runtime.kernels.separable_sum` (same arguments; ``tau`` (n,) float64)
-    to float32 rounding. ``loop``: "grouped" (``groups`` from :func:`group_by_point` with
+    to float32 rounding. ``loop``: "grouped" (``groups`` from :func:`.grouping.group_by_point` with
     the same ``width``), "query" (one query at a time) or "auto" (:func:`grouped_pays`).
     ``layout``: the channel's :func:`~sparsebtf.runtime.compact.channel_layout` (built here
     when not given; callers that ask often keep it). Compiled only: needs numba."""
@@ -422,7 +414,7 @@ def separable_sums(
             ch["dict3"], ch["dict4"], pts, i1, i2, li, lw, vi, vw, tau)  # fmt: skip
     if loop == "grouped":
         if groups is None:
-            raise ValueError("the grouped loop needs groups (group_by_point)")
+            raise ValueError("the grouped loop needs groups (grouping.group_by_point)")
         return _grouped_nb(*args, groups[0], groups[1], int(width),
                            *(max(w, 1) for w in lay.widest), lay.pvalues, lay.pe12, lay.pab,
                            lay.pstart, lay.opair, max(lay.widest_pairs, 1))  # fmt: skip
