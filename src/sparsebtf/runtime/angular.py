@@ -453,28 +453,12 @@ if HAVE_NUMBA:
                     # of fixed length (no mispredicted loop exit) for 97 % of queries
                     base = np.uint64(c) * np.uint64(_HEAD)
                     for t in range(np.uint64(_HEAD)):
-                        jj = np.int64(head[base + t])
-                        d = max(2.0 - 2.0 * (ux[j] * xyz[jj, 0] + uy[j] * xyz[jj, 1]
-                                             + uz[j] * xyz[jj, 2]), 0.0)  # fmt: skip
-                        # strictly less: a tie keeps the lower index first, as the scan
-                        # does; a repeat never takes the place it already holds
-                        first = d < b0
-                        second = d < b1 and jj != j0
-                        b1 = b0 if first else (d if second else b1)
-                        j1 = j0 if first else (jj if second else j1)
-                        b0 = d if first else b0
-                        j0 = jj if first else j0
+                        b0, j0, b1, j1 = _keep_two(xyz, np.int64(head[base + t]), ux[j],
+                                                   uy[j], uz[j], b0, j0, b1, j1)  # fmt: skip
                     lo += _HEAD
                 for t in range(lo, hi):
-                    jj = t if c < 0 else indices[t]
-                    d = max(2.0 - 2.0 * (ux[j] * xyz[jj, 0] + uy[j] * xyz[jj, 1]
-                                         + uz[j] * xyz[jj, 2]), 0.0)  # fmt: skip
-                    first = d < b0
-                    second = d < b1
-                    b1 = b0 if first else (d if second else b1)
-                    j1 = j0 if first else (jj if second else j1)
-                    b0 = d if first else b0
-                    j0 = jj if first else j0
+                    b0, j0, b1, j1 = _keep_two(xyz, t if c < 0 else indices[t], ux[j], uy[j],
+                                               uz[j], b0, j0, b1, j1)  # fmt: skip
                 idx[i, 0] = j0
                 d2[i, 0] = b0
                 if k == 2:
@@ -486,13 +470,29 @@ if HAVE_NUMBA:
         return idx, w, order[bad] if ordered else bad
 
     @_nb.njit(cache=True, nogil=True, inline="always")
+    def _chord2(xyz, j, qx, qy, qz):
+        # squared chord distance of unit q to direction j, never below 0
+        return max(2.0 - 2.0 * (qx * xyz[j, 0] + qy * xyz[j, 1] + qz * xyz[j, 2]), 0.0)
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _keep_two(xyz, jj, qx, qy, qz, b0, j0, b1, j1):
+        # (b0, j0, b1, j1), the two nearest so far, after candidate jj. Strictly less: a tie
+        # keeps the lower index first, as the scan does; a repeat (the head's padding) never
+        # takes the place it already holds. Selects, not branches.
+        d = _chord2(xyz, jj, qx, qy, qz)
+        first = d < b0
+        second = d < b1 and jj != j0
+        return (d if first else b0, jj if first else j0,
+                b0 if first else (d if second else b1), j0 if first else (jj if second else j1))
+
+    @_nb.njit(cache=True, nogil=True, inline="always")
     def _insert_scan(xyz, indices, qx, qy, qz, lo, hi, every, k, idx, dist):
         # The k nearest of entries lo..hi of a cell's list (every: of all directions) by
         # insertion, nearest first, ties to the lower index: data.directions._knn_nb's scan.
         cnt = 0
         for t in range(lo, hi):
             j = t if every else indices[t]
-            d = max(2.0 - 2.0 * (qx * xyz[j, 0] + qy * xyz[j, 1] + qz * xyz[j, 2]), 0.0)
+            d = _chord2(xyz, j, qx, qy, qz)
             if cnt < k:
                 cnt += 1
             elif d >= dist[k - 1]:
@@ -558,20 +558,5 @@ if HAVE_NUMBA:
                 c = e * n_phi + a
                 s0 = offsets[c]
                 s1 = offsets[c + 1]
-            cnt = 0
-            for t in range(s0, s1):
-                j = t if below else indices[t]
-                d = 2.0 - 2.0 * (qx * xyz[j, 0] + qy * xyz[j, 1] + qz * xyz[j, 2])
-                d = max(d, 0.0)
-                if cnt < k:
-                    cnt += 1
-                elif d >= dist[i, k - 1]:
-                    continue
-                pos = cnt - 1
-                while pos > 0 and dist[i, pos - 1] > d:
-                    dist[i, pos] = dist[i, pos - 1]
-                    idx[i, pos] = idx[i, pos - 1]
-                    pos -= 1
-                dist[i, pos] = d
-                idx[i, pos] = j
+            _insert_scan(xyz, indices, qx, qy, qz, s0, s1, below, k, idx[i], dist[i])
         return idx, dist
