@@ -26,6 +26,7 @@ import numpy as np
 from .data.directions import DirectionSet
 from .errors import BTFInputError, ModelMismatchError, SparseBTFError
 from .learning.coding import SparseCodes
+from .learning.highlights import Highlights
 from .points.preprocessing import Standardization, StdMode, Transform
 
 if TYPE_CHECKING:
@@ -375,6 +376,9 @@ class CodedBTF:
     model: Model | None = None
     #: The coded file it was read from (:func:`sparsebtf.storage.load_coded`), or None.
     source: str | None = None
+    #: Exact corrections at a few nodes (:mod:`sparsebtf.learning.highlights`), added by
+    #: every decoder after the sparse code's value; None: no highlight store.
+    highlights: Highlights | None = None
 
     @property
     def label(self) -> str:

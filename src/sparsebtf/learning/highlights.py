@@ -1,0 +1,165 @@
+"""The highlight store (issue 46): exact linear-RGB corrections at a few sampled nodes
+(texel, light, view) of a coded material, for the values a log-domain code reaches slowly.
+
+On a glossy metal nearly all of the linear-RGB error sits in the few values above 1 (95–99.8 %
+on the captured metals of docs/benchmarks.md §17), and the sparse code's error there falls
+slowly with τ; storing the largest residuals exactly buys more error per byte than more
+coefficients. A node's correction is added after the decode:
+
+    B̂(x, ω_i, ω_o) = max(decode(x, ω_i, ω_o) + Σ_ab wl_a · wv_b · c(x, l_a, v_b), 0)
+
+with the same angular weights (wl, wv over the neighbour lights l_a and views v_b) as the
+interpolation of the coefficients (Eq. 6), and c = 0 at a node without an entry: at a sampled
+direction pair, where the weights are one-hot, the decode of a stored node is
+decode + c = the reference (within binary16 rounding).
+
+Layout (:class:`Highlights`): entries grouped by data point (release order), per point sorted by
+their key ``((i1·p + i2)·L + light)·V + view`` (i1, i2: the texel's row and column in the
+point's p×p patch; L lights, V views), so a decoder finds a node by a binary search in its
+point's range ``offsets[point] : offsets[point + 1]``. Each entry costs
+:data:`ENTRY_BYTES` (a 32-bit key and three binary16 values), each point a 32-bit count.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..errors import BTFInputError
+
+__all__ = [
+    "ENTRY_BYTES",
+    "POINT_BYTES",
+    "Highlights",
+    "correction",
+    "node_keys",
+    "node_values",
+]
+
+#: Bytes of one stored node: a uint32 key and R, G, B in binary16.
+ENTRY_BYTES = 10
+#: Bytes per data point: its entry count (uint32).
+POINT_BYTES = 4
+
+
+def node_keys(i1: np.ndarray, i2: np.ndarray, light: np.ndarray, view: np.ndarray,
+              patch: int, n_lights: int, n_views: int) -> np.ndarray:  # fmt: skip
+    """The key of node (texel (i1, i2) of its point, light, view): ``((i1·p + i2)·L + light)·V
+    + view``, int64 (any broadcastable shapes)."""
+    t = np.asarray(i1, dtype=np.int64) * patch + np.asarray(i2, dtype=np.int64)
+    return (t * n_lights + np.asarray(light, dtype=np.int64)) * n_views + np.asarray(
+        view, dtype=np.int64
+    )
+
+
+@dataclass(frozen=True)
+class Highlights:
+    """Exact corrections at sampled nodes, per data point (module docstring).
+
+    Attributes
+    ----------
+    offsets : (P + 1,) int64, point p's entries are ``offsets[p]:offsets[p + 1]``.
+    keys : (N,) uint32, :func:`node_keys`, increasing within each point.
+    rgb : (N, 3) float16, the linear-RGB correction (reference − decode) of each node.
+    """
+
+    offsets: np.ndarray
+    keys: np.ndarray
+    rgb: np.ndarray
+
+    @property
+    def n_entries(self) -> int:
+        return int(self.keys.shape[0])
+
+    @property
+    def n_points(self) -> int:
+        return int(self.offsets.shape[0]) - 1
+
+    def nbytes(self) -> int:
+        """Stored bytes (the Table 4 way): :data:`ENTRY_BYTES` per entry, :data:`POINT_BYTES`
+        per point; 0 without entries (nothing is stored then)."""
+        return self.n_entries * ENTRY_BYTES + self.n_points * POINT_BYTES if self.n_entries else 0
+
+    @classmethod
+    def empty(cls, n_points: int) -> Highlights:
+        return cls(np.zeros(n_points + 1, dtype=np.int64), np.zeros(0, dtype=np.uint32),
+                   np.zeros((0, 3), dtype=np.float16))  # fmt: skip
+
+    @classmethod
+    def from_nodes(cls, points: np.ndarray, keys: np.ndarray, rgb: np.ndarray,
+                   n_points: int) -> Highlights:  # fmt: skip
+        """Entries given in any order as (point, key, rgb); sorted here, checked unique."""
+        points = np.asarray(points, dtype=np.int64)
+        keys = np.asarray(keys, dtype=np.int64)
+        order = np.lexsort((keys, points))
+        points, keys = points[order], keys[order]
+        if points.size and (points[0] < 0 or points[-1] >= n_points):
+            raise BTFInputError(f"highlight points must lie in [0, {n_points})")
+        same = (np.diff(points) == 0) & (np.diff(keys) == 0)
+        if same.any():
+            i = int(np.flatnonzero(same)[0])
+            raise BTFInputError(f"highlight node {keys[i]} of point {points[i]} given twice")
+        counts = np.bincount(points, minlength=n_points)
+        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        rgb16 = np.asarray(rgb)[order].astype(np.float16)
+        return cls(offsets, keys.astype(np.uint32), np.ascontiguousarray(rgb16))
+
+    def check(self, n_points: int, patch: int, n_lights: int, n_views: int,
+              where: str) -> None:  # fmt: skip
+        """One line naming ``where`` and the field if the store does not fit a material of
+        ``n_points`` points of ``patch``² texels, ``n_lights`` × ``n_views`` directions."""
+        o, k, v = self.offsets, self.keys, self.rgb
+        if o.ndim != 1 or o.shape[0] != n_points + 1:
+            raise BTFInputError(f"{where}: offsets has shape {o.shape}, expected "
+                                f"({n_points + 1},) for {n_points} points")  # fmt: skip
+        if o[0] != 0 or np.any(np.diff(o) < 0) or o[-1] != k.shape[0]:
+            raise BTFInputError(f"{where}: offsets must rise from 0 to the {k.shape[0]} entries")
+        if k.ndim != 1 or v.shape != (k.shape[0], 3):
+            raise BTFInputError(f"{where}: keys {k.shape} and rgb {v.shape} do not match "
+                                "(expected (N,) and (N, 3))")  # fmt: skip
+        limit = patch * patch * n_lights * n_views
+        if k.size and int(k.max()) >= limit:
+            i = int(np.argmax(k))
+            raise BTFInputError(f"{where}: key {int(k[i])} at entry {i} is outside the "
+                                f"{patch}x{patch} texels x {n_lights} x {n_views} nodes")
+        starts = np.zeros(k.shape[0], dtype=bool)
+        starts[o[:-1][o[:-1] < k.shape[0]]] = True
+        bad = (np.diff(k.astype(np.int64)) <= 0) & ~starts[1:]
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0]) + 1
+            raise BTFInputError(f"{where}: keys must increase within a point (entry {i})")
+        if not np.all(np.isfinite(v)):
+            i = int(np.flatnonzero(~np.isfinite(v).all(axis=1))[0])
+            raise BTFInputError(f"{where}: rgb entry {i} is not finite")
+
+
+def node_values(h: Highlights, points: np.ndarray, keys: np.ndarray) -> np.ndarray:
+    """The corrections at nodes (``points``, ``keys``) of any equal shapes: (..., 3) float32,
+    zero where the store has no entry. One binary search per node in its point's range."""
+    pts = np.asarray(points, dtype=np.int64)
+    k = np.asarray(keys, dtype=np.int64)
+    out = np.zeros((*k.shape, 3), dtype=np.float32)
+    if not h.n_entries:
+        return out
+    # one sorted composite key over the whole store: point · 2^32 + key
+    store = (np.repeat(np.arange(h.n_points, dtype=np.int64), np.diff(h.offsets)) << 32) | h.keys
+    want = (pts << 32) | k
+    at = np.minimum(np.searchsorted(store, want.ravel()), store.size - 1)
+    hit = store[at] == want.ravel()
+    out.reshape(-1, 3)[hit] = h.rgb[at[hit]].astype(np.float32)
+    return out
+
+
+def correction(h: Highlights, pts: np.ndarray, i1: np.ndarray, i2: np.ndarray,
+               li: np.ndarray, lw: np.ndarray, vi: np.ndarray, vw: np.ndarray, patch: int,
+               n_lights: int, n_views: int) -> np.ndarray:  # fmt: skip
+    """The interpolated correction Σ_ab wl_a · wv_b · c(x, l_a, v_b) of each query: (n, 3)
+    float64, from its point ``pts`` (n,), texel (i1, i2) in the point, neighbour lights ``li``
+    (n, kl) with weights ``lw`` and views ``vi`` (n, kv) with ``vw`` — the reference the
+    compiled decoders are tested against."""
+    keys = node_keys(np.asarray(i1)[:, None, None], np.asarray(i2)[:, None, None],
+                     li[:, :, None], vi[:, None, :], patch, n_lights, n_views)  # fmt: skip
+    c = node_values(h, np.broadcast_to(np.asarray(pts)[:, None, None], keys.shape), keys)
+    w = np.asarray(lw, dtype=np.float64)[:, :, None] * np.asarray(vw, dtype=np.float64)[:, None, :]
+    return np.einsum("nab,nabc->nc", w, c.astype(np.float64))
