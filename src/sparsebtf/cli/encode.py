@@ -50,6 +50,7 @@ def run(args: argparse.Namespace) -> int:
         allow_below_training=args.allow_below_training, std_mode=args.std_mode,
         log_offset=log_offset(args.log_offset), batch_size=args.batch,
         crop=parse_crop(args.crop), checkpoint_dir=ck, adaptive_patches=args.adaptive_patches,
+        highlights=args.highlights,
     )  # fmt: skip
     outputs = output_files(args.btf, args.output, inputs=[args.model])
     check_output_dir(str(ck), "--checkpoint-dir")
@@ -254,6 +255,11 @@ def register(sub: Any) -> None:
                    "error of linear RGB, the radiance a renderer integrates: for glossy "
                    "highlights) or display (after the display mapping 1.3*I^(1/1.8), clipped "
                    "at 1); --eps is then in its units (mean squared error per value)")
+    s.add_argument("--highlights", action="store_true",
+                   help="with --tau: spend tau's bytes on the codes at tau or fewer "
+                   "coefficients plus exact linear-RGB values at the (texel, light, view) "
+                   "nodes where they remove the most error, whichever errs least (glossy "
+                   "materials; the file is schema 5, docs/format.md)")
     s.add_argument("--batch", type=int, default=DEFAULTS.batch_size,
                    help="data points read and coded at a time (memory bound; default "
                    f"{DEFAULTS.batch_size})")

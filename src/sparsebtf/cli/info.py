@@ -151,11 +151,26 @@ def describe(
                 "views": {"name": coded.views.name, "count": len(coded.views)},
             },
             "schema_version": schema,
+            **_highlights_info(coded, report),
             "nnz": report["nnz"],
             "storage": storage_summary(report),
             "integrity": _integrity(s),
         }
     return {"kind": "unknown", "format": fmt, "file_bytes": size}
+
+
+def _highlights_info(coded: Any, report: dict[str, Any]) -> dict[str, Any]:
+    """The highlight store, if the file has one: its entries, bytes and points using it."""
+    h = getattr(coded, "highlights", None)
+    if h is None or not h.n_entries:
+        return {}
+    used = int(np.count_nonzero(np.diff(h.offsets)))
+    return {"highlights": {
+        "entries": h.n_entries, "bytes_table4": report["bytes_highlights"],
+        "points_with_entries": f"{used} of {h.n_points}",
+        "meaning": "exact linear-RGB corrections at (texel, light, view) nodes, added by every "
+                   "decoder after the sparse code's value",
+    }}  # fmt: skip
 
 
 def _rule_text(coded: Any) -> str:

@@ -8,7 +8,9 @@ Dask worker); :mod:`.jobs` runs the ranges and the statistics pass on an executo
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -25,8 +27,8 @@ from ..learning.objective import ChannelError, check_objective, joint_choice, ob
 from ..model import CHANNELS, CodedBTF, Model, TauSpec, parse_tau
 from ..points.grid import stream_points
 from ..points.preprocessing import Preprocessor, Standardization
-from .jobs import Header, run_plan
-from .options import EncodeOptions
+from .jobs import Header, Source, run_plan
+from .options import EncodeOptions, encode_settings
 
 __all__ = [
     "FixedTau",
@@ -298,6 +300,28 @@ def encode_levels(
     (:func:`~sparsebtf.learning.lod_order.lod_orders`). Separate calls at one τ each are
     nested only under "log" with the exhaustive rule (``candidates=None``): a screened call
     ranks its candidates for its own τ, and an objective's call judges its own prefix
-    lengths."""
+    lengths.
+
+    With ``highlights`` each level's τ is a byte budget spent on codes and a highlight store
+    (:func:`~.highlights.choose_highlights`); the material's linear error then never grows
+    with the level."""
+    opts, where = encode_settings(options, execution, dict(keywords), kind="tau", many=False)
+    if opts.highlights:
+        return _encode_highlights(btf, model, taus, opts, where)
     (coded,) = run_plan([btf], model, FixedTau(tuple(taus)), options, execution, **keywords)
     return coded
+
+
+def _encode_highlights(btf: BTF | str | os.PathLike[str], model: Model, taus: Sequence[TauSpec],
+                       opts: EncodeOptions, where: Execution) -> list[CodedBTF]:  # fmt: skip
+    """:func:`encode_levels` with a highlight store: the levels and the bases below them in
+    one pass, then each level's budget spent (:mod:`.highlights`)."""
+    from .highlights import base_taus, choose_highlights
+
+    levels = list(FixedTau(tuple(taus)).bind(model, opts).levels)
+    extra = base_taus(levels)
+    plain = dataclasses.replace(opts, highlights=False, allow_below_training=True)
+    (coded,) = run_plan([btf], model, FixedTau(tuple(levels + extra)), plain, where)
+    source = Source.of(btf, opts.crop).open()
+    return choose_highlights(source, coded[: len(levels)], coded[len(levels):], model,
+                             opts.progress)  # fmt: skip

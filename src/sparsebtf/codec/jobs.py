@@ -228,6 +228,10 @@ def run_plan(
     opts, where = encode_settings(options, execution, keywords, kind=plan.kind, many=many)
     if not btfs:
         raise BTFInputError("nothing to encode: give at least one BTF")
+    if opts.highlights:  # encode_levels and encode_many spend each level's bytes themselves
+        raise BTFInputError("option highlights: a fixed tau takes it (sparsebtf.encode, "
+                            "encode_levels, encode_many with tau); rate control and adaptive "
+                            "patch sizes do not")  # fmt: skip
     if opts.adaptive_patches and not getattr(plan, "adaptive", False):
         raise BTFInputError("option adaptive_patches: this encoder codes one patch size; "
                             "sparsebtf.encode or sparsebtf.codec.adaptive.encode_adaptive "

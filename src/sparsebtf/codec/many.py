@@ -20,9 +20,9 @@ from ..errors import BTFInputError
 from ..execution import Execution
 from ..learning.codes import RELEASE_TAU
 from ..model import CodedBTF, Model, TauSpec
-from .encode import FixedTau
+from .encode import FixedTau, encode_levels
 from .jobs import run_plan
-from .options import EncodeOptions
+from .options import EncodeOptions, encode_settings
 from .rate import RateTargets
 
 __all__ = ["encode_many", "output_name"]
@@ -59,6 +59,10 @@ def encode_many(
         raise BTFInputError("give a sparsity tau or a target size, not both")
     if plan is None:
         plan = FixedTau((RELEASE_TAU if tau is None else tau,))
+        opts, where = encode_settings(options, execution, dict(keywords), kind="tau", many=True)
+        if opts.highlights:  # each BTF's budget spent on its own (encode_levels)
+            return (encode_levels(s, model, list(plan.taus), options=opts, execution=where)[0]
+                    for s in sources)  # fmt: skip
     runs = run_plan(sources, model, plan, options, execution, many=True, **keywords)
     return (levels[0] for levels in runs)
 

@@ -54,7 +54,7 @@ WEIGHTINGS = ("rgb", "log", "uniform")
 #: Options that apply to a fixed τ only, to rate control only (a size, a ratio, byte
 #: targets) and to many BTFs only (:func:`~sparsebtf.codec.encode_many`): as keywords
 #: elsewhere they are refused in one line (an options object is taken as it is).
-TAU_ONLY = ("eps", "allow_below_training")
+TAU_ONLY = ("eps", "allow_below_training", "highlights")
 RATE_ONLY = ("weighting", "split", "candidate_factor", "budget", "per_material")
 MANY_ONLY = ("crop", "checkpoint_dir")
 
@@ -121,6 +121,9 @@ class EncodeOptions(Options):
       (:mod:`sparsebtf.codec.adaptive`): :func:`sparsebtf.encode` codes each block of the
       largest size as one point or smaller ones, by rate and distortion; the fixed-size
       encoders refuse it.
+    * ``highlights`` — fixed τ: each level's τ sets its bytes, spent on the codes at that τ
+      or fewer coefficients plus exact linear-RGB corrections at the nodes where they remove
+      the most error (:mod:`sparsebtf.codec.highlights`; for glossy materials).
     """
 
     eps: float = RELEASE_EPS
@@ -138,9 +141,11 @@ class EncodeOptions(Options):
     checkpoint_dir: str | os.PathLike[str] | None = None
     progress: bool | None = None
     adaptive_patches: bool = False
+    highlights: bool = False
 
     constraints: ClassVar[dict[str, list[Any]]] = {
         "adaptive_patches": [bool],
+        "highlights": [bool],
         "eps": [Interval(float, 0, None, unit="(residual mean squared error, standardised)")],
         "candidates": CANDIDATES,
         "objective": [StrOptions(OBJECTIVES, what="coding objective")],

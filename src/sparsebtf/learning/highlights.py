@@ -33,6 +33,7 @@ __all__ = [
     "POINT_BYTES",
     "Highlights",
     "correction",
+    "grid_corrections",
     "node_keys",
     "node_values",
 ]
@@ -163,3 +164,17 @@ def correction(h: Highlights, pts: np.ndarray, i1: np.ndarray, i2: np.ndarray,
     c = node_values(h, np.broadcast_to(np.asarray(pts)[:, None, None], keys.shape), keys)
     w = np.asarray(lw, dtype=np.float64)[:, :, None] * np.asarray(vw, dtype=np.float64)[:, None, :]
     return np.einsum("nab,nabc->nc", w, c.astype(np.float64))
+
+
+def grid_corrections(h: Highlights, rows: np.ndarray, cols: np.ndarray, lights: np.ndarray,
+                     views: np.ndarray, patch: int, n_row_blocks: int, n_lights: int,
+                     n_views: int) -> np.ndarray:  # fmt: skip
+    """The corrections at the outer product of texel ``rows`` × ``cols`` × ``lights`` ×
+    ``views`` (index arrays, as a dense read takes them): (r, c, l, v, 3) float32. Point
+    numbering is the release's: ``row_block + n_row_blocks · col_block``."""
+    r, c, li, vi = (np.asarray(a, dtype=np.int64) for a in (rows, cols, lights, views))
+    p = patch
+    pts = (r[:, None] // p) + n_row_blocks * (c[None, :] // p)  # (r, c)
+    t = (r[:, None] % p) * p + (c[None, :] % p)
+    keys = (t[:, :, None, None] * n_lights + li[None, None, :, None]) * n_views + vi
+    return node_values(h, np.broadcast_to(pts[:, :, None, None], keys.shape), keys)

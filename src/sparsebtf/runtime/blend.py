@@ -39,6 +39,12 @@ def check_blendable(coded: Sequence[CodedBTF]) -> None:
     """Clear errors for inputs that cannot share one coefficient space."""
     if len(coded) < 2:
         raise BTFInputError("blending needs at least two coded BTFs")
+    for c in coded:
+        if getattr(c, "highlights", None) is not None and c.highlights.n_entries:
+            # its corrections are linear RGB at nodes, not coefficients: no blend of them
+            # would be the blend of the materials the codes blend to
+            raise BTFInputError(f"{c.label} has a highlight store (encode --highlights): "
+                                "blending works in coefficient space; encode it without one")
     a = coded[0]
     for b in coded[1:]:
         if b.model_hash != a.model_hash:

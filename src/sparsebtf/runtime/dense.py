@@ -17,6 +17,7 @@ import numpy as np
 from ..data.btf import BTF, Index, as_index
 from ..errors import BTFInputError
 from ..learning.coding import reconstruct_points
+from ..learning.highlights import grid_corrections
 from ..model import CodedBTF
 from ..patch_tree import refuse_adaptive
 from ..points.grid import PatchGrid
@@ -111,9 +112,16 @@ class DecodedBTF(BTF):
         self.pre = Preprocessor(coded.stats)
 
     def read(self, rows: Index, cols: Index, lights: Index, views: Index) -> np.ndarray:
-        _, _, li, vi = self.indices(rows, cols, lights, views)
+        r, c, li, vi = self.indices(rows, cols, lights, views)
         z = self.read_standardised(rows, cols, lights, views)
-        return self.pre.inverse(z, li, vi).astype(np.float32, copy=False)
+        out = self.pre.inverse(z, li, vi).astype(np.float32, copy=False)
+        h = self.coded.highlights
+        if h is not None and h.n_entries:
+            # the store's corrections at these nodes, then the clamp every decoder applies
+            out += grid_corrections(h, r, c, li, vi, self.coded.patch, self.grid.n_row_blocks,
+                                    len(self.lights), len(self.views))  # fmt: skip
+            np.maximum(out, 0, out=out)
+        return out
 
     def read_standardised(
         self, rows: Index, cols: Index, lights: Index, views: Index

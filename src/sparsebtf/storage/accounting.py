@@ -44,7 +44,9 @@ MIB = float(1 << 20)
 #: Top-level groups of a coded file → the part of ``bytes_stored`` they count in.
 STORED_PARTS = {"codes": "codes", "stats": "stats", "lights": "directions", "views": "directions",
                 # schema 4 (adaptive patch sizes): the codes by size and the tree
-                "sizes": "codes", "tree": "codes"}
+                "sizes": "codes", "tree": "codes",
+                # schema 5: the highlight store is part of the material's codes
+                "highlights": "codes"}
 
 
 def stored_bytes(source: str | os.PathLike[str] | bytes) -> dict[str, int]:
@@ -74,13 +76,14 @@ def stored_bytes(source: str | os.PathLike[str] | bytes) -> dict[str, int]:
 def _combine(
     per_channel: dict[str, dict[str, Any]],
     height: int, width: int, n_lights: int, n_views: int,
-    bytes_stats: int, stored: dict[str, int] | None,
+    bytes_stats: int, stored: dict[str, int] | None, bytes_highlights: int = 0,
 ) -> dict[str, Any]:
     raw_values = height * width * n_lights * n_views * 3
     coeff = sum(c["bytes_coefficients"] for c in per_channel.values())
     dicts = sum(c["bytes_dictionaries"] for c in per_channel.values())
     mz = sum(c["bytes_membership"] + c["bytes_counts"] for c in per_channel.values())
-    total = coeff + dicts + mz
+    hl = int(bytes_highlights)
+    total = coeff + dicts + mz + hl
     raw = raw_bytes(raw_values)
     out: dict[str, Any] = {
         "bytes_raw": raw,
@@ -89,12 +92,15 @@ def _combine(
         "bytes_locations": sum(c["bytes_locations"] for c in per_channel.values()),
         "bytes_coefficients": coeff,
         "bytes_membership_counts": mz,
-        "bytes_table4_material": coeff + mz,
+        # the highlight store (learning/highlights.py: 10 bytes per entry, 4 per point)
+        "bytes_highlights": hl,
+        "bytes_table4_material": coeff + mz + hl,
         "bytes_dictionaries": dicts,
         "bytes_total": total,
         "mib_total": total / MIB,
         "compression_ratio": raw / total if total else float("inf"),
-        "compression_ratio_table4_material": raw / (coeff + mz) if coeff + mz else float("inf"),
+        "compression_ratio_table4_material": (raw / (coeff + mz + hl) if coeff + mz + hl
+                                              else float("inf")),
         "bytes_stats": int(bytes_stats),
         "nnz": {ch: c["nnz"] for ch, c in per_channel.items()},
     }
@@ -102,7 +108,7 @@ def _combine(
         out.update(stored)
         out["compression_ratio_per_material"] = raw / stored["bytes_stored"]
         out["stored_codes_vs_table4"] = (
-            stored["bytes_stored_codes"] / (coeff + mz) if coeff + mz else float("nan")
+            stored["bytes_stored_codes"] / (coeff + mz + hl) if coeff + mz + hl else float("nan")
         )
     out["channels"] = per_channel
     return out
@@ -200,8 +206,10 @@ def storage_report(
 
         parts = stored_bytes(file_path if file_path is not None else coded_image(coded))
     stats_bytes = 4 * (int(coded.stats.mean.size) + int(coded.stats.std.size))
+    hl = coded.highlights.nbytes() if coded.highlights is not None else 0
     out = _combine(
         per, coded.height, coded.width, len(coded.lights), len(coded.views), stats_bytes, parts,
+        hl,
     )
     out["file_bytes"] = Path(file_path).stat().st_size if file_path is not None else None
     out["bytes_model_file"] = _model_file_bytes(m, coded.model_hash)

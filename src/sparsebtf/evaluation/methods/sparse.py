@@ -49,7 +49,7 @@ def coded_row(coded: CodedBTF, model: Model) -> dict[str, Any]:
     and counts), raw bytes and ratio, the stored bytes of its schema-3 file, the shared
     dictionaries' bytes, nonzeros per channel and coefficients per data point."""
     rep = storage_report(coded, model)
-    mat = rep["bytes_coefficients"] + rep["bytes_membership_counts"]
+    mat = rep["bytes_table4_material"]  # coefficients, membership, counts, highlight store
     p = coded.n_points
     nnz = rep["nnz"]
     return {

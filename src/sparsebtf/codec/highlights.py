@@ -1,0 +1,174 @@
+"""Spending a level's bytes between coefficients and the highlight store (issue 46).
+
+``encode_levels(..., highlights=True)``: each level's τ fixes its **byte budget** — the Table 4
+bytes of the material coded at that τ — and the coder spends it on a *base* code (one of the
+call's τ, or τ/2 … τ/32 of the smallest) plus the nodes of the highlight store
+(:mod:`sparsebtf.learning.highlights`) whose exact correction removes the most linear-RGB
+squared error, whichever pair errs least. Every level of a call chooses among the same bases,
+and a larger budget keeps at least the same entries on each, so the material's linear error
+never grows with the level.
+
+One streaming pass over the points (memory: one point and the kept entries): the reference
+point and its decode at each base give the residual r = reference − decode at every node; a
+node's gain is ‖r‖² − ‖r − fp16(r)‖² (what storing its binary16 correction removes). Per base
+the largest gains over the whole material are kept (at most what the largest budget can hold),
+their cumulative sums give each budget's error, and the level takes the best base.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from .._limits import check_allocation
+from .._progress import bar as progress_bar
+from ..data.btf import BTF
+from ..errors import BTFInputError
+from ..learning.highlights import ENTRY_BYTES, POINT_BYTES, Highlights
+from ..model import CHANNELS, CodedBTF, Model
+from ..points.grid import PatchGrid
+from ..runtime.dense import DecodedBTF
+
+__all__ = ["BASE_FRACTIONS", "base_taus", "choose_highlights"]
+
+#: Bases below the smallest level's τ, as divisors of it (each channel, at least 1).
+BASE_FRACTIONS = (2, 4, 8, 16, 32)
+
+
+def base_taus(levels: Sequence[dict[str, int]]) -> list[dict[str, int]]:
+    """The extra τ coded for the bases: τ/2 … τ/32 of the smallest level (per channel,
+    at least 1), those not among ``levels``."""
+    low = min(levels, key=lambda t: sum(t.values()))
+    out: list[dict[str, int]] = []
+    for f in BASE_FRACTIONS:
+        t = {ch: max(1, v // f) for ch, v in low.items()}
+        if t not in levels and t not in out:
+            out.append(t)
+    return out
+
+
+def _material_bytes(coded: CodedBTF, model: Model) -> int:
+    from ..storage.accounting import storage_report
+
+    return int(storage_report(coded, model, stored=False)["bytes_table4_material"])
+
+
+class _TopGains:
+    """The ``cap`` largest gains streamed in, with their nodes: a buffer cut back to ``cap``
+    when it doubles, so memory stays at 2 × cap entries."""
+
+    def __init__(self, cap: int) -> None:
+        self.cap = cap
+        self.parts: list[tuple[np.ndarray, ...]] = []
+        self.size = 0
+        self.floor = 0.0
+
+    def add(self, gain: np.ndarray, point: int, keys: np.ndarray, rgb: np.ndarray) -> None:
+        if not self.cap:
+            return
+        keep = gain > self.floor
+        if not keep.any():
+            return
+        g, k = gain[keep], keys[keep]
+        self.parts.append((g, np.full(g.size, point, np.int32), k.astype(np.uint32), rgb[keep]))
+        self.size += g.size
+        if self.size > 2 * self.cap:
+            self._cut()
+
+    def _cut(self) -> None:
+        g, p, k, v = (np.concatenate(a) for a in zip(*self.parts, strict=True))
+        if g.size > self.cap:
+            top = np.argpartition(-g, self.cap - 1)[: self.cap]
+            g, p, k, v = g[top], p[top], k[top], v[top]
+            self.floor = float(g.min())
+        self.parts, self.size = [(g, p, k, v)], g.size
+
+    def sorted(self) -> tuple[np.ndarray, ...]:
+        """Gains (decreasing), points, keys, rgb of the kept entries."""
+        if not self.parts:
+            return (np.zeros(0), np.zeros(0, np.int32), np.zeros(0, np.uint32),
+                    np.zeros((0, 3), np.float16))  # fmt: skip
+        self._cut()
+        g, p, k, v = self.parts[0]
+        order = np.lexsort((k, p, -g))
+        return g[order], p[order], k[order], v[order]
+
+
+def _node_gains(ref: np.ndarray, dec: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Per node of one point ((p, p, L, V, 3) arrays): the gain of storing the binary16
+    correction, the correction, and the point's squared error."""
+    r = (ref.astype(np.float64) - dec).reshape(-1, 3)
+    c = r.astype(np.float16)
+    # where the decoder's clamp max(decode + c, 0) differs from decode + c the gain is higher
+    # still; the lower figure is kept (it is the one the budget is judged by)
+    left = np.square(r - c.astype(np.float64)).sum(axis=1)
+    sq = np.square(r).sum(axis=1)
+    return sq - left, c, float(sq.sum())
+
+
+def choose_highlights(
+    btf: BTF,
+    levels: Sequence[CodedBTF],
+    bases: Sequence[CodedBTF],
+    model: Model,
+    progress: bool | None = None,
+) -> list[CodedBTF]:
+    """Each of ``levels`` re-spent at its own bytes on the best of ``levels`` + ``bases`` (all
+    coded from ``btf`` in one call) plus highlight entries (module docstring). Returns one
+    coded material per level: the chosen base's codes with its store;
+    ``params["highlights"]`` records the base τ, the entries, the budget and the squared
+    error the choice was judged by."""
+    cands = list(levels) + list(bases)
+    budgets = [_material_bytes(c, model) for c in levels]
+    own = [_material_bytes(c, model) for c in cands]
+    n_pts = levels[0].n_points
+    point_bytes = POINT_BYTES * n_pts
+    caps = [max(0, (max(budgets) - b - point_bytes) // ENTRY_BYTES) for b in own]
+    check_allocation(2 * sum(caps) * 18, f"{btf.label}: the highlight candidates "
+                     f"({2 * sum(caps):,d} entries)", BTFInputError)  # fmt: skip
+    tops = [_TopGains(cap) for cap in caps]
+    sse = np.zeros(len(cands))
+    decoders = [DecodedBTF(dataclasses.replace(c, highlights=None)) for c in cands]
+    grid = PatchGrid(btf.height, btf.width, levels[0].patch)
+    p = grid.patch
+    bar = progress_bar(n_pts, "highlights", unit="point", enabled=progress)
+    for point in range(n_pts):
+        r0, c0 = grid.origin(point)
+        rows, cols = np.arange(r0, r0 + p), np.arange(c0, c0 + p)
+        ref = np.asarray(btf.read(rows, cols, slice(None), slice(None)), dtype=np.float32)
+        for i, d in enumerate(decoders):
+            gain, corr, s = _node_gains(ref, d.read(rows, cols, slice(None), slice(None)))
+            sse[i] += s
+            tops[i].add(gain, point, np.flatnonzero(gain > 0), corr[gain > 0])
+        bar.update(1)
+    bar.close()
+    ranked = [t.sorted() for t in tops]
+    out = []
+    for lv, budget in zip(levels, budgets, strict=True):
+        best: tuple[float, int, int] | None = None
+        for i, (b, (g, *_)) in enumerate(zip(own, ranked, strict=True)):
+            if b > budget:
+                continue
+            n = min(max(0, (budget - b - point_bytes) // ENTRY_BYTES), g.size)
+            left = sse[i] - float(g[:n].sum())
+            if best is None or left < best[0]:
+                best = (left, i, n)
+        assert best is not None  # the level's own codes fit its budget
+        left, i, n = best
+        _, pts, keys, rgb = ranked[i]
+        store = Highlights.from_nodes(pts[:n], keys[:n], rgb[:n], n_pts)
+        base = cands[i]
+        params: dict[str, Any] = {
+            **base.params,
+            "highlights": {
+                "entries": int(n), "budget_bytes": int(budget),
+                "base_tau": {ch: int(v) for ch, v in base.coded_tau.items()},
+                "level_tau": {ch: int(v) for ch, v in lv.coded_tau.items() if ch in CHANNELS},
+                "sse": float(left),
+            },
+        }  # fmt: skip
+        out.append(dataclasses.replace(base, params=params, highlights=store if n else None))
+    return out
