@@ -15,6 +15,10 @@ The compiled lookup (numba) groups a batch's queries by data point
 (:mod:`~sparsebtf.runtime.compact`: about 1 s and 18 bytes per coefficient for a 400 × 400
 material at τ 885) and keeps them.
 
+A material with a highlight store (``coded.highlights``, :mod:`sparsebtf.learning.highlights`)
+gets its corrections added to the linear-RGB values, with the interpolation's own angular
+weights, and those values clamped at 0 (:mod:`.highlight_lookup`); without one nothing changes.
+
 The flat arrays a GPU or Dr.Jit shader needs come from :meth:`RuntimeBTF.arrays` (layout in
 ``docs/format.md``, "Renderer arrays").
 """
@@ -44,6 +48,7 @@ from .angular import (
 )
 from .compact import CompactLayout, channel_layout
 from .finish import finish
+from .highlight_lookup import HighlightTable, add_highlights
 
 __all__ = ["NO_BOUND", "Domain", "RuntimeBTF", "query_texels", "texels_from_uv"]
 
@@ -144,6 +149,7 @@ class RuntimeBTF:
         self.log_offset = float(st.log_offset)
         self._bound = None if st.bound is None else np.asarray(st.bound, dtype=np.float64)
         self._indices: dict[tuple[str, int], DirectionIndex] = {}
+        self._highlights = self._highlight_table(coded)
         self._layouts: dict[str, CompactLayout] = {}
         self.meta: dict[str, Any] = {
             "name": coded.name,
@@ -163,6 +169,16 @@ class RuntimeBTF:
             "mode_sizes": list(sizes),
             "nnz": {ch: int(codes[ch].nnz) for ch in CHANNELS},
         }
+
+    @staticmethod
+    def _highlight_table(coded: CodedBTF) -> HighlightTable | None:
+        """The store in the decoder's types, checked against the material (None: none, or
+        no entries)."""
+        h = coded.highlights
+        nl, nv = len(coded.lights), len(coded.views)
+        if h is not None:
+            h.check(coded.n_points, coded.patch, nl, nv, f"{coded.label}: highlights")
+        return HighlightTable.of(h, coded.patch, nl, nv)
 
     @classmethod
     def from_file(
@@ -359,12 +375,17 @@ class RuntimeBTF:
             levels as a list, tuple, dict or string.
         backend : "numba" (compiled, parallel), "numpy", or "auto" (numba when installed).
         output : "rgb" or "log_yuv" (the de-standardised log-YUV values, before YUV → RGB and
-            before the bound).
+            before the bound, and without the highlight corrections: they are linear RGB).
         release_matrix : use the release shader's rounded YUV → RGB matrix.
 
         The log-RGB values are clamped to the material's bound, interpolated with the same
         angular weights (Σ_ab wl_a wv_b bound_ab): no value exceeds the brightest of the
         angular images it is interpolated from.
+
+        A material with a highlight store gets, in "rgb" output, max(value + Σ_ab wl_a wv_b
+        c(x, l_a, v_b), 0) with the same neighbours and weights (c = 0 at nodes without an
+        entry). The corrections are stored at full detail: they are added whatever the τ'
+        (a level of detail thins the code, never the highlights).
         """
         if domain not in ("standardized", "log"):
             raise BTFInputError(f"domain must be 'standardized' or 'log', got {domain!r}")
@@ -409,7 +430,10 @@ class RuntimeBTF:
         if self._bound is not None:
             bound = np.einsum("nab,nab->n", w2, self._bound[li[:, :, None], vi[:, None, :]])
             np.minimum(log_rgb, bound[:, None], out=log_rgb)
-        return inverse_log_transform(log_rgb, self.log_offset).astype(np.float32)
+        rgb = inverse_log_transform(log_rgb, self.log_offset)
+        # the corrections in float64, before the value's one rounding to float32
+        add_highlights(rgb, self._highlights, pts, i1, i2, li, lw, vi, vw, backend=be)
+        return rgb.astype(np.float32)
 
     def _evaluate_compiled(self, pts, i1, i2, wi, wo, scheme, caps, output, release_matrix
                            ) -> np.ndarray:  # fmt: skip
@@ -417,7 +441,7 @@ class RuntimeBTF:
         data point where that pays, the angular weights found in group order, the sums of
         Eq. 6 by :func:`~sparsebtf.runtime.wavefront.separable_sums`, then
         de-standardisation, colour, bound and exp fused per query, each answer written back
-        to its query's row."""
+        to its query's row; then the highlight corrections (:mod:`.highlight_lookup`)."""
         n = pts.size
         # A handful of queries cannot fill a group: skip the sort.
         few = n < 2 * grouping.GROUP
@@ -442,8 +466,12 @@ class RuntimeBTF:
                                                vw_s, kernels._per_query(caps[ch], n), groups,
                                                layout=self._layout(ch))  # fmt: skip
         matrix = YUV_TO_RGB_RELEASE if release_matrix else YUV_TO_RGB
-        return finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
-                      self.log_offset, output == "rgb", order)  # fmt: skip
+        out = finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
+                     self.log_offset, output == "rgb", order)  # fmt: skip
+        if output == "rgb":
+            # rows in group order, like finish's: row q answers query order[q]
+            add_highlights(out, self._highlights, pts, i1, i2, li, lw, vi, vw, order)
+        return out
 
     def image(
         self,

@@ -32,6 +32,7 @@ import numpy as np
 
 from ...points.preprocessing import RELEASE_LOG_OFFSET
 from ...runtime.angular import candidate_lists
+from .highlights import HighlightArrays, add_highlights
 from .sampling import ONE_MINUS_EPS, SamplingTables
 
 __all__ = [
@@ -194,7 +195,8 @@ class CodedArrays:
     Per channel: ``packed`` interleaves each coefficient's value (float32 bits) and packed
     location, so one 8-byte gather reads both; ``d12`` = U1[k, i1, l1]·U2[k, i2, l2] at
     [k, i1, i2, l1, l2] (K·p⁴ floats, when at most :data:`D12_MAX`) replaces two gathers by one;
-    ``tau`` the loaded τ (what a level-of-detail fraction multiplies).
+    ``tau`` the loaded τ (what a level-of-detail fraction multiplies); ``highlights`` the
+    highlight store (:class:`.highlights.HighlightArrays`; None: none, or an adaptive material).
 
     A material coded with adaptive patch sizes (an
     :class:`~sparsebtf.runtime.AdaptiveRuntimeBTF`, ``adaptive``): the data points are its
@@ -222,6 +224,7 @@ class CodedArrays:
         self.std = mi.Float(a["std"].ravel())
         self.bound = mi.Float(a["bound"].ravel())
         self.yuv_to_rgb = [[float(v) for v in row] for row in a["yuv_to_rgb"]]
+        self.highlights = None if self.adaptive else HighlightArrays.of(mi, rt)
         self.channels = []
         for ch in ("Y", "U", "V"):
             d1, d2 = a[f"dict1_{ch}"], a[f"dict2_{ch}"]
@@ -277,7 +280,9 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
     ``uv`` (tiled, wraps); ``light_nb``/``view_nb``: the (indices, weights) of
     :func:`find_neighbours`; ``prm`` needs ``domain``. The decoder's floor (−log offset) is kept:
     the plugin clamps to 0. The log-RGB values are clamped to the material's bound interpolated
-    with the angular weights, as :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate` does.
+    with the angular weights, as :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate` does. A
+    material with highlights gets their correction added, at any level of detail, and is
+    clamped at 0 here (:mod:`.highlights`).
 
     ``fraction``: None (every loaded coefficient), or a Float of per-query fractions f of the
     loaded τ: channel c reads τ'_c = max(f·τ_c, min(1, τ_c)) (:func:`sparsebtf.runtime.lod.
@@ -388,7 +393,8 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
         - data.log_offset
         for r in range(3)
     ]
-    return mi.Color3f(*rgb)
+    return add_highlights(mi, dr, data.highlights, mi.Color3f(*rgb), pt, i1, i2, light_nb,
+                          view_nb, active)
 
 
 class DenseArrays:
