@@ -45,6 +45,14 @@
 //   sb_neigh      R32I     optional candidate tables (64 elevation x 256 azimuth x 8), lights
 //                          then views (runtime.angular.neighbour_table)
 //   sb_tree       R32I     adaptive only: the node of each cell of the smallest size's grid
+//   sb_hlOffsets  R32UI    highlight store only (sb_highlights == 1): point p's entries are
+//                          [sb_hlOffsets[p], sb_hlOffsets[p + 1]) (P + 1 values)
+//   sb_hlKeys     R32UI    node keys ((i1 P + i2) L + light) V + view, increasing per point
+//   sb_hlRgb      RGB16F   the linear-RGB correction of each entry (binary16)
+//
+// Highlight store (sparsebtf.learning.highlights): with sb_highlights == 1 the value is
+// max(rgb + sum_ab wl_a wv_b c(p, key(i1, i2, L_a, V_b)), 0), c = 0 at nodes without an entry,
+// with the same neighbours and weights as the coefficients; with 0 (the default) rgb as is.
 
 #define SB_TEX_WIDTH 4096
 #define SB_TEX_SHIFT 12
@@ -53,6 +61,7 @@
 #define SB_NEIGH_PHI 256
 #define SB_NEIGH_K 8
 #define SB_MAX_CLASSES 16
+#define SB_HL_STEPS 32
 
 #define SB_NEAREST 0
 #define SB_LINEAR 1
@@ -67,6 +76,9 @@ uniform sampler2D sb_stats;
 uniform sampler2D sb_dirs;
 uniform isampler2D sb_neigh;
 uniform isampler2D sb_tree;
+uniform usampler2D sb_hlOffsets;
+uniform usampler2D sb_hlKeys;
+uniform sampler2D sb_hlRgb;
 
 uniform ivec4 sb_size;        // H, W, patch P, n_rb = H / P
 uniform ivec4 sb_counts;      // n_points, n_lights, n_views, S (1 shared or 3 per-channel stats)
@@ -85,6 +97,7 @@ uniform int sb_domain;        // 0 standardized (Eq. 6), 1 log (release)
 uniform int sb_useNeigh;      // 1: rank the 8 candidates of sb_neigh instead of all directions
 uniform ivec4 sb_adaptive;    // adaptive patch sizes: (1, smallest size s, H / s, classes); 0: one size
 uniform ivec4 sb_class[SB_MAX_CLASSES]; // adaptive: (size p, tau'_Y, tau'_U, tau'_V) per class
+uniform int sb_highlights;    // 1: add the highlight store's corrections; 0: no store
 
 ivec2 sb_coord(int i) {
     return ivec2(i & (SB_TEX_WIDTH - 1), i >> SB_TEX_SHIFT);
@@ -318,6 +331,46 @@ float sb_channel(int c, ivec3 t, float tau, int nl, int il[SB_MAX_NN], float wl[
     return lg;
 }
 
+// Entry of node `key` among the sorted keys [lo, hi) of sb_hlKeys, or -1. A lower-bound binary
+// search; SB_HL_STEPS halvings cover any range of 2^32 entries, so the loop bound never cuts it.
+int sb_hl_find(uint key, int lo, int hi) {
+    int end = hi;
+    for (int s = 0; s < SB_HL_STEPS; ++s) {
+        if (lo >= hi) break;
+        int mid = lo + ((hi - lo) >> 1);
+        if (texelFetch(sb_hlKeys, sb_coord(mid), 0).r < key) {
+            lo = mid + 1;
+        } else {
+            hi = mid;
+        }
+    }
+    return lo < end && texelFetch(sb_hlKeys, sb_coord(lo), 0).r == key ? lo : -1;
+}
+
+// The interpolated correction sum_ab wl_a wv_b c(p, key(i1, i2, L_a, V_b)) at point/in-patch
+// texel t (sparsebtf.learning.highlights.correction): one search per neighbour pair, none at
+// a point without entries.
+vec3 sb_highlight(ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN], int nv,
+                  int iv[SB_MAX_NN], float wv[SB_MAX_NN]) {
+    int lo = int(texelFetch(sb_hlOffsets, sb_coord(t.x), 0).r);
+    int hi = int(texelFetch(sb_hlOffsets, sb_coord(t.x + 1), 0).r);
+    vec3 c = vec3(0.0);
+    if (lo >= hi) return c;
+    // uint: keys reach 2^32 - 1 (P^2 L V nodes), beyond int
+    uint nL = uint(sb_counts.y), nV = uint(sb_counts.z);
+    uint texel = uint(t.y * sb_size.z + t.z);
+    for (int a = 0; a < SB_MAX_NN; ++a) {
+        if (a >= nl) break;
+        uint kl = (texel * nL + uint(il[a])) * nV;
+        for (int b = 0; b < SB_MAX_NN; ++b) {
+            if (b >= nv) break;
+            int j = sb_hl_find(kl + uint(iv[b]), lo, hi);
+            if (j >= 0) c += wl[a] * wv[b] * texelFetch(sb_hlRgb, sb_coord(j), 0).rgb;
+        }
+    }
+    return c;
+}
+
 // Texels per pixel side from the screen-space derivatives dx = dFdx(uv), dy = dFdy(uv) (the
 // caller removes the jumps of its parametrisation's seams): sqrt(|det J|) of the Jacobian of
 // the texel coordinates, the side of a square of the pixel's footprint area.
@@ -362,7 +415,9 @@ vec3 sb_evaluate_at(ivec3 t, vec3 wi, vec3 wo, vec3 tau) {
             bound += wl[a] * wv[b] * sb_f(sb_stats, sb_boundBase + il[a] * sb_counts.z + iv[b]);
         }
     }
-    return exp(min(ln, vec3(bound))) - sb_eps;
+    vec3 rgb = exp(min(ln, vec3(bound))) - sb_eps;
+    if (sb_highlights == 0) return rgb;  // no store: the decode as is, no clamp
+    return max(rgb + sb_highlight(t, nl, il, wl, nv, iv, wv), 0.0);
 }
 
 // The same at texture coordinate uv (wrapping), tau the same for every point.

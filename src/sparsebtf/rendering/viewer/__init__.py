@@ -41,6 +41,7 @@ from ..._json import json_default
 from ...errors import BTFInputError, FileFormatError, SparseBTFError
 from ...runtime.decoder import NO_BOUND
 from ...runtime.lod import MIN_FRACTION
+from .highlights import highlight_arrays, highlight_textures
 from .tree import pack_tree
 
 if TYPE_CHECKING:
@@ -87,7 +88,7 @@ HEADLESS_CHROMIUM_FLAGS = (
 _CHANNELS = ("Y", "U", "V")
 _ALIGN = 16
 _TYPES = {"R32F": ("<f4", 1), "R32UI": ("<u4", 1), "R32I": ("<i4", 1), "RGBA32I": ("<i4", 4),
-          "RGBA32F": ("<f4", 4)}  # fmt: skip
+          "RGBA32F": ("<f4", 4), "RGB16F": ("<f2", 3)}  # fmt: skip
 
 
 def _static(name: str) -> bytes:
@@ -125,7 +126,10 @@ def pack_textures(
     With ``meta["adaptive"]`` (:meth:`AdaptiveRuntimeBTF.arrays` and its ``flat_meta``) the
     points are the tree's nodes, and the texture ``sb_tree``, the uniform ``sb_adaptive``,
     each node's class in ``sb_points`` and the manifest's ``adaptive`` entry are added
-    (:mod:`.tree`); a fixed-size material's part is unchanged.
+    (:mod:`.tree`); a fixed-size material's part is unchanged. With the arrays of a highlight
+    store (:func:`.highlights.highlight_arrays`) the textures ``sb_hlOffsets``, ``sb_hlKeys``,
+    ``sb_hlRgb``, the uniform ``sb_highlights`` and the manifest's ``highlights`` entry count
+    are added (:mod:`.highlights`); without them nothing changes.
     Raises :class:`~sparsebtf.errors.BTFInputError` naming the channel or texture when an
     array is missing or a texture would exceed :data:`MAX_TEX_HEIGHT` rows.
     """
@@ -229,6 +233,8 @@ def pack_textures(
         spec.append(("sb_neigh", "R32I", np.concatenate([nl.ravel(), nv.ravel()])))
     if adaptive:
         spec.append(("sb_tree", "R32I", cells))
+    hl_spec, hl_uniforms = highlight_textures(arrays, meta, n_points, n_l, n_v, where)
+    spec += hl_spec
 
     textures: dict[str, Any] = {}
     chunks: list[bytes] = []
@@ -264,6 +270,9 @@ def pack_textures(
     if adaptive:
         uniforms.update(tree_uniforms)
         part["adaptive"] = tree_part
+    if hl_spec:
+        uniforms.update(hl_uniforms)
+        part["highlights"] = int(arrays["highlight_keys"].shape[0])
     return part, b"".join(chunks)
 
 
@@ -293,7 +302,8 @@ def build_bundle(rt: RuntimeBTF | AdaptiveRuntimeBTF, neighbours: bool = True) -
     its tree are the points, :meth:`~sparsebtf.runtime.AdaptiveRuntimeBTF.arrays`).
 
     ``neighbours`` adds the candidate tables (``runtime.angular.neighbour_table``) so that the
-    shader ranks 8 candidates per direction instead of scanning all of them.
+    shader ranks 8 candidates per direction instead of scanning all of them. A material with
+    a highlight store (``coded.highlights`` with entries) carries it (:mod:`.highlights`).
     """
     from ...runtime.adaptive import AdaptiveRuntimeBTF
 
@@ -305,6 +315,8 @@ def build_bundle(rt: RuntimeBTF | AdaptiveRuntimeBTF, neighbours: bool = True) -
             f"{where}: the viewer decodes log-YUV codes, this file uses {transform}"
         )
     arrays = rt.arrays(neighbours=neighbours)
+    # the store is the coded material's, not a runtime array (an adaptive material has none)
+    arrays.update(highlight_arrays(getattr(rt.coded, "highlights", None)))
     if isinstance(rt, AdaptiveRuntimeBTF):  # the whole tree's counts, not the largest size's
         meta = {**meta, "nnz": {c: int(arrays[f"values_{c}"].size) for c in _CHANNELS},
                 "tau": {str(p): layer.tau for p, layer in rt.layers.items()}}  # fmt: skip

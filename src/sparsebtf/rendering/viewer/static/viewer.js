@@ -14,7 +14,8 @@
 // fragment by its screen-space footprint, default 1), zoom=z and ramp=0|1 (test scene).
 // A material coded with adaptive patch sizes (manifest.adaptive) has one cap per node class
 // (size, tau): the level of detail is a fraction f of each, max(1, ceil(f tau)), set as the
-// uniform sb_class; tau=a,b,c then caps every node besides.
+// uniform sb_class; tau=a,b,c then caps every node besides. A material with a highlight store
+// (manifest.highlights: its entry count) has the textures sb_hl* and the uniform sb_highlights.
 // Script API: window.sparsebtf = {ready, error, info, set(state), readFloat(), benchmark(opts)}.
 "use strict";
 
@@ -90,6 +91,8 @@
       R32I: [gl.R32I, gl.RED_INTEGER, gl.INT, Int32Array, 1],
       RGBA32I: [gl.RGBA32I, gl.RGBA_INTEGER, gl.INT, Int32Array, 4],
       RGBA32F: [gl.RGBA32F, gl.RGBA, gl.FLOAT, Float32Array, 4],
+      // binary16 as stored (the highlight store's corrections): no rounding on upload
+      RGB16F: [gl.RGB16F, gl.RGB, gl.HALF_FLOAT, Uint16Array, 3],
     };
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
     const units = {};
@@ -456,6 +459,7 @@
       `${m.name}: ${m.height}x${m.width} texels, ${patch}, ` +
       `${m.n_lights} lights x ${m.n_views} views\n` +
       `coefficients ${Object.values(m.nnz).join(" / ")} (Y/U/V)\n` +
+      (manifest.highlights ? `highlight store: ${manifest.highlights} nodes\n` : "") +
       `${(manifest.bytes / 1048576).toFixed(1)} MiB of textures\n${api.info.renderer}`;
     // On a CPU rasteriser a full-tau frame takes seconds: redraw only on change there.
     if (!q.has("animate") && /SwiftShader|llvmpipe|softpipe/i.test(api.info.renderer)) {
