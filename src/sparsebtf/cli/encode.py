@@ -172,8 +172,11 @@ def ratio_line(
     (per material, and with the shared dictionaries)."""
     stored = (f"ratio {report['compression_ratio_per_material']:.1f} per material (raw / "
               f"{report['bytes_stored']:,} file bytes)")  # fmt: skip
+    parts = "coefficients, memberships, counts" + (
+        f", highlight store {report['bytes_highlights']:,}" if report.get("bytes_highlights")
+        else "")  # fmt: skip
     t4 = (f"Table 4: ratio {report['compression_ratio_table4_material']:.1f} per material "
-          f"(coefficients, memberships, counts: {report['bytes_table4_material']:,} bytes)")
+          f"({parts}: {report['bytes_table4_material']:,} bytes)")
     t4d = (f"{report['compression_ratio']:.1f} counting the shared dictionaries "
            f"({report['bytes_dictionaries'] / 2**20:.2f} MiB)")  # fmt: skip
     asked_txt = f" (asked {asked:g})" if asked is not None else ""

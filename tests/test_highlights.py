@@ -1,0 +1,229 @@
+"""The highlight store (issue 46): the encoder's choice of base code and entries within each
+level's bytes, the schema-5 file, the dense decoder and the byte accounting."""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import replace
+
+import h5py
+import numpy as np
+import pytest
+
+from sparsebtf.codec import encode, encode_levels
+from sparsebtf.codec.highlights import base_taus
+from sparsebtf.data.btf import ArrayBTF
+from sparsebtf.errors import BTFInputError, FileFormatError
+from sparsebtf.learning.highlights import ENTRY_BYTES, POINT_BYTES, Highlights, node_keys
+from sparsebtf.runtime import RuntimeBTF
+from sparsebtf.runtime.dense import DecodedBTF
+from sparsebtf.storage import load_coded, save_coded, storage_report
+from sparsebtf.storage.highlight_file import HIGHLIGHT_SCHEMA
+
+from .conftest import smooth_btf, tiny_model
+
+LEVELS = [(16, 4, 4), (32, 8, 8), (64, 16, 16)]
+
+
+@pytest.fixture(scope="module")
+def model():
+    return tiny_model(max_iter=2)
+
+
+def glossy_btf(seed: int = 3) -> ArrayBTF:
+    """``smooth_btf`` with sharp highlights: a few (texel, light, view) values × 40–200, the
+    kind a log-domain code reaches slowly."""
+    b = smooth_btf(seed)
+    data = np.array(b.to_array())
+    rng = np.random.default_rng(seed)
+    hit = rng.random(data.shape[:4]) < 0.01
+    data[hit] *= rng.uniform(40, 200, (int(hit.sum()), 1)).astype(np.float32)
+    return ArrayBTF(data, b.lights, b.views, name="glossy")
+
+
+@pytest.fixture(scope="module")
+def glossy():
+    return glossy_btf()
+
+
+@pytest.fixture(scope="module")
+def levels(glossy, model):
+    return encode_levels(glossy, model, LEVELS, eps=0.0, highlights=True, progress=False,
+                         allow_below_training=True)  # fmt: skip
+
+
+def sse(coded, ref: np.ndarray) -> float:
+    return float(np.square(np.asarray(DecodedBTF(coded).to_array(), np.float64) - ref).sum())
+
+
+def random_store(coded, seed: int = 0, share: float = 0.2) -> Highlights:
+    rng = np.random.default_rng(seed)
+    per_point = coded.patch**2 * len(coded.lights) * len(coded.views)
+    pts = np.repeat(np.arange(coded.n_points), int(share * per_point))
+    keys = np.concatenate([rng.choice(per_point, int(share * per_point), replace=False)
+                           for _ in range(coded.n_points)])  # fmt: skip
+    return Highlights.from_nodes(pts, keys, rng.normal(0, 0.5, (keys.size, 3)), coded.n_points)
+
+
+# ---------------------------------------------------------------------------- the encoder
+
+
+def test_store_pays_on_highlights_and_levels_are_nested(levels, glossy, model):
+    ref = np.asarray(glossy.to_array(), np.float64)
+    plain = encode_levels(glossy, model, LEVELS, eps=0.0, progress=False,
+                          allow_below_training=True)  # fmt: skip
+    errs = []
+    for lv, p in zip(levels, plain, strict=True):
+        rec = lv.params["highlights"]
+        got = sse(lv, ref)
+        # the error the choice was judged by is the decoders' (binary16 values, clamp: <=)
+        assert got <= rec["sse"] * (1 + 1e-5) + 1e-6
+        assert got == pytest.approx(rec["sse"], rel=1e-3)
+        # within the level's own bytes, and never worse than the level's codes alone
+        nbytes = storage_report(lv, model, stored=False)["bytes_table4_material"]
+        assert nbytes <= rec["budget_bytes"]
+        assert rec["budget_bytes"] == storage_report(p, model, stored=False)[
+            "bytes_table4_material"]
+        assert got <= sse(p, ref) * (1 + 1e-6)
+        errs.append(got)
+    assert all(b <= a for a, b in itertools.pairwise(errs))
+    # on this material the store pays: every level holds entries and errs clearly less
+    assert all(lv.highlights is not None and lv.highlights.n_entries for lv in levels)
+    assert errs[0] < 0.8 * sse(plain[0], ref)
+
+
+def test_no_entries_where_they_do_not_pay(model):
+    (c,) = encode_levels(smooth_btf(4), model, [(32, 8, 8)], eps=0.0, highlights=True,
+                         progress=False)  # fmt: skip
+    rec = c.params["highlights"]
+    assert rec["base_tau"]["Y"] <= 32
+    if c.highlights is None:
+        assert rec["entries"] == 0
+    else:
+        assert c.highlights.n_entries == rec["entries"]
+
+
+def test_base_taus_below_the_smallest_level():
+    got = base_taus([{"Y": 64, "U": 8, "V": 8}, {"Y": 16, "U": 4, "V": 4}])
+    assert got[0] == {"Y": 8, "U": 2, "V": 2}
+    assert {"Y": 1, "U": 1, "V": 1} in got
+    assert len({tuple(t.values()) for t in got}) == len(got)
+
+
+def test_highlights_refused_where_not_taken(glossy, model):
+    with pytest.raises(BTFInputError, match="highlights"):
+        encode(glossy, model, target_ratio=50, highlights=True)
+
+
+# ---------------------------------------------------------------------------- the file
+
+
+def test_file_round_trip_schema_5(levels, tmp_path, model):
+    c = levels[-1]
+    path = save_coded(c, tmp_path / "g.h5")
+    with h5py.File(path) as f:
+        assert int(f.attrs["schema_version"]) == HIGHLIGHT_SCHEMA
+    back = load_coded(path, model)
+    for name in ("offsets", "keys", "rgb"):
+        np.testing.assert_array_equal(getattr(back.highlights, name), getattr(c.highlights, name))
+    # the same decode as in memory but for the codes' binary16 rounding in the file
+    a = np.asarray(DecodedBTF(back).to_array())
+    b = np.asarray(DecodedBTF(c).to_array())
+    np.testing.assert_allclose(a, b, rtol=2e-3, atol=2e-3)
+    rep = storage_report(back, model, path)
+    h = c.highlights
+    assert rep["bytes_highlights"] == h.n_entries * ENTRY_BYTES + h.n_points * POINT_BYTES
+    assert rep["bytes_stored_codes"] > 0
+
+
+def test_no_store_stays_schema_3(model, tmp_path):
+    c = encode(smooth_btf(5), model, tau=(32, 8, 8), eps=0.0, progress=False)
+    with h5py.File(save_coded(c, tmp_path / "p.h5")) as f:
+        assert int(f.attrs["schema_version"]) == 3
+        assert "highlights" not in f
+
+
+def test_schema_2_cannot_hold_a_store(levels, tmp_path):
+    with pytest.raises(BTFInputError, match="schema 5"):
+        save_coded(levels[0], tmp_path / "x.h5", schema=2)
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda g: g["keys"].__setitem__(0, 2**31), "outside"),
+    (lambda g: g.attrs.__setitem__("n_entries", int(g.attrs["n_entries"]) + 1), "sums to"),
+    (lambda g: g.attrs.__setitem__("space", "log"), "space"),
+])  # fmt: skip
+def test_damaged_store_is_one_line(levels, tmp_path, model, damage, message):
+    path = save_coded(levels[-1], tmp_path / "d.h5")
+    with h5py.File(path, "r+") as f:
+        g = f["highlights"]
+        if "keys" in g and message == "outside":  # rewrite without the checksum to damage
+            keys = g["keys"][()]
+            del g["keys"]
+            keys[0] = 2**31
+            g.create_dataset("keys", data=keys)
+        else:
+            damage(g)
+    with pytest.raises(FileFormatError, match=message) as e:
+        load_coded(path, model)
+    assert "\n" not in str(e.value)
+
+
+def test_keys_must_rise_within_a_point(levels):
+    h = levels[-1].highlights
+    bad = Highlights(h.offsets, h.keys[::-1].copy(), h.rgb)
+    with pytest.raises(BTFInputError, match="increase"):
+        bad.check(levels[-1].n_points, 4, 13, 13, "test")
+
+
+# ---------------------------------------------------------------------------- the decoders
+
+
+def test_dense_decode_adds_the_corrections(model):
+    c = encode(smooth_btf(6), model, tau=(32, 8, 8), eps=0.0, progress=False)
+    h = random_store(c)
+    lit = replace(c, highlights=h)
+    plain = np.asarray(DecodedBTF(c).to_array(), np.float64)
+    got = np.asarray(DecodedBTF(lit).to_array(), np.float64)
+    # every node by hand: its point, its key, its entry (or none)
+    p, nl, nv = c.patch, len(c.lights), len(c.views)
+    want = plain.copy()
+    for pt in range(c.n_points):
+        r0, c0 = (pt % (c.height // p)) * p, (pt // (c.height // p)) * p
+        lo, hi = h.offsets[pt], h.offsets[pt + 1]
+        for key, rgb in zip(h.keys[lo:hi], h.rgb[lo:hi].astype(np.float64), strict=True):
+            t, rest = divmod(int(key), nl * nv)
+            li, vi = divmod(rest, nv)
+            want[r0 + t // p, c0 + t % p, li, vi] += rgb
+    np.testing.assert_allclose(got, np.maximum(want, 0), rtol=1e-6, atol=1e-6)
+    assert (want < 0).any()  # the clamp is exercised
+    # a read of a subset (Eq. 5's sums: float32 rounding apart) is the same subset of the whole
+    rows, cols, ls, vs = [1, 6], [7, 0, 3], [2, 11], [0, 5, 12]
+    part = DecodedBTF(lit).read(rows, cols, ls, vs)
+    np.testing.assert_allclose(part, got[np.ix_(rows, cols, ls, vs)], rtol=1e-5, atol=1e-6)
+
+
+def test_runtime_at_sampled_directions_equals_dense(model):
+    c = encode(smooth_btf(7), model, tau=(32, 8, 8), eps=0.0, progress=False)
+    lit = replace(c, highlights=random_store(c, seed=2))
+    dense = np.asarray(DecodedBTF(lit).to_array())
+    rt = RuntimeBTF(lit)
+    rng = np.random.default_rng(0)
+    n = 300
+    texel = rng.integers(0, 8, (n, 2))
+    li, vi = rng.integers(0, 13, n), rng.integers(0, 13, n)
+    got = rt.evaluate(c.lights.xyz[li], c.views.xyz[vi], texel=texel, interpolation="nearest")
+    want = dense[texel[:, 0], texel[:, 1], li, vi]
+    np.testing.assert_allclose(got, want, rtol=2e-5, atol=2e-5)
+    keys = node_keys(texel[:, 0] % 4, texel[:, 1] % 4, li, vi, 4, 13, 13)
+    assert keys.max() < 4 * 4 * 13 * 13
+
+
+def test_blend_and_release_export_refuse_a_store(levels, glossy):
+    from sparsebtf.runtime.blend import check_blendable
+    from sparsebtf.storage.release_write import check_exportable
+
+    with pytest.raises(BTFInputError, match="highlight store"):
+        check_blendable([levels[-1], levels[0]])
+    with pytest.raises(BTFInputError, match="highlight store"):
+        check_exportable(levels[-1], "0" * 64)
