@@ -1,5 +1,6 @@
 """Exhaustive field fuzzing: every dataset and every attribute of a schema-3 coded file, a
-schema-4 (adaptive) coded file and a model of several training levels (τ_l), each damaged in
+schema-5 one (with a highlight store), a schema-4 (adaptive) coded file and a model of several
+training levels (τ_l), each damaged in
 each of a fixed set of ways, and the users' decode judged against the undamaged file's.
 
 Unlike the random semantic fuzz (:mod:`.semantic`), nothing here knows the format's rules:
@@ -23,6 +24,7 @@ from __future__ import annotations
 
 import os
 import shutil
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -34,19 +36,23 @@ __all__ = [
     "field_exercise", "file_fields", "mutate_field", "run_field_case", "run_field_fuzz",
 ]  # fmt: skip
 
-#: The seed files, in report order: a coded file (schema 3), an adaptive one (schema 4), the
-#: model of several training levels both are coded with.
-FIELD_KINDS = ("coded3", "coded4", "model")
+#: The seed files, in report order: a coded file (schema 3), the same with a highlight store
+#: (schema 5), an adaptive one (schema 4), the model of several training levels they are
+#: coded with.
+FIELD_KINDS = ("coded3", "coded5", "coded4", "model")
 #: The damage done to a field: deleted, one value set to −1, 2^40 or NaN (a scalar: the
 #: value), one element fewer or more along the first axis (a scalar: two copies of it).
 FIELD_MUTATIONS = ("delete", "minus_one", "huge", "nan", "shorter", "longer")
 FIELD_OUTCOMES = ("rejected", "unchanged", "silent_wrong", "traceback", "legal_change")
 #: (dataset, mutation) pairs that give a file the format allows: a log-domain mean or bound
 #: of −1 (ln of 0.37) is a valid statistic, so a different output is the right one.
-LEGAL_EDITS = frozenset({("stats/mean", "minus_one"), ("stats/bound", "minus_one")})
+#: So is a highlight correction of −1.
+LEGAL_EDITS = frozenset({("stats/mean", "minus_one"), ("stats/bound", "minus_one"),
+                         ("highlights/rgb", "minus_one")})
 
 _VALUES = {"minus_one": -1, "huge": 2**40, "nan": np.nan}
-_FILES = {"coded3": "coded3.h5", "coded4": "coded4.h5", "model": "model.h5"}
+_FILES = {"coded3": "coded3.h5", "coded5": "coded5.h5", "coded4": "coded4.h5",
+          "model": "model.h5"}
 
 
 # --------------------------------------------------------------------------- the seed files
@@ -80,13 +86,27 @@ def build_field_corpus(folder: str | os.PathLike[str]) -> dict[str, Any]:
     model = train([_smooth(s) for s in range(2)], n_dictionaries=2, tau_train="4,2,2/8,3,3",
                   patch=(4, 2), sample=1.0, max_iter=1, progress=False)  # fmt: skip
     save_model(model, d / _FILES["model"])
-    save_coded(encode(_smooth(5), model, tau=(6, 3, 3), progress=False), d / _FILES["coded3"])
+    coded = encode(_smooth(5), model, tau=(6, 3, 3), progress=False)
+    save_coded(coded, d / _FILES["coded3"])
+    save_coded(replace(coded, highlights=_store(coded)), d / _FILES["coded5"])
     adaptive = encode_adaptive(_smooth(6), model, (8, 3, 3), target_bytes=600, progress=False)
     save_coded(adaptive, d / _FILES["coded4"])
     corpus: dict[str, Any] = {"dir": d}
     corpus["originals"] = {kind: field_exercise(kind, d / _FILES[kind], corpus)
                            for kind in FIELD_KINDS}  # fmt: skip
     return corpus
+
+
+def _store(coded: Any) -> Any:
+    """A highlight store at a fifth of each point's nodes (seeded)."""
+    from ..learning.highlights import Highlights
+
+    rng = np.random.default_rng(7)
+    per = coded.patch**2 * len(coded.lights) * len(coded.views)
+    keys = [rng.choice(per, per // 5, replace=False) for _ in range(coded.n_points)]
+    pts = np.repeat(np.arange(coded.n_points), per // 5)
+    return Highlights.from_nodes(pts, np.concatenate(keys), rng.normal(0, 0.3, (pts.size, 3)),
+                                 coded.n_points)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- the users' decode
@@ -117,7 +137,7 @@ def field_exercise(kind: str, path: Path, corpus: dict[str, Any]) -> list[np.nda
     coded file decoded with it."""
     from ..storage import load_coded, load_model
 
-    if kind in ("coded3", "coded4"):
+    if kind in ("coded3", "coded5", "coded4"):
         return _decoded(load_coded(path, _model(corpus), adaptive=kind == "coded4"))
     model = load_model(path)
     out = [u for ch in model.channels for u in model.dictionaries[ch]]
