@@ -227,3 +227,31 @@ def test_blend_and_release_export_refuse_a_store(levels, glossy):
         check_blendable([levels[-1], levels[0]])
     with pytest.raises(BTFInputError, match="highlight store"):
         check_exportable(levels[-1], "0" * 64)
+
+
+# ---------------------------------------------------------------------------- the benchmark
+
+
+def test_benchmark_method_codes_within_the_reference_bytes(tmp_path, monkeypatch):
+    import json
+
+    from sparsebtf.evaluation.runner import run_quality
+
+    from .test_evaluation import tiny_config
+
+    monkeypatch.setenv("SPARSEBTF_CACHE", str(tmp_path / "cache"))
+    cfg = replace(tiny_config(), with_per_channel=False, with_raw=False, with_rate_control=False,
+                  pca_domains=("log",), black_materials=())  # fmt: skip
+    run_quality(tmp_path / "run", cfg, log=lambda m: None,
+                methods=["sparsebtf", "sparsebtf-highlights"])  # fmt: skip
+    rows = json.loads((tmp_path / "run" / "results.json").read_text())["rows"]
+    ref = {(r["material"], r["level"]): r for r in rows
+           if r["method"] == "sparsebtf" and r["set"] == "test" and r["level"] is not None}
+    ours = [r for r in rows if r["method"] == "sparsebtf-highlights"]
+    assert {(r["material"], r["level"]) for r in ours} == set(ref)
+    for r in ours:
+        base = ref[(r["material"], r["level"])]
+        assert r["material_bytes"] <= base["material_bytes"]
+        # the same model (same training), the level's own codes among the candidates
+        assert r["mse_rgb"] <= base["mse_rgb"] * (1 + 1e-4)
+        assert r["highlight_entries"] >= 0

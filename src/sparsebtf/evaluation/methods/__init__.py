@@ -40,6 +40,8 @@ _REGISTRY: dict[str, str] = {
     "sparsebtf-precluster": ".beyond:PreclusterMethod",
     # beyond the paper (issue 35): adaptive patch sizes, not run by default
     "sparsebtf-adaptive": ".adaptive:AdaptiveMethod",
+    # beyond the paper (issue 46): each level's bytes on codes and a highlight store
+    "sparsebtf-highlights": ".highlights:HighlightsMethod",
     "pca_log": ".pca:PCALogMethod",
     "pca_linear": ".pca:PCALinearMethod",
     "rgjw20": "..neural.rgjw20:RGJW20Method",
