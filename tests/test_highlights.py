@@ -255,3 +255,39 @@ def test_benchmark_method_codes_within_the_reference_bytes(tmp_path, monkeypatch
         # the same model (same training), the level's own codes among the candidates
         assert r["mse_rgb"] <= base["mse_rgb"] * (1 + 1e-4)
         assert r["highlight_entries"] >= 0
+
+
+def test_renderer_arrays_carry_the_store_and_step_6_by_hand(model):
+    """format.md §6 step 6 from the arrays alone: the lookup without the store plus the
+    weighted corrections found by a search of each neighbour pair's key, clamped at 0."""
+    from sparsebtf.runtime import angular_weights
+
+    c = encode(smooth_btf(8), model, tau=(32, 8, 8), eps=0.0, progress=False)
+    lit = replace(c, highlights=random_store(c, seed=3, share=0.6))
+    a = RuntimeBTF(lit).arrays()
+    assert "highlight_keys" not in RuntimeBTF(c).arrays()
+    assert a["highlight_offsets"].shape == (c.n_points + 1,)
+    rng = np.random.default_rng(1)
+    wi = rng.normal(size=(40, 3))
+    wo = rng.normal(size=(40, 3))
+    wi[:, 2], wo[:, 2] = np.abs(wi[:, 2]) + 0.1, np.abs(wo[:, 2]) + 0.1
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    texel = rng.integers(0, 8, (40, 2))
+    base = RuntimeBTF(c).evaluate(wi, wo, texel=texel).astype(np.float64)
+    li, lw = angular_weights(a["lights_xyz"], wi, "linear")
+    vi, vw = angular_weights(a["views_xyz"], wo, "linear")
+    want = base.copy()
+    for q, (row, col) in enumerate(texel):
+        p = row // 4 + 2 * (col // 4)
+        lo, hi = a["highlight_offsets"][p], a["highlight_offsets"][p + 1]
+        keys = a["highlight_keys"][lo:hi]
+        for x in range(li.shape[1]):
+            for y in range(vi.shape[1]):
+                key = (((row % 4) * 4 + col % 4) * 13 + li[q, x]) * 13 + vi[q, y]
+                j = np.searchsorted(keys, key)
+                if j < keys.size and keys[j] == key:
+                    want[q] += lw[q, x] * vw[q, y] * a["highlight_rgb"][lo + j]
+    got = RuntimeBTF(lit).evaluate(wi, wo, texel=texel)
+    np.testing.assert_allclose(got, np.maximum(want, 0), rtol=1e-5, atol=1e-6)
+    assert np.abs(got - base).max() > 0.05  # the store changed the values

@@ -231,7 +231,9 @@ class RuntimeBTF:
         point, ``locations_c`` (nnz,) uint32 = l1 | l2<<8 | l3<<16 | l4<<24, ``dict1_c`` …
         ``dict4_c`` (K, m, m) float32 with dict_n[k, x, l] = U_n^(k)[x, l]; with
         ``neighbours``, ``neighbours_lights``/``neighbours_views`` (64, 256, 8) int16 candidate
-        tables (:func:`~sparsebtf.runtime.angular.neighbour_table`).
+        tables (:func:`~sparsebtf.runtime.angular.neighbour_table`); with a highlight store
+        (:mod:`sparsebtf.learning.highlights`), ``highlight_offsets`` (P+1,) uint32,
+        ``highlight_keys`` (N,) uint32 and ``highlight_rgb`` (N, 3) float32.
         """
         out: dict[str, np.ndarray] = {
             "lights_xyz": self.coded.lights.xyz.astype(np.float32),
@@ -244,6 +246,11 @@ class RuntimeBTF:
         for ch, arrs in self._channels.items():
             for name, a in arrs.items():
                 out[f"{name}_{ch}"] = a.astype(np.float32) if a.dtype.kind == "f" else a
+        h = self.coded.highlights
+        if h is not None and h.n_entries:
+            out["highlight_offsets"] = h.offsets.astype(np.uint32)
+            out["highlight_keys"] = h.keys.astype(np.uint32)
+            out["highlight_rgb"] = h.rgb.astype(np.float32)
         if neighbours:
             out["neighbours_lights"] = neighbour_table(self.coded.lights)
             out["neighbours_views"] = neighbour_table(self.coded.views)
