@@ -22,7 +22,6 @@ from sparsebtf.errors import BTFInputError
 from sparsebtf.learning.highlights import Highlights, correction, node_keys
 from sparsebtf.points.grid import PatchGrid
 from sparsebtf.rendering.viewer import build_bundle, export, pack_textures, serve
-from sparsebtf.rendering.viewer.highlights import highlight_arrays
 from sparsebtf.runtime import RuntimeBTF, angular_weights
 from sparsebtf.runtime.decoder import query_texels
 
@@ -155,7 +154,7 @@ def test_no_store_changes_nothing(coded, rt_plain):
 
 
 def test_packing_refuses_a_store_that_does_not_fit(rt_hl, store):
-    arr = {**rt_hl.arrays(neighbours=False), **highlight_arrays(store)}
+    arr = rt_hl.arrays(neighbours=False)  # the store's arrays among them
     bad = dict(arr, highlight_keys=arr["highlight_keys"].copy())
     c = rt_hl.coded
     past = c.patch**2 * len(c.lights) * len(c.views)  # one past the last node

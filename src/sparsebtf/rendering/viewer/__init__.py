@@ -41,7 +41,7 @@ from ..._json import json_default
 from ...errors import BTFInputError, FileFormatError, SparseBTFError
 from ...runtime.decoder import NO_BOUND
 from ...runtime.lod import MIN_FRACTION
-from .highlights import highlight_arrays, highlight_textures
+from .highlights import highlight_textures
 from .tree import pack_tree
 
 if TYPE_CHECKING:
@@ -127,7 +127,7 @@ def pack_textures(
     points are the tree's nodes, and the texture ``sb_tree``, the uniform ``sb_adaptive``,
     each node's class in ``sb_points`` and the manifest's ``adaptive`` entry are added
     (:mod:`.tree`); a fixed-size material's part is unchanged. With the arrays of a highlight
-    store (:func:`.highlights.highlight_arrays`) the textures ``sb_hlOffsets``, ``sb_hlKeys``,
+    store (``RuntimeBTF.arrays()``'s ``highlight_*``) the textures ``sb_hlOffsets``, ``sb_hlKeys``,
     ``sb_hlRgb``, the uniform ``sb_highlights`` and the manifest's ``highlights`` entry count
     are added (:mod:`.highlights`); without them nothing changes.
     Raises :class:`~sparsebtf.errors.BTFInputError` naming the channel or texture when an
@@ -314,9 +314,7 @@ def build_bundle(rt: RuntimeBTF | AdaptiveRuntimeBTF, neighbours: bool = True) -
         raise BTFInputError(
             f"{where}: the viewer decodes log-YUV codes, this file uses {transform}"
         )
-    arrays = rt.arrays(neighbours=neighbours)
-    # the store is the coded material's, not a runtime array (an adaptive material has none)
-    arrays.update(highlight_arrays(getattr(rt.coded, "highlights", None)))
+    arrays = rt.arrays(neighbours=neighbours)  # with a highlight store, its arrays too
     if isinstance(rt, AdaptiveRuntimeBTF):  # the whole tree's counts, not the largest size's
         meta = {**meta, "nnz": {c: int(arrays[f"values_{c}"].size) for c in _CHANNELS},
                 "tau": {str(p): layer.tau for p, layer in rt.layers.items()}}  # fmt: skip

@@ -21,32 +21,18 @@ import numpy as np
 from ...errors import BTFInputError
 from ...learning.highlights import Highlights
 
-__all__ = ["HIGHLIGHT_ARRAYS", "highlight_arrays", "highlight_textures"]
+__all__ = ["HIGHLIGHT_ARRAYS", "highlight_textures"]
 
-#: Names of the renderer arrays of a highlight store (:func:`highlight_arrays`).
+#: Names of the renderer arrays of a highlight store (``RuntimeBTF.arrays()``, which gives
+#: them only for a material with entries: without them the viewer carries nothing).
 HIGHLIGHT_ARRAYS = ("highlight_offsets", "highlight_keys", "highlight_rgb")
-
-
-def highlight_arrays(h: Highlights | None) -> dict[str, np.ndarray]:
-    """The store as renderer arrays: ``highlight_offsets`` (P + 1,) uint32, ``highlight_keys``
-    (N,) uint32, ``highlight_rgb`` (N, 3) float16; ``{}`` for None or a store without entries
-    (the decoders change nothing then, so the viewer carries nothing)."""
-    if h is None or not h.n_entries:
-        return {}
-    if int(h.offsets[-1]) >= 2**31:  # the shader indexes the textures with int
-        raise BTFInputError(f"{h.n_entries} highlight entries exceed the shader's int32 offsets")
-    return {
-        "highlight_offsets": np.asarray(h.offsets, dtype=np.uint32),
-        "highlight_keys": np.asarray(h.keys, dtype=np.uint32),
-        "highlight_rgb": np.asarray(h.rgb, dtype=np.float16),
-    }
 
 
 def highlight_textures(arrays: dict[str, np.ndarray], meta: dict[str, Any], n_points: int,
                        n_lights: int, n_views: int, where: str
                        ) -> tuple[list[tuple[str, str, np.ndarray]], dict[str, int]]:  # fmt: skip
     """Texture specs ``(name, format, flat array)`` and uniforms of the store in ``arrays``
-    (:func:`highlight_arrays`); ``([], {})`` without one.
+    (``RuntimeBTF.arrays()``); ``([], {})`` without one.
 
     Raises :class:`~sparsebtf.errors.BTFInputError` (naming ``where``) when only some of the
     arrays are given, when the material has adaptive patch sizes (a store's keys assume one
@@ -61,11 +47,15 @@ def highlight_textures(arrays: dict[str, np.ndarray], meta: dict[str, Any], n_po
     if meta.get("adaptive"):
         raise BTFInputError(f"{where}: the viewer reads a highlight store of one patch size only")
     offsets, keys, rgb = (arrays[n] for n in HIGHLIGHT_ARRAYS)
+    if int(offsets[-1]) >= 2**31:  # the shader indexes the textures with int
+        raise BTFInputError(f"{where}: {int(offsets[-1])} highlight entries exceed the "
+                            "shader's int32 offsets")  # fmt: skip
     store = Highlights(offsets.astype(np.int64), keys, rgb)
     store.check(n_points, int(meta["patch"]), n_lights, n_views, where)
     spec = [
         ("sb_hlOffsets", "R32UI", offsets.astype(np.uint32)),
         ("sb_hlKeys", "R32UI", keys.astype(np.uint32)),
+        # binary16 as stored (the runtime's float32 copy widens them exactly)
         ("sb_hlRgb", "RGB16F", rgb.astype(np.float16)),
     ]
     return spec, {"sb_highlights": 1}
