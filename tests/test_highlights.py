@@ -291,3 +291,25 @@ def test_renderer_arrays_carry_the_store_and_step_6_by_hand(model):
     got = RuntimeBTF(lit).evaluate(wi, wo, texel=texel)
     np.testing.assert_allclose(got, np.maximum(want, 0), rtol=1e-5, atol=1e-6)
     assert np.abs(got - base).max() > 0.05  # the store changed the values
+
+
+def test_top_gains_keep_the_largest_positive_gains():
+    from sparsebtf.codec.highlights import _TopGains
+
+    rng = np.random.default_rng(0)
+    top = _TopGains(cap=50)
+    every = []
+    for point in range(6):
+        gain = rng.exponential(size=40)
+        gain[::5] = 0.0  # exact nodes (reference = decode) never pay
+        gain[1::7] = -1e-3  # nor do nodes binary16 would make worse
+        rgb = rng.normal(size=(40, 3)).astype(np.float16)
+        top.add(gain, point, rgb)
+        every += [(g, point, k, rgb[k]) for k, g in enumerate(gain) if g > 0]
+    g, pts, keys, rgb = top.sorted()
+    want = sorted(every, key=lambda e: -e[0])[:50]
+    np.testing.assert_allclose(g, [e[0] for e in want])
+    assert set(zip(pts.tolist(), keys.tolist(), strict=True)) == {(e[1], e[2]) for e in want}
+    for gi, p, k, v in zip(g, pts, keys, rgb, strict=True):
+        assert any(e[1] == p and e[2] == k and np.array_equal(e[3], v) for e in want)
+        assert gi > 0

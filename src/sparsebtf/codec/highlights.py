@@ -66,14 +66,18 @@ class _TopGains:
         self.size = 0
         self.floor = 0.0
 
-    def add(self, gain: np.ndarray, point: int, keys: np.ndarray, rgb: np.ndarray) -> None:
+    def add(self, gain: np.ndarray, point: int, rgb: np.ndarray) -> None:
+        """One point's nodes: ``gain`` (n,) and ``rgb`` (n, 3), node i's key being i; nodes
+        whose gain is not positive never pay."""
         if not self.cap:
             return
-        keep = gain > self.floor
+        keep = gain > max(self.floor, 0.0)
         if not keep.any():
             return
-        g, k = gain[keep], keys[keep]
-        self.parts.append((g, np.full(g.size, point, np.int32), k.astype(np.uint32), rgb[keep]))
+        keys = np.flatnonzero(keep)
+        g = gain[keys]
+        self.parts.append((g, np.full(g.size, point, np.int32), keys.astype(np.uint32),
+                           rgb[keys]))  # fmt: skip
         self.size += g.size
         if self.size > 2 * self.cap:
             self._cut()
@@ -142,7 +146,7 @@ def choose_highlights(
         for i, d in enumerate(decoders):
             gain, corr, s = _node_gains(ref, d.read(rows, cols, slice(None), slice(None)))
             sse[i] += s
-            tops[i].add(gain, point, np.flatnonzero(gain > 0), corr[gain > 0])
+            tops[i].add(gain, point, corr)
         bar.update(1)
     bar.close()
     ranked = [t.sorted() for t in tops]
