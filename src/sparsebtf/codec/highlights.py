@@ -1,7 +1,9 @@
 """Spending a level's bytes between coefficients and the highlight store (issue 46).
 
 ``encode_levels(..., highlights=True)``: each level's τ fixes its **byte budget** — the Table 4
-bytes of the material coded at that τ — and the coder spends it on a *base* code (one of the
+bytes of τ coefficients in every point (what the level is worth, even where a point's code
+stops earlier: ε, or a linear objective that drops what does not lower its error) — and the
+coder spends it on a *base* code (one of the
 call's τ, or τ/2 … τ/32 of the smallest) plus the nodes of the highlight store
 (:mod:`sparsebtf.learning.highlights`) whose exact correction removes the most linear-RGB
 squared error, whichever pair errs least. Every level of a call chooses among the same bases,
@@ -27,12 +29,13 @@ from .._limits import check_allocation
 from .._progress import bar as progress_bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
+from ..learning.cost import channel_storage
 from ..learning.highlights import ENTRY_BYTES, POINT_BYTES, Highlights
 from ..model import CHANNELS, CodedBTF, Model
 from ..points.grid import PatchGrid
 from ..runtime.dense import DecodedBTF
 
-__all__ = ["BASE_FRACTIONS", "base_taus", "choose_highlights"]
+__all__ = ["BASE_FRACTIONS", "base_taus", "choose_highlights", "level_budget"]
 
 #: Bases below the smallest level's τ, as divisors of it (each channel, at least 1).
 BASE_FRACTIONS = (2, 4, 8, 16, 32)
@@ -51,9 +54,22 @@ def base_taus(levels: Sequence[dict[str, int]]) -> list[dict[str, int]]:
 
 
 def _material_bytes(coded: CodedBTF, model: Model) -> int:
+    """Table 4 bytes of ``coded`` as it is (its codes and store)."""
     from ..storage.accounting import storage_report
 
     return int(storage_report(coded, model, stored=False)["bytes_table4_material"])
+
+
+def level_budget(coded: CodedBTF) -> int:
+    """Table 4 bytes of ``coded``'s τ in every point (coefficients, membership, counts)."""
+    total = 0
+    for ch, tau in coded.coded_tau.items():
+        if ch not in coded.codes:
+            continue
+        c = channel_storage(int(tau) * coded.n_points, coded.n_points, 1,
+                            coded.codes[ch].mode_sizes)
+        total += c["bytes_coefficients"] + c["bytes_membership"] + c["bytes_counts"]
+    return total
 
 
 class _TopGains:
@@ -126,7 +142,7 @@ def choose_highlights(
     ``params["highlights"]`` records the base τ, the entries, the budget and the squared
     error the choice was judged by."""
     cands = list(levels) + list(bases)
-    budgets = [_material_bytes(c, model) for c in levels]
+    budgets = [level_budget(c) for c in levels]
     own = [_material_bytes(c, model) for c in cands]
     n_pts = levels[0].n_points
     point_bytes = POINT_BYTES * n_pts
