@@ -181,23 +181,14 @@ def _mitsuba():
     return mi, dr, sbm
 
 
-def _si(mi, dr, wi, uv):
-    n = wi.shape[0]
-    si = dr.zeros(mi.SurfaceInteraction3f, n)
-    si.wi = mi.Vector3f(wi.T)
-    si.uv = mi.Point2f(uv.T)
-    si.sh_frame = mi.Frame3f(mi.Vector3f(1, 0, 0), mi.Vector3f(0, 1, 0), mi.Vector3f(0, 0, 1))
-    si.dp_du = mi.Vector3f(1, 0, 0)
-    si.dp_dv = mi.Vector3f(0, 1, 0)
-    return si
-
-
 @pytest.mark.parametrize("scheme", SCHEMES)
 def test_mitsuba_plugin_adds_the_corrections(coded, lit, scheme):
     """eval = RuntimeBTF.evaluate(light = wo, view = si.wi) on a material with highlights,
     through the Dr.Jit kernel (backend drjit) and the host runtime (backend numba)."""
-    mi, dr, sbm = _mitsuba()
+    mi, _, sbm = _mitsuba()
     from sparsebtf.rendering.mitsuba.materials import BSDF_PER_BTF_VALUE
+
+    from .test_mitsuba import _si  # the surface interaction of the plugin's tests
 
     rt = RuntimeBTF(lit)
     key = sbm.add_material(rt, "test-highlights")
@@ -213,7 +204,7 @@ def test_mitsuba_plugin_adds_the_corrections(coded, lit, scheme):
     for be in backends:
         bsdf = mi.load_dict({"type": "sparsebtf", "key": key, "interpolation": scheme,
                              "backend": be})  # fmt: skip
-        out = np.array(bsdf.eval(mi.BSDFContext(), _si(mi, dr, wi, uv), mi.Vector3f(wo.T)))
+        out = np.array(bsdf.eval(mi.BSDFContext(), _si(wi, uv), mi.Vector3f(wo.T)))
         got = (out if out.shape[-1] == 3 else out.T) / np.float32(BSDF_PER_BTF_VALUE)
         np.testing.assert_allclose(got, ref, rtol=2e-5, atol=2e-6, err_msg=be)
 
