@@ -31,7 +31,7 @@ from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.cost import channel_storage
 from ..learning.highlights import ENTRY_BYTES, POINT_BYTES, Highlights
-from ..model import CHANNELS, CodedBTF, Model
+from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid
 from ..runtime.dense import DecodedBTF
 
@@ -186,7 +186,7 @@ def choose_highlights(
             "highlights": {
                 "entries": int(n), "budget_bytes": int(budget),
                 "base_tau": {ch: int(v) for ch, v in base.coded_tau.items()},
-                "level_tau": {ch: int(v) for ch, v in lv.coded_tau.items() if ch in CHANNELS},
+                "level_tau": {ch: int(v) for ch, v in lv.coded_tau.items()},
                 "sse": float(left),
             },
         }  # fmt: skip
