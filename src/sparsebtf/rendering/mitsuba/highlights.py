@@ -23,24 +23,24 @@ class HighlightArrays:
     ``keys`` (N) UInt32, ``rgb`` (3N) Float interleaved, ``steps`` the binary search's steps
     (bits of the largest per-point count) and the key's strides."""
 
-    def __init__(self, mi: Any, h: Any, patch: int, n_lights: int, n_views: int) -> None:
-        offsets = np.asarray(h.offsets, dtype=np.int64)
-        self.steps = int(np.diff(offsets).max(initial=0)).bit_length()
-        self.offsets = mi.UInt32(offsets.astype(np.uint32))
-        self.keys = mi.UInt32(np.asarray(h.keys, dtype=np.uint32))
-        self.rgb = mi.Float(np.asarray(h.rgb, dtype=np.float32).ravel())
+    def __init__(self, mi: Any, arrays: dict[str, np.ndarray], patch: int, n_lights: int,
+                 n_views: int) -> None:  # fmt: skip
+        offsets = arrays["highlight_offsets"]
+        self.steps = int(np.diff(offsets.astype(np.int64)).max(initial=0)).bit_length()
+        self.offsets = mi.UInt32(offsets)
+        self.keys = mi.UInt32(arrays["highlight_keys"])
+        self.rgb = mi.Float(arrays["highlight_rgb"].ravel())
         self.patch, self.n_lights, self.n_views = int(patch), int(n_lights), int(n_views)
 
     @classmethod
-    def of(cls, mi: Any, rt: Any) -> HighlightArrays | None:
-        """The arrays of ``rt``'s store (a :class:`~sparsebtf.runtime.RuntimeBTF`), or None
-        without a store or entries: the lookup is then traced exactly as without."""
-        coded = getattr(rt, "coded", None)
-        h = getattr(coded, "highlights", None)
-        if h is None or not h.n_entries:
+    def of(cls, mi: Any, arrays: dict[str, np.ndarray], patch: int, n_lights: int,
+           n_views: int) -> HighlightArrays | None:  # fmt: skip
+        """The store among the renderer arrays ``arrays`` (``RuntimeBTF.arrays()``: uint32
+        offsets and keys, float32 RGB), or None where they have none (no store, no entries,
+        an adaptive material): the lookup is then traced exactly as without."""
+        if "highlight_keys" not in arrays:
             return None
-        m = rt.meta
-        return cls(mi, h, int(m["patch"]), int(m["n_lights"]), int(m["n_views"]))
+        return cls(mi, arrays, patch, n_lights, n_views)
 
 
 def _lower_bound(mi: Any, dr: Any, hl: HighlightArrays, lo: Any, hi: Any, key: Any,

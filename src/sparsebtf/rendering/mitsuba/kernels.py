@@ -224,7 +224,7 @@ class CodedArrays:
         self.std = mi.Float(a["std"].ravel())
         self.bound = mi.Float(a["bound"].ravel())
         self.yuv_to_rgb = [[float(v) for v in row] for row in a["yuv_to_rgb"]]
-        self.highlights = None if self.adaptive else HighlightArrays.of(mi, rt)
+        self.highlights = HighlightArrays.of(mi, a, self.patch, self.n_lights, self.n_views)
         self.channels = []
         for ch in ("Y", "U", "V"):
             d1, d2 = a[f"dict1_{ch}"], a[f"dict2_{ch}"]
