@@ -23,6 +23,7 @@ point's range ``offsets[point] : offsets[point + 1]``. Each entry costs
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -68,6 +69,13 @@ class Highlights:
     offsets: np.ndarray
     keys: np.ndarray
     rgb: np.ndarray
+
+    @cached_property
+    def sorted_nodes(self) -> np.ndarray:
+        """(N,) int64 ``point · 2^32 + key``, increasing: one sorted key over the whole store
+        (made once; a dense read searches it for every node it decodes)."""
+        pts = np.repeat(np.arange(self.n_points, dtype=np.int64), np.diff(self.offsets))
+        return (pts << 32) | self.keys.astype(np.int64)
 
     @property
     def n_entries(self) -> int:
@@ -143,8 +151,7 @@ def node_values(h: Highlights, points: np.ndarray, keys: np.ndarray) -> np.ndarr
     out = np.zeros((*k.shape, 3), dtype=np.float32)
     if not h.n_entries:
         return out
-    # one sorted composite key over the whole store: point · 2^32 + key
-    store = (np.repeat(np.arange(h.n_points, dtype=np.int64), np.diff(h.offsets)) << 32) | h.keys
+    store = h.sorted_nodes
     want = (pts << 32) | k
     at = np.minimum(np.searchsorted(store, want.ravel()), store.size - 1)
     hit = store[at] == want.ravel()
