@@ -390,6 +390,13 @@ class CodedBTF:
         return tuple(ch for ch in (*CHANNELS, "YUV") if ch in self.codes)
 
     @property
+    def highlight_store(self) -> Highlights | None:
+        """:attr:`highlights` when it holds entries, else None: a store without entries
+        changes no decoded value, so every reader and writer treats it as none."""
+        h = self.highlights
+        return h if h is not None and h.n_entries else None
+
+    @property
     def n_points(self) -> int:
         return (self.height // self.patch) * (self.width // self.patch)
 

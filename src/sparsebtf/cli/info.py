@@ -161,8 +161,8 @@ def describe(
 
 def _highlights_info(coded: Any, report: dict[str, Any]) -> dict[str, Any]:
     """The highlight store, if the file has one: its entries, bytes and points using it."""
-    h = getattr(coded, "highlights", None)
-    if h is None or not h.n_entries:
+    h = getattr(coded, "highlight_store", None)  # an adaptive material has none
+    if h is None:
         return {}
     used = int(np.count_nonzero(np.diff(h.offsets)))
     return {"highlights": {

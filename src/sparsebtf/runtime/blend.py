@@ -40,7 +40,7 @@ def check_blendable(coded: Sequence[CodedBTF]) -> None:
     if len(coded) < 2:
         raise BTFInputError("blending needs at least two coded BTFs")
     for c in coded:
-        if getattr(c, "highlights", None) is not None and c.highlights.n_entries:
+        if getattr(c, "highlight_store", None) is not None:  # an adaptive material has none
             # its corrections are linear RGB at nodes, not coefficients: no blend of them
             # would be the blend of the materials the codes blend to
             raise BTFInputError(f"{c.label} has a highlight store (encode --highlights): "

@@ -246,8 +246,8 @@ class RuntimeBTF:
         for ch, arrs in self._channels.items():
             for name, a in arrs.items():
                 out[f"{name}_{ch}"] = a.astype(np.float32) if a.dtype.kind == "f" else a
-        h = self.coded.highlights
-        if h is not None and h.n_entries:
+        h = self.coded.highlight_store
+        if h is not None:
             out["highlight_offsets"] = h.offsets.astype(np.uint32)
             out["highlight_keys"] = h.keys.astype(np.uint32)
             out["highlight_rgb"] = h.rgb.astype(np.float32)

@@ -115,8 +115,8 @@ class DecodedBTF(BTF):
         r, c, li, vi = self.indices(rows, cols, lights, views)
         z = self.read_standardised(rows, cols, lights, views)
         out = self.pre.inverse(z, li, vi).astype(np.float32, copy=False)
-        h = self.coded.highlights
-        if h is not None and h.n_entries:
+        h = self.coded.highlight_store
+        if h is not None:
             # the store's corrections at these nodes, then the clamp every decoder applies
             out += grid_corrections(h, r, c, li, vi, self.coded.patch, self.grid.n_row_blocks,
                                     len(self.lights), len(self.views))  # fmt: skip

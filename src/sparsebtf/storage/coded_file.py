@@ -213,7 +213,7 @@ def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> Non
     """The content of a coded file into the open, empty HDF5 file ``f`` (see
     :func:`save_coded`; also used to measure the stored size without a file). A material
     with a highlight store is schema 5 (:mod:`.highlight_file`): schema 3 and the store."""
-    store = coded.highlights if coded.highlights and coded.highlights.n_entries else None
+    store = coded.highlight_store
     if store is not None and schema != CODED_SCHEMA_VERSION:
         raise BTFInputError(f"{coded.name}: a highlight store is written in schema "
                             f"{HIGHLIGHT_SCHEMA} (schema 3 and the store), not {schema}")

@@ -70,7 +70,7 @@ def check_exportable(coded: CodedBTF, release_hash: str, name: str | None = None
     the release's ensembles (model ``release_hash``), shared log-YUV statistics with log offset
     1e-5, 10×10 patches on 151×151 directions, channels Y/U/V, K = 8, values within fp16."""
     where = coded.label
-    if coded.highlights is not None and coded.highlights.n_entries:
+    if coded.highlight_store is not None:
         raise BTFInputError(f"{where}: has a highlight store (encode --highlights), which the "
                             "release layout cannot hold; encode it without one")
     check_name(name)
