@@ -76,6 +76,9 @@ class _Ensemble(Method):
     training_options: ClassVar[dict[str, Any]] = {"std_mode": "shared"}
     #: whether the configured coding objective applies (it weighs log-YUV residuals)
     weighs_objective: ClassVar[bool] = True
+    #: whether each level's bytes are spent on codes and a highlight store
+    #: (:mod:`sparsebtf.codec.highlights`)
+    highlights: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -184,11 +187,16 @@ class _Ensemble(Method):
             btf, self.model_, list(taus), eps=0.0, allow_below_training=True,
             log_offset=self.log_offset if log_offset is None else log_offset,
             candidates=self.candidates, progress=ctx.progress, client=ctx.executor,
-            objective=self.objective,
+            objective=self.objective, highlights=self.highlights,
         )  # fmt: skip
 
     def coding(self, coded: CodedBTF, **info: Any) -> Coding:
-        """One coded material as a :class:`~.base.Coding` (its view decodes lazily)."""
+        """One coded material as a :class:`~.base.Coding` (its view decodes lazily); with a
+        highlight store's choice, its entries and base τ."""
+        hl = coded.params.get("highlights")
+        if hl is not None:
+            info = {**info, "highlight_entries": hl["entries"],
+                    "base_tau": list(hl["base_tau"].values())}  # fmt: skip
         row = coded_row(coded, self.model_)
         return Coding(coded_btf_view(coded), row["material_bytes"], self.shared_bytes(),
                       info={**info, **row, "log_offset": float(coded.stats.log_offset),
