@@ -83,7 +83,8 @@ def _combine(
     dicts = sum(c["bytes_dictionaries"] for c in per_channel.values())
     mz = sum(c["bytes_membership"] + c["bytes_counts"] for c in per_channel.values())
     hl = int(bytes_highlights)
-    total = coeff + dicts + mz + hl
+    material = coeff + mz + hl
+    total = material + dicts
     raw = raw_bytes(raw_values)
     out: dict[str, Any] = {
         "bytes_raw": raw,
@@ -94,13 +95,12 @@ def _combine(
         "bytes_membership_counts": mz,
         # the highlight store (learning/highlights.py: 10 bytes per entry, 4 per point)
         "bytes_highlights": hl,
-        "bytes_table4_material": coeff + mz + hl,
+        "bytes_table4_material": material,
         "bytes_dictionaries": dicts,
         "bytes_total": total,
         "mib_total": total / MIB,
         "compression_ratio": raw / total if total else float("inf"),
-        "compression_ratio_table4_material": (raw / (coeff + mz + hl) if coeff + mz + hl
-                                              else float("inf")),
+        "compression_ratio_table4_material": raw / material if material else float("inf"),
         "bytes_stats": int(bytes_stats),
         "nnz": {ch: c["nnz"] for ch, c in per_channel.items()},
     }
@@ -108,7 +108,7 @@ def _combine(
         out.update(stored)
         out["compression_ratio_per_material"] = raw / stored["bytes_stored"]
         out["stored_codes_vs_table4"] = (
-            stored["bytes_stored_codes"] / (coeff + mz + hl) if coeff + mz + hl else float("nan")
+            stored["bytes_stored_codes"] / material if material else float("nan")
         )
     out["channels"] = per_channel
     return out
