@@ -22,6 +22,7 @@ from sparsebtf.storage.accounting import paper_storage
 from sparsebtf.storage.highlight_file import HIGHLIGHT_SCHEMA
 
 from .conftest import smooth_btf, tiny_model
+from .test_highlight_decode import random_store
 
 LEVELS = [(16, 4, 4), (32, 8, 8), (64, 16, 16)]
 
@@ -55,15 +56,6 @@ def levels(glossy, model):
 
 def sse(coded, ref: np.ndarray) -> float:
     return float(np.square(np.asarray(DecodedBTF(coded).to_array(), np.float64) - ref).sum())
-
-
-def random_store(coded, seed: int = 0, share: float = 0.2) -> Highlights:
-    rng = np.random.default_rng(seed)
-    per_point = coded.patch**2 * len(coded.lights) * len(coded.views)
-    pts = np.repeat(np.arange(coded.n_points), int(share * per_point))
-    keys = np.concatenate([rng.choice(per_point, int(share * per_point), replace=False)
-                           for _ in range(coded.n_points)])  # fmt: skip
-    return Highlights.from_nodes(pts, keys, rng.normal(0, 0.5, (keys.size, 3)), coded.n_points)
 
 
 # ---------------------------------------------------------------------------- the encoder
@@ -185,7 +177,7 @@ def test_keys_must_rise_within_a_point(levels):
 
 def test_dense_decode_adds_the_corrections(model):
     c = encode(smooth_btf(6), model, tau=(32, 8, 8), eps=0.0, progress=False)
-    h = random_store(c)
+    h = random_store(c, share=0.2, scale=0.5)
     lit = replace(c, highlights=h)
     plain = np.asarray(DecodedBTF(c).to_array(), np.float64)
     got = np.asarray(DecodedBTF(lit).to_array(), np.float64)
@@ -209,7 +201,7 @@ def test_dense_decode_adds_the_corrections(model):
 
 def test_runtime_at_sampled_directions_equals_dense(model):
     c = encode(smooth_btf(7), model, tau=(32, 8, 8), eps=0.0, progress=False)
-    lit = replace(c, highlights=random_store(c, seed=2))
+    lit = replace(c, highlights=random_store(c, seed=2, share=0.2, scale=0.5))
     dense = np.asarray(DecodedBTF(lit).to_array())
     rt = RuntimeBTF(lit)
     rng = np.random.default_rng(0)
@@ -267,7 +259,7 @@ def test_renderer_arrays_carry_the_store_and_step_6_by_hand(model):
     from sparsebtf.runtime import angular_weights
 
     c = encode(smooth_btf(8), model, tau=(32, 8, 8), eps=0.0, progress=False)
-    lit = replace(c, highlights=random_store(c, seed=3, share=0.6))
+    lit = replace(c, highlights=random_store(c, seed=3, share=0.6, scale=0.5))
     a = RuntimeBTF(lit).arrays()
     assert "highlight_keys" not in RuntimeBTF(c).arrays()
     assert a["highlight_offsets"].shape == (c.n_points + 1,)
