@@ -19,6 +19,7 @@ import json
 import math
 import textwrap
 
+import h5py
 import numpy as np
 import pytest
 
@@ -265,6 +266,24 @@ def test_sample_geometry_follows_its_seed(tmp_path):
     assert not np.allclose(a, c)  # (same seed, same values: the resume test)
 
 
+def test_noise_seed_reseeds_the_paths_alone(tmp_path):
+    # pebbles: random geometry from --seed, Monte Carlo noise (1 path per texel) from the paths
+    def cap(name, **kw):
+        return read(capture("pebbles", tmp_path / name, size=4, directions="tiny7", spp=1,
+                            seed=5, **kw))[0]  # fmt: skip
+
+    a, same, twin = cap("a.h5"), cap("s.h5", noise_seed=5), cap("t.h5", noise_seed=6)
+    assert np.array_equal(a, same)  # the noise seed defaults to the seed
+    assert not np.allclose(a, twin)  # other paths ...
+    many = [read(capture("pebbles", tmp_path / f"m{k}.h5", size=4, directions="tiny7",
+                         spp=16, seed=5, noise_seed=k))[0] for k in (1, 2)]  # fmt: skip
+    other = read(capture("pebbles", tmp_path / "o.h5", size=4, directions="tiny7", spp=16,
+                         seed=6))[0]  # fmt: skip
+    # ... over the same sample: two noise seeds converge to each other, not to another sample
+    assert np.square(many[0] - many[1]).mean() < 0.5 * np.square(many[0] - other).mean()
+    assert "capture-pebbles-4x4-s5-n2" in h5py.File(tmp_path / "m2.h5")["/"].attrs["name"].decode()
+
+
 def test_crop_renders_a_window_of_the_full_capture(tmp_path):
     # the flat chart has no Monte Carlo noise: a window equals the full capture's texels
     full = read(capture("plane", tmp_path / "f.h5", size=8, directions="tiny7", spp=2))[0]
@@ -357,6 +376,7 @@ def test_bad_scenes_and_options_are_one_line(tmp_path, capsys):
     assert "crop rows 0:9" in err("plane", "-o", o, "--size", "8", "--crop", "0:9,0:8")
     assert "give .h5" in err("plane", "-o", tmp_path / "x.btf")
     assert "unknown direction set" in err("plane", "-o", o, "--directions", "tiny5")
+    assert "--noise-seed must be an integer" in err("plane", "-o", o, "--noise-seed", "-1")
     assert not list(tmp_path.glob("x.h5*"))
 
 

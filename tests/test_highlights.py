@@ -14,7 +14,7 @@ from sparsebtf.codec import encode, encode_levels
 from sparsebtf.codec.highlights import base_taus
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError, FileFormatError
-from sparsebtf.learning.highlights import ENTRY_BYTES, POINT_BYTES, Highlights, node_keys
+from sparsebtf.learning.highlights import POINT_BYTES, Highlights, entry_bytes, node_keys
 from sparsebtf.runtime import RuntimeBTF
 from sparsebtf.runtime.dense import DecodedBTF
 from sparsebtf.storage import load_coded, save_coded, storage_report
@@ -128,7 +128,12 @@ def test_file_round_trip_schema_5(levels, tmp_path, model):
     np.testing.assert_allclose(a, b, rtol=2e-3, atol=2e-3)
     rep = storage_report(back, model, path)
     h = c.highlights
-    assert rep["bytes_highlights"] == h.n_entries * ENTRY_BYTES + h.n_points * POINT_BYTES
+    # an entry as Table 4 counts a coefficient: a location (3 bytes below 2^24 nodes) and
+    # three binary16 values
+    per = 3 + 3 * 2 if c.patch**2 * len(c.lights) * len(c.views) <= 1 << 24 else 4 + 3 * 2
+    assert entry_bytes(c.patch, len(c.lights), len(c.views)) == per
+    assert rep["bytes_highlights"] == h.n_entries * per + h.n_points * POINT_BYTES
+    assert entry_bytes(10, 151, 151) == 9 and entry_bytes(64, 151, 151) == 10
     assert rep["bytes_stored_codes"] > 0
 
 

@@ -391,10 +391,10 @@ class CodedBTF:
 
     @property
     def highlight_store(self) -> Highlights | None:
-        """:attr:`highlights` when it holds entries, else None: a store without entries
+        """:attr:`highlights` when it holds entries or lobes, else None: an empty store
         changes no decoded value, so every reader and writer treats it as none."""
         h = self.highlights
-        return h if h is not None and h.n_entries else None
+        return h if h is not None and not h.empty_store else None
 
     @property
     def n_points(self) -> int:

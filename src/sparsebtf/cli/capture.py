@@ -27,7 +27,8 @@ def run(args: argparse.Namespace) -> int:
     output_format(args.output, "dense")  # capture writes our dense file
     crop = parse_crop(args.crop)
     spec = capture_spec(args.scene, args.size, args.directions, spp=args.spp, seed=args.seed,
-                        max_depth=args.max_depth, crop=crop, backend=args.backend)  # fmt: skip
+                        max_depth=args.max_depth, crop=crop, backend=args.backend,
+                        noise_seed=args.noise_seed)  # fmt: skip
     check_output_file(args.output, [args.scene], kind="dense")
     check_scene(spec)  # a bad scene or backend is one line before the size is announced
     say = Written(args.json)
@@ -36,7 +37,8 @@ def run(args: argparse.Namespace) -> int:
     say.announce(args.output, dense_file_bytes(spec.shape, args.dtype),
                  f"{shape}, {args.dtype}, {args.spp} spp")  # fmt: skip
     capture(args.scene, args.output, args.size, args.directions, spp=args.spp, seed=args.seed,
-            max_depth=args.max_depth, crop=crop, dtype=args.dtype, resume=args.resume,
+            max_depth=args.max_depth, crop=crop, noise_seed=args.noise_seed, dtype=args.dtype,
+            resume=args.resume,
             backend=args.backend, progress=None, **cluster_options(args))  # fmt: skip
     say.wrote(args.output, f"{shape} ({spec.directions_name})", kind="dense",
               shape=list(spec.shape), dtype=args.dtype)  # fmt: skip
@@ -77,6 +79,10 @@ def register(sub: Any) -> None:
     s.add_argument("--seed", type=int, default=0,
                    help="random seed of the sample's geometry and texture and of the Monte "
                    "Carlo noise (default 0)")  # fmt: skip
+    s.add_argument("--noise-seed", type=int, default=None,
+                   help="random seed of the Monte Carlo noise alone (default: --seed): the same "
+                   "sample with independent noise, whose difference from a capture measures "
+                   "that capture's noise")  # fmt: skip
     s.add_argument("--dtype", choices=["float32", "float16"], default="float32",
                    help="value type of the dense file (default float32)")
     s.add_argument("--backend", choices=["auto", "llvm", "cuda", "scalar"], default="auto",
@@ -90,4 +96,5 @@ def register(sub: Any) -> None:
         "spp": integer(1, 1 << 16, unit="paths per texel"),
         "max_depth": integer(2, 64, unit="path segments"),
         "seed": integer(0, 2**32 - 1),
+        "noise_seed": integer(0, 2**32 - 1),
     })  # fmt: skip

@@ -30,7 +30,7 @@ from .._progress import bar as progress_bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.cost import channel_storage
-from ..learning.highlights import ENTRY_BYTES, POINT_BYTES, Highlights
+from ..learning.highlights import POINT_BYTES, Highlights, entry_bytes
 from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid
 from ..runtime.dense import DecodedBTF
@@ -146,7 +146,8 @@ def choose_highlights(
     own = [_material_bytes(c, model) for c in cands]
     n_pts = levels[0].n_points
     point_bytes = POINT_BYTES * n_pts
-    caps = [max(0, (max(budgets) - b - point_bytes) // ENTRY_BYTES) for b in own]
+    per_entry = entry_bytes(levels[0].patch, len(levels[0].lights), len(levels[0].views))
+    caps = [max(0, (max(budgets) - b - point_bytes) // per_entry) for b in own]
     check_allocation(2 * sum(caps) * 18, f"{btf.label}: the highlight candidates "
                      f"({2 * sum(caps):,d} entries)", BTFInputError)  # fmt: skip
     tops = [_TopGains(cap) for cap in caps]
@@ -172,7 +173,7 @@ def choose_highlights(
         for i, (b, (g, *_)) in enumerate(zip(own, ranked, strict=True)):
             if b > budget:
                 continue
-            n = min(max(0, (budget - b - point_bytes) // ENTRY_BYTES), g.size)
+            n = min(max(0, (budget - b - point_bytes) // per_entry), g.size)
             left = sse[i] - float(g[:n].sum())
             if best is None or left < best[0]:
                 best = (left, i, n)

@@ -16,8 +16,10 @@ decode + c = the reference (within binary16 rounding).
 Layout (:class:`Highlights`): entries grouped by data point (release order), per point sorted by
 their key ``((i1·p + i2)·L + light)·V + view`` (i1, i2: the texel's row and column in the
 point's p×p patch; L lights, V views), so a decoder finds a node by a binary search in its
-point's range ``offsets[point] : offsets[point + 1]``. Each entry costs
-:data:`ENTRY_BYTES` (a 32-bit key and three binary16 values), each point a 32-bit count.
+point's range ``offsets[point] : offsets[point + 1]``. Each entry costs :func:`entry_bytes` by
+Table 4's rule for a coefficient (``learning/cost.py``): its key as a location (3 bytes for
+the p²·L·V ≤ 2^24 nodes of a UBO2014 point, else 4) and three binary16 values; each point a
+32-bit count (:data:`POINT_BYTES`).
 """
 
 from __future__ import annotations
@@ -28,21 +30,29 @@ from functools import cached_property
 import numpy as np
 
 from ..errors import BTFInputError
+from .cost import VALUE_BYTES, location_width
+from .lobes import LOBE_BYTES, LOBE_PARAMS, lobe_values
 
 __all__ = [
-    "ENTRY_BYTES",
     "POINT_BYTES",
     "Highlights",
     "correction",
+    "entry_bytes",
     "grid_corrections",
+    "lobe_corrections",
     "node_keys",
     "node_values",
 ]
 
-#: Bytes of one stored node: a uint32 key and R, G, B in binary16.
-ENTRY_BYTES = 10
 #: Bytes per data point: its entry count (uint32).
 POINT_BYTES = 4
+
+
+def entry_bytes(patch: int, n_lights: int, n_views: int) -> int:
+    """Bytes of one stored node, counted as Table 4 counts a coefficient: its key a location
+    among the point's p·p·L·V nodes (:func:`~sparsebtf.learning.cost.location_width`: 3 for
+    UBO2014's 2,280,100) and R, G, B three binary16 values — 9 bytes at UBO2014 size."""
+    return location_width((patch, patch, n_lights, n_views)) + 3 * VALUE_BYTES
 
 
 def node_keys(i1: np.ndarray, i2: np.ndarray, light: np.ndarray, view: np.ndarray,
@@ -64,11 +74,14 @@ class Highlights:
     offsets : (P + 1,) int64, point p's entries are ``offsets[p]:offsets[p + 1]``.
     keys : (N,) uint32, :func:`node_keys`, increasing within each point.
     rgb : (N, 3) float16, the linear-RGB correction (reference − decode) of each node.
+    lobes : (P, p², 8) float16 or None, a highlight lobe per texel (texel i1·p + i2 of its
+        point; :mod:`sparsebtf.learning.lobes`), added at the query's directions.
     """
 
     offsets: np.ndarray
     keys: np.ndarray
     rgb: np.ndarray
+    lobes: np.ndarray | None = None
 
     @cached_property
     def sorted_nodes(self) -> np.ndarray:
@@ -85,10 +98,20 @@ class Highlights:
     def n_points(self) -> int:
         return int(self.offsets.shape[0]) - 1
 
-    def nbytes(self) -> int:
-        """Stored bytes (the Table 4 way): :data:`ENTRY_BYTES` per entry, :data:`POINT_BYTES`
-        per point; 0 without entries (nothing is stored then)."""
-        return self.n_entries * ENTRY_BYTES + self.n_points * POINT_BYTES if self.n_entries else 0
+    @property
+    def empty_store(self) -> bool:
+        """No entry and no lobe: it changes no decoded value (stored as none)."""
+        return not self.n_entries and self.lobes is None
+
+    def nbytes(self, patch: int, n_lights: int, n_views: int) -> int:
+        """Stored bytes (the Table 4 way) in a material of ``patch``² texels per point and
+        ``n_lights`` × ``n_views`` directions: :func:`entry_bytes` per entry,
+        :data:`POINT_BYTES` per point; 0 without entries (nothing is stored then)."""
+        if self.empty_store:
+            return 0
+        lobes = 0 if self.lobes is None else self.n_points * patch * patch * LOBE_BYTES
+        return (self.n_entries * entry_bytes(patch, n_lights, n_views)
+                + self.n_points * POINT_BYTES + lobes)  # fmt: skip
 
     @classmethod
     def empty(cls, n_points: int) -> Highlights:
@@ -141,6 +164,16 @@ class Highlights:
         if not np.all(np.isfinite(v)):
             i = int(np.flatnonzero(~np.isfinite(v).all(axis=1))[0])
             raise BTFInputError(f"{where}: rgb entry {i} is not finite")
+        if self.lobes is not None:
+            lb = self.lobes
+            if lb.shape != (n_points, patch * patch, LOBE_PARAMS):
+                raise BTFInputError(f"{where}: lobes has shape {lb.shape}, expected "
+                                    f"({n_points}, {patch * patch}, {LOBE_PARAMS})")  # fmt: skip
+            bad = ~np.isfinite(lb).all(axis=2) | (lb[..., 5:] < 0).any(axis=2)
+            if bad.any():
+                pt, tx = (int(x[0]) for x in np.nonzero(bad))
+                raise BTFInputError(f"{where}: lobe of point {pt}, texel {tx} is not finite or "
+                                    "has a negative amplitude")  # fmt: skip
 
 
 def node_values(h: Highlights, points: np.ndarray, keys: np.ndarray) -> np.ndarray:
@@ -173,15 +206,37 @@ def correction(h: Highlights, pts: np.ndarray, i1: np.ndarray, i2: np.ndarray,
     return np.einsum("nab,nabc->nc", w, c.astype(np.float64))
 
 
+def lobe_corrections(h: Highlights, pts: np.ndarray, texels: np.ndarray, wi: np.ndarray,
+                     wo: np.ndarray) -> np.ndarray:  # fmt: skip
+    """The lobes' values at directions ``wi``, ``wo`` (..., 3) of texel ``texels`` (i1·p + i2)
+    of point ``pts`` (shapes broadcasting with ``wi[..., 0]``): (..., 3) float64, 0 without
+    lobes — :func:`~sparsebtf.learning.lobes.lobe_values`, the reference."""
+    shape = np.broadcast_shapes(np.shape(pts), np.shape(texels), np.shape(wi)[:-1],
+                                np.shape(wo)[:-1])  # fmt: skip
+    if h.lobes is None:
+        return np.zeros((*shape, 3))
+    params = h.lobes[np.asarray(pts, dtype=np.int64), np.asarray(texels, dtype=np.int64)]
+    return lobe_values(params.astype(np.float64), wi, wo)
+
+
 def grid_corrections(h: Highlights, rows: np.ndarray, cols: np.ndarray, lights: np.ndarray,
                      views: np.ndarray, patch: int, n_row_blocks: int, n_lights: int,
-                     n_views: int) -> np.ndarray:  # fmt: skip
+                     n_views: int, directions: tuple[np.ndarray, np.ndarray]
+                     ) -> np.ndarray:  # fmt: skip
     """The corrections at the outer product of texel ``rows`` × ``cols`` × ``lights`` ×
-    ``views`` (index arrays, as a dense read takes them): (r, c, l, v, 3) float32. Point
-    numbering is the release's: ``row_block + n_row_blocks · col_block``."""
+    ``views`` (index arrays, as a dense read takes them): (r, c, l, v, 3) float32, the lobes'
+    values included where the store has lobes (``directions``: the material's light and view
+    unit vectors, (L, 3) and (V, 3)). Point numbering is the release's:
+    ``row_block + n_row_blocks · col_block``."""
     r, c, li, vi = (np.asarray(a, dtype=np.int64) for a in (rows, cols, lights, views))
     p = patch
     pts = (r[:, None] // p) + n_row_blocks * (c[None, :] // p)  # (r, c)
     t = (r[:, None] % p) * p + (c[None, :] % p)
     keys = (t[:, :, None, None] * n_lights + li[None, None, :, None]) * n_views + vi
-    return node_values(h, np.broadcast_to(pts[:, :, None, None], keys.shape), keys)
+    out = node_values(h, np.broadcast_to(pts[:, :, None, None], keys.shape), keys)
+    if h.lobes is not None:
+        wi, wo = directions
+        out += lobe_corrections(h, pts[:, :, None, None], t[:, :, None, None],
+                                wi[li][None, None, :, None], wo[vi][None, None, None, :]
+                                ).astype(np.float32)  # fmt: skip
+    return out

@@ -119,7 +119,8 @@ class DecodedBTF(BTF):
         if h is not None:
             # the store's corrections at these nodes, then the clamp every decoder applies
             out += grid_corrections(h, r, c, li, vi, self.coded.patch, self.grid.n_row_blocks,
-                                    len(self.lights), len(self.views))  # fmt: skip
+                                    len(self.lights), len(self.views),
+                                    (self.lights.xyz, self.views.xyz))  # fmt: skip
             np.maximum(out, 0, out=out)
         return out
 

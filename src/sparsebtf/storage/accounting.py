@@ -93,7 +93,7 @@ def _combine(
         "bytes_locations": sum(c["bytes_locations"] for c in per_channel.values()),
         "bytes_coefficients": coeff,
         "bytes_membership_counts": mz,
-        # the highlight store (learning/highlights.py: 10 bytes per entry, 4 per point)
+        # the highlight store (learning/highlights.py: entry_bytes per entry, 4 per point)
         "bytes_highlights": hl,
         "bytes_table4_material": material,
         "bytes_dictionaries": dicts,
@@ -206,7 +206,8 @@ def storage_report(
 
         parts = stored_bytes(file_path if file_path is not None else coded_image(coded))
     stats_bytes = 4 * (int(coded.stats.mean.size) + int(coded.stats.std.size))
-    hl = coded.highlights.nbytes() if coded.highlights is not None else 0
+    hl = (coded.highlights.nbytes(coded.patch, len(coded.lights), len(coded.views))
+          if coded.highlights is not None else 0)  # fmt: skip
     out = _combine(
         per, coded.height, coded.width, len(coded.lights), len(coded.views), stats_bytes, parts,
         hl,

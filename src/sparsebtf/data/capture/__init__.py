@@ -59,6 +59,7 @@ def capture_spec(
     max_depth: int = 3,
     crop: tuple[slice, slice] | None = None,
     backend: str = "auto",
+    noise_seed: int | None = None,
 ) -> CaptureSpec:
     """A checked :class:`CaptureSpec` (errors are one line naming the option)."""
     from ..crop import crop_window
@@ -70,6 +71,8 @@ def capture_spec(
     _whole("spp", spp, 1, None, "paths per texel")
     _whole("max_depth", max_depth, 2, None, "path segments (2: direct light only)")
     _whole("seed", seed, 0, 2**32 - 1, "")
+    if noise_seed is not None:
+        _whole("noise_seed", noise_seed, 0, 2**32 - 1, "")
     dirs = resolve_directions(directions)
     if np.any(dirs.xyz[:, 2] <= 1e-6):
         raise BTFInputError(f"directions {dirs.name}: every direction must lie above the "
@@ -81,6 +84,7 @@ def capture_spec(
         scene=scene, size=int(size), rows=window[0], cols=window[1], spp=int(spp),
         max_depth=int(max_depth), seed=int(seed), directions_name=dirs.name,
         directions=tuple(tuple(float(c) for c in v) for v in dirs.xyz), backend=backend,
+        noise_seed=None if noise_seed is None or noise_seed == seed else int(noise_seed),
     )  # fmt: skip
 
 
@@ -94,6 +98,7 @@ def capture(
     seed: int = 0,
     max_depth: int = 3,
     crop: tuple[slice, slice] | None = None,
+    noise_seed: int | None = None,
     dtype: str = "float32",
     resume: bool = False,
     backend: str = "auto",
@@ -105,15 +110,19 @@ def capture(
 
     ``size`` texels per side over the tile (``crop`` = (rows, cols) slices renders a window
     of them), ``spp`` camera paths per texel, ``max_depth`` path segments (3: one bounce of
-    inter-reflection), ``seed`` the sample's geometry and the Monte Carlo noise. Views run in
-    this process, on a local Dask cluster of ``workers`` processes or on ``scheduler``'s.
+    inter-reflection), ``seed`` the sample's geometry and the Monte Carlo noise, ``noise_seed``
+    the noise alone (a twin of a capture: the same sample, independent noise, whose difference
+    measures the capture's noise). Views run in this process, on a local Dask cluster of
+    ``workers`` processes or on ``scheduler``'s.
     """
     from ...execution import executor
 
     spec = capture_spec(scene, size, directions, spp=spp, seed=seed, max_depth=max_depth,
-                        crop=crop, backend=backend)  # fmt: skip
+                        crop=crop, backend=backend, noise_seed=noise_seed)  # fmt: skip
     stem = Path(scene).stem if scene.lower().endswith((".xml", ".py")) else scene.lower()
     name = f"capture-{stem}-{spec.shape[0]}x{spec.shape[1]}-s{seed}"
+    if spec.noise_seed is not None:
+        name += f"-n{spec.noise_seed}"
     attrs: dict[str, Any] = {"scene": scene}
     with executor(workers=workers, scheduler=scheduler) as ex:
         return write_capture(output, spec, dtype=dtype, resume=resume, executor=ex,

@@ -6,8 +6,8 @@ root attributes, ``capture_json`` (everything that decides the values: :meth:`Ca
 and ``capture_done`` (one flag per view). Each rendered view is written and flagged at once,
 so memory holds one view block (H·W·L·3 values), and an interrupted capture keeps its finished
 views: ``resume=True`` checks that the partial file was made by the same capture and renders
-only the views not flagged. Every view's Monte Carlo noise depends only on (seed, view), so a
-resumed capture writes the values an uninterrupted one writes. When the last view is in, the
+only the views not flagged. Every view's Monte Carlo noise depends only on (noise seed, view),
+so a resumed capture writes the values an uninterrupted one writes. When the last view is in, the
 two attributes are removed and the file is renamed to the output.
 """
 
@@ -42,7 +42,8 @@ class CaptureSpec:
 
     ``scene`` is a built-in sample name or a scene file path; ``rows``/``cols`` the texel
     window ``(start, stop)`` of the ``size``×``size`` grid; ``directions`` the (n, 3) unit
-    vectors used as lights and as views, named ``directions_name``.
+    vectors used as lights and as views, named ``directions_name``; ``noise_seed`` the seed of
+    the Monte Carlo paths when it is not ``seed`` (None: ``seed`` seeds both).
     """
 
     scene: str
@@ -55,6 +56,12 @@ class CaptureSpec:
     directions_name: str
     directions: tuple[tuple[float, float, float], ...] = field(repr=False)
     backend: str = "auto"
+    noise_seed: int | None = None
+
+    @property
+    def paths_seed(self) -> int:
+        """The seed of the Monte Carlo paths."""
+        return self.seed if self.noise_seed is None else self.noise_seed
 
     @property
     def direction_set(self) -> DirectionSet:
@@ -70,6 +77,8 @@ class CaptureSpec:
         """The JSON fingerprint a resumed capture must match."""
         d = asdict(self)
         d.pop("backend")
+        if d["noise_seed"] is None:  # the keys of captures made before the option stay valid
+            d.pop("noise_seed")
         d["directions"] = _digest(np.asarray(self.directions, dtype=np.float64))
         d["scene_digest"] = scene_digest
         d["capture_version"] = CAPTURE_VERSION
@@ -126,7 +135,8 @@ def render_block(spec: CaptureSpec, view: int) -> np.ndarray:
     xyz = np.asarray(spec.directions, dtype=np.float64)
     block = render_view(sample.scene, sample.z_top, spec.size, slice(*spec.rows),
                         slice(*spec.cols), xyz[view], xyz, spp=spec.spp,
-                        max_depth=spec.max_depth, seed=spec.seed, view_index=view)  # fmt: skip
+                        max_depth=spec.max_depth, seed=spec.paths_seed,
+                        view_index=view)  # fmt: skip
     bad = ~np.isfinite(block)
     if bad.any():
         r, c, li, ch = (int(x[0]) for x in np.nonzero(bad))

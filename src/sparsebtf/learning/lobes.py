@@ -1,0 +1,197 @@
+"""Per-texel highlight lobes (issue 46): a few parameters per texel that predict the band of
+highlight values a log-domain code misses, added after the decode like the highlight store.
+
+Where a glossy metal's highlight comes from one facet per texel (a brushed or grooved metal),
+the residual of its code is one anisotropic GGX lobe per texel, and its hundreds of highlight
+nodes follow from eight numbers (the sparse store pays 9 bytes for each node). The lobe of
+texel x, in the frame (t, b, n) = R(ω)·(e_x, e_y, e_z) of the rotation vector ω::
+
+    lobe(x, ω_i, ω_o) = A · D(h) / max(n·ω_o, NV_FLOOR)      where n·ω_i > 0, n·ω_o > 0
+    D(h) = 1 / (π α_x α_y (h_t²/α_x² + h_b²/α_y² + h_n²)²),    h = (ω_i + ω_o) / |ω_i + ω_o|
+
+(0 elsewhere), the microfacet term of a rough conductor with its Fresnel, shadowing and
+constants folded into the linear-RGB amplitude A ≥ 0. Parameters per texel, binary16 in the
+file: ``(ω_x, ω_y, ω_z, ln α_x, ln α_y, A_r, A_g, A_b)`` — :data:`LOBE_BYTES` a texel. On a
+bumpy surface seen through a rectified camera each view sees another spot of the relief, and
+no one lobe fits a texel (docs/benchmarks.md §17 measures both cases); the encoder keeps lobes
+only where they lower the error at their bytes.
+
+:func:`lobe_values` is the reference every decoder is tested against; :func:`fit_lobes` fits
+the lobes of a batch of texels to a residual (Levenberg–Marquardt over the five shape
+parameters, the amplitudes solved in closed form at each step: SciPy's ``least_squares``
+solves one problem at a time, and a material has 160,000 texels of 68,000 values each).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .cost import VALUE_BYTES
+
+__all__ = [
+    "LOBE_BYTES",
+    "LOBE_PARAMS",
+    "NV_FLOOR",
+    "fit_lobes",
+    "lobe_amplitudes",
+    "lobe_frame",
+    "lobe_values",
+    "unit_lobes",
+]
+
+#: Parameters per texel: rotation vector (3), ln α_x, ln α_y, linear-RGB amplitude (3).
+LOBE_PARAMS = 8
+#: Bytes per texel (binary16 parameters, Table 4's value size).
+LOBE_BYTES = LOBE_PARAMS * VALUE_BYTES
+#: Lower bound on n·ω_o in the lobe's denominator (grazing views stay finite).
+NV_FLOOR = 0.05
+_ALPHA = (1e-3, 2.0)  # the fit keeps α_x, α_y in this range
+
+
+def lobe_frame(omega: np.ndarray) -> np.ndarray:
+    """Rodrigues' rotation of the rotation vectors ``omega`` (..., 3): (..., 3, 3) float64 whose
+    columns are t, b, n. Series below 1e-4 rad (the exact formula divides by θ²)."""
+    w = np.asarray(omega, dtype=np.float64)
+    th2 = np.sum(w * w, axis=-1)[..., None, None]
+    th = np.sqrt(th2)
+    small = th2 < 1e-8
+    safe = np.where(small, 1.0, th)
+    a = np.where(small, 1 - th2 / 6, np.sin(safe) / safe)
+    b = np.where(small, 0.5 - th2 / 24, (1 - np.cos(safe)) / np.where(small, 1.0, th2))
+    k = np.zeros((*w.shape[:-1], 3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -w[..., 2], w[..., 1], -w[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = w[..., 2], -w[..., 1], w[..., 0]
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+def _microfacet(ht, hb, hn, nl, nv, ax, ay):
+    """D(h) / max(n·ω_o, NV_FLOOR) from the half vector in the lobe's frame, n·ω_i, n·ω_o."""
+    q = (ht / ax) ** 2 + (hb / ay) ** 2 + hn * hn
+    d = 1.0 / (np.pi * ax * ay * q * q)
+    return np.where((nl > 0) & (nv > 0), d / np.maximum(nv, NV_FLOOR), 0.0)
+
+
+def _half(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    h = np.asarray(wi, dtype=np.float64) + np.asarray(wo, dtype=np.float64)
+    return h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+
+
+def unit_lobes(shape: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """D(h) / max(n·ω_o, NV_FLOOR) of lobes of amplitude 1 (module docstring).
+
+    ``shape`` (..., 5) = (ω, ln α_x, ln α_y); ``wi``, ``wo`` (..., 3) directions (normalised
+    here), any shapes broadcasting with ``shape[..., :1]``. Returns float64 of the broadcast
+    shape."""
+    s = np.asarray(shape, dtype=np.float64)
+    frame = lobe_frame(s[..., :3])
+    t, b, n = frame[..., :, 0], frame[..., :, 1], frame[..., :, 2]
+    wi, wo = (np.asarray(w, dtype=np.float64) for w in (wi, wo))
+    wi = wi / np.maximum(np.linalg.norm(wi, axis=-1, keepdims=True), 1e-300)
+    wo = wo / np.maximum(np.linalg.norm(wo, axis=-1, keepdims=True), 1e-300)
+    h = _half(wi, wo)
+    ht, hb, hn = (np.sum(h * v, axis=-1) for v in (t, b, n))
+    nl, nv = np.sum(wi * n, axis=-1), np.sum(wo * n, axis=-1)
+    return _microfacet(ht, hb, hn, nl, nv, np.exp(s[..., 3]), np.exp(s[..., 4]))
+
+
+def _unit_lobes_grid(shape: np.ndarray, h: np.ndarray, wi: np.ndarray,
+                     wo: np.ndarray) -> np.ndarray:  # fmt: skip
+    """:func:`unit_lobes` of T texels' shapes (T, 5) at the same P direction pairs (half
+    vectors ``h``, ``wi``, ``wo`` (P, 3)): (T, P), by matrix products (the fit's inner loop)."""
+    frame = lobe_frame(shape[:, :3])  # (T, 3, 3), columns t, b, n
+    hf = np.einsum("pk,tkj->jtp", h, frame, optimize=True)
+    nl = frame[:, :, 2] @ wi.T
+    nv = frame[:, :, 2] @ wo.T
+    ax, ay = np.exp(shape[:, 3:4]), np.exp(shape[:, 4:5])
+    return _microfacet(hf[0], hf[1], hf[2], nl, nv, ax, ay)
+
+
+def lobe_values(params: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """The lobes' linear-RGB values: ``params`` (..., 8), directions (..., 3) broadcasting
+    with ``params[..., :1]``; (..., 3) float64 — the reference of every decoder."""
+    p = np.asarray(params, dtype=np.float64)
+    return unit_lobes(p[..., :5], wi, wo)[..., None] * p[..., 5:8]
+
+
+def lobe_amplitudes(g: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Least-squares amplitudes ≥ 0 of unit lobes ``g`` (T, P) against residuals ``r``
+    (T, P, 3): (T, 3), max(gᵀr / gᵀg, 0) per channel (0 where g is 0)."""
+    gg = np.einsum("tp,tp->t", g, g)
+    gr = np.einsum("tp,tpc->tc", g, r)
+    return np.maximum(gr / np.where(gg > 0, gg, 1.0)[:, None], 0.0) * (gg > 0)[:, None]
+
+
+def _sse(g: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """Per texel, the squared error left by the best amplitudes: ‖r‖² − Σ_c max(gᵀr_c, 0)²/gᵀg."""
+    gg = np.einsum("tp,tp->t", g, g)
+    gr = np.maximum(np.einsum("tp,tpc->tc", g, r), 0.0)
+    return np.einsum("tpc,tpc->t", r, r) - (gr * gr).sum(1) / np.where(gg > 0, gg, np.inf)
+
+
+def _start(r: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """Initial shapes: the frame that turns e_z to the half vector of each texel's largest
+    residual, α = 0.1 both ways."""
+    top = np.argmax(r.sum(-1), axis=1)
+    h = wi[top] + wo[top]
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    axis = np.stack([-h[:, 1], h[:, 0], np.zeros(len(h))], axis=1)  # e_z × h
+    s = np.linalg.norm(axis, axis=1, keepdims=True)
+    ang = np.arctan2(s[:, 0], h[:, 2])[:, None]
+    omega = np.where(s > 1e-9, axis / np.where(s > 1e-9, s, 1.0) * ang, 0.0)
+    return np.concatenate([omega, np.full((len(h), 2), np.log(0.1))], axis=1)
+
+
+def _wrapped(omega: np.ndarray) -> np.ndarray:
+    """The same rotations with |ω| ≤ π (a rotation by θ about k is one by θ − 2π about k)."""
+    th = np.linalg.norm(omega, axis=1, keepdims=True)
+    over = th > np.pi
+    turned = np.mod(th + np.pi, 2 * np.pi) - np.pi
+    return np.where(over, omega * (turned / np.where(over, th, 1.0)), omega)
+
+
+def fit_lobes(r: np.ndarray, wi: np.ndarray, wo: np.ndarray, iters: int = 25) -> np.ndarray:
+    """Lobes fitted to the residuals ``r`` (T, P, 3) of T texels at P direction pairs
+    (``wi``, ``wo`` (P, 3)): (T, 8) float16 — the shape by Levenberg–Marquardt on the squared
+    error (forward-difference Jacobians, amplitudes solved at each step), then the amplitudes
+    solved again for the binary16 shape. A texel whose lobe does not lower its error gets
+    amplitude 0."""
+    r = np.asarray(r, dtype=np.float64)
+    wi = np.asarray(wi, dtype=np.float64)
+    wo = np.asarray(wo, dtype=np.float64)
+    h = _half(wi, wo)
+    theta = _start(r, wi, wo)
+    lam = np.full(len(theta), 1e-2)
+
+    def shapes(th: np.ndarray) -> np.ndarray:
+        return _unit_lobes_grid(th, h, wi, wo)
+
+    g = shapes(theta)
+    cost = _sse(g, r)
+    step = np.array([1e-4, 1e-4, 1e-4, 1e-3, 1e-3])
+    for _ in range(iters):
+        a = lobe_amplitudes(g, r)
+        res = r - g[..., None] * a[:, None, :]
+        w = np.einsum("tpc,tc->tp", res, a)  # the residual along each texel's colour
+        a2 = (a * a).sum(1)
+        jac = np.empty((*g.shape, 5))
+        for k in range(5):
+            th = theta.copy()
+            th[:, k] += step[k]
+            jac[..., k] = (shapes(th) - g) / step[k]
+        jtj = a2[:, None, None] * np.einsum("tpk,tpl->tkl", jac, jac)
+        jtr = np.einsum("tpk,tp->tk", jac, w)
+        damp = jtj + lam[:, None, None] * (np.eye(5) * np.diagonal(jtj, axis1=1, axis2=2)[:, None]
+                                           + 1e-12 * np.eye(5))  # fmt: skip
+        delta = np.linalg.solve(damp, jtr[..., None])[..., 0]
+        trial = theta + np.where(np.isfinite(delta), delta, 0.0)
+        trial[:, :3] = _wrapped(trial[:, :3])
+        trial[:, 3:] = np.clip(trial[:, 3:], *np.log(_ALPHA))
+        g_new = shapes(trial)
+        c_new = _sse(g_new, r)
+        ok = c_new < cost
+        theta[ok], g[ok], cost[ok] = trial[ok], g_new[ok], c_new[ok]
+        lam = np.where(ok, lam / 3, lam * 4)
+    shape16 = theta.astype(np.float16)
+    g = shapes(shape16.astype(np.float64))
+    amp = lobe_amplitudes(g, r).astype(np.float16)
+    return np.concatenate([shape16, amp], axis=1)
