@@ -11,15 +11,16 @@ import numpy as np
 import pytest
 
 from sparsebtf.codec import encode, encode_levels
-from sparsebtf.codec.highlights import base_taus
+from sparsebtf.codec.highlights import base_taus, choose_highlights
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError, FileFormatError
 from sparsebtf.learning.highlights import POINT_BYTES, Highlights, entry_bytes, node_keys
+from sparsebtf.learning.lobes import LOBE_BYTES, lobe_values
 from sparsebtf.runtime import RuntimeBTF
 from sparsebtf.runtime.dense import DecodedBTF
 from sparsebtf.storage import load_coded, save_coded, storage_report
 from sparsebtf.storage.accounting import paper_storage
-from sparsebtf.storage.highlight_file import HIGHLIGHT_SCHEMA
+from sparsebtf.storage.highlight_file import HIGHLIGHT_SCHEMA, LOBE_SCHEMA
 
 from .conftest import smooth_btf, tiny_model
 from .test_highlight_decode import random_store
@@ -88,6 +89,46 @@ def test_store_pays_on_highlights_and_levels_are_nested(levels, glossy, model):
     assert errs[0] < 0.8 * sse(plain[0], ref)
 
 
+def lobe_btf(seed: int = 5) -> ArrayBTF:
+    """``smooth_btf`` plus one glossy lobe per texel (random facet, α 0.15–0.4, amplitude
+    0.5–2): the highlight a grooved metal puts on every texel."""
+    b = smooth_btf(seed)
+    rng = np.random.default_rng(seed)
+    n = b.height * b.width
+    params = np.concatenate([rng.uniform(-0.3, 0.3, (n, 3)),
+                             np.log(rng.uniform(0.15, 0.4, (n, 2))),
+                             rng.uniform(0.5, 2.0, (n, 3))], axis=1)  # fmt: skip
+    wi, wo = b.lights.xyz[:, None, :], b.views.xyz[None, :, :]
+    lobe = lobe_values(params[:, None, None, :], wi[None], wo[None])
+    data = np.asarray(b.to_array(), np.float64) + lobe.reshape(b.height, b.width, *lobe.shape[1:])
+    return ArrayBTF(data.astype(np.float32), b.lights, b.views, name="lobes")
+
+
+def test_lobes_pay_on_a_lobe_material(model):
+    btf = lobe_btf()
+    ref = np.asarray(btf.to_array(), np.float64)
+    taus = [dict(zip("YUV", t, strict=True)) for t in LEVELS]
+    coded = encode_levels(btf, model, taus + base_taus(taus), eps=0.0, progress=False,
+                          allow_below_training=True)  # fmt: skip
+    plain, bases = coded[: len(LEVELS)], coded[len(LEVELS):]
+    with_lobes = choose_highlights(btf, plain, bases, model, progress=False)
+    entries_only = choose_highlights(btf, plain, bases, model, progress=False, lobes=False)
+    top, other = with_lobes[-1], entries_only[-1]
+    rec = top.params["highlights"]
+    assert rec["lobes"] and top.highlights.lobes is not None
+    assert top.highlights.lobes.shape == (top.n_points, 16, 8)
+    got = sse(top, ref)
+    assert got == pytest.approx(rec["sse"], rel=1e-3)
+    # within the level's bytes, the lobes counted (16 bytes a texel), and far below entries
+    rep = storage_report(top, model, stored=False)
+    assert rep["bytes_table4_material"] <= rec["budget_bytes"]
+    assert rep["bytes_highlights"] >= 64 * LOBE_BYTES
+    assert got < 0.5 * sse(other, ref)
+    assert not other.params["highlights"]["lobes"]
+    errs = [sse(c, ref) for c in with_lobes]
+    assert all(b <= a * (1 + 1e-6) for a, b in itertools.pairwise(errs))
+
+
 def test_no_entries_where_they_do_not_pay(model):
     (c,) = encode_levels(smooth_btf(4), model, [(32, 8, 8)], eps=0.0, highlights=True,
                          progress=False)  # fmt: skip
@@ -135,6 +176,58 @@ def test_file_round_trip_schema_5(levels, tmp_path, model):
     assert rep["bytes_highlights"] == h.n_entries * per + h.n_points * POINT_BYTES
     assert entry_bytes(10, 151, 151) == 9 and entry_bytes(64, 151, 151) == 10
     assert rep["bytes_stored_codes"] > 0
+
+
+@pytest.fixture(scope="module")
+def lobed(model):
+    """A coded material whose store has lobes: random ones on the codes of ``smooth_btf(6)``,
+    with the first point's entries of a random store."""
+    c = encode(smooth_btf(6), model, tau=(32, 8, 8), eps=0.0, progress=False)
+    rng = np.random.default_rng(2)
+    n = (c.n_points, c.patch**2)
+    lobes = np.concatenate([rng.uniform(-0.4, 0.4, (*n, 3)), np.log(rng.uniform(0.1, 0.4, (*n, 2))),
+                            rng.uniform(0, 2, (*n, 3))], axis=2).astype(np.float16)  # fmt: skip
+    return replace(c, highlights=replace(random_store(c, share=0.1, scale=0.5), lobes=lobes))
+
+
+def test_lobes_file_round_trip_schema_6(lobed, model, tmp_path):
+    path = save_coded(lobed, tmp_path / "l.h5")
+    with h5py.File(path) as f:
+        assert int(f.attrs["schema_version"]) == LOBE_SCHEMA
+        assert f["highlights/lobes"].shape == (lobed.n_points, 16, 8)
+    back = load_coded(path, model)
+    np.testing.assert_array_equal(back.highlights.lobes, lobed.highlights.lobes)
+    a = np.asarray(DecodedBTF(back).to_array())
+    b = np.asarray(DecodedBTF(lobed).to_array())
+    np.testing.assert_allclose(a, b, rtol=2e-3, atol=2e-3)
+    h = lobed.highlights
+    assert storage_report(back, model, path)["bytes_highlights"] == (
+        h.n_entries * entry_bytes(4, 13, 13) + h.n_points * POINT_BYTES
+        + h.n_points * 16 * LOBE_BYTES)
+
+
+@pytest.mark.parametrize("damage, message", [
+    ("negative", "negative amplitude"), ("nan", "not finite"), ("shape", "lobes"),
+    ("in schema 5", "schema 6 holds them"),
+])  # fmt: skip
+def test_damaged_lobes_are_one_line(lobed, model, tmp_path, damage, message):
+    path = save_coded(lobed, tmp_path / "d.h5")
+    with h5py.File(path, "r+") as f:
+        g = f["highlights"]
+        lobes = g["lobes"][()]
+        del g["lobes"]
+        if damage == "negative":
+            lobes[1, 2, 6] = -1
+        elif damage == "nan":
+            lobes[0, 3, 0] = np.nan
+        elif damage == "shape":
+            lobes = lobes[:, :8]
+        else:
+            f.attrs["schema_version"] = HIGHLIGHT_SCHEMA
+        g.create_dataset("lobes", data=lobes)
+    with pytest.raises(FileFormatError, match=message) as e:
+        load_coded(path, model)
+    assert "\n" not in str(e.value)
 
 
 def test_no_store_stays_schema_3(model, tmp_path):
@@ -202,6 +295,23 @@ def test_dense_decode_adds_the_corrections(model):
     rows, cols, ls, vs = [1, 6], [7, 0, 3], [2, 11], [0, 5, 12]
     part = DecodedBTF(lit).read(rows, cols, ls, vs)
     np.testing.assert_allclose(part, got[np.ix_(rows, cols, ls, vs)], rtol=1e-5, atol=1e-6)
+
+
+def test_dense_decode_adds_the_lobes(lobed):
+    # lobes alone (no entry): decode + lobe at every node, clamped
+    h = replace(Highlights.empty(lobed.n_points), lobes=lobed.highlights.lobes)
+    plain = np.asarray(DecodedBTF(replace(lobed, highlights=None)).to_array(), np.float64)
+    got = np.asarray(DecodedBTF(replace(lobed, highlights=h)).to_array(), np.float64)
+    # by hand: each texel's lobe at every (light, view) pair, from its point and texel index
+    p, rb = lobed.patch, lobed.height // lobed.patch
+    want = plain.copy()
+    dl, dv = lobed.lights.xyz, lobed.views.xyz
+    for r in range(lobed.height):
+        for c in range(lobed.width):
+            prm = h.lobes[r // p + rb * (c // p), (r % p) * p + c % p].astype(np.float64)
+            want[r, c] += lobe_values(prm, dl[:, None, :], dv[None, :, :])
+    np.testing.assert_allclose(got, np.maximum(want, 0), rtol=1e-5, atol=1e-5)
+    assert np.abs(got - plain).max() > 0.1
 
 
 def test_runtime_at_sampled_directions_equals_dense(model):

@@ -31,6 +31,7 @@ from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.cost import channel_storage
 from ..learning.highlights import POINT_BYTES, Highlights, entry_bytes
+from ..learning.lobes import LOBE_BYTES, fit_lobes, lobe_amplitudes, unit_lobes_at
 from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid
 from ..runtime.dense import DecodedBTF
@@ -129,67 +130,112 @@ def _node_gains(ref: np.ndarray, dec: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return sq - left, c, float(sq.sum())
 
 
+def _lobe_pass(ref: np.ndarray, pilot: np.ndarray, wi: np.ndarray, wo: np.ndarray,
+               iters: int) -> np.ndarray:
+    """The lobes' shapes of one point (p, p, L, V, 3 arrays): fitted to the residual of the
+    ``pilot`` decode, (p², 5) float16 (:func:`~sparsebtf.learning.lobes.fit_lobes`)."""
+    t = ref.shape[0] * ref.shape[1]
+    r = (ref.astype(np.float64) - pilot).reshape(t, -1, 3)
+    return fit_lobes(r, wi, wo, iters=iters)[:, :5]
+
+
+def _with_lobes(ref: np.ndarray, dec: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The residual of ``dec`` after the lobes of unit values ``g`` (p², L·V) at their best
+    binary16 amplitudes, as a decode (p, p, L, V, 3), and the amplitudes (p², 3) float16."""
+    t = g.shape[0]
+    r = (ref.astype(np.float64) - dec).reshape(t, -1, 3)
+    amp = lobe_amplitudes(g, r).astype(np.float16)
+    lobe = g[..., None] * amp.astype(np.float64)[:, None, :]
+    return (dec + lobe.reshape(dec.shape)), amp
+
+
 def choose_highlights(
     btf: BTF,
     levels: Sequence[CodedBTF],
     bases: Sequence[CodedBTF],
     model: Model,
     progress: bool | None = None,
+    lobes: bool = True,
+    lobe_iters: int = 20,
 ) -> list[CodedBTF]:
     """Each of ``levels`` re-spent at its own bytes on the best of ``levels`` + ``bases`` (all
-    coded from ``btf`` in one call) plus highlight entries (module docstring). Returns one
-    coded material per level: the chosen base's codes with its store;
-    ``params["highlights"]`` records the base τ, the entries, the budget and the squared
-    error the choice was judged by."""
+    coded from ``btf`` in one call) plus highlight entries, and with ``lobes`` per-texel
+    highlight lobes where they pay (module docstring). Returns one coded material per level:
+    the chosen base's codes with its store; ``params["highlights"]`` records the base τ, the
+    entries, whether it has lobes, the budget and the squared error the choice was judged by."""
     cands = list(levels) + list(bases)
     budgets = [level_budget(c) for c in levels]
     own = [_material_bytes(c, model) for c in cands]
     n_pts = levels[0].n_points
+    p = levels[0].patch
     point_bytes = POINT_BYTES * n_pts
-    per_entry = entry_bytes(levels[0].patch, len(levels[0].lights), len(levels[0].views))
-    caps = [max(0, (max(budgets) - b - point_bytes) // per_entry) for b in own]
+    per_entry = entry_bytes(p, len(levels[0].lights), len(levels[0].views))
+    lobe_bytes = n_pts * p * p * LOBE_BYTES
+    # variants: (candidate, with lobes); a variant's cap is what the largest budget holds
+    variants = [(i, v) for v in ((False, True) if lobes else (False,)) for i in range(len(cands))]
+    slot = {iv: j for j, iv in enumerate(variants)}
+    extra = {False: point_bytes, True: point_bytes + lobe_bytes}
+    caps = [max(0, (max(budgets) - own[i] - extra[v]) // per_entry) for i, v in variants]
     check_allocation(2 * sum(caps) * 18, f"{btf.label}: the highlight candidates "
                      f"({2 * sum(caps):,d} entries)", BTFInputError)  # fmt: skip
     tops = [_TopGains(cap) for cap in caps]
-    sse = np.zeros(len(cands))
+    sse = np.zeros(len(variants))
     decoders = [DecodedBTF(dataclasses.replace(c, highlights=None)) for c in cands]
-    grid = PatchGrid(btf.height, btf.width, levels[0].patch)
-    p = grid.patch
+    pilot = int(np.argmin(own))  # the smallest code: its residual shows the whole highlight
+    shapes = np.zeros((n_pts, p * p, 5), np.float16)
+    amps = np.zeros((len(cands), n_pts, p * p, 3), np.float16) if lobes else None
+    wi = np.repeat(btf.lights.xyz, len(btf.views), axis=0)
+    wo = np.tile(btf.views.xyz, (len(btf.lights), 1))
+    grid = PatchGrid(btf.height, btf.width, p)
     bar = progress_bar(n_pts, "highlights", unit="point", enabled=progress)
     for point in range(n_pts):
         r0, c0 = grid.origin(point)
         rows, cols = np.arange(r0, r0 + p), np.arange(c0, c0 + p)
         ref = np.asarray(btf.read(rows, cols, slice(None), slice(None)), dtype=np.float32)
+        first = decoders[pilot].read(rows, cols, slice(None), slice(None))
+        if lobes:
+            shapes[point] = _lobe_pass(ref, first, wi, wo, lobe_iters)
+            g = unit_lobes_at(shapes[point].astype(np.float64), wi, wo)
         for i, d in enumerate(decoders):
-            gain, corr, s = _node_gains(ref, d.read(rows, cols, slice(None), slice(None)))
-            sse[i] += s
-            tops[i].add(gain, point, corr)
+            dec = first if i == pilot else d.read(rows, cols, slice(None), slice(None))
+            for v in (False, True) if lobes else (False,):
+                j = slot[i, v]
+                if v:
+                    dec, amps[i, point] = _with_lobes(ref, dec.astype(np.float64), g)
+                gain, corr, s_ = _node_gains(ref, dec)
+                sse[j] += s_
+                tops[j].add(gain, point, corr)
         bar.update(1)
     bar.close()
     ranked = [t.sorted() for t in tops]
     out = []
     for lv, budget in zip(levels, budgets, strict=True):
         best: tuple[float, int, int] | None = None
-        for i, (b, (g, *_)) in enumerate(zip(own, ranked, strict=True)):
-            if b > budget:
+        for j, ((i, v), (g_, *_)) in enumerate(zip(variants, ranked, strict=True)):
+            if own[i] + (lobe_bytes if v else 0) > budget:
                 continue
-            n = min(max(0, (budget - b - point_bytes) // per_entry), g.size)
-            left = sse[i] - float(g[:n].sum())
+            n = min(max(0, (budget - own[i] - extra[v]) // per_entry), g_.size)
+            left = sse[j] - float(g_[:n].sum())
             if best is None or left < best[0]:
-                best = (left, i, n)
+                best = (left, j, n)
         assert best is not None  # the level's own codes fit its budget
-        left, i, n = best
-        _, pts, keys, rgb = ranked[i]
+        left, j, n = best
+        i, v = variants[j]
+        _, pts, keys, rgb = ranked[j]
         store = Highlights.from_nodes(pts[:n], keys[:n], rgb[:n], n_pts)
+        if v:
+            store = dataclasses.replace(
+                store, lobes=np.concatenate([shapes, amps[i]], axis=2))  # type: ignore[index]
         base = cands[i]
         params: dict[str, Any] = {
             **base.params,
             "highlights": {
-                "entries": int(n), "budget_bytes": int(budget),
-                "base_tau": {ch: int(v) for ch, v in base.coded_tau.items()},
-                "level_tau": {ch: int(v) for ch, v in lv.coded_tau.items()},
+                "entries": int(n), "lobes": bool(v), "budget_bytes": int(budget),
+                "base_tau": {ch: int(x) for ch, x in base.coded_tau.items()},
+                "level_tau": {ch: int(x) for ch, x in lv.coded_tau.items()},
                 "sse": float(left),
             },
         }  # fmt: skip
-        out.append(dataclasses.replace(base, params=params, highlights=store if n else None))
+        out.append(dataclasses.replace(base, params=params,
+                                       highlights=None if store.empty_store else store))
     return out

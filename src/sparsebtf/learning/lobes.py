@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._numba import HAVE_NUMBA
+from .._numba import numba as _nb
 from .cost import VALUE_BYTES
 
 __all__ = [
@@ -37,6 +39,7 @@ __all__ = [
     "lobe_frame",
     "lobe_values",
     "unit_lobes",
+    "unit_lobes_at",
 ]
 
 #: Parameters per texel: rotation vector (3), ln α_x, ln α_y, linear-RGB amplitude (3).
@@ -94,16 +97,54 @@ def unit_lobes(shape: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     return _microfacet(ht, hb, hn, nl, nv, np.exp(s[..., 3]), np.exp(s[..., 4]))
 
 
+if HAVE_NUMBA:
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def _grid_nb(frame, alpha, h, wi, wo, out):
+        # out[t, p] = D(h_p) / max(n·wo_p, NV_FLOOR) for texel t's frame and α (the fit's
+        # inner loop: 6 calls per iteration over every node of a point)
+        for t in _nb.prange(frame.shape[0]):
+            f = frame[t]
+            ax, ay = alpha[t, 0], alpha[t, 1]
+            norm = 1.0 / (np.pi * ax * ay)
+            for p in range(h.shape[0]):
+                nl = wi[p, 0] * f[0, 2] + wi[p, 1] * f[1, 2] + wi[p, 2] * f[2, 2]
+                nv = wo[p, 0] * f[0, 2] + wo[p, 1] * f[1, 2] + wo[p, 2] * f[2, 2]
+                if nl <= 0.0 or nv <= 0.0:
+                    out[t, p] = 0.0
+                    continue
+                ht = (h[p, 0] * f[0, 0] + h[p, 1] * f[1, 0] + h[p, 2] * f[2, 0]) / ax
+                hb = (h[p, 0] * f[0, 1] + h[p, 1] * f[1, 1] + h[p, 2] * f[2, 1]) / ay
+                hn = h[p, 0] * f[0, 2] + h[p, 1] * f[1, 2] + h[p, 2] * f[2, 2]
+                q = ht * ht + hb * hb + hn * hn
+                out[t, p] = norm / (q * q) / max(nv, NV_FLOOR)
+
+
 def _unit_lobes_grid(shape: np.ndarray, h: np.ndarray, wi: np.ndarray,
                      wo: np.ndarray) -> np.ndarray:  # fmt: skip
     """:func:`unit_lobes` of T texels' shapes (T, 5) at the same P direction pairs (half
-    vectors ``h``, ``wi``, ``wo`` (P, 3)): (T, P), by matrix products (the fit's inner loop)."""
+    vectors ``h``, ``wi``, ``wo`` (P, 3), unit): (T, P) — compiled, or by matrix products
+    without numba (the fit's inner loop)."""
+    if HAVE_NUMBA:
+        out = np.empty((shape.shape[0], h.shape[0]))
+        _grid_nb(np.ascontiguousarray(lobe_frame(shape[:, :3])), np.exp(shape[:, 3:5]),
+                 h, wi, wo, out)  # fmt: skip
+        return out
     frame = lobe_frame(shape[:, :3])  # (T, 3, 3), columns t, b, n
     hf = np.einsum("pk,tkj->jtp", h, frame, optimize=True)
     nl = frame[:, :, 2] @ wi.T
     nv = frame[:, :, 2] @ wo.T
     ax, ay = np.exp(shape[:, 3:4]), np.exp(shape[:, 4:5])
     return _microfacet(hf[0], hf[1], hf[2], nl, nv, ax, ay)
+
+
+def unit_lobes_at(shape: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
+    """:func:`unit_lobes` of T shapes (T, 5) at the same P direction pairs ``wi``, ``wo``
+    (P, 3): (T, P) float64 (compiled where numba is installed)."""
+    wi, wo = (np.asarray(w, dtype=np.float64) for w in (wi, wo))
+    wi = wi / np.linalg.norm(wi, axis=1, keepdims=True)
+    wo = wo / np.linalg.norm(wo, axis=1, keepdims=True)
+    return _unit_lobes_grid(np.asarray(shape, dtype=np.float64), _half(wi, wo), wi, wo)
 
 
 def lobe_values(params: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
@@ -156,8 +197,9 @@ def fit_lobes(r: np.ndarray, wi: np.ndarray, wo: np.ndarray, iters: int = 25) ->
     solved again for the binary16 shape. A texel whose lobe does not lower its error gets
     amplitude 0."""
     r = np.asarray(r, dtype=np.float64)
-    wi = np.asarray(wi, dtype=np.float64)
-    wo = np.asarray(wo, dtype=np.float64)
+    wi, wo = (np.asarray(w, dtype=np.float64) for w in (wi, wo))
+    wi = wi / np.linalg.norm(wi, axis=1, keepdims=True)
+    wo = wo / np.linalg.norm(wo, axis=1, keepdims=True)
     h = _half(wi, wo)
     theta = _start(r, wi, wo)
     lam = np.full(len(theta), 1e-2)

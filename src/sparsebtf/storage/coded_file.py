@@ -74,7 +74,7 @@ from ..points.preprocessing import RELEASE_LOG_OFFSET, STD_MODES, Standardizatio
 from ._common import check_geometry, check_str_param, check_tau_param, open_checked, to_json
 from .coded_schema import NO_CLAMP, check_required
 from .coded_streams import read_streams, stored_values, write_streams
-from .highlight_file import HIGHLIGHT_SCHEMA, read_highlights, write_highlights
+from .highlight_file import HIGHLIGHT_SCHEMAS, read_highlights, store_schema, write_highlights
 from .locations import pack_locations, unpack_locations
 from .model_file import exact_dtype
 
@@ -94,7 +94,7 @@ CODED_FORMAT = "sparsebtf-coded"
 CODED_SCHEMA_VERSION = 3
 #: The schema of a material coded with adaptive patch sizes (:mod:`.adaptive_file`).
 ADAPTIVE_SCHEMA = 4
-_SUPPORTED = (1, 2, 3, ADAPTIVE_SCHEMA, HIGHLIGHT_SCHEMA)
+_SUPPORTED = (1, 2, 3, ADAPTIVE_SCHEMA, *HIGHLIGHT_SCHEMAS)
 #: Schema 4's reader and writers, registered by :mod:`.adaptive_file` (imported with the
 #: package): this module does not import the one above it.
 ADAPTIVE_IO: dict[str, Callable[..., Any]] = {}
@@ -212,12 +212,13 @@ def _file_params(coded: CodedBTF) -> dict:
 def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> None:
     """The content of a coded file into the open, empty HDF5 file ``f`` (see
     :func:`save_coded`; also used to measure the stored size without a file). A material
-    with a highlight store is schema 5 (:mod:`.highlight_file`): schema 3 and the store."""
+    with a highlight store is schema 5, 6 with lobes (:mod:`.highlight_file`): schema 3 and
+    the store."""
     store = coded.highlight_store
     if store is not None and schema != CODED_SCHEMA_VERSION:
         raise BTFInputError(f"{coded.name}: a highlight store is written in schema "
-                            f"{HIGHLIGHT_SCHEMA} (schema 3 and the store), not {schema}")
-    write_root(f, coded, params, HIGHLIGHT_SCHEMA if store is not None else schema)
+                            f"{store_schema(store)} (schema 3 and the store), not {schema}")
+    write_root(f, coded, params, store_schema(store) if store is not None else schema)
     root = f.create_group("codes")
     for ch in coded.channels:
         k = coded.dictionary_count(ch)
@@ -356,8 +357,8 @@ def load_coded(path: str | os.PathLike[str], model: Model | None = None, *,
         stats = _read_stats(require(f, "stats", where), f"{where}/stats")
         lights = read_directions(require(f, "lights", where), f"{where}/lights")
         views = read_directions(require(f, "views", where), f"{where}/views")
-        store = (read_highlights(f, where, n_points, patch, len(lights), len(views))
-                 if schema == HIGHLIGHT_SCHEMA else None)  # fmt: skip
+        store = (read_highlights(f, where, n_points, patch, len(lights), len(views), schema)
+                 if schema in HIGHLIGHT_SCHEMAS else None)  # fmt: skip
 
     nl, nv = len(lights), len(views)
     if stats.mean.shape[:2] != (nl, nv):

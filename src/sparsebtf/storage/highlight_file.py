@@ -7,9 +7,15 @@ A material with a store is written as **schema 5**: schema 3 plus one group ::
     /highlights/keys        (N,) uint32    node keys, increasing within each point
     /highlights/rgb         (N, 3) float16 the linear-RGB corrections
 
-compressed like schema 3's datasets. The schema number is raised so that a reader written
-before the store refuses the file (one line: unsupported schema) instead of decoding it
-without its corrections; a material without a store is still written as schema 3.
+compressed like schema 3's datasets. A store with per-texel highlight lobes
+(:mod:`sparsebtf.learning.lobes`) is **schema 6**: schema 5 plus ::
+
+    /highlights/lobes       (P, p², 8) float16 (ω_x, ω_y, ω_z, ln α_x, ln α_y, A_r, A_g, A_b)
+                            per texel i1·p + i2 of each point
+
+The schema number is raised each time so that a reader written before the store (or before
+the lobes) refuses the file (one line: unsupported schema) instead of decoding it without
+its corrections; a material without a store is still written as schema 3.
 """
 
 from __future__ import annotations
@@ -21,12 +27,22 @@ from .._h5check import read_array, read_int_attr, read_str_attr, require
 from .._hdf5 import create_dataset, write_str_attr
 from ..errors import BTFInputError, FileFormatError
 from ..learning.highlights import Highlights
+from ..learning.lobes import LOBE_PARAMS
 
-__all__ = ["HIGHLIGHT_SCHEMA", "read_highlights", "write_highlights"]
+__all__ = ["HIGHLIGHT_SCHEMA", "HIGHLIGHT_SCHEMAS", "LOBE_SCHEMA", "read_highlights",
+           "store_schema", "write_highlights"]  # fmt: skip
 
 #: Schema of a coded file with a highlight store (schema 3's layout + ``/highlights``).
 HIGHLIGHT_SCHEMA = 5
+#: Schema of a coded file whose store has lobes (schema 5 + ``/highlights/lobes``).
+LOBE_SCHEMA = 6
+HIGHLIGHT_SCHEMAS = (HIGHLIGHT_SCHEMA, LOBE_SCHEMA)
 _SPACE = "linear_rgb"
+
+
+def store_schema(h: Highlights) -> int:
+    """The schema a file with the store ``h`` is written in."""
+    return LOBE_SCHEMA if h.lobes is not None else HIGHLIGHT_SCHEMA
 
 
 def write_highlights(f: h5py.File, h: Highlights) -> None:
@@ -37,12 +53,14 @@ def write_highlights(f: h5py.File, h: Highlights) -> None:
     create_dataset(g, "counts", data=np.diff(h.offsets).astype("<u4"), compress=True)
     create_dataset(g, "keys", data=np.asarray(h.keys, dtype="<u4"), compress=True)
     create_dataset(g, "rgb", data=np.asarray(h.rgb, dtype="<f2"), compress=True)
+    if h.lobes is not None:
+        create_dataset(g, "lobes", data=np.asarray(h.lobes, dtype="<f2"), compress=True)
 
 
 def read_highlights(f: h5py.File, where: str, n_points: int, patch: int, n_lights: int,
-                    n_views: int) -> Highlights:  # fmt: skip
-    """``/highlights`` of a schema-5 file, every field checked (sizes before reading, keys
-    inside the point's nodes and increasing, values finite)."""
+                    n_views: int, schema: int = HIGHLIGHT_SCHEMA) -> Highlights:  # fmt: skip
+    """``/highlights`` of a schema-5 or 6 file, every field checked (sizes before reading,
+    keys inside the point's nodes and increasing, values finite, lobes in schema 6 only)."""
     at = f"{where}/highlights"
     g = require(f, "highlights", where)
     if not isinstance(g, h5py.Group):
@@ -58,7 +76,14 @@ def read_highlights(f: h5py.File, where: str, n_points: int, patch: int, n_light
     keys = read_array(g, "keys", at, "u", (n,))
     rgb = read_array(g, "rgb", at, "f", (n, 3))
     offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
-    h = Highlights(offsets, keys.astype(np.uint32), rgb.astype(np.float16))
+    lobes = None
+    if schema == LOBE_SCHEMA:
+        lobes = read_array(g, "lobes", at, "f", (n_points, patch * patch, LOBE_PARAMS))
+        lobes = lobes.astype(np.float16)
+    elif "lobes" in g:
+        raise FileFormatError(f"{at}/lobes: lobes in a schema-{schema} file (schema "
+                              f"{LOBE_SCHEMA} holds them)")  # fmt: skip
+    h = Highlights(offsets, keys.astype(np.uint32), rgb.astype(np.float16), lobes)
     try:
         h.check(n_points, patch, n_lights, n_views, at)
     except BTFInputError as e:
