@@ -1,5 +1,6 @@
 """Exhaustive field fuzzing: every dataset and every attribute of a schema-3 coded file, a
-schema-5 one (with a highlight store), a schema-4 (adaptive) coded file and a model of several
+schema-5 one (with a highlight store), a schema-6 one (a store with lobes), a schema-4
+(adaptive) coded file and a model of several
 training levels (τ_l), each damaged in
 each of a fixed set of ways, and the users' decode judged against the undamaged file's.
 
@@ -37,22 +38,22 @@ __all__ = [
 ]  # fmt: skip
 
 #: The seed files, in report order: a coded file (schema 3), the same with a highlight store
-#: (schema 5), an adaptive one (schema 4), the model of several training levels they are
-#: coded with.
-FIELD_KINDS = ("coded3", "coded5", "coded4", "model")
+#: (schema 5), with a store and lobes (schema 6), an adaptive one (schema 4), the model of
+#: several training levels they are coded with.
+FIELD_KINDS = ("coded3", "coded5", "coded6", "coded4", "model")
 #: The damage done to a field: deleted, one value set to −1, 2^40 or NaN (a scalar: the
 #: value), one element fewer or more along the first axis (a scalar: two copies of it).
 FIELD_MUTATIONS = ("delete", "minus_one", "huge", "nan", "shorter", "longer")
 FIELD_OUTCOMES = ("rejected", "unchanged", "silent_wrong", "traceback", "legal_change")
 #: (dataset, mutation) pairs that give a file the format allows: a log-domain mean or bound
 #: of −1 (ln of 0.37) is a valid statistic, so a different output is the right one.
-#: So is a highlight correction of −1.
+#: So is a highlight correction of −1, and a lobe's first parameter (ω_x) of −1.
 LEGAL_EDITS = frozenset({("stats/mean", "minus_one"), ("stats/bound", "minus_one"),
-                         ("highlights/rgb", "minus_one")})
+                         ("highlights/rgb", "minus_one"), ("highlights/lobes", "minus_one")})
 
 _VALUES = {"minus_one": -1, "huge": 2**40, "nan": np.nan}
-_FILES = {"coded3": "coded3.h5", "coded5": "coded5.h5", "coded4": "coded4.h5",
-          "model": "model.h5"}
+_FILES = {"coded3": "coded3.h5", "coded5": "coded5.h5", "coded6": "coded6.h5",
+          "coded4": "coded4.h5", "model": "model.h5"}
 
 
 # --------------------------------------------------------------------------- the seed files
@@ -89,6 +90,8 @@ def build_field_corpus(folder: str | os.PathLike[str]) -> dict[str, Any]:
     coded = encode(_smooth(5), model, tau=(6, 3, 3), progress=False)
     save_coded(coded, d / _FILES["coded3"])
     save_coded(replace(coded, highlights=_store(coded)), d / _FILES["coded5"])
+    save_coded(replace(coded, highlights=replace(_store(coded), lobes=_lobes(coded))),
+               d / _FILES["coded6"])  # fmt: skip
     adaptive = encode_adaptive(_smooth(6), model, (8, 3, 3), target_bytes=600, progress=False)
     save_coded(adaptive, d / _FILES["coded4"])
     corpus: dict[str, Any] = {"dir": d}
@@ -107,6 +110,14 @@ def _store(coded: Any) -> Any:
     pts = np.repeat(np.arange(coded.n_points), per // 5)
     return Highlights.from_nodes(pts, np.concatenate(keys), rng.normal(0, 0.3, (pts.size, 3)),
                                  coded.n_points)  # fmt: skip
+
+
+def _lobes(coded: Any) -> np.ndarray:
+    """A highlight lobe on every texel (seeded): (P, p², 8) float16."""
+    rng = np.random.default_rng(8)
+    n = (coded.n_points, coded.patch**2)
+    return np.concatenate([rng.uniform(-0.4, 0.4, (*n, 3)), np.log(rng.uniform(0.1, 0.4, (*n, 2))),
+                           rng.uniform(0.1, 2, (*n, 3))], axis=2).astype(np.float16)  # fmt: skip
 
 
 # --------------------------------------------------------------------------- the users' decode
@@ -137,7 +148,7 @@ def field_exercise(kind: str, path: Path, corpus: dict[str, Any]) -> list[np.nda
     coded file decoded with it."""
     from ..storage import load_coded, load_model
 
-    if kind in ("coded3", "coded5", "coded4"):
+    if kind in ("coded3", "coded5", "coded6", "coded4"):
         return _decoded(load_coded(path, _model(corpus), adaptive=kind == "coded4"))
     model = load_model(path)
     out = [u for ch in model.channels for u in model.dictionaries[ch]]
