@@ -17,7 +17,8 @@ material at τ 885) and keeps them.
 
 A material with a highlight store (``coded.highlights``, :mod:`sparsebtf.learning.highlights`)
 gets its corrections added to the linear-RGB values, with the interpolation's own angular
-weights, and those values clamped at 0 (:mod:`.highlight_lookup`); without one nothing changes.
+weights, and its per-texel lobes at the queries' own directions, and those values clamped at 0
+(:mod:`.highlight_lookup`); without one nothing changes.
 
 The flat arrays a GPU or Dr.Jit shader needs come from :meth:`RuntimeBTF.arrays` (layout in
 ``docs/format.md``, "Renderer arrays").
@@ -173,7 +174,7 @@ class RuntimeBTF:
     @staticmethod
     def _highlight_table(coded: CodedBTF) -> HighlightTable | None:
         """The store in the decoder's types, checked against the material (None: none, or
-        no entries)."""
+        neither entries nor lobes)."""
         h = coded.highlights
         nl, nv = len(coded.lights), len(coded.views)
         if h is not None:
@@ -233,7 +234,10 @@ class RuntimeBTF:
         ``neighbours``, ``neighbours_lights``/``neighbours_views`` (64, 256, 8) int16 candidate
         tables (:func:`~sparsebtf.runtime.angular.neighbour_table`); with a highlight store
         (:mod:`sparsebtf.learning.highlights`), ``highlight_offsets`` (P+1,) uint32,
-        ``highlight_keys`` (N,) uint32 and ``highlight_rgb`` (N, 3) float32.
+        ``highlight_keys`` (N,) uint32 and ``highlight_rgb`` (N, 3) float32 (N = 0 for a store
+        of lobes only), and where it has lobes ``highlight_lobes`` (P·p², 8) float32, row
+        point·p² + i1·p + i2: (ω_x, ω_y, ω_z, ln α_x, ln α_y, A_r, A_g, A_b)
+        (:mod:`sparsebtf.learning.lobes`).
         """
         out: dict[str, np.ndarray] = {
             "lights_xyz": self.coded.lights.xyz.astype(np.float32),
@@ -250,7 +254,9 @@ class RuntimeBTF:
         if h is not None:
             out["highlight_offsets"] = h.offsets.astype(np.uint32)
             out["highlight_keys"] = h.keys.astype(np.uint32)
-            out["highlight_rgb"] = h.rgb.astype(np.float32)
+            out["highlight_rgb"] = h.rgb.astype(np.float32).reshape(-1, 3)
+            if h.lobes is not None:
+                out["highlight_lobes"] = h.lobes.astype(np.float32).reshape(-1, h.lobes.shape[-1])
         if neighbours:
             out["neighbours_lights"] = neighbour_table(self.coded.lights)
             out["neighbours_views"] = neighbour_table(self.coded.views)
@@ -390,9 +396,12 @@ class RuntimeBTF:
         angular images it is interpolated from.
 
         A material with a highlight store gets, in "rgb" output, max(value + Σ_ab wl_a wv_b
-        c(x, l_a, v_b), 0) with the same neighbours and weights (c = 0 at nodes without an
-        entry). The corrections are stored at full detail: they are added whatever the τ'
-        (a level of detail thins the code, never the highlights).
+        c(x, l_a, v_b) + lobe(x, ω_i, ω_o), 0) with the same neighbours and weights (c = 0 at
+        nodes without an entry) and, where the store has lobes, the texel's lobe
+        (:func:`~sparsebtf.learning.lobes.lobe_values`) evaluated at the query's own ``wi``,
+        ``wo`` (normalised; not interpolated from the nodes). The corrections and lobes are
+        stored at full detail: they are added whatever the τ' (a level of detail thins the
+        code, never the highlights).
         """
         if domain not in ("standardized", "log"):
             raise BTFInputError(f"domain must be 'standardized' or 'log', got {domain!r}")
@@ -439,7 +448,7 @@ class RuntimeBTF:
             np.minimum(log_rgb, bound[:, None], out=log_rgb)
         rgb = inverse_log_transform(log_rgb, self.log_offset)
         # the corrections in float64, before the value's one rounding to float32
-        add_highlights(rgb, self._highlights, pts, i1, i2, li, lw, vi, vw, backend=be)
+        add_highlights(rgb, self._highlights, pts, i1, i2, li, lw, vi, vw, wi, wo, backend=be)
         return rgb.astype(np.float32)
 
     def _evaluate_compiled(self, pts, i1, i2, wi, wo, scheme, caps, output, release_matrix
@@ -476,8 +485,9 @@ class RuntimeBTF:
         out = finish(x, li, lw, vi, vw, self._mean, self._std, self._bound, matrix,
                      self.log_offset, output == "rgb", order)  # fmt: skip
         if output == "rgb":
-            # rows in group order, like finish's: row q answers query order[q]
-            add_highlights(out, self._highlights, pts, i1, i2, li, lw, vi, vw, order)
+            # rows in group order, like finish's: row q answers query order[q]; wi, wo are
+            # still in query order (the kernel reads query order[q]'s)
+            add_highlights(out, self._highlights, pts, i1, i2, li, lw, vi, vw, wi, wo, order)
         return out
 
     def image(

@@ -274,7 +274,8 @@ def point_of(mi: Any, dr: Any, data: CodedArrays, uv: Any) -> tuple[Any, Any, An
 
 def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: Any,
                  light_nb: tuple[list, list], view_nb: tuple[list, list], active: Any,
-                 fraction: Any = None, stats: tuple | None = None) -> Any:
+                 fraction: Any = None, stats: tuple | None = None,
+                 dirs: tuple[Any, Any] | None = None) -> Any:
     """Eq. 5/6 for a wavefront of queries: linear RGB (Color3f), Dr.Jit variants.
 
     ``uv`` (tiled, wraps); ``light_nb``/``view_nb``: the (indices, weights) of
@@ -282,7 +283,8 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
     the plugin clamps to 0. The log-RGB values are clamped to the material's bound interpolated
     with the angular weights, as :meth:`~sparsebtf.runtime.RuntimeBTF.evaluate` does. A
     material with highlights gets their correction added, at any level of detail, and is
-    clamped at 0 here (:mod:`.highlights`).
+    clamped at 0 here (:mod:`.highlights`); ``dirs`` (light, view) Vector3f in the BTF frame,
+    the directions the neighbours were found for, where its lobes are evaluated.
 
     ``fraction``: None (every loaded coefficient), or a Float of per-query fractions f of the
     loaded τ: channel c reads τ'_c = max(f·τ_c, min(1, τ_c)) (:func:`sparsebtf.runtime.lod.
@@ -394,7 +396,7 @@ def coded_lookup(mi: Any, dr: Any, data: CodedArrays, prm: dict[str, Any], uv: A
         for r in range(3)
     ]
     return add_highlights(mi, dr, data.highlights, mi.Color3f(*rgb), pt, i1, i2, light_nb,
-                          view_nb, active)
+                          view_nb, active, dirs)
 
 
 class DenseArrays:

@@ -79,7 +79,8 @@ class _Base(mi.BSDF):
     ({"lights", "views"}: (N, 3) float32), ``self.np_tables`` (:class:`.sampling.SamplingTables`
     or None) and, on Dr.Jit variants, ``self.cand`` ({"lights", "views"}: :class:`Candidates`)
     and ``self.tables`` (:class:`SamplingArrays` or None); they implement
-    ``_jit_lookup(uv, light_nb, view_nb, active)``, ``_jit_row(uv)`` (the sampling table row)
+    ``_jit_lookup(uv, light_nb, view_nb, active, level, dirs)`` (``dirs``: the (light, view)
+    directions in the BTF frame, or None), ``_jit_row(uv)`` (the sampling table row)
     and ``_scalar_lookup(uv, light, view)`` (NumPy float64 arrays in, RGB out).
 
     Roles: in radiance transport ``si.wi`` is the view (known) and ``wo`` the light (sampled);
@@ -136,9 +137,12 @@ class _Base(mi.BSDF):
         return ("lights", "views") if mode == "importance" else ("views", "lights")
 
     def _value(self, mode: str, uv: Any, known_nb: Any, w_nb: Any, active: Any,
-               level: Any = None) -> Any:
+               level: Any = None, dirs: tuple[Any, Any] | None = None) -> Any:
+        """``dirs``: (known, w) in the BTF frame, the directions of ``known_nb``, ``w_nb``."""
         light_nb, view_nb = (known_nb, w_nb) if mode == "importance" else (w_nb, known_nb)
-        rgb = self._jit_lookup(uv, light_nb, view_nb, active, level)
+        if dirs is not None:  # (light, view), as the runtime's (wi, wo)
+            dirs = dirs if mode == "importance" else (dirs[1], dirs[0])
+        rgb = self._jit_lookup(uv, light_nb, view_nb, active, level, dirs)
         return dr.select(active, dr.maximum(rgb, 0.0) * BSDF_PER_BTF_VALUE, 0.0)
 
     def _density(self, mode: str, uv: Any, known_nb: Any, w: Any, active: Any) -> Any:
@@ -187,7 +191,8 @@ class _Base(mi.BSDF):
             known_nb, w_nb = find_neighbours(mi, dr, self.prm,
                                              [(self.cand[known_set], known),
                                               (self.cand[sampled_set], w)], active)  # fmt: skip
-            value = self._value(mode, uv, known_nb, w_nb, active & (w.z > 0), level)
+            value = self._value(mode, uv, known_nb, w_nb, active & (w.z > 0), level,
+                                 (known, w))
         pdf = self._density(mode, uv, known_nb, w, active) if want_pdf else mi.Float(0.0)
         return value, pdf
 
@@ -228,7 +233,7 @@ class _Base(mi.BSDF):
         if host:
             value = self._host_value(mode, uv, known, w, active, level)
         else:
-            value = self._value(mode, uv, known_nb, w_nb, active, level)
+            value = self._value(mode, uv, known_nb, w_nb, active, level, (known, w))
         ok = active & (bs.pdf > 0)
         return bs, dr.select(ok, value / dr.select(ok, bs.pdf, 1.0), 0.0)
 
@@ -313,7 +318,7 @@ class _Base(mi.BSDF):
         return None
 
     def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any,
-                    level: Any = None) -> Any:
+                    level: Any = None, dirs: tuple[Any, Any] | None = None) -> Any:
         raise NotImplementedError
 
     def _jit_row(self, uv: Any) -> Any:
@@ -372,13 +377,14 @@ class SparseBTFBSDF(_Base):
         self._setup(source, (str(tau),), tables)
 
     def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any,
-                    level: Any = None) -> Any:
+                    level: Any = None, dirs: tuple[Any, Any] | None = None) -> Any:
         if level is None:
-            return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active)
+            return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active,
+                                dirs=dirs)  # fmt: skip
         fraction, cls = level
         stats = (self.lod_counts, cls) if self.prm["lod_stats"] else None
         return coded_lookup(mi, dr, self.data, self.prm, uv, light_nb, view_nb, active,
-                            fraction, stats)  # fmt: skip
+                            fraction, stats, dirs)  # fmt: skip
 
     def _level(self, si: Any, known: Any, active: Any, sampled: bool) -> Any:
         """(τ fraction, class index in :data:`LOD_CLASSES`) per query
@@ -532,7 +538,7 @@ class SparseBTFDenseBSDF(_Base):
         self._setup(source, (max_gib, ("key", skey)), tables)
 
     def _jit_lookup(self, uv: Any, light_nb: Any, view_nb: Any, active: Any,
-                    level: Any = None) -> Any:
+                    level: Any = None, dirs: tuple[Any, Any] | None = None) -> Any:
         return dense_lookup(mi, dr, self.data, uv, light_nb, view_nb, active)
 
     def _scalar_lookup(self, uv: np.ndarray, light: np.ndarray, view: np.ndarray) -> np.ndarray:
