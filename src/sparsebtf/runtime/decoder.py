@@ -233,7 +233,8 @@ class RuntimeBTF:
         ``neighbours``, ``neighbours_lights``/``neighbours_views`` (64, 256, 8) int16 candidate
         tables (:func:`~sparsebtf.runtime.angular.neighbour_table`); with a highlight store
         (:mod:`sparsebtf.learning.highlights`), ``highlight_offsets`` (P+1,) uint32,
-        ``highlight_keys`` (N,) uint32 and ``highlight_rgb`` (N, 3) float32.
+        ``highlight_keys`` (N,) uint32 and ``highlight_rgb`` (N, 3) float32, and where it has
+        lobes ``highlight_lobes`` (P·p², 8) float32, row ``point·p² + i1·p + i2``.
         """
         out: dict[str, np.ndarray] = {
             "lights_xyz": self.coded.lights.xyz.astype(np.float32),
@@ -251,6 +252,8 @@ class RuntimeBTF:
             out["highlight_offsets"] = h.offsets.astype(np.uint32)
             out["highlight_keys"] = h.keys.astype(np.uint32)
             out["highlight_rgb"] = h.rgb.astype(np.float32)
+            if h.lobes is not None:
+                out["highlight_lobes"] = h.lobes.reshape(-1, h.lobes.shape[-1]).astype(np.float32)
         if neighbours:
             out["neighbours_lights"] = neighbour_table(self.coded.lights)
             out["neighbours_views"] = neighbour_table(self.coded.views)
