@@ -9,6 +9,12 @@ store plus :func:`sparsebtf.learning.highlights.correction` with the runtime's o
 and weights) within ``|gl − py| ≤ 1e-4·(|decode| + |correction|) + 1e-5``. One query sits on a
 stored node (sampled light and view: one-hot weights) whose correction is large, so a shader
 that misses the store fails. Browser tests skip as ``test_viewer``'s do.
+
+Per-texel lobes (:mod:`sparsebtf.learning.lobes`): random lobes on every texel, with and
+without the entries, against ``max(decode + correction + lobe, 0)``, the lobe from
+:func:`sparsebtf.learning.highlights.lobe_corrections` at the query's directions (the runtime's
+``evaluate`` is not relied on for it). Texel (0, 0) of point 0 has its normal on the scene's
+half vector, a lobe far above the decode, so a shader that drops the lobe fails.
 """
 
 from __future__ import annotations
@@ -19,7 +25,8 @@ import numpy as np
 import pytest
 
 from sparsebtf.errors import BTFInputError
-from sparsebtf.learning.highlights import Highlights, correction, node_keys
+from sparsebtf.learning.highlights import Highlights, correction, lobe_corrections, node_keys
+from sparsebtf.learning.lobes import LOBE_PARAMS
 from sparsebtf.points.grid import PatchGrid
 from sparsebtf.rendering.viewer import build_bundle, export, pack_textures, serve
 from sparsebtf.runtime import RuntimeBTF, angular_weights
@@ -76,6 +83,24 @@ def random_store(coded, seed: int = 7) -> Highlights:
     return Highlights.from_nodes(points, keys, rgb, coded.n_points)
 
 
+def random_lobes(coded, wi: np.ndarray = WI, wo: np.ndarray = WO, seed: int = 3) -> np.ndarray:
+    """(P, p², 8) float16: rotation vectors of norm < 1, ln α in [ln 0.05, ln 0.4], amplitudes
+    in [0, 2]; texel (0, 0) of point 0 turns its normal onto the half vector of ``wi``, ``wo``
+    with α = 0.1 and amplitude 1 (a value of about 40 there)."""
+    rng = np.random.default_rng(seed)
+    shape = (coded.n_points, coded.patch**2)
+    axis = rng.normal(size=(*shape, 3))
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    omega = axis * rng.uniform(0.0, 1.0, (*shape, 1))
+    ln_alpha = rng.uniform(np.log(0.05), np.log(0.4), (*shape, 2))
+    amp = rng.uniform(0.0, 2.0, (*shape, 3))
+    lobes = np.concatenate([omega, ln_alpha, amp], axis=-1)
+    h = (wi + wo) / np.linalg.norm(wi + wo)
+    k = np.cross([0.0, 0.0, 1.0], h)  # e_z x h: the axis that turns e_z onto h
+    lobes[0, 0] = [*(k / np.linalg.norm(k) * np.arccos(h[2])), np.log(0.1), np.log(0.1), 1, 1, 1]
+    return lobes.astype(np.float16)
+
+
 @pytest.fixture(scope="module")
 def store(coded):
     return random_store(coded)
@@ -115,6 +140,17 @@ def hl_reference(rt_plain, store, wi, wo, interp="linear", domain="standardized"
                       len(coded.views))  # fmt: skip
     shape = (SIZE, SIZE, 3)
     return dec.reshape(shape), corr.reshape(shape), np.maximum(dec + corr, 0.0).reshape(shape)
+
+
+def lobe_reference(rt_plain, store, wi, wo, interp="linear", domain="standardized"):
+    """As :func:`hl_reference` with the store's lobes at (wi, wo) added before the clamp:
+    (decode, correction + lobe, clamped sum, lobe), each (SIZE, SIZE, 3) float64."""
+    coded = rt_plain.coded
+    dec, corr, _ = hl_reference(rt_plain, store, wi, wo, interp, domain)
+    _, (pts, i1, i2), _ = scene_queries(coded, wi, wo, interp)
+    lobe = lobe_corrections(store, pts, i1 * coded.patch + i2, wi[None], wo[None])
+    lobe = lobe.reshape(dec.shape)
+    return dec, corr + lobe, np.maximum(dec + corr + lobe, 0.0), lobe
 
 
 def assert_hl_close(gl: np.ndarray, dec: np.ndarray, corr: np.ndarray, py: np.ndarray) -> None:
@@ -212,3 +248,100 @@ def test_static_export_carries_the_store(browser, rt_hl, rt_plain, store, tmp_pa
     dec, corr, py = hl_reference(rt_plain, store, WI, WO, "nearest")
     assert np.abs(corr).max() > 0.3
     assert_hl_close(gl, dec, corr, py)
+
+
+# -- per-texel lobes ----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def lobes(coded):
+    return random_lobes(coded)
+
+
+@pytest.fixture(scope="module")
+def store_lobes(store, lobes):
+    """The entries of :func:`random_store` and a lobe on every texel."""
+    return replace(store, lobes=lobes)
+
+
+@pytest.fixture(scope="module")
+def lobes_only(coded, lobes):
+    return replace(Highlights.empty(coded.n_points), lobes=lobes)
+
+
+def test_bundle_carries_the_lobes(coded, store_lobes, lobes_only, lobes):
+    rows = lobes.reshape(-1, LOBE_PARAMS)
+    for h in (store_lobes, lobes_only):
+        bundle = build_bundle(RuntimeBTF(replace(coded, highlights=h)), neighbours=False)
+        m = bundle.manifest
+        assert m["uniforms"]["sb_lobes"] == 1 and m["lobes"] == rows.shape[0]
+        assert m["textures"]["sb_hlLobes"]["format"] == "RGBA16F"
+        got = _tex(bundle, "sb_hlLobes", "<f2", 4).reshape(-1, LOBE_PARAMS)  # 2 texels a lobe
+        assert np.array_equal(got.view(np.uint16), rows.view(np.uint16))  # bits as stored
+    # lobes and no entries: no (empty) entry textures, no search
+    m = build_bundle(RuntimeBTF(replace(coded, highlights=lobes_only)), neighbours=False).manifest
+    assert "sb_highlights" not in m["uniforms"] and "highlights" not in m
+    assert not any(t in m["textures"] for t in ("sb_hlOffsets", "sb_hlKeys", "sb_hlRgb"))
+
+
+def test_packing_refuses_lobes_that_do_not_fit(coded, lobes_only):
+    rt = RuntimeBTF(replace(coded, highlights=lobes_only))
+    arr = rt.arrays(neighbours=False)
+    bad = dict(arr, highlight_lobes=arr["highlight_lobes"][1:])
+    with pytest.raises(BTFInputError, match=r"stone.h5: highlight_lobes has shape"):
+        pack_textures(bad, rt.meta, "stone.h5")
+    neg = dict(arr, highlight_lobes=arr["highlight_lobes"].copy())
+    neg["highlight_lobes"][5, 6] = -1.0  # row 5: point 5 // p², texel 5 % p²
+    pt, tx = divmod(5, coded.patch**2)
+    with pytest.raises(BTFInputError, match=rf"lobe of point {pt}, texel {tx} .*negative"):
+        pack_textures(neg, rt.meta, "stone.h5")
+
+
+def _check_lobe_page(page, rt_plain, h, wi, wo, interp, domain="standardized", neigh=True):
+    gl = read_image(page, interp=interp, domain=domain, neigh=neigh, lod=1.0,
+                    wi=wi.tolist(), wo=wo.tolist())  # fmt: skip
+    dec, corr, py, lobe = lobe_reference(rt_plain, h, wi, wo, interp, domain)
+    assert_hl_close(gl, dec, corr, py)
+    return gl, dec, lobe
+
+
+@pytest.fixture(scope="module")
+def lobe_page(browser, coded, store_lobes):
+    with serve(build_bundle(RuntimeBTF(replace(coded, highlights=store_lobes)))) as srv:
+        page = open_test_scene(browser, srv.url)
+        yield page
+        page.close()
+
+
+@pytest.mark.parametrize(("interp", "domain", "neigh"), [
+    ("linear", "standardized", True),
+    ("barycentric", "log", False),
+])  # fmt: skip
+def test_page_adds_corrections_and_lobes(lobe_page, rt_plain, store_lobes, interp, domain, neigh):
+    gl, dec, lobe = _check_lobe_page(lobe_page, rt_plain, store_lobes, WI, WO, interp, domain,
+                                     neigh)  # fmt: skip
+    # the lobe peaks at texel (0, 0) (bottom-left 8x8 pixels) and is > 0.01 on many texels
+    assert lobe[:8, :8].min() > 10 and np.all(gl[:8, :8] - dec[:8, :8] > 10)
+    assert (lobe > 1e-2).mean() > 0.1
+
+
+def test_page_adds_lobes_without_entries(browser, coded, rt_plain, lobes_only):
+    """A store of lobes only, at the scene's directions and at others (the lobe follows the
+    fragment's own wi, wo: another half vector lights other texels)."""
+    with serve(build_bundle(RuntimeBTF(replace(coded, highlights=lobes_only)))) as srv:
+        page = open_test_scene(browser, srv.url)
+        gl, dec, lobe = _check_lobe_page(page, rt_plain, lobes_only, WI, WO, "linear")
+        assert np.all(gl[:8, :8] - dec[:8, :8] > 10)
+        wi = np.array([-0.5, 0.3, 0.8]) / np.linalg.norm([-0.5, 0.3, 0.8])
+        wo = np.array([0.2, -0.6, 0.7]) / np.linalg.norm([0.2, -0.6, 0.7])
+        _, _, lobe2 = _check_lobe_page(page, rt_plain, lobes_only, wi, wo, "nearest")
+        page.close()
+    assert (lobe2 > 1e-2).mean() > 0.1 and not np.allclose(lobe, lobe2)
+
+
+def test_static_export_carries_the_lobes(browser, coded, rt_plain, store_lobes, tmp_path):
+    out = export(build_bundle(RuntimeBTF(replace(coded, highlights=store_lobes))),
+                 tmp_path / "site")  # fmt: skip
+    with static_server(out) as url:
+        page = open_test_scene(browser, url)
+        _, _, lobe = _check_lobe_page(page, rt_plain, store_lobes, WI, WO, "nearest")
+        page.close()
+    assert lobe[:8, :8].min() > 10

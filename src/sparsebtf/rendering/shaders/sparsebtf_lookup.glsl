@@ -49,10 +49,14 @@
 //                          [sb_hlOffsets[p], sb_hlOffsets[p + 1]) (P + 1 values)
 //   sb_hlKeys     R32UI    node keys ((i1 P + i2) L + light) V + view, increasing per point
 //   sb_hlRgb      RGB16F   the linear-RGB correction of each entry (binary16)
+//   sb_hlLobes    RGBA16F  lobes only (sb_lobes == 1): lobe r = point P^2 + i1 P + i2 at texels
+//                          2r = (w_x, w_y, w_z, ln ax), 2r + 1 = (ln ay, A_r, A_g, A_b)
 //
 // Highlight store (sparsebtf.learning.highlights): with sb_highlights == 1 the value is
 // max(rgb + sum_ab wl_a wv_b c(p, key(i1, i2, L_a, V_b)), 0), c = 0 at nodes without an entry,
 // with the same neighbours and weights as the coefficients; with 0 (the default) rgb as is.
+// With sb_lobes == 1 (sparsebtf.learning.lobes) the texel's lobe at the query's own wi, wo is
+// added too, before the clamp: A D(h) / max(n.wo, SB_NV_FLOOR) where n.wi > 0 and n.wo > 0.
 
 #define SB_TEX_WIDTH 4096
 #define SB_TEX_SHIFT 12
@@ -62,6 +66,9 @@
 #define SB_NEIGH_K 8
 #define SB_MAX_CLASSES 16
 #define SB_HL_STEPS 32
+#define SB_NV_FLOOR 0.05
+#define SB_PI 3.14159265358979
+#define SB_ROT_TERMS 11
 
 #define SB_NEAREST 0
 #define SB_LINEAR 1
@@ -79,6 +86,7 @@ uniform isampler2D sb_tree;
 uniform usampler2D sb_hlOffsets;
 uniform usampler2D sb_hlKeys;
 uniform sampler2D sb_hlRgb;
+uniform sampler2D sb_hlLobes;
 
 uniform ivec4 sb_size;        // H, W, patch P, n_rb = H / P
 uniform ivec4 sb_counts;      // n_points, n_lights, n_views, S (1 shared or 3 per-channel stats)
@@ -97,7 +105,8 @@ uniform int sb_domain;        // 0 standardized (Eq. 6), 1 log (release)
 uniform int sb_useNeigh;      // 1: rank the 8 candidates of sb_neigh instead of all directions
 uniform ivec4 sb_adaptive;    // adaptive patch sizes: (1, smallest size s, H / s, classes); 0: one size
 uniform ivec4 sb_class[SB_MAX_CLASSES]; // adaptive: (size p, tau'_Y, tau'_U, tau'_V) per class
-uniform int sb_highlights;    // 1: add the highlight store's corrections; 0: no store
+uniform int sb_highlights;    // 1: add the highlight store's corrections; 0: no entries
+uniform int sb_lobes;         // 1: add the store's per-texel lobes; 0: no lobes
 
 ivec2 sb_coord(int i) {
     return ivec2(i & (SB_TEX_WIDTH - 1), i >> SB_TEX_SHIFT);
@@ -371,6 +380,49 @@ vec3 sb_highlight(ivec3 t, int nl, int il[SB_MAX_NN], float wl[SB_MAX_NN], int n
     return c;
 }
 
+// The lobe of point/in-patch texel t at light wi and view wo (any length; sparsebtf.learning.
+// lobes.lobe_values). The frame (t, b, n) = R(w) e is never built: a vector's components in it
+// are R^T v = v - a (w x v) + b w x (w x v), Rodrigues' rotation by -w.
+vec3 sb_lobe(ivec3 t, vec3 wi, vec3 wo) {
+    int r = 2 * ((t.x * sb_size.z + t.y) * sb_size.z + t.z);
+    vec4 p0 = texelFetch(sb_hlLobes, sb_coord(r), 0);
+    vec4 p1 = texelFetch(sb_hlLobes, sb_coord(r + 1), 0);
+    vec3 w = p0.xyz;  // rotation vector
+    float th2 = dot(w, w);
+    if (th2 > SB_PI * SB_PI) {  // the same rotation by an angle in [-pi, pi]: the series below
+        float th = sqrt(th2);
+        float tw = mod(th + SB_PI, 2.0 * SB_PI) - SB_PI;
+        w *= tw / th;
+        th2 = tw * tw;
+    }
+    // a = sin th / th, b = (1 - cos th) / th^2 by their Taylor series (SB_ROT_TERMS terms leave
+    // < 1e-11 at th = pi): GPUs' sin and cos are not float32-accurate (GLSL ES leaves their
+    // precision open; headless Chromium's errs by about 1e-5), and a sharp lobe's flank
+    // amplifies that into relative errors of 1e-4 and more; the series is float32-accurate, and
+    // near 0 it is lobe_frame's 1 - th^2/6, 0.5 - th^2/24.
+    float a = 0.0, b = 0.0;
+    float ta = 1.0, tb = 0.5;
+    for (int k = 0; k < SB_ROT_TERMS; ++k) {
+        a += ta;
+        b += tb;
+        ta *= -th2 / float((2 * k + 2) * (2 * k + 3));
+        tb *= -th2 / float((2 * k + 3) * (2 * k + 4));
+    }
+    vec3 l = normalize(wi), v = normalize(wo);
+    vec3 hv = l + v;
+    hv /= max(length(hv), 1e-12);
+    vec3 cl = cross(w, l), cv = cross(w, v), ch = cross(w, hv);
+    float nl = l.z - a * cl.z + b * cross(w, cl).z;
+    float nv = v.z - a * cv.z + b * cross(w, cv).z;
+    if (nl <= 0.0 || nv <= 0.0) return vec3(0.0);
+    vec3 h = hv - a * ch + b * cross(w, ch);  // (h.t, h.b, h.n)
+    vec2 al = exp(vec2(p0.w, p1.x));
+    vec2 hs = h.xy / al;
+    float q = dot(hs, hs) + h.z * h.z;
+    float d = 1.0 / (SB_PI * al.x * al.y * q * q);
+    return p1.yzw * (d / max(nv, SB_NV_FLOOR));
+}
+
 // Texels per pixel side from the screen-space derivatives dx = dFdx(uv), dy = dFdy(uv) (the
 // caller removes the jumps of its parametrisation's seams): sqrt(|det J|) of the Jacobian of
 // the texel coordinates, the side of a square of the pixel's footprint area.
@@ -416,8 +468,11 @@ vec3 sb_evaluate_at(ivec3 t, vec3 wi, vec3 wo, vec3 tau) {
         }
     }
     vec3 rgb = exp(min(ln, vec3(bound))) - sb_eps;
-    if (sb_highlights == 0) return rgb;  // no store: the decode as is, no clamp
-    return max(rgb + sb_highlight(t, nl, il, wl, nv, iv, wv), 0.0);
+    if (sb_highlights == 0 && sb_lobes == 0) return rgb;  // no store: the decode as is, no clamp
+    vec3 c = vec3(0.0);
+    if (sb_highlights != 0) c += sb_highlight(t, nl, il, wl, nv, iv, wv);
+    if (sb_lobes != 0) c += sb_lobe(t, wi, wo);
+    return max(rgb + c, 0.0);
 }
 
 // The same at texture coordinate uv (wrapping), tau the same for every point.

@@ -88,7 +88,8 @@ HEADLESS_CHROMIUM_FLAGS = (
 _CHANNELS = ("Y", "U", "V")
 _ALIGN = 16
 _TYPES = {"R32F": ("<f4", 1), "R32UI": ("<u4", 1), "R32I": ("<i4", 1), "RGBA32I": ("<i4", 4),
-          "RGBA32F": ("<f4", 4), "RGB16F": ("<f2", 3)}  # fmt: skip
+          "RGBA32F": ("<f4", 4), "RGB16F": ("<f2", 3),
+          "RGBA16F": ("<f2", 4)}  # fmt: skip
 
 
 def _static(name: str) -> bytes:
@@ -129,7 +130,9 @@ def pack_textures(
     (:mod:`.tree`); a fixed-size material's part is unchanged. With the arrays of a highlight
     store (``RuntimeBTF.arrays()``'s ``highlight_*``) the textures ``sb_hlOffsets``, ``sb_hlKeys``,
     ``sb_hlRgb``, the uniform ``sb_highlights`` and the manifest's ``highlights`` entry count
-    are added (:mod:`.highlights`); without them nothing changes.
+    are added, with its lobes (``highlight_lobes``) the texture ``sb_hlLobes``, the uniform
+    ``sb_lobes`` and the manifest's ``lobes`` count (:mod:`.highlights`); without them nothing
+    changes.
     Raises :class:`~sparsebtf.errors.BTFInputError` naming the channel or texture when an
     array is missing or a texture would exceed :data:`MAX_TEX_HEIGHT` rows.
     """
@@ -233,7 +236,7 @@ def pack_textures(
         spec.append(("sb_neigh", "R32I", np.concatenate([nl.ravel(), nv.ravel()])))
     if adaptive:
         spec.append(("sb_tree", "R32I", cells))
-    hl_spec, hl_uniforms = highlight_textures(arrays, meta, n_points, n_l, n_v, where)
+    hl_spec, hl_uniforms, hl_part = highlight_textures(arrays, meta, n_points, n_l, n_v, where)
     spec += hl_spec
 
     textures: dict[str, Any] = {}
@@ -270,9 +273,8 @@ def pack_textures(
     if adaptive:
         uniforms.update(tree_uniforms)
         part["adaptive"] = tree_part
-    if hl_spec:
-        uniforms.update(hl_uniforms)
-        part["highlights"] = int(arrays["highlight_keys"].shape[0])
+    uniforms.update(hl_uniforms)
+    part.update(hl_part)
     return part, b"".join(chunks)
 
 
@@ -303,7 +305,7 @@ def build_bundle(rt: RuntimeBTF | AdaptiveRuntimeBTF, neighbours: bool = True) -
 
     ``neighbours`` adds the candidate tables (``runtime.angular.neighbour_table``) so that the
     shader ranks 8 candidates per direction instead of scanning all of them. A material with
-    a highlight store (``coded.highlights`` with entries) carries it (:mod:`.highlights`).
+    a highlight store (``coded.highlights`` with entries or lobes) carries it (:mod:`.highlights`).
     """
     from ...runtime.adaptive import AdaptiveRuntimeBTF
 

@@ -15,7 +15,8 @@
 // A material coded with adaptive patch sizes (manifest.adaptive) has one cap per node class
 // (size, tau): the level of detail is a fraction f of each, max(1, ceil(f tau)), set as the
 // uniform sb_class; tau=a,b,c then caps every node besides. A material with a highlight store
-// (manifest.highlights: its entry count) has the textures sb_hl* and the uniform sb_highlights.
+// (manifest.highlights: its entry count) has the textures sb_hl* and the uniform sb_highlights;
+// one with lobes (manifest.lobes: their count) the texture sb_hlLobes and the uniform sb_lobes.
 // Script API: window.sparsebtf = {ready, error, info, set(state), readFloat(), benchmark(opts)}.
 "use strict";
 
@@ -93,6 +94,8 @@
       RGBA32F: [gl.RGBA32F, gl.RGBA, gl.FLOAT, Float32Array, 4],
       // binary16 as stored (the highlight store's corrections): no rounding on upload
       RGB16F: [gl.RGB16F, gl.RGB, gl.HALF_FLOAT, Uint16Array, 3],
+      // binary16 as stored (the store's lobes: two texels of 4 parameters per lobe)
+      RGBA16F: [gl.RGBA16F, gl.RGBA, gl.HALF_FLOAT, Uint16Array, 4],
     };
     gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
     const units = {};
@@ -460,6 +463,7 @@
       `${m.n_lights} lights x ${m.n_views} views\n` +
       `coefficients ${Object.values(m.nnz).join(" / ")} (Y/U/V)\n` +
       (manifest.highlights ? `highlight store: ${manifest.highlights} nodes\n` : "") +
+      (manifest.lobes ? `highlight lobes: ${manifest.lobes} texels\n` : "") +
       `${(manifest.bytes / 1048576).toFixed(1)} MiB of textures\n${api.info.renderer}`;
     // On a CPU rasteriser a full-tau frame takes seconds: redraw only on change there.
     if (!q.has("animate") && /SwiftShader|llvmpipe|softpipe/i.test(api.info.renderer)) {
