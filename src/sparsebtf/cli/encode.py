@@ -261,8 +261,9 @@ def register(sub: Any) -> None:
     s.add_argument("--highlights", action="store_true",
                    help="with --tau: spend tau's bytes on the codes at tau or fewer "
                    "coefficients plus exact linear-RGB values at the (texel, light, view) "
-                   "nodes where they remove the most error, whichever errs least (glossy "
-                   "materials; the file is schema 5, docs/format.md)")
+                   "nodes where they remove the most error, and a glossy lobe per texel where "
+                   "it pays, whichever errs least (glossy materials; the file is schema 5, 6 "
+                   "with lobes, docs/format.md)")
     s.add_argument("--batch", type=int, default=DEFAULTS.batch_size,
                    help="data points read and coded at a time (memory bound; default "
                    f"{DEFAULTS.batch_size})")

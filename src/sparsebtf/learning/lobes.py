@@ -99,25 +99,46 @@ def unit_lobes(shape: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
 
 if HAVE_NUMBA:
 
+    @_nb.njit(cache=True, nogil=True, inline="always")
+    def _unit_nb(f, ax, ay, p, h, wi, wo):
+        # D(h_p) / max(n·wo_p, NV_FLOOR) for the frame f (columns t, b, n) and α
+        nl = wi[p, 0] * f[0, 2] + wi[p, 1] * f[1, 2] + wi[p, 2] * f[2, 2]
+        nv = wo[p, 0] * f[0, 2] + wo[p, 1] * f[1, 2] + wo[p, 2] * f[2, 2]
+        if nl <= 0.0 or nv <= 0.0:
+            return 0.0
+        ht = (h[p, 0] * f[0, 0] + h[p, 1] * f[1, 0] + h[p, 2] * f[2, 0]) / ax
+        hb = (h[p, 0] * f[0, 1] + h[p, 1] * f[1, 1] + h[p, 2] * f[2, 1]) / ay
+        hn = h[p, 0] * f[0, 2] + h[p, 1] * f[1, 2] + h[p, 2] * f[2, 2]
+        q = ht * ht + hb * hb + hn * hn
+        return 1.0 / (np.pi * ax * ay * q * q) / max(nv, NV_FLOOR)
+
     @_nb.njit(parallel=True, cache=True, nogil=True)
     def _grid_nb(frame, alpha, h, wi, wo, out):
-        # out[t, p] = D(h_p) / max(n·wo_p, NV_FLOOR) for texel t's frame and α (the fit's
-        # inner loop: 6 calls per iteration over every node of a point)
+        # out[t, p]: texel t's unit lobe at direction pair p
         for t in _nb.prange(frame.shape[0]):
-            f = frame[t]
-            ax, ay = alpha[t, 0], alpha[t, 1]
-            norm = 1.0 / (np.pi * ax * ay)
             for p in range(h.shape[0]):
-                nl = wi[p, 0] * f[0, 2] + wi[p, 1] * f[1, 2] + wi[p, 2] * f[2, 2]
-                nv = wo[p, 0] * f[0, 2] + wo[p, 1] * f[1, 2] + wo[p, 2] * f[2, 2]
-                if nl <= 0.0 or nv <= 0.0:
-                    out[t, p] = 0.0
-                    continue
-                ht = (h[p, 0] * f[0, 0] + h[p, 1] * f[1, 0] + h[p, 2] * f[2, 0]) / ax
-                hb = (h[p, 0] * f[0, 1] + h[p, 1] * f[1, 1] + h[p, 2] * f[2, 1]) / ay
-                hn = h[p, 0] * f[0, 2] + h[p, 1] * f[1, 2] + h[p, 2] * f[2, 2]
-                q = ht * ht + hb * hb + hn * hn
-                out[t, p] = norm / (q * q) / max(nv, NV_FLOOR)
+                out[t, p] = _unit_nb(frame[t], alpha[t, 0], alpha[t, 1], p, h, wi, wo)
+
+    @_nb.njit(parallel=True, cache=True, nogil=True)
+    def _normal_nb(frames, alphas, steps, amp, r, h, wi, wo, jtj, jtr):
+        # Gauss-Newton's normal equations per texel in one pass over its nodes: frames[t, 0]
+        # is the shape, frames[t, 1 + k] the shape with parameter k moved by steps[k]
+        # (forward differences); w = Σ_c A_c (r_c − g A_c), the residual along the colour
+        for t in _nb.prange(frames.shape[0]):
+            jk = np.empty(5)
+            for p in range(h.shape[0]):
+                g0 = _unit_nb(frames[t, 0], alphas[t, 0, 0], alphas[t, 0, 1], p, h, wi, wo)
+                w = 0.0
+                for c in range(3):
+                    w += amp[t, c] * (r[t, p, c] - g0 * amp[t, c])
+                for k in range(5):
+                    gk = _unit_nb(frames[t, 1 + k], alphas[t, 1 + k, 0], alphas[t, 1 + k, 1],
+                                  p, h, wi, wo)  # fmt: skip
+                    jk[k] = (gk - g0) / steps[k]
+                for k in range(5):
+                    jtr[t, k] += jk[k] * w
+                    for m in range(5):
+                        jtj[t, k, m] += jk[k] * jk[m]
 
 
 def _unit_lobes_grid(shape: np.ndarray, h: np.ndarray, wi: np.ndarray,
@@ -190,6 +211,25 @@ def _wrapped(omega: np.ndarray) -> np.ndarray:
     return np.where(over, omega * (turned / np.where(over, th, 1.0)), omega)
 
 
+def _normal(theta: np.ndarray, step: np.ndarray, a: np.ndarray, r: np.ndarray, g: np.ndarray,
+            w: np.ndarray | None, h: np.ndarray, wi: np.ndarray, wo: np.ndarray,
+            shapes: object) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
+    """Σ_p J_p J_pᵀ and Σ_p J_p w_p per texel (T, 5, 5), (T, 5): J the forward-difference
+    derivatives of the unit lobe by the five shape parameters, w the residual along the
+    texel's colour (compiled in one pass; without numba, (T, P, 5) Jacobians)."""
+    moved = np.repeat(theta[:, None, :], 6, axis=1)
+    for k in range(5):
+        moved[:, 1 + k, k] += step[k]
+    if HAVE_NUMBA:
+        t = len(theta)
+        jtj, jtr = np.zeros((t, 5, 5)), np.zeros((t, 5))
+        _normal_nb(np.ascontiguousarray(lobe_frame(moved[..., :3])), np.exp(moved[..., 3:]),
+                   step, a, np.ascontiguousarray(r), h, wi, wo, jtj, jtr)  # fmt: skip
+        return jtj, jtr
+    jac = np.stack([(shapes(moved[:, 1 + k]) - g) / step[k] for k in range(5)], axis=-1)  # type: ignore[operator]
+    return np.einsum("tpk,tpl->tkl", jac, jac), np.einsum("tpk,tp->tk", jac, w)
+
+
 def fit_lobes(r: np.ndarray, wi: np.ndarray, wo: np.ndarray, iters: int = 25) -> np.ndarray:
     """Lobes fitted to the residuals ``r`` (T, P, 3) of T texels at P direction pairs
     (``wi``, ``wo`` (P, 3)): (T, 8) float16 — the shape by Levenberg–Marquardt on the squared
@@ -212,16 +252,10 @@ def fit_lobes(r: np.ndarray, wi: np.ndarray, wo: np.ndarray, iters: int = 25) ->
     step = np.array([1e-4, 1e-4, 1e-4, 1e-3, 1e-3])
     for _ in range(iters):
         a = lobe_amplitudes(g, r)
-        res = r - g[..., None] * a[:, None, :]
-        w = np.einsum("tpc,tc->tp", res, a)  # the residual along each texel's colour
+        w = None if HAVE_NUMBA else np.einsum("tpc,tc->tp", r - g[..., None] * a[:, None, :], a)
         a2 = (a * a).sum(1)
-        jac = np.empty((*g.shape, 5))
-        for k in range(5):
-            th = theta.copy()
-            th[:, k] += step[k]
-            jac[..., k] = (shapes(th) - g) / step[k]
-        jtj = a2[:, None, None] * np.einsum("tpk,tpl->tkl", jac, jac)
-        jtr = np.einsum("tpk,tp->tk", jac, w)
+        jtj, jtr = _normal(theta, step, a, r, g, w, h, wi, wo, shapes)
+        jtj *= a2[:, None, None]
         damp = jtj + lam[:, None, None] * (np.eye(5) * np.diagonal(jtj, axis1=1, axis2=2)[:, None]
                                            + 1e-12 * np.eye(5))  # fmt: skip
         delta = np.linalg.solve(damp, jtr[..., None])[..., 0]
