@@ -432,3 +432,30 @@ def test_quality_benchmark_on_captured_materials(tmp_path, monkeypatch):
     assert {"woven12", "pebbles12", "leather12", "metal12", "copper12", "brushed12",
             "copper-mirror12", "copper-rough12", "metal12+black"} <= rows  # fmt: skip
     assert (tmp_path / "run" / "results.md").exists()
+
+
+def test_noise_variance_from_a_twin(tmp_path):
+    from sparsebtf.data.capture.noise import noise_variance
+
+    def cap(name, scene="pebbles", **kw):
+        kw = {"size": 6, "directions": "tiny7", "spp": 2, "seed": 5, **kw}
+        return str(capture(scene, tmp_path / name, **kw))
+
+    a = cap("a.h5")
+    twin = noise_variance(a, cap("t.h5", noise_seed=1, crop=(slice(0, 3), slice(1, 6))))
+    assert twin["window"] == [[0, 3], [1, 6]] and twin["values"] == 3 * 5 * 7 * 7 * 3
+    assert twin["noise_variance"] == pytest.approx(twin["mse"] / 2)
+    # a twin at 4× the paths: σ²_a = MSE · 8 / (2 + 8); the same σ² within sampling error
+    fine = noise_variance(a, cap("f.h5", noise_seed=2, spp=8))
+    assert fine["noise_variance"] == pytest.approx(0.8 * fine["mse"])
+    assert 0.5 < fine["noise_variance"] / twin["noise_variance"] < 2
+    assert 0 < fine["noise_variance"] < fine["variance"]
+    # a uniform Lambertian plane has no Monte Carlo noise (every path sees ρ cos θ)
+    uniform = str(plane(tmp_path, {"type": "diffuse"}))
+    flat = noise_variance(cap("p.h5", uniform), cap("q.h5", uniform, noise_seed=3))
+    assert flat["noise_variance"] < 1e-12 < twin["noise_variance"]
+    for other, why in [(cap("s.h5", noise_seed=5), "same noise seed"),
+                       (cap("o.h5", seed=6, noise_seed=1), "not a twin"),
+                       (cap("w.h5", size=8, noise_seed=1), "not a twin")]:  # fmt: skip
+        with pytest.raises(SparseBTFError, match=why):
+            noise_variance(a, other)
