@@ -19,6 +19,8 @@ half vector, a lobe far above the decode, so a shader that drops the lobe fails.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 
 import numpy as np
@@ -32,6 +34,7 @@ from sparsebtf.rendering.viewer import build_bundle, export, pack_textures, serv
 from sparsebtf.runtime import RuntimeBTF, angular_weights
 from sparsebtf.runtime.decoder import query_texels
 
+from .test_highlight_decode import random_lobes
 from .test_viewer import (
     ATOL,
     RTOL,
@@ -83,18 +86,10 @@ def random_store(coded, seed: int = 7) -> Highlights:
     return Highlights.from_nodes(points, keys, rgb, coded.n_points)
 
 
-def random_lobes(coded, wi: np.ndarray = WI, wo: np.ndarray = WO, seed: int = 3) -> np.ndarray:
-    """(P, p², 8) float16: rotation vectors of norm < 1, ln α in [ln 0.05, ln 0.4], amplitudes
-    in [0, 2]; texel (0, 0) of point 0 turns its normal onto the half vector of ``wi``, ``wo``
-    with α = 0.1 and amplitude 1 (a value of about 40 there)."""
-    rng = np.random.default_rng(seed)
-    shape = (coded.n_points, coded.patch**2)
-    axis = rng.normal(size=(*shape, 3))
-    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
-    omega = axis * rng.uniform(0.0, 1.0, (*shape, 1))
-    ln_alpha = rng.uniform(np.log(0.05), np.log(0.4), (*shape, 2))
-    amp = rng.uniform(0.0, 2.0, (*shape, 3))
-    lobes = np.concatenate([omega, ln_alpha, amp], axis=-1)
+def pinned_lobes(coded, wi: np.ndarray = WI, wo: np.ndarray = WO, seed: int = 3) -> np.ndarray:
+    """``random_lobes`` with texel (0, 0) of point 0 turning its normal onto the half vector of
+    ``wi``, ``wo``, α = 0.1 and amplitude 1 (a value of about 40 there)."""
+    lobes = random_lobes(coded, np.random.default_rng(seed)).astype(np.float64)
     h = (wi + wo) / np.linalg.norm(wi + wo)
     k = np.cross([0.0, 0.0, 1.0], h)  # e_z x h: the axis that turns e_z onto h
     lobes[0, 0] = [*(k / np.linalg.norm(k) * np.arccos(h[2])), np.log(0.1), np.log(0.1), 1, 1, 1]
@@ -203,12 +198,21 @@ def test_packing_refuses_a_store_that_does_not_fit(rt_hl, store):
 
 
 # -- the page in headless Chromium --------------------------------------------------------------
+@contextmanager
+def served_page(browser, rt: RuntimeBTF) -> Iterator:
+    """The test scene of ``rt``'s bundle, served, in a page closed afterwards."""
+    with serve(build_bundle(rt)) as srv:
+        page = open_test_scene(browser, srv.url)
+        try:
+            yield page
+        finally:
+            page.close()
+
+
 @pytest.fixture(scope="module")
 def hl_page(browser, rt_hl):
-    with serve(build_bundle(rt_hl)) as srv:
-        page = open_test_scene(browser, srv.url)
+    with served_page(browser, rt_hl) as page:
         yield page
-        page.close()
 
 
 @pytest.mark.parametrize(("interp", "domain", "neigh"), [
@@ -253,7 +257,7 @@ def test_static_export_carries_the_store(browser, rt_hl, rt_plain, store, tmp_pa
 # -- per-texel lobes ----------------------------------------------------------------------------
 @pytest.fixture(scope="module")
 def lobes(coded):
-    return random_lobes(coded)
+    return pinned_lobes(coded)
 
 
 @pytest.fixture(scope="module")
@@ -305,10 +309,8 @@ def _check_lobe_page(page, rt_plain, h, wi, wo, interp, domain="standardized", n
 
 @pytest.fixture(scope="module")
 def lobe_page(browser, coded, store_lobes):
-    with serve(build_bundle(RuntimeBTF(replace(coded, highlights=store_lobes)))) as srv:
-        page = open_test_scene(browser, srv.url)
+    with served_page(browser, RuntimeBTF(replace(coded, highlights=store_lobes))) as page:
         yield page
-        page.close()
 
 
 @pytest.mark.parametrize(("interp", "domain", "neigh"), [
@@ -326,8 +328,7 @@ def test_page_adds_corrections_and_lobes(lobe_page, rt_plain, store_lobes, inter
 def test_page_adds_lobes_without_entries(browser, coded, rt_plain, lobes_only):
     """A store of lobes only, at the scene's directions and at others (the lobe follows the
     fragment's own wi, wo: another half vector lights other texels)."""
-    with serve(build_bundle(RuntimeBTF(replace(coded, highlights=lobes_only)))) as srv:
-        page = open_test_scene(browser, srv.url)
+    with served_page(browser, RuntimeBTF(replace(coded, highlights=lobes_only))) as page:
         gl, dec, lobe = _check_lobe_page(page, rt_plain, lobes_only, WI, WO, "linear")
         assert np.all(gl[:8, :8] - dec[:8, :8] > 10)
         wi = np.array([-0.5, 0.3, 0.8]) / np.linalg.norm([-0.5, 0.3, 0.8])

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from ...errors import BTFInputError
-from ...open import open_btf
+from ..dense_file import DenseFileBTF
 
 __all__ = ["SAMPLE_KEYS", "noise_variance"]
 
@@ -39,7 +39,7 @@ def noise_variance(capture: str, twin: str) -> dict[str, Any]:
     """σ² of the capture file ``capture`` over the window of its twin ``twin`` (module
     docstring): ``noise_variance``, the window's ``variance`` and the twin's MSE, the share of
     the noise in values above 1, the window, both spp. Streams ``ROWS`` texel rows at a time."""
-    with open_btf(capture) as a, open_btf(twin) as b:
+    with DenseFileBTF(capture) as a, DenseFileBTF(twin) as b:
         ka, kb = _capture(a, capture), _capture(b, twin)
         for k in SAMPLE_KEYS:
             if ka.get(k) != kb.get(k):
