@@ -129,6 +129,37 @@ def test_lobes_pay_on_a_lobe_material(model):
     assert all(b <= a * (1 + 1e-6) for a, b in itertools.pairwise(errs))
 
 
+def test_entries_only_skips_the_lobes(model, tmp_path, capsys):
+    from sparsebtf.api import encode as sb_encode
+    from sparsebtf.cli.main import main
+    from sparsebtf.storage import save_model
+
+    btf = lobe_btf()
+    (lit,) = encode_levels(btf, model, [(64, 16, 16)], eps=0.0, highlights=True, progress=False)
+    (bare,) = encode_levels(btf, model, [(64, 16, 16)], eps=0.0, highlights="entries",
+                            progress=False)  # fmt: skip
+    assert lit.params["highlights"]["lobes"] and lit.highlights.lobes is not None
+    assert not bare.params["highlights"]["lobes"] and bare.highlights.lobes is None
+    assert sb_encode(btf, model, target=(64, 16, 16), eps=0.0, highlights="lobes",
+                     progress=False).highlights.lobes is not None  # fmt: skip
+    with pytest.raises(BTFInputError, match="highlights"):
+        encode_levels(btf, model, [(64, 16, 16)], highlights="both", progress=False)
+    # the command line: --highlights entries writes schema 5 (no lobes)
+    src, mf = tmp_path / "l.h5", tmp_path / "m.h5"
+    from sparsebtf.data.dense_file import write_dense
+
+    write_dense(src, btf)
+    save_model(model, mf)
+    out = tmp_path / "c.h5"
+    code = main(["encode", str(src), "--model", str(mf), "--tau", "64,16,16", "--eps", "0",
+                 "--highlights", "entries", "-o", str(out)])  # fmt: skip
+    capsys.readouterr()
+    assert code == 0
+    with h5py.File(out) as f:
+        assert int(f.attrs["schema_version"]) in (3, HIGHLIGHT_SCHEMA) and "lobes" not in f.get(
+            "highlights", {})
+
+
 def test_no_entries_where_they_do_not_pay(model):
     (c,) = encode_levels(smooth_btf(4), model, [(32, 8, 8)], eps=0.0, highlights=True,
                          progress=False)  # fmt: skip

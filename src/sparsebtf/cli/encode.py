@@ -258,12 +258,14 @@ def register(sub: Any) -> None:
                    "error of linear RGB, the radiance a renderer integrates: for glossy "
                    "highlights) or display (after the display mapping 1.3*I^(1/1.8), clipped "
                    "at 1); --eps is then in its units (mean squared error per value)")
-    s.add_argument("--highlights", action="store_true",
+    s.add_argument("--highlights", nargs="?", const="lobes", default=False,
+                   choices=["lobes", "entries"],
                    help="with --tau: spend tau's bytes on the codes at tau or fewer "
                    "coefficients plus exact linear-RGB values at the (texel, light, view) "
                    "nodes where they remove the most error, and a glossy lobe per texel where "
                    "it pays, whichever errs least (glossy materials; the file is schema 5, 6 "
-                   "with lobes, docs/format.md)")
+                   "with lobes, docs/format.md); '--highlights entries' skips the lobes (their "
+                   "fit takes seconds per data point)")
     s.add_argument("--batch", type=int, default=DEFAULTS.batch_size,
                    help="data points read and coded at a time (memory bound; default "
                    f"{DEFAULTS.batch_size})")

@@ -324,4 +324,4 @@ def _encode_highlights(btf: BTF | str | os.PathLike[str], model: Model, taus: Se
     (coded,) = run_plan([btf], model, FixedTau(tuple(levels + extra)), plain, where)
     source = Source.of(btf, opts.crop).open()
     return choose_highlights(source, coded[: len(levels)], coded[len(levels):], model,
-                             opts.progress)  # fmt: skip
+                             opts.progress, lobes=opts.highlights != "entries")  # fmt: skip

@@ -123,7 +123,9 @@ class EncodeOptions(Options):
       encoders refuse it.
     * ``highlights`` — fixed τ: each level's τ sets its bytes, spent on the codes at that τ
       or fewer coefficients plus exact linear-RGB corrections at the nodes where they remove
-      the most error (:mod:`sparsebtf.codec.highlights`; for glossy materials).
+      the most error and a glossy lobe per texel where it pays (:mod:`sparsebtf.codec.
+      highlights`; for glossy materials). True or "lobes": both; "entries": the corrections
+      alone (no lobe fit, which costs seconds per data point).
     """
 
     eps: float = RELEASE_EPS
@@ -141,11 +143,11 @@ class EncodeOptions(Options):
     checkpoint_dir: str | os.PathLike[str] | None = None
     progress: bool | None = None
     adaptive_patches: bool = False
-    highlights: bool = False
+    highlights: bool | str = False
 
     constraints: ClassVar[dict[str, list[Any]]] = {
         "adaptive_patches": [bool],
-        "highlights": [bool],
+        "highlights": [bool, StrOptions(("lobes", "entries"), what="highlight store")],
         "eps": [Interval(float, 0, None, unit="(residual mean squared error, standardised)")],
         "candidates": CANDIDATES,
         "objective": [StrOptions(OBJECTIVES, what="coding objective")],
