@@ -127,6 +127,9 @@ def test_lobes_pay_on_a_lobe_material(model):
     assert not other.params["highlights"]["lobes"]
     errs = [sse(c, ref) for c in with_lobes]
     assert all(b <= a * (1 + 1e-6) for a, b in itertools.pairwise(errs))
+    for c in with_lobes:  # every level within its bytes, lobes and counts included
+        rep = storage_report(c, model, stored=False)
+        assert rep["bytes_table4_material"] <= c.params["highlights"]["budget_bytes"]
 
 
 def test_entries_only_skips_the_lobes(model, tmp_path, capsys):

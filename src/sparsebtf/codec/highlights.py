@@ -212,7 +212,7 @@ def choose_highlights(
     for lv, budget in zip(levels, budgets, strict=True):
         best: tuple[float, int, int] | None = None
         for j, ((i, v), (g_, *_)) in enumerate(zip(variants, ranked, strict=True)):
-            if own[i] + (lobe_bytes if v else 0) > budget:
+            if own[i] + (extra[v] if v else 0) > budget:  # lobes are stored with the counts
                 continue
             n = min(max(0, (budget - own[i] - extra[v]) // per_entry), g_.size)
             left = sse[j] - float(g_[:n].sum())
