@@ -140,8 +140,9 @@ def _lobe_pass(ref: np.ndarray, pilot: np.ndarray, wi: np.ndarray, wo: np.ndarra
 
 
 def _with_lobes(ref: np.ndarray, dec: np.ndarray, g: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The residual of ``dec`` after the lobes of unit values ``g`` (p², L·V) at their best
-    binary16 amplitudes, as a decode (p, p, L, V, 3), and the amplitudes (p², 3) float16."""
+    """The decode ``dec`` (p, p, L, V, 3) plus the lobes of unit values ``g`` (p², L·V) at
+    their best binary16 amplitudes against the residual, and those amplitudes (p², 3)
+    float16."""
     t = g.shape[0]
     r = (ref.astype(np.float64) - dec).reshape(t, -1, 3)
     amp = lobe_amplitudes(g, r).astype(np.float16)

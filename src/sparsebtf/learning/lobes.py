@@ -74,6 +74,12 @@ def _microfacet(ht, hb, hn, nl, nv, ax, ay):
     return np.where((nl > 0) & (nv > 0), d / np.maximum(nv, NV_FLOOR), 0.0)
 
 
+def _unit(w: np.ndarray) -> np.ndarray:
+    """Directions ``w`` (..., 3) as float64 unit vectors."""
+    w = np.asarray(w, dtype=np.float64)
+    return w / np.maximum(np.linalg.norm(w, axis=-1, keepdims=True), 1e-300)
+
+
 def _half(wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     h = np.asarray(wi, dtype=np.float64) + np.asarray(wo, dtype=np.float64)
     return h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
@@ -88,9 +94,7 @@ def unit_lobes(shape: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     s = np.asarray(shape, dtype=np.float64)
     frame = lobe_frame(s[..., :3])
     t, b, n = frame[..., :, 0], frame[..., :, 1], frame[..., :, 2]
-    wi, wo = (np.asarray(w, dtype=np.float64) for w in (wi, wo))
-    wi = wi / np.maximum(np.linalg.norm(wi, axis=-1, keepdims=True), 1e-300)
-    wo = wo / np.maximum(np.linalg.norm(wo, axis=-1, keepdims=True), 1e-300)
+    wi, wo = _unit(wi), _unit(wo)
     h = _half(wi, wo)
     ht, hb, hn = (np.sum(h * v, axis=-1) for v in (t, b, n))
     nl, nv = np.sum(wi * n, axis=-1), np.sum(wo * n, axis=-1)
@@ -162,9 +166,7 @@ def _unit_lobes_grid(shape: np.ndarray, h: np.ndarray, wi: np.ndarray,
 def unit_lobes_at(shape: np.ndarray, wi: np.ndarray, wo: np.ndarray) -> np.ndarray:
     """:func:`unit_lobes` of T shapes (T, 5) at the same P direction pairs ``wi``, ``wo``
     (P, 3): (T, P) float64 (compiled where numba is installed)."""
-    wi, wo = (np.asarray(w, dtype=np.float64) for w in (wi, wo))
-    wi = wi / np.linalg.norm(wi, axis=1, keepdims=True)
-    wo = wo / np.linalg.norm(wo, axis=1, keepdims=True)
+    wi, wo = _unit(wi), _unit(wo)
     return _unit_lobes_grid(np.asarray(shape, dtype=np.float64), _half(wi, wo), wi, wo)
 
 
@@ -237,9 +239,7 @@ def fit_lobes(r: np.ndarray, wi: np.ndarray, wo: np.ndarray, iters: int = 25) ->
     solved again for the binary16 shape. A texel whose lobe does not lower its error gets
     amplitude 0."""
     r = np.asarray(r, dtype=np.float64)
-    wi, wo = (np.asarray(w, dtype=np.float64) for w in (wi, wo))
-    wi = wi / np.linalg.norm(wi, axis=1, keepdims=True)
-    wo = wo / np.linalg.norm(wo, axis=1, keepdims=True)
+    wi, wo = _unit(wi), _unit(wo)
     h = _half(wi, wo)
     theta = _start(r, wi, wo)
     lam = np.full(len(theta), 1e-2)
