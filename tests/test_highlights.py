@@ -14,13 +14,14 @@ from sparsebtf.codec import encode, encode_levels
 from sparsebtf.codec.highlights import base_taus, choose_highlights
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError, FileFormatError
+from sparsebtf.learning.entry_code import HEADER_BYTES
 from sparsebtf.learning.highlights import POINT_BYTES, Highlights, entry_bytes, node_keys
 from sparsebtf.learning.lobes import LOBE_BYTES, lobe_values
 from sparsebtf.runtime import RuntimeBTF
 from sparsebtf.runtime.dense import DecodedBTF
 from sparsebtf.storage import load_coded, save_coded, storage_report
 from sparsebtf.storage.accounting import paper_storage
-from sparsebtf.storage.highlight_file import HIGHLIGHT_SCHEMA, LOBE_SCHEMA
+from sparsebtf.storage.highlight_file import COMPACT_SCHEMA, HIGHLIGHT_SCHEMA, LOBE_SCHEMA
 
 from .conftest import smooth_btf, tiny_model
 from .test_highlight_decode import random_store
@@ -159,7 +160,7 @@ def test_entries_only_skips_the_lobes(model, tmp_path, capsys):
     capsys.readouterr()
     assert code == 0
     with h5py.File(out) as f:
-        assert int(f.attrs["schema_version"]) in (3, HIGHLIGHT_SCHEMA) and "lobes" not in f.get(
+        assert int(f.attrs["schema_version"]) in (3, COMPACT_SCHEMA) and "lobes" not in f.get(
             "highlights", {})
 
 
@@ -189,18 +190,40 @@ def test_highlights_refused_where_not_taken(glossy, model):
 # ---------------------------------------------------------------------------- the file
 
 
-def test_file_round_trip_schema_5(levels, tmp_path, model):
+def test_file_round_trip_compact_schema_7(levels, tmp_path, model):
     c = levels[-1]
+    h = c.highlights
+    assert h.compact  # the encoder's corrections are E5M2 values
+    path = save_coded(c, tmp_path / "g.h5")
+    with h5py.File(path) as f:
+        assert int(f.attrs["schema_version"]) == COMPACT_SCHEMA
+        assert "keys" not in f["highlights"] and f["highlights/rgb8"].dtype == np.uint8
+    back = load_coded(path, model)
+    for name in ("offsets", "keys", "rgb"):
+        np.testing.assert_array_equal(getattr(back.highlights, name), getattr(h, name))
+    a = np.asarray(DecodedBTF(back).to_array())
+    b = np.asarray(DecodedBTF(c).to_array())
+    np.testing.assert_allclose(a, b, rtol=2e-3, atol=2e-3)
+    # the counted bytes are the code's: the two streams as written, an E5M2 byte a channel
+    with h5py.File(path) as f:
+        streams = f["highlights/unary"].size + f["highlights/remainder"].size
+    rep = storage_report(back, model, path)
+    assert rep["bytes_highlights"] == streams + 3 * h.n_entries + HEADER_BYTES
+    assert rep["bytes_highlights"] < h.n_entries * entry_bytes(c.patch, len(c.lights),
+                                                               len(c.views))  # fmt: skip
+
+
+def test_file_round_trip_schema_5(levels, tmp_path, model):
+    """A store with binary16 corrections off the E5M2 grid is written exactly (schema 5) and
+    counted as Table 4 counts a coefficient."""
+    c = replace(levels[-1], highlights=random_store(levels[-1], share=0.05))
+    assert not c.highlights.compact
     path = save_coded(c, tmp_path / "g.h5")
     with h5py.File(path) as f:
         assert int(f.attrs["schema_version"]) == HIGHLIGHT_SCHEMA
     back = load_coded(path, model)
     for name in ("offsets", "keys", "rgb"):
         np.testing.assert_array_equal(getattr(back.highlights, name), getattr(c.highlights, name))
-    # the same decode as in memory but for the codes' binary16 rounding in the file
-    a = np.asarray(DecodedBTF(back).to_array())
-    b = np.asarray(DecodedBTF(c).to_array())
-    np.testing.assert_allclose(a, b, rtol=2e-3, atol=2e-3)
     rep = storage_report(back, model, path)
     h = c.highlights
     # an entry as Table 4 counts a coefficient: a location (3 bytes below 2^24 nodes) and
@@ -272,26 +295,56 @@ def test_no_store_stays_schema_3(model, tmp_path):
 
 
 def test_schema_2_cannot_hold_a_store(levels, tmp_path):
-    with pytest.raises(BTFInputError, match="schema 5"):
+    with pytest.raises(BTFInputError, match="written in schema 7"):
         save_coded(levels[0], tmp_path / "x.h5", schema=2)
 
 
+def _rewrite(g, name, data):
+    """Replace dataset ``name`` of group ``g`` (no checksum kept: the damage is the point)."""
+    del g[name]
+    g.create_dataset(name, data=data)
+
+
+def _key_past_the_nodes(g):
+    # the first gap as long as the material (the remainder's bits all ones), the rest 0
+    n, k = int(g.attrs["n_entries"]), int(g.attrs["rice_k"])
+    limit = int(g.attrs["_limit"])
+    bits = np.concatenate([np.ones(limit >> k, np.uint8), np.zeros(n, np.uint8)])
+    _rewrite(g, "unary", np.packbits(np.concatenate([bits, np.ones(-bits.size % 8, np.uint8)])))
+    _rewrite(g, "remainder", np.full(-(-n * k // 8), 255, np.uint8))
+
+
 @pytest.mark.parametrize("damage, message", [
-    (lambda g: g["keys"].__setitem__(0, 2**31), "outside"),
+    (lambda g: _rewrite(g, "keys", np.full(g["keys"].shape, 2**31, np.uint32)), "outside"),
     (lambda g: g.attrs.__setitem__("n_entries", int(g.attrs["n_entries"]) + 1), "sums to"),
     (lambda g: g.attrs.__setitem__("space", "log"), "space"),
 ])  # fmt: skip
 def test_damaged_store_is_one_line(levels, tmp_path, model, damage, message):
-    path = save_coded(levels[-1], tmp_path / "d.h5")
+    c = replace(levels[-1], highlights=random_store(levels[-1], share=0.05))
+    path = save_coded(c, tmp_path / "d.h5")
+    with h5py.File(path, "r+") as f:
+        damage(f["highlights"])
+    with pytest.raises(FileFormatError, match=message) as e:
+        load_coded(path, model)
+    assert "\n" not in str(e.value)
+
+
+@pytest.mark.parametrize("damage, message", [
+    (lambda g: g.attrs.__setitem__("n_entries", int(g.attrs["n_entries"]) + 1), "remainder"),
+    (lambda g: _rewrite(g, "unary", np.concatenate([g["unary"][()], [255]])), "unary"),
+    (lambda g: _rewrite(g, "unary", np.zeros_like(g["unary"][()])), "closes"),
+    (_key_past_the_nodes, "past the"),
+    (lambda g: _rewrite(g, "rgb8", np.full(g["rgb8"].shape, 0x7C, np.uint8)), "not finite"),
+    (lambda g: _rewrite(g, "rgb8", g["rgb8"][()].astype(np.uint16)), "uint8"),
+    (lambda g: g.attrs.__setitem__("rice_k", 99), "rice_k"),
+])  # fmt: skip
+def test_damaged_compact_store_is_one_line(levels, tmp_path, model, damage, message):
+    c = levels[-1]
+    path = save_coded(c, tmp_path / "d.h5")
     with h5py.File(path, "r+") as f:
         g = f["highlights"]
-        if "keys" in g and message == "outside":  # rewrite without the checksum to damage
-            keys = g["keys"][()]
-            del g["keys"]
-            keys[0] = 2**31
-            g.create_dataset("keys", data=keys)
-        else:
-            damage(g)
+        g.attrs["_limit"] = c.n_points * c.patch**2 * len(c.lights) * len(c.views)
+        damage(g)
     with pytest.raises(FileFormatError, match=message) as e:
         load_coded(path, model)
     assert "\n" not in str(e.value)

@@ -169,11 +169,13 @@ def _highlights_info(coded: Any, report: dict[str, Any]) -> dict[str, Any]:
     if h.lobes is not None:
         lit = int(np.count_nonzero((h.lobes[..., 5:] > 0).any(axis=2)))
         lobes = f"{lit} of {h.lobes.shape[0] * h.lobes.shape[1]} texels lit"
+    code = ("compact: 8-bit float corrections, Rice-coded nodes" if h.compact
+            else "binary16 corrections, 3-byte node keys")  # fmt: skip
     return {"highlights": {
-        "entries": h.n_entries, "bytes_table4": report["bytes_highlights"],
+        "entries": h.n_entries, "bytes_table4": report["bytes_highlights"], "code": code,
         "points_with_entries": f"{used} of {h.n_points}", "lobes": lobes,
-        "meaning": "exact linear-RGB corrections at (texel, light, view) nodes and a glossy "
-                   "lobe per texel, added by every decoder after the sparse code's value",
+        "meaning": "linear-RGB corrections at (texel, light, view) nodes and a glossy lobe "
+                   "per texel, added by every decoder after the sparse code's value",
     }}  # fmt: skip
 
 

@@ -12,9 +12,11 @@ never grows with the level.
 
 One streaming pass over the points (memory: one point and the kept entries): the reference
 point and its decode at each base give the residual r = reference − decode at every node; a
-node's gain is ‖r‖² − ‖r − fp16(r)‖² (what storing its binary16 correction removes). Per base
-the largest gains over the whole material are kept (at most what the largest budget can hold),
-their cumulative sums give each budget's error, and the level takes the best base.
+node's gain is ‖r‖² − ‖r − q(r)‖², q(r) its correction in E5M2 (what storing it removes; the
+store is compact, :mod:`sparsebtf.learning.entry_code`). Per base the largest gains over the
+whole material are kept (at most what the largest budget can hold), their cumulative sums give
+each budget's error, a budget holds the most of them whose code fits it (the code's bytes grow
+with each entry, so a bisection finds it), and the level takes the best base.
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ from .._progress import bar as progress_bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.cost import channel_storage
-from ..learning.highlights import POINT_BYTES, Highlights, entry_bytes
+from ..learning.entry_code import MIN_ENTRY_BYTES, compact_bytes, quantise
+from ..learning.highlights import Highlights
 from ..learning.lobes import LOBE_BYTES, fit_lobes, lobe_amplitudes, unit_lobes_at
 from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid
@@ -119,10 +122,10 @@ class _TopGains:
 
 
 def _node_gains(ref: np.ndarray, dec: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Per node of one point ((p, p, L, V, 3) arrays): the gain of storing the binary16
-    correction, the correction, and the point's squared error."""
+    """Per node of one point ((p, p, L, V, 3) arrays): the gain of storing the E5M2
+    correction, the correction (float16), and the point's squared error."""
     r = (ref.astype(np.float64) - dec).reshape(-1, 3)
-    c = r.astype(np.float16)
+    c = quantise(r)
     # where the decoder's clamp max(decode + c, 0) differs from decode + c the gain is higher
     # still; the lower figure is kept (it is the one the budget is judged by)
     left = np.square(r - c.astype(np.float64)).sum(axis=1)
@@ -150,6 +153,27 @@ def _with_lobes(ref: np.ndarray, dec: np.ndarray, g: np.ndarray) -> tuple[np.nda
     return (dec + lobe.reshape(dec.shape)), amp
 
 
+def _store_bytes(glob: np.ndarray, n: int, lobes: bool) -> int:
+    """Bytes of the entries of the first ``n`` global keys ``glob`` (any order) in a compact
+    store (none at all when nothing is stored)."""
+    return compact_bytes(np.sort(glob[:n])) if n or lobes else 0
+
+
+def _most_entries(glob: np.ndarray, room: int, lobes: bool) -> int:
+    """The most leading entries of ``glob`` whose store fits ``room`` bytes (the code grows
+    with each entry: bisection); −1 when not even the store without entries fits."""
+    if room < _store_bytes(glob, 0, lobes):
+        return -1
+    lo, hi = 0, min(glob.size, max(0, room) // MIN_ENTRY_BYTES)
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if _store_bytes(glob, mid, lobes) <= room:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo
+
+
 def choose_highlights(
     btf: BTF,
     levels: Sequence[CodedBTF],
@@ -169,14 +193,12 @@ def choose_highlights(
     own = [_material_bytes(c, model) for c in cands]
     n_pts = levels[0].n_points
     p = levels[0].patch
-    point_bytes = POINT_BYTES * n_pts
-    per_entry = entry_bytes(p, len(levels[0].lights), len(levels[0].views))
-    lobe_bytes = n_pts * p * p * LOBE_BYTES
+    nodes = p * p * len(levels[0].lights) * len(levels[0].views)
     # variants: (candidate, with lobes); a variant's cap is what the largest budget holds
     variants = [(i, v) for v in ((False, True) if lobes else (False,)) for i in range(len(cands))]
     slot = {iv: j for j, iv in enumerate(variants)}
-    extra = {False: point_bytes, True: point_bytes + lobe_bytes}
-    caps = [max(0, (max(budgets) - own[i] - extra[v]) // per_entry) for i, v in variants]
+    extra = {False: 0, True: n_pts * p * p * LOBE_BYTES}
+    caps = [max(0, (max(budgets) - own[i] - extra[v]) // MIN_ENTRY_BYTES) for i, v in variants]
     check_allocation(2 * sum(caps) * 18, f"{btf.label}: the highlight candidates "
                      f"({2 * sum(caps):,d} entries)", BTFInputError)  # fmt: skip
     tops = [_TopGains(cap) for cap in caps]
@@ -212,10 +234,10 @@ def choose_highlights(
     out = []
     for lv, budget in zip(levels, budgets, strict=True):
         best: tuple[float, int, int] | None = None
-        for j, ((i, v), (g_, *_)) in enumerate(zip(variants, ranked, strict=True)):
-            if own[i] + (extra[v] if v else 0) > budget:  # lobes are stored with the counts
+        for j, ((i, v), (g_, pts, keys, _)) in enumerate(zip(variants, ranked, strict=True)):
+            n = _most_entries(pts * np.int64(nodes) + keys, budget - own[i] - extra[v], v)
+            if n < 0:
                 continue
-            n = min(max(0, (budget - own[i] - extra[v]) // per_entry), g_.size)
             left = sse[j] - float(g_[:n].sum())
             if best is None or left < best[0]:
                 best = (left, j, n)

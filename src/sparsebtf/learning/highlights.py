@@ -16,10 +16,13 @@ decode + c = the reference (within binary16 rounding).
 Layout (:class:`Highlights`): entries grouped by data point (release order), per point sorted by
 their key ``((i1·p + i2)·L + light)·V + view`` (i1, i2: the texel's row and column in the
 point's p×p patch; L lights, V views), so a decoder finds a node by a binary search in its
-point's range ``offsets[point] : offsets[point + 1]``. Each entry costs :func:`entry_bytes` by
-Table 4's rule for a coefficient (``learning/cost.py``): its key as a location (3 bytes for
-the p²·L·V ≤ 2^24 nodes of a UBO2014 point, else 4) and three binary16 values; each point a
-32-bit count (:data:`POINT_BYTES`).
+point's range ``offsets[point] : offsets[point + 1]``. A store whose corrections all lie on
+the E5M2 grid (the encoder's) is **compact**: coded as :mod:`sparsebtf.learning.entry_code`
+codes it (Rice-coded gaps between nodes, one byte a channel; 4.3–5.2 bytes an entry at
+UBO2014 size). Any other store costs :func:`entry_bytes` an entry by Table 4's rule for a
+coefficient (``learning/cost.py``): its key as a location (3 bytes for the p²·L·V ≤ 2^24
+nodes of a UBO2014 point, else 4) and three binary16 values; each point a 32-bit count
+(:data:`POINT_BYTES`).
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ import numpy as np
 
 from ..errors import BTFInputError
 from .cost import VALUE_BYTES, location_width
+from .entry_code import compact_bytes, on_e5m2_grid
 from .lobes import LOBE_BYTES, LOBE_PARAMS, lobe_values
 
 __all__ = [
@@ -98,18 +102,33 @@ class Highlights:
     def n_points(self) -> int:
         return int(self.offsets.shape[0]) - 1
 
+    @cached_property
+    def compact(self) -> bool:
+        """Whether every correction is an E5M2 value: the store is then written and counted in
+        the compact code (:mod:`~sparsebtf.learning.entry_code`); binary16 entries else."""
+        return on_e5m2_grid(self.rgb)
+
+    def global_keys(self, nodes_per_point: int) -> np.ndarray:
+        """(N,) int64 ``point · nodes_per_point + key``, increasing (the compact code's)."""
+        pts = np.repeat(np.arange(self.n_points, dtype=np.int64), np.diff(self.offsets))
+        return pts * int(nodes_per_point) + self.keys.astype(np.int64)
+
     @property
     def empty_store(self) -> bool:
         """No entry and no lobe: it changes no decoded value (stored as none)."""
         return not self.n_entries and self.lobes is None
 
     def nbytes(self, patch: int, n_lights: int, n_views: int) -> int:
-        """Stored bytes (the Table 4 way) in a material of ``patch``² texels per point and
-        ``n_lights`` × ``n_views`` directions: :func:`entry_bytes` per entry,
-        :data:`POINT_BYTES` per point; 0 without entries (nothing is stored then)."""
+        """Stored bytes in a material of ``patch``² texels per point and ``n_lights`` ×
+        ``n_views`` directions: a compact store's code
+        (:func:`~sparsebtf.learning.entry_code.compact_bytes`), else :func:`entry_bytes` per
+        entry and :data:`POINT_BYTES` per point; the lobes' :data:`LOBE_BYTES` a texel; 0
+        for an empty store (nothing is stored then)."""
         if self.empty_store:
             return 0
         lobes = 0 if self.lobes is None else self.n_points * patch * patch * LOBE_BYTES
+        if self.compact:
+            return compact_bytes(self.global_keys(patch * patch * n_lights * n_views)) + lobes
         return (self.n_entries * entry_bytes(patch, n_lights, n_views)
                 + self.n_points * POINT_BYTES + lobes)  # fmt: skip
 

@@ -93,7 +93,7 @@ def _combine(
         "bytes_locations": sum(c["bytes_locations"] for c in per_channel.values()),
         "bytes_coefficients": coeff,
         "bytes_membership_counts": mz,
-        # the highlight store (learning/highlights.py: entry_bytes per entry, 4 per point)
+        # the highlight store (Highlights.nbytes: its compact code, or 9-byte entries)
         "bytes_highlights": hl,
         "bytes_table4_material": material,
         "bytes_dictionaries": dicts,

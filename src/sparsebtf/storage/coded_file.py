@@ -212,8 +212,8 @@ def _file_params(coded: CodedBTF) -> dict:
 def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> None:
     """The content of a coded file into the open, empty HDF5 file ``f`` (see
     :func:`save_coded`; also used to measure the stored size without a file). A material
-    with a highlight store is schema 5, 6 with lobes (:mod:`.highlight_file`): schema 3 and
-    the store."""
+    with a highlight store is schema 5, 6 with lobes, 7 compact (:mod:`.highlight_file`):
+    schema 3 and the store."""
     store = coded.highlight_store
     if store is not None and schema != CODED_SCHEMA_VERSION:
         raise BTFInputError(f"{coded.name}: a highlight store is written in schema "
@@ -225,7 +225,7 @@ def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> Non
         _write_codes(root.create_group(ch), coded.codes[ch], k, schema, coded.name, ch)
     write_shared(f, coded, schema)
     if store is not None:
-        write_highlights(f, store)
+        write_highlights(f, store, coded.patch ** 2 * len(coded.lights) * len(coded.views))
 
 
 def write_root(f: h5py.File, coded: Any, params: dict, schema: int) -> None:

@@ -1,6 +1,6 @@
 """Exhaustive field fuzzing: every dataset and every attribute of a schema-3 coded file, a
-schema-5 one (with a highlight store), a schema-6 one (a store with lobes), a schema-4
-(adaptive) coded file and a model of several
+schema-5 one (with a highlight store), a schema-6 one (a store with lobes), a schema-7 one
+(a compact store with lobes), a schema-4 (adaptive) coded file and a model of several
 training levels (τ_l), each damaged in
 each of a fixed set of ways, and the users' decode judged against the undamaged file's.
 
@@ -38,9 +38,10 @@ __all__ = [
 ]  # fmt: skip
 
 #: The seed files, in report order: a coded file (schema 3), the same with a highlight store
-#: (schema 5), with a store and lobes (schema 6), an adaptive one (schema 4), the model of
+#: (schema 5), with a store and lobes (schema 6), with a compact store and lobes (schema 7),
+#: an adaptive one (schema 4), the model of
 #: several training levels they are coded with.
-FIELD_KINDS = ("coded3", "coded5", "coded6", "coded4", "model")
+FIELD_KINDS = ("coded3", "coded5", "coded6", "coded7", "coded4", "model")
 #: The damage done to a field: deleted, one value set to −1, 2^40 or NaN (a scalar: the
 #: value), one element fewer or more along the first axis (a scalar: two copies of it).
 FIELD_MUTATIONS = ("delete", "minus_one", "huge", "nan", "shorter", "longer")
@@ -53,7 +54,7 @@ LEGAL_EDITS = frozenset({("stats/mean", "minus_one"), ("stats/bound", "minus_one
 
 _VALUES = {"minus_one": -1, "huge": 2**40, "nan": np.nan}
 _FILES = {"coded3": "coded3.h5", "coded5": "coded5.h5", "coded6": "coded6.h5",
-          "coded4": "coded4.h5", "model": "model.h5"}
+          "coded7": "coded7.h5", "coded4": "coded4.h5", "model": "model.h5"}
 
 
 # --------------------------------------------------------------------------- the seed files
@@ -92,6 +93,8 @@ def build_field_corpus(folder: str | os.PathLike[str]) -> dict[str, Any]:
     save_coded(replace(coded, highlights=_store(coded)), d / _FILES["coded5"])
     save_coded(replace(coded, highlights=replace(_store(coded), lobes=_lobes(coded))),
                d / _FILES["coded6"])  # fmt: skip
+    save_coded(replace(coded, highlights=replace(_store(coded, compact=True), lobes=_lobes(coded))),
+               d / _FILES["coded7"])  # fmt: skip
     adaptive = encode_adaptive(_smooth(6), model, (8, 3, 3), target_bytes=600, progress=False)
     save_coded(adaptive, d / _FILES["coded4"])
     corpus: dict[str, Any] = {"dir": d}
@@ -100,15 +103,18 @@ def build_field_corpus(folder: str | os.PathLike[str]) -> dict[str, Any]:
     return corpus
 
 
-def _store(coded: Any) -> Any:
-    """A highlight store at a fifth of each point's nodes (seeded)."""
+def _store(coded: Any, compact: bool = False) -> Any:
+    """A highlight store at a fifth of each point's nodes (seeded); ``compact``: its
+    corrections on the E5M2 grid (written in the compact code)."""
+    from ..learning.entry_code import quantise
     from ..learning.highlights import Highlights
 
     rng = np.random.default_rng(7)
     per = coded.patch**2 * len(coded.lights) * len(coded.views)
     keys = [rng.choice(per, per // 5, replace=False) for _ in range(coded.n_points)]
     pts = np.repeat(np.arange(coded.n_points), per // 5)
-    return Highlights.from_nodes(pts, np.concatenate(keys), rng.normal(0, 0.3, (pts.size, 3)),
+    rgb = rng.normal(0, 0.3, (pts.size, 3))
+    return Highlights.from_nodes(pts, np.concatenate(keys), quantise(rgb) if compact else rgb,
                                  coded.n_points)  # fmt: skip
 
 
@@ -148,7 +154,7 @@ def field_exercise(kind: str, path: Path, corpus: dict[str, Any]) -> list[np.nda
     coded file decoded with it."""
     from ..storage import load_coded, load_model
 
-    if kind in ("coded3", "coded5", "coded6", "coded4"):
+    if kind in ("coded3", "coded5", "coded6", "coded7", "coded4"):
         return _decoded(load_coded(path, _model(corpus), adaptive=kind == "coded4"))
     model = load_model(path)
     out = [u for ch in model.channels for u in model.dictionaries[ch]]

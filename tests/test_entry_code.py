@@ -1,0 +1,85 @@
+"""The compact code of the highlight store's entries: E5M2 corrections and Rice-coded gaps."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sparsebtf.learning.entry_code import (
+    HEADER_BYTES,
+    compact_bytes,
+    from_e5m2,
+    on_e5m2_grid,
+    pack_keys,
+    quantise,
+    rice_parameter,
+    to_e5m2,
+    unpack_keys,
+)
+
+#: every finite E5M2 value, by byte (exponent 31 is inf/NaN)
+_FINITE = np.array([b for b in range(256) if (b & 0x7C) != 0x7C], dtype=np.uint8)
+
+
+def test_e5m2_is_the_nearest_value_ties_to_even():
+    """Against a search over every finite E5M2 value: the nearest, an even byte on a tie,
+    the largest magnitude past the range."""
+    rng = np.random.default_rng(0)
+    x = np.concatenate([rng.normal(0, 1, 4000) * np.exp2(rng.integers(-18, 17, 4000)),
+                        [0.0, -0.0, 1.125, 1.375, 6e4, -6.5e4, 2.0**-17, 3 * 2.0**-17]])
+    x16 = np.clip(x, -65504, 65504).astype(np.float16)  # beyond: saturates
+    grid = from_e5m2(_FINITE).astype(np.float64)
+    dist = np.abs(x16.astype(np.float64)[:, None] - grid[None, :])
+    best = dist.min(axis=1, keepdims=True)
+    tied = dist == best
+    # among the nearest, the even mantissa (low bit 0), and the sign of x (for ±0)
+    want = np.empty(x.size, np.uint8)
+    for i in range(x.size):
+        cand = _FINITE[tied[i]]
+        cand = cand[(cand & 0x80) == (0x80 if np.signbit(x16[i]) else 0)] if cand.size > 1 else cand
+        even = cand[(cand & 1) == 0]
+        want[i] = (even if even.size else cand)[0]
+    got = to_e5m2(x)
+    np.testing.assert_array_equal(from_e5m2(got).astype(np.float64),
+                                  from_e5m2(want).astype(np.float64))
+    assert on_e5m2_grid(quantise(x)) and not on_e5m2_grid(np.float16([1.1]))
+    # within 12.5 % inside the normal range
+    ok = (np.abs(x16) > 2.0**-14) & (np.abs(x16) < 5e4)
+    rel = np.abs(quantise(x)[ok].astype(np.float64) / x16[ok].astype(np.float64) - 1)
+    assert rel.max() <= 0.125 + 1e-12
+
+
+def test_e5m2_round_trip_of_every_byte():
+    np.testing.assert_array_equal(to_e5m2(from_e5m2(_FINITE)), _FINITE)
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.integers(0, 2**40), min_size=0, max_size=300, unique=True))
+def test_keys_round_trip_and_counted_bytes(keys):
+    keys = np.sort(np.asarray(keys, dtype=np.int64))
+    k, unary, rem = pack_keys(keys)
+    np.testing.assert_array_equal(unpack_keys(k, unary, rem, keys.size), keys)
+    assert compact_bytes(keys) == unary.size + rem.size + 3 * keys.size + HEADER_BYTES
+
+
+def test_rice_parameter_is_the_cheapest():
+    rng = np.random.default_rng(1)
+    gaps = rng.geometric(1 / 500, 2000).astype(np.int64) - 1
+    k = rice_parameter(gaps)
+
+    def bits(j):
+        return int(np.sum(gaps >> j)) + gaps.size * (1 + j)
+
+    assert all(bits(k) <= bits(j) for j in range(30))
+    assert k in (8, 9)  # log2(500 · ln 2) ≈ 8.4 for geometric gaps
+
+
+def test_bytes_grow_with_each_entry():
+    """The encoder's bisection relies on it: adding a key never lowers the code's bytes."""
+    rng = np.random.default_rng(2)
+    keys = rng.choice(10**6, 3000, replace=False)
+    sizes = [compact_bytes(np.sort(keys[:n])) for n in range(0, 3000, 37)]
+    assert all(b >= a for a, b in itertools.pairwise(sizes))
