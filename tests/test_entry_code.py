@@ -83,3 +83,21 @@ def test_bytes_grow_with_each_entry():
     keys = rng.choice(10**6, 3000, replace=False)
     sizes = [compact_bytes(np.sort(keys[:n])) for n in range(0, 3000, 37)]
     assert all(b >= a for a, b in itertools.pairwise(sizes))
+
+
+def test_a_level_takes_the_most_entries_its_bytes_hold():
+    """The encoder's bisection: the store of the first n entries fits the room, n + 1 do not
+    (or there are no more); −1 where even the store's header does not fit."""
+    from sparsebtf.codec.highlights import _most_entries, _store_bytes
+
+    rng = np.random.default_rng(3)
+    glob = rng.choice(10**7, 5000, replace=False).astype(np.int64)  # ranked order, not sorted
+    for room in (0, 4, 5, 40, 999, 7777, 20000, 10**6):
+        for lobes in (False, True):
+            n = _most_entries(glob, room, lobes)
+            if n < 0:
+                assert lobes and room < HEADER_BYTES
+                continue
+            assert _store_bytes(glob, n, lobes) <= room
+            assert n == glob.size or _store_bytes(glob, n + 1, lobes) > room
+    assert _most_entries(glob, 10**6, False) == glob.size

@@ -213,6 +213,21 @@ def test_file_round_trip_compact_schema_7(levels, tmp_path, model):
                                                                len(c.views))  # fmt: skip
 
 
+def test_info_shows_the_store(levels, tmp_path, model, capsys):
+    import json
+
+    from sparsebtf.cli.main import main
+    from sparsebtf.storage import save_model
+
+    c = levels[-1]
+    path, mf = save_coded(c, tmp_path / "g.h5"), tmp_path / "m.h5"
+    save_model(model, mf)
+    assert main(["info", str(path), "--model", str(mf), "--json"]) == 0
+    got = json.loads(capsys.readouterr().out)["highlights"]
+    assert got["entries"] == c.highlights.n_entries and got["code"].startswith("compact")
+    assert got["bytes_table4"] == storage_report(c, model)["bytes_highlights"]
+
+
 def test_file_round_trip_schema_5(levels, tmp_path, model):
     """A store with binary16 corrections off the E5M2 grid is written exactly (schema 5) and
     counted as Table 4 counts a coefficient."""
