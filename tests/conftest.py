@@ -6,6 +6,8 @@ import ctypes
 import ctypes.util
 import gc
 import os
+import re
+import subprocess
 import sys
 from pathlib import Path
 
@@ -114,3 +116,30 @@ def tight_bound(coded):
 
     bound = round_up_bound(coded.stats.mean.mean(axis=2))
     return replace(coded, stats=replace(coded.stats, bound=bound))
+
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def readme_python_api_blocks() -> list[str]:
+    """The python blocks under the README's ``## Python API``, as written there."""
+    text = README.read_text()
+    start = text.index("\n## Python API\n")
+    end = text.index("\n## ", start + 1)
+    return re.findall(r"```python\n(.*?)```", text[start:end], re.S)
+
+
+@pytest.fixture(scope="session")
+def readme_python_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess]:
+    """The README's Python API blocks run in sequence, as written, in one fresh interpreter
+    (the first block trains and encodes 20x20-texel materials at 151 x 151 directions: run once
+    for the tests that check the blocks run and what the first one prints and writes)."""
+    import sparsebtf
+
+    src = Path(sparsebtf.__file__).resolve().parents[1]
+    cwd = tmp_path_factory.mktemp("readme_python")
+    env = {**os.environ, "PYTHONPATH": str(src), "SPARSEBTF_PROGRESS": "0",
+           "SPARSEBTF_CACHE": str(tmp_path_factory.getbasetemp() / "cache")}  # fmt: skip
+    r = subprocess.run([sys.executable, "-c", "\n".join(readme_python_api_blocks())], cwd=cwd,
+                       capture_output=True, text=True, env=env, timeout=900)  # fmt: skip
+    return cwd, r

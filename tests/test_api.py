@@ -18,7 +18,7 @@ import pytest
 import sparsebtf as sb
 from sparsebtf.errors import BTFInputError, FileFormatError, SparseBTFError
 
-from .conftest import smooth_btf, tiny_model
+from .conftest import readme_python_api_blocks, smooth_btf, tiny_model
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = Path(sb.__file__).resolve().parents[1]
@@ -289,15 +289,14 @@ def test_readme_block_uses_the_one_import():
 
 
 @pytest.mark.slow
-def test_readme_python_api_block_runs(tmp_path):
-    block = readme_python_api_block()
-    env = {**os.environ, "PYTHONPATH": str(SRC), "SPARSEBTF_PROGRESS": "0",
-           "SPARSEBTF_CACHE": os.environ.get("SPARSEBTF_CACHE", str(tmp_path / "cache"))}
-    r = subprocess.run([sys.executable, "-c", block], cwd=tmp_path, capture_output=True,
-                       text=True, env=env, timeout=900)  # fmt: skip
+def test_readme_python_api_block_runs(readme_python_run):
+    """The block runs as written (the session's one run of the README's Python blocks, this
+    one first: conftest.readme_python_run)."""
+    assert readme_python_api_blocks()[0] == readme_python_api_block()
+    cwd, r = readme_python_run
     assert r.returncode == 0, r.stderr[-4000:]
     # "50x": the coded file is raw fp16 bytes / 50, as `ls -l` shows it
     raw = 20 * 20 * 151 * 151 * 3 * 2
-    size = (tmp_path / "stone.coded.h5").stat().st_size
+    size = (cwd / "stone.coded.h5").stat().st_size
     assert size <= raw / 50 and raw / size == pytest.approx(50, rel=0.01)
     assert len(r.stdout.splitlines()) == 2 + 3  # nnz, error, one line per material

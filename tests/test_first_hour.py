@@ -16,6 +16,8 @@ import sparsebtf
 from sparsebtf.cli.main import build_parser
 from sparsebtf.storage.bundled import load_bundled
 
+from .conftest import readme_python_api_blocks
+
 ROOT = Path(__file__).resolve().parents[1]
 SRC = Path(sparsebtf.__file__).resolve().parents[1]
 README = ROOT / "README.md"
@@ -86,18 +88,13 @@ def test_readme_measured_btf_section_on_a_stand_in(tmp_path):
 
 
 @pytest.mark.slow
-def test_readme_python_snippets_run_in_sequence(tmp_path):
-    text = README.read_text()
-    start = text.index("\n## Python API\n")
-    end = text.index("\n## ", start + 1)
-    blocks = re.findall(r"```python\n(.*?)```", text[start:end], re.S)
-    assert len(blocks) == 2
-    r = subprocess.run(
-        [sys.executable, "-c", "\n".join(blocks)], cwd=tmp_path, capture_output=True, text=True,
-        env={**os.environ, "PYTHONPATH": str(SRC), "SPARSEBTF_PROGRESS": "0"}, timeout=900,
-    )
+def test_readme_python_snippets_run_in_sequence(readme_python_run):
+    """Both blocks of the README's Python API, in one interpreter (the session's one run:
+    conftest.readme_python_run)."""
+    assert len(readme_python_api_blocks()) == 2
+    cwd, r = readme_python_run
     assert r.returncode == 0, r.stderr[-4000:]
-    assert (tmp_path / "stone.coded.h5").exists()
+    assert (cwd / "stone.coded.h5").exists()
 
 
 def _actions(parser: argparse.ArgumentParser, name: str):
