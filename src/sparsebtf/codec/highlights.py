@@ -5,7 +5,7 @@ bytes of τ coefficients in every point (what the level is worth, even where a p
 stops earlier: ε, or a linear objective that drops what does not lower its error) — and the
 coder spends it on a *base* code (one of the
 call's τ, or τ/2 … τ/32 of the smallest) plus the nodes of the highlight store
-(:mod:`sparsebtf.learning.highlights`) whose exact correction removes the most linear-RGB
+(:mod:`sparsebtf.learning.highlights`) whose correction (in E5M2) removes the most linear-RGB
 squared error, whichever pair errs least. Every level of a call chooses among the same bases,
 and a larger budget keeps at least the same entries on each, so the material's linear error
 never grows with the level.

@@ -122,7 +122,7 @@ class EncodeOptions(Options):
       largest size as one point or smaller ones, by rate and distortion; the fixed-size
       encoders refuse it.
     * ``highlights`` — fixed τ: each level's τ sets its bytes, spent on the codes at that τ
-      or fewer coefficients plus exact linear-RGB corrections at the nodes where they remove
+      or fewer coefficients plus linear-RGB corrections at the nodes where they remove
       the most error and a glossy lobe per texel where it pays (:mod:`sparsebtf.codec.
       highlights`; for glossy materials). True or "lobes": both; "entries": the corrections
       alone (no lobe fit, which costs seconds per data point).

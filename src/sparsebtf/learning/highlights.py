@@ -1,17 +1,17 @@
-"""The highlight store (issue 46): exact linear-RGB corrections at a few sampled nodes
+"""The highlight store (issue 46): linear-RGB corrections at a few sampled nodes
 (texel, light, view) of a coded material, for the values a log-domain code reaches slowly.
 
 On a glossy metal nearly all of the linear-RGB error sits in the few values above 1 (95–99.8 %
 on the captured metals of docs/benchmarks.md §17), and the sparse code's error there falls
-slowly with τ; storing the largest residuals exactly buys more error per byte than more
-coefficients. A node's correction is added after the decode:
+slowly with τ; storing the largest residuals (to within 12.5 %) buys more error per byte than
+more coefficients. A node's correction is added after the decode:
 
     B̂(x, ω_i, ω_o) = max(decode(x, ω_i, ω_o) + Σ_ab wl_a · wv_b · c(x, l_a, v_b), 0)
 
 with the same angular weights (wl, wv over the neighbour lights l_a and views v_b) as the
 interpolation of the coefficients (Eq. 6), and c = 0 at a node without an entry: at a sampled
 direction pair, where the weights are one-hot, the decode of a stored node is
-decode + c = the reference (within binary16 rounding).
+decode + c = the reference (within the rounding of c: binary16, or E5M2 in a compact store).
 
 Layout (:class:`Highlights`): entries grouped by data point (release order), per point sorted by
 their key ``((i1·p + i2)·L + light)·V + view`` (i1, i2: the texel's row and column in the
