@@ -231,11 +231,12 @@ def choose_highlights(
         bar.update(1)
     bar.close()
     ranked = [t.sorted() for t in tops]
+    globs = [pts * np.int64(nodes) + keys for _, pts, keys, _ in ranked]  # the code's keys
     out = []
     for lv, budget in zip(levels, budgets, strict=True):
         best: tuple[float, int, int] | None = None
-        for j, ((i, v), (g_, pts, keys, _)) in enumerate(zip(variants, ranked, strict=True)):
-            n = _most_entries(pts * np.int64(nodes) + keys, budget - own[i] - extra[v], v)
+        for j, ((i, v), (g_, *_)) in enumerate(zip(variants, ranked, strict=True)):
+            n = _most_entries(globs[j], budget - own[i] - extra[v], v)
             if n < 0:
                 continue
             left = sse[j] - float(g_[:n].sum())

@@ -124,9 +124,10 @@ def unpack_keys(k: int, unary: np.ndarray, remainder: np.ndarray, n: int) -> np.
     ends = np.flatnonzero(ub == 0)
     if ends.size != n:
         raise ValueError(f"the unary stream closes {ends.size} entries, expected {n}")
-    if ub.size - (int(ends[-1]) + 1 if n else 0) >= 8:
+    used = int(ends[-1]) + 1 if n else 0  # bits up to the last entry's 0
+    if ub.size - used >= 8:
         raise ValueError(f"the unary stream has {ub.size // 8} bytes, its entries fill "
-                         f"{-(-(int(ends[-1]) + 1 if n else 0) // 8)}")  # fmt: skip
+                         f"{-(-used // 8)}")  # fmt: skip
     want = -(-n * k // 8)
     if np.asarray(remainder).size != want:
         raise ValueError(f"the remainder stream has {np.asarray(remainder).size} bytes, "

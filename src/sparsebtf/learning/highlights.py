@@ -46,6 +46,7 @@ __all__ = [
     "lobe_corrections",
     "node_keys",
     "node_values",
+    "offsets_from_counts",
 ]
 
 #: Bytes per data point: its entry count (uint32).
@@ -57,6 +58,11 @@ def entry_bytes(patch: int, n_lights: int, n_views: int) -> int:
     among the point's p·p·L·V nodes (:func:`~sparsebtf.learning.cost.location_width`: 3 for
     UBO2014's 2,280,100) and R, G, B three binary16 values — 9 bytes at UBO2014 size."""
     return location_width((patch, patch, n_lights, n_views)) + 3 * VALUE_BYTES
+
+
+def offsets_from_counts(counts: np.ndarray) -> np.ndarray:
+    """(P + 1,) int64 :attr:`Highlights.offsets` of the points' entry counts (P,)."""
+    return np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64)
 
 
 def node_keys(i1: np.ndarray, i2: np.ndarray, light: np.ndarray, view: np.ndarray,
@@ -88,11 +94,15 @@ class Highlights:
     lobes: np.ndarray | None = None
 
     @cached_property
+    def entry_points(self) -> np.ndarray:
+        """(N,) int64, the data point of each entry."""
+        return np.repeat(np.arange(self.n_points, dtype=np.int64), np.diff(self.offsets))
+
+    @cached_property
     def sorted_nodes(self) -> np.ndarray:
         """(N,) int64 ``point · 2^32 + key``, increasing: one sorted key over the whole store
         (made once; a dense read searches it for every node it decodes)."""
-        pts = np.repeat(np.arange(self.n_points, dtype=np.int64), np.diff(self.offsets))
-        return (pts << 32) | self.keys.astype(np.int64)
+        return (self.entry_points << 32) | self.keys.astype(np.int64)
 
     @property
     def n_entries(self) -> int:
@@ -110,8 +120,7 @@ class Highlights:
 
     def global_keys(self, nodes_per_point: int) -> np.ndarray:
         """(N,) int64 ``point · nodes_per_point + key``, increasing (the compact code's)."""
-        pts = np.repeat(np.arange(self.n_points, dtype=np.int64), np.diff(self.offsets))
-        return pts * int(nodes_per_point) + self.keys.astype(np.int64)
+        return self.entry_points * int(nodes_per_point) + self.keys.astype(np.int64)
 
     @property
     def empty_store(self) -> bool:
@@ -151,8 +160,7 @@ class Highlights:
         if same.any():
             i = int(np.flatnonzero(same)[0])
             raise BTFInputError(f"highlight node {keys[i]} of point {points[i]} given twice")
-        counts = np.bincount(points, minlength=n_points)
-        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        offsets = offsets_from_counts(np.bincount(points, minlength=n_points))
         rgb16 = np.asarray(rgb)[order].astype(np.float16)
         return cls(offsets, keys.astype(np.uint32), np.ascontiguousarray(rgb16))
 

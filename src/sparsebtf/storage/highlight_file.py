@@ -41,7 +41,7 @@ from .._h5check import checked_dataset, read_array, read_int_attr, read_str_attr
 from .._hdf5 import create_dataset, write_str_attr
 from ..errors import BTFInputError, FileFormatError
 from ..learning.entry_code import from_e5m2, pack_keys, to_e5m2, unpack_keys
-from ..learning.highlights import Highlights
+from ..learning.highlights import Highlights, offsets_from_counts
 from ..learning.lobes import LOBE_PARAMS
 
 __all__ = ["COMPACT_SCHEMA", "HIGHLIGHT_SCHEMA", "HIGHLIGHT_SCHEMAS", "LOBE_SCHEMA",
@@ -108,7 +108,7 @@ def read_highlights(f: h5py.File, where: str, n_points: int, patch: int, n_light
             raise FileFormatError(f"{at}/counts: sums to {int(counts.sum())}, n_entries is {n}")
         keys = read_array(g, "keys", at, "u", (n,))
         rgb = read_array(g, "rgb", at, "f", (n, 3))
-        offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        offsets = offsets_from_counts(counts)
     lobes = None
     # a schema-7 store says whether it has lobes, so that losing them is damage, not a choice
     has_lobes = (schema == LOBE_SCHEMA
@@ -131,8 +131,9 @@ def read_highlights(f: h5py.File, where: str, n_points: int, patch: int, n_light
 def _read_compact(g: h5py.Group, at: str, n: int, n_points: int,
                   nodes: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
     """Offsets, keys and binary16 rgb of a schema-7 store (``nodes`` a point), checked: the
-    streams' lengths before reading (the unary stream holds at least one bit an entry and
-    at most ⌈(n + P·nodes)/8⌉ bytes), the keys inside the material, the bytes finite."""
+    streams' lengths before reading (the unary stream holds at least one bit an entry and at
+    most ⌈(n + (P·nodes >> k))/8⌉ bytes: n ends, and unary parts of gaps summing below the
+    P·nodes nodes), the keys inside the material, the bytes finite."""
     k = read_int_attr(g, "rice_k", at, 0, _MAX_RICE_K)
     limit = n_points * nodes
     most = -(-(n + (limit >> k)) // 8)  # n entries, and gaps summing below the nodes
@@ -158,6 +159,5 @@ def _read_compact(g: h5py.Group, at: str, n: int, n_points: int,
         i = int(np.flatnonzero(bad.any(axis=1))[0])
         raise FileFormatError(f"{at}/rgb8: entry {i} is not finite (E5M2 exponent 31)")
     pts, keys = np.divmod(glob, nodes)
-    counts = np.bincount(pts, minlength=n_points)
-    offsets = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+    offsets = offsets_from_counts(np.bincount(pts, minlength=n_points))
     return offsets, keys.astype(np.uint32), from_e5m2(rgb8.astype(np.uint8))

@@ -33,8 +33,9 @@ import h5py
 import numpy as np
 
 __all__ = [
-    "FIELD_KINDS", "FIELD_MUTATIONS", "FIELD_OUTCOMES", "LEGAL_EDITS", "build_field_corpus",
-    "field_exercise", "file_fields", "mutate_field", "run_field_case", "run_field_fuzz",
+    "FIELD_FILES", "FIELD_KINDS", "FIELD_MUTATIONS", "FIELD_OUTCOMES", "LEGAL_EDITS",
+    "build_field_corpus", "field_exercise", "file_fields", "mutate_field", "run_field_case",
+    "run_field_fuzz",
 ]  # fmt: skip
 
 #: The seed files, in report order: a coded file (schema 3), the same with a highlight store
@@ -53,8 +54,8 @@ LEGAL_EDITS = frozenset({("stats/mean", "minus_one"), ("stats/bound", "minus_one
                          ("highlights/rgb", "minus_one"), ("highlights/lobes", "minus_one")})
 
 _VALUES = {"minus_one": -1, "huge": 2**40, "nan": np.nan}
-_FILES = {"coded3": "coded3.h5", "coded5": "coded5.h5", "coded6": "coded6.h5",
-          "coded7": "coded7.h5", "coded4": "coded4.h5", "model": "model.h5"}
+#: The seed file of each kind, in the corpus folder.
+FIELD_FILES = {kind: f"{kind}.h5" for kind in FIELD_KINDS}
 
 
 # --------------------------------------------------------------------------- the seed files
@@ -87,18 +88,18 @@ def build_field_corpus(folder: str | os.PathLike[str]) -> dict[str, Any]:
     d.mkdir(parents=True, exist_ok=True)
     model = train([_smooth(s) for s in range(2)], n_dictionaries=2, tau_train="4,2,2/8,3,3",
                   patch=(4, 2), sample=1.0, max_iter=1, progress=False)  # fmt: skip
-    save_model(model, d / _FILES["model"])
+    save_model(model, d / FIELD_FILES["model"])
     coded = encode(_smooth(5), model, tau=(6, 3, 3), progress=False)
-    save_coded(coded, d / _FILES["coded3"])
-    save_coded(replace(coded, highlights=_store(coded)), d / _FILES["coded5"])
+    save_coded(coded, d / FIELD_FILES["coded3"])
+    save_coded(replace(coded, highlights=_store(coded)), d / FIELD_FILES["coded5"])
     save_coded(replace(coded, highlights=replace(_store(coded), lobes=_lobes(coded))),
-               d / _FILES["coded6"])  # fmt: skip
+               d / FIELD_FILES["coded6"])  # fmt: skip
     save_coded(replace(coded, highlights=replace(_store(coded, compact=True), lobes=_lobes(coded))),
-               d / _FILES["coded7"])  # fmt: skip
+               d / FIELD_FILES["coded7"])  # fmt: skip
     adaptive = encode_adaptive(_smooth(6), model, (8, 3, 3), target_bytes=600, progress=False)
-    save_coded(adaptive, d / _FILES["coded4"])
+    save_coded(adaptive, d / FIELD_FILES["coded4"])
     corpus: dict[str, Any] = {"dir": d}
-    corpus["originals"] = {kind: field_exercise(kind, d / _FILES[kind], corpus)
+    corpus["originals"] = {kind: field_exercise(kind, d / FIELD_FILES[kind], corpus)
                            for kind in FIELD_KINDS}  # fmt: skip
     return corpus
 
@@ -134,7 +135,7 @@ def _model(corpus: dict[str, Any]) -> Any:
     from ..storage import load_model
 
     if "model" not in corpus:
-        corpus["model"] = load_model(corpus["dir"] / _FILES["model"])
+        corpus["model"] = load_model(corpus["dir"] / FIELD_FILES["model"])
     return corpus["model"]
 
 
@@ -154,7 +155,7 @@ def field_exercise(kind: str, path: Path, corpus: dict[str, Any]) -> list[np.nda
     coded file decoded with it."""
     from ..storage import load_coded, load_model
 
-    if kind in ("coded3", "coded5", "coded6", "coded7", "coded4"):
+    if kind.startswith("coded"):
         return _decoded(load_coded(path, _model(corpus), adaptive=kind == "coded4"))
     model = load_model(path)
     out = [u for ch in model.channels for u in model.dictionaries[ch]]
@@ -162,7 +163,7 @@ def field_exercise(kind: str, path: Path, corpus: dict[str, Any]) -> list[np.nda
     out.append(np.array(sorted(model.tau_train.items()), dtype=object))
     out.append(np.array(model.channels, dtype=object))
     out.append(np.array(sorted(model.patch_sizes)))
-    return out + _decoded(load_coded(corpus["dir"] / _FILES["coded3"], model))
+    return out + _decoded(load_coded(corpus["dir"] / FIELD_FILES["coded3"], model))
 
 
 # --------------------------------------------------------------------------- the damage
@@ -247,8 +248,8 @@ def run_field_case(corpus: dict[str, Any], kind: str, field: str, op: str,
     from ..errors import SparseBTFError
 
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / _FILES[kind]
-    shutil.copyfile(corpus["dir"] / _FILES[kind], path)
+    path = folder / FIELD_FILES[kind]
+    shutil.copyfile(corpus["dir"] / FIELD_FILES[kind], path)
     case = {"kind": kind, "field": field, "op": op, "message": ""}
     mutate_field(path, field, op)
     try:
@@ -268,7 +269,7 @@ def run_field_fuzz(corpus: dict[str, Any], folder: str | os.PathLike[str],
     """Every case of every kind: each field of the seed, each of :data:`FIELD_MUTATIONS`."""
     out = []
     for kind in kinds:
-        for field in file_fields(corpus["dir"] / _FILES[kind]):
+        for field in file_fields(corpus["dir"] / FIELD_FILES[kind]):
             for op in FIELD_MUTATIONS:
                 out.append(run_field_case(corpus, kind, field, op, Path(folder)))
     return out
