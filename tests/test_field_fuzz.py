@@ -15,6 +15,7 @@ import pytest
 
 from sparsebtf.errors import FileFormatError
 from sparsebtf.testing.field_fuzz import (
+    FIELD_FILES,
     FIELD_MUTATIONS,
     build_field_corpus,
     field_exercise,
@@ -23,9 +24,6 @@ from sparsebtf.testing.field_fuzz import (
     run_field_case,
     run_field_fuzz,
 )
-
-FILES = {"coded3": "coded3.h5", "coded5": "coded5.h5", "coded6": "coded6.h5",
-         "coded7": "coded7.h5", "coded4": "coded4.h5", "model": "model.h5"}
 
 
 @pytest.fixture(scope="module")
@@ -40,8 +38,8 @@ def _no_guard(monkeypatch: pytest.MonkeyPatch) -> None:
 
 def _refused(corpus: dict, kind: str, field: str, op: str, tmp_path: Path) -> str:
     """The one-line message of the reader's refusal of ``field`` damaged by ``op``."""
-    path = tmp_path / FILES[kind]
-    shutil.copyfile(corpus["dir"] / FILES[kind], path)
+    path = tmp_path / FIELD_FILES[kind]
+    shutil.copyfile(corpus["dir"] / FIELD_FILES[kind], path)
     mutate_field(path, field, op)
     with pytest.raises(FileFormatError) as e:
         field_exercise(kind, path, corpus)
@@ -80,7 +78,7 @@ def test_model_root_attributes_are_required(corpus, tmp_path, name):
     assert corpus["originals"]["model"]  # the seed has τ_l levels: see the next assertion
     from sparsebtf.storage import load_model
 
-    levels = load_model(corpus["dir"] / FILES["model"])
+    levels = load_model(corpus["dir"] / FIELD_FILES["model"])
     assert len(set(levels.dictionary_taus("Y"))) == 2
     msg = _refused(corpus, "model", f"@{name}", "delete", tmp_path)
     assert f"'{name}'" in msg, msg
@@ -93,7 +91,7 @@ def test_field_fuzz_finds_no_silent_wrong_output(corpus, tmp_path):
     bad = [r for r in results if r["outcome"] in ("silent_wrong", "traceback")]
     assert not bad, bad[:5]
     counts = Counter(r["outcome"] for r in results)
-    n_fields = sum(len(file_fields(corpus["dir"] / f)) for f in FILES.values())
+    n_fields = sum(len(file_fields(corpus["dir"] / f)) for f in FIELD_FILES.values())
     assert len(results) == n_fields * len(FIELD_MUTATIONS)
     assert counts["rejected"] > len(results) // 2, counts  # the damage is mostly refused
     refused = [r for r in results if r["outcome"] == "rejected"]
@@ -113,8 +111,8 @@ def test_field_fuzz_catches_a_missing_check(corpus, tmp_path, monkeypatch):
 @pytest.mark.parametrize("field", ["views/phi", "lights/theta"])
 def test_a_wrong_finite_angle_is_refused(corpus, tmp_path, field):
     """An in-range angle that disagrees with ``xyz`` (off the pole) is damage too."""
-    path = tmp_path / FILES["coded3"]
-    shutil.copyfile(corpus["dir"] / FILES["coded3"], path)
+    path = tmp_path / FIELD_FILES["coded3"]
+    shutil.copyfile(corpus["dir"] / FIELD_FILES["coded3"], path)
     with h5py.File(path, "r+") as f:
         a = f[field][()]
         a[1] += 0.25  # radians

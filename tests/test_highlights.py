@@ -148,7 +148,7 @@ def test_entries_only_skips_the_lobes(model, tmp_path, capsys):
                      progress=False).highlights.lobes is not None  # fmt: skip
     with pytest.raises(BTFInputError, match="highlights"):
         encode_levels(btf, model, [(64, 16, 16)], highlights="both", progress=False)
-    # the command line: --highlights entries writes schema 5 (no lobes)
+    # the command line: --highlights entries writes a store without lobes
     src, mf = tmp_path / "l.h5", tmp_path / "m.h5"
     from sparsebtf.data.dense_file import write_dense
 
@@ -287,7 +287,6 @@ def test_damaged_lobes_are_one_line(lobed, model, tmp_path, damage, message):
     with h5py.File(path, "r+") as f:
         g = f["highlights"]
         lobes = g["lobes"][()]
-        del g["lobes"]
         if damage == "negative":
             lobes[1, 2, 6] = -1
         elif damage == "nan":
@@ -296,7 +295,7 @@ def test_damaged_lobes_are_one_line(lobed, model, tmp_path, damage, message):
             lobes = lobes[:, :8]
         else:
             f.attrs["schema_version"] = HIGHLIGHT_SCHEMA
-        g.create_dataset("lobes", data=lobes)
+        _rewrite(g, "lobes", lobes)
     with pytest.raises(FileFormatError, match=message) as e:
         load_coded(path, model)
     assert "\n" not in str(e.value)
@@ -320,10 +319,10 @@ def _rewrite(g, name, data):
     g.create_dataset(name, data=data)
 
 
-def _key_past_the_nodes(g):
-    # the first gap as long as the material (the remainder's bits all ones), the rest 0
+def _key_past_the_nodes(g, limit):
+    # the first gap as long as the material's `limit` nodes (the remainder's bits all ones),
+    # the rest 0
     n, k = int(g.attrs["n_entries"]), int(g.attrs["rice_k"])
-    limit = int(g.attrs["_limit"])
     bits = np.concatenate([np.ones(limit >> k, np.uint8), np.zeros(n, np.uint8)])
     _rewrite(g, "unary", np.packbits(np.concatenate([bits, np.ones(-bits.size % 8, np.uint8)])))
     _rewrite(g, "remainder", np.full(-(-n * k // 8), 255, np.uint8))
@@ -345,21 +344,20 @@ def test_damaged_store_is_one_line(levels, tmp_path, model, damage, message):
 
 
 @pytest.mark.parametrize("damage, message", [
-    (lambda g: g.attrs.__setitem__("n_entries", int(g.attrs["n_entries"]) + 1), "remainder"),
-    (lambda g: _rewrite(g, "unary", np.concatenate([g["unary"][()], [255]])), "unary"),
-    (lambda g: _rewrite(g, "unary", np.zeros_like(g["unary"][()])), "closes"),
+    (lambda g, _: g.attrs.__setitem__("n_entries", int(g.attrs["n_entries"]) + 1), "remainder"),
+    (lambda g, _: _rewrite(g, "unary", np.concatenate([g["unary"][()], [255]])), "unary"),
+    (lambda g, _: _rewrite(g, "unary", np.zeros_like(g["unary"][()])), "closes"),
     (_key_past_the_nodes, "past the"),
-    (lambda g: _rewrite(g, "rgb8", np.full(g["rgb8"].shape, 0x7C, np.uint8)), "not finite"),
-    (lambda g: _rewrite(g, "rgb8", g["rgb8"][()].astype(np.uint16)), "uint8"),
-    (lambda g: g.attrs.__setitem__("rice_k", 99), "rice_k"),
+    (lambda g, _: _rewrite(g, "rgb8", np.full(g["rgb8"].shape, 0x7C, np.uint8)), "not finite"),
+    (lambda g, _: _rewrite(g, "rgb8", g["rgb8"][()].astype(np.uint16)), "uint8"),
+    (lambda g, _: g.attrs.__setitem__("rice_k", 99), "rice_k"),
 ])  # fmt: skip
 def test_damaged_compact_store_is_one_line(levels, tmp_path, model, damage, message):
+    """``damage(group, nodes of the material)`` on a saved compact store."""
     c = levels[-1]
     path = save_coded(c, tmp_path / "d.h5")
     with h5py.File(path, "r+") as f:
-        g = f["highlights"]
-        g.attrs["_limit"] = c.n_points * c.patch**2 * len(c.lights) * len(c.views)
-        damage(g)
+        damage(f["highlights"], c.n_points * c.patch**2 * len(c.lights) * len(c.views))
     with pytest.raises(FileFormatError, match=message) as e:
         load_coded(path, model)
     assert "\n" not in str(e.value)
