@@ -10,12 +10,16 @@ from hypothesis import strategies as st
 
 from sparsebtf.learning.entry_code import (
     HEADER_BYTES,
+    TINT_BYTES,
     compact_bytes,
     from_e5m2,
     on_e5m2_grid,
     pack_keys,
     quantise,
     rice_parameter,
+    tint,
+    tint_scales,
+    tinted,
     to_e5m2,
     unpack_keys,
 )
@@ -63,6 +67,38 @@ def test_keys_round_trip_and_counted_bytes(keys):
     k, unary, rem = pack_keys(keys)
     np.testing.assert_array_equal(unpack_keys(k, unary, rem, keys.size), keys)
     assert compact_bytes(keys) == unary.size + rem.size + 3 * keys.size + HEADER_BYTES
+    # tinted: one byte an entry and a binary16 tint a point
+    assert compact_bytes(keys, 4) == (unary.size + rem.size + keys.size + 4 * TINT_BYTES
+                                      + HEADER_BYTES)
+
+
+def test_tint_is_the_principal_colour_and_scales_its_nearest_multiples():
+    """Residuals along one colour (with noise): the tint is that colour (largest component
+    1), no other direction leaves less squared error, and each scale is the residual's
+    projection on the E5M2 grid; a correction is binary16(float32 scale · tint)."""
+    rng = np.random.default_rng(4)
+    colour = np.array([0.95, 0.64, 0.54])  # copper
+    r = rng.lognormal(0, 2, 500)[:, None] * colour + rng.normal(0, 0.01, (500, 3))
+    t = tint(r).astype(np.float64)
+    assert tint(r).dtype == np.float16 and np.max(np.abs(t)) == 1.0
+    np.testing.assert_allclose(t, colour / colour.max(), atol=2e-3)
+
+    def left(d):
+        d = d / np.linalg.norm(d)
+        return np.square(r - (r @ d)[:, None] * d).sum()
+
+    assert all(left(t) <= left(d) * (1 + 1e-9) for d in rng.normal(0, 1, (200, 3)))
+    assert all(left(t) <= left(t + e) for e in np.eye(3) * 1e-3)
+    s = tint_scales(r, tint(r))
+    assert on_e5m2_grid(s)
+    exact = r @ t / (t @ t)  # the projection; E5M2's rounding is tested above
+    np.testing.assert_array_equal(s, quantise(exact))
+    c = tinted(s, np.broadcast_to(tint(r), r.shape))
+    assert c.dtype == np.float16
+    np.testing.assert_array_equal(
+        c, (s.astype(np.float32)[:, None] * tint(r).astype(np.float32)).astype(np.float16))
+    assert np.array_equal(tint(np.zeros((3, 3))), np.ones(3, np.float16))
+    assert np.sum(tint(-r)) > 0  # the sign makes the sum positive, the scales carry the sign
 
 
 def test_rice_parameter_is_the_cheapest():
@@ -81,8 +117,9 @@ def test_bytes_grow_with_each_entry():
     """The encoder's bisection relies on it: adding a key never lowers the code's bytes."""
     rng = np.random.default_rng(2)
     keys = rng.choice(10**6, 3000, replace=False)
-    sizes = [compact_bytes(np.sort(keys[:n])) for n in range(0, 3000, 37)]
-    assert all(b >= a for a, b in itertools.pairwise(sizes))
+    for tints in (0, 7):
+        sizes = [compact_bytes(np.sort(keys[:n]), tints) for n in range(0, 3000, 37)]
+        assert all(b >= a for a, b in itertools.pairwise(sizes))
 
 
 def test_a_level_takes_the_most_entries_its_bytes_hold():
@@ -93,11 +130,12 @@ def test_a_level_takes_the_most_entries_its_bytes_hold():
     rng = np.random.default_rng(3)
     glob = rng.choice(10**7, 5000, replace=False).astype(np.int64)  # ranked order, not sorted
     for room in (0, 4, 5, 40, 999, 7777, 20000, 10**6):
-        for lobes in (False, True):
-            n = _most_entries(glob, room, lobes)
+        for lobes, tints in itertools.product((False, True), (0, 7)):
+            n = _most_entries(glob, room, lobes, tints)
             if n < 0:
                 assert lobes and room < HEADER_BYTES
                 continue
-            assert _store_bytes(glob, n, lobes) <= room
-            assert n == glob.size or _store_bytes(glob, n + 1, lobes) > room
-    assert _most_entries(glob, 10**6, False) == glob.size
+            assert _store_bytes(glob, n, lobes, tints) <= room
+            assert n == glob.size or _store_bytes(glob, n + 1, lobes, tints) > room
+    assert _most_entries(glob, 10**6, False, 0) == glob.size
+    assert _most_entries(glob, 10**6, False, 7) == glob.size

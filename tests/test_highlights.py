@@ -14,14 +14,19 @@ from sparsebtf.codec import encode, encode_levels
 from sparsebtf.codec.highlights import base_taus, choose_highlights
 from sparsebtf.data.btf import ArrayBTF
 from sparsebtf.errors import BTFInputError, FileFormatError
-from sparsebtf.learning.entry_code import HEADER_BYTES
+from sparsebtf.learning.entry_code import HEADER_BYTES, TINT_BYTES, quantise
 from sparsebtf.learning.highlights import POINT_BYTES, Highlights, entry_bytes, node_keys
 from sparsebtf.learning.lobes import LOBE_BYTES, lobe_values
 from sparsebtf.runtime import RuntimeBTF
 from sparsebtf.runtime.dense import DecodedBTF
 from sparsebtf.storage import load_coded, save_coded, storage_report
 from sparsebtf.storage.accounting import paper_storage
-from sparsebtf.storage.highlight_file import COMPACT_SCHEMA, HIGHLIGHT_SCHEMA, LOBE_SCHEMA
+from sparsebtf.storage.highlight_file import (
+    COMPACT_SCHEMA,
+    HIGHLIGHT_SCHEMA,
+    LOBE_SCHEMA,
+    TINT_SCHEMA,
+)
 
 from .conftest import smooth_btf, tiny_model
 from .test_highlight_decode import random_store
@@ -160,7 +165,7 @@ def test_entries_only_skips_the_lobes(model, tmp_path, capsys):
     capsys.readouterr()
     assert code == 0
     with h5py.File(out) as f:
-        assert int(f.attrs["schema_version"]) in (3, COMPACT_SCHEMA) and "lobes" not in f.get(
+        assert int(f.attrs["schema_version"]) in (3, TINT_SCHEMA) and "lobes" not in f.get(
             "highlights", {})
 
 
@@ -190,10 +195,43 @@ def test_highlights_refused_where_not_taken(glossy, model):
 # ---------------------------------------------------------------------------- the file
 
 
-def test_file_round_trip_compact_schema_7(levels, tmp_path, model):
+def untinted(c):
+    """``c`` with its tinted store's corrections as an untinted compact store (schema 7)."""
+    h = c.highlights
+    pts = np.repeat(np.arange(h.n_points), np.diff(h.offsets))
+    return replace(c, highlights=replace(Highlights.from_nodes(pts, h.keys, quantise(h.rgb),
+                                                               h.n_points), lobes=h.lobes))
+
+
+def test_file_round_trip_tinted_schema_8(levels, tmp_path, model):
     c = levels[-1]
     h = c.highlights
-    assert h.compact  # the encoder's corrections are E5M2 values
+    assert h.compact and h.tints is not None  # the encoder's store is tinted
+    path = save_coded(c, tmp_path / "g.h5")
+    with h5py.File(path) as f:
+        assert int(f.attrs["schema_version"]) == TINT_SCHEMA
+        g = f["highlights"]
+        assert "keys" not in g and "rgb8" not in g and g["scale8"].shape == (h.n_entries,)
+        assert g["tints"].shape == (c.n_points, 3)
+        streams = g["unary"].size + g["remainder"].size
+    back = load_coded(path, model)
+    for name in ("offsets", "keys", "rgb", "tints", "scales"):
+        np.testing.assert_array_equal(getattr(back.highlights, name), getattr(h, name))
+    a = np.asarray(DecodedBTF(back).to_array())
+    b = np.asarray(DecodedBTF(c).to_array())
+    np.testing.assert_allclose(a, b, rtol=2e-3, atol=2e-3)
+    # the counted bytes are the code's: the two streams as written, an E5M2 byte an entry, a
+    # binary16 tint a point (and the lobes' 16 bytes a texel)
+    rep = storage_report(back, model, path)
+    lobes = 0 if h.lobes is None else h.lobes.shape[0] * h.lobes.shape[1] * LOBE_BYTES
+    assert rep["bytes_highlights"] == (streams + h.n_entries + TINT_BYTES * c.n_points
+                                       + HEADER_BYTES + lobes)  # fmt: skip
+
+
+def test_file_round_trip_compact_schema_7(levels, tmp_path, model):
+    c = untinted(levels[-1])
+    h = c.highlights
+    assert h.compact and h.tints is None
     path = save_coded(c, tmp_path / "g.h5")
     with h5py.File(path) as f:
         assert int(f.attrs["schema_version"]) == COMPACT_SCHEMA
@@ -201,14 +239,13 @@ def test_file_round_trip_compact_schema_7(levels, tmp_path, model):
     back = load_coded(path, model)
     for name in ("offsets", "keys", "rgb"):
         np.testing.assert_array_equal(getattr(back.highlights, name), getattr(h, name))
-    a = np.asarray(DecodedBTF(back).to_array())
-    b = np.asarray(DecodedBTF(c).to_array())
-    np.testing.assert_allclose(a, b, rtol=2e-3, atol=2e-3)
+    assert back.highlights.tints is None
     # the counted bytes are the code's: the two streams as written, an E5M2 byte a channel
     with h5py.File(path) as f:
         streams = f["highlights/unary"].size + f["highlights/remainder"].size
     rep = storage_report(back, model, path)
-    assert rep["bytes_highlights"] == streams + 3 * h.n_entries + HEADER_BYTES
+    lobes = 0 if h.lobes is None else h.lobes.shape[0] * h.lobes.shape[1] * LOBE_BYTES
+    assert rep["bytes_highlights"] == streams + 3 * h.n_entries + HEADER_BYTES + lobes
     assert rep["bytes_highlights"] < h.n_entries * entry_bytes(c.patch, len(c.lights),
                                                                len(c.views))  # fmt: skip
 
@@ -224,7 +261,7 @@ def test_info_shows_the_store(levels, tmp_path, model, capsys):
     save_model(model, mf)
     assert main(["info", str(path), "--model", str(mf), "--json"]) == 0
     got = json.loads(capsys.readouterr().out)["highlights"]
-    assert got["entries"] == c.highlights.n_entries and got["code"].startswith("compact")
+    assert got["entries"] == c.highlights.n_entries and got["code"].startswith("compact, tinted")
     assert got["bytes_table4"] == storage_report(c, model)["bytes_highlights"]
 
 
@@ -309,7 +346,7 @@ def test_no_store_stays_schema_3(model, tmp_path):
 
 
 def test_schema_2_cannot_hold_a_store(levels, tmp_path):
-    with pytest.raises(BTFInputError, match="written in schema 7"):
+    with pytest.raises(BTFInputError, match="written in schema 8"):
         save_coded(levels[0], tmp_path / "x.h5", schema=2)
 
 
@@ -343,18 +380,29 @@ def test_damaged_store_is_one_line(levels, tmp_path, model, damage, message):
     assert "\n" not in str(e.value)
 
 
-@pytest.mark.parametrize("damage, message", [
-    (lambda g, _: g.attrs.__setitem__("n_entries", int(g.attrs["n_entries"]) + 1), "remainder"),
-    (lambda g, _: _rewrite(g, "unary", np.concatenate([g["unary"][()], [255]])), "unary"),
-    (lambda g, _: _rewrite(g, "unary", np.zeros_like(g["unary"][()])), "closes"),
-    (_key_past_the_nodes, "past the"),
-    (lambda g, _: _rewrite(g, "rgb8", np.full(g["rgb8"].shape, 0x7C, np.uint8)), "not finite"),
-    (lambda g, _: _rewrite(g, "rgb8", g["rgb8"][()].astype(np.uint16)), "uint8"),
-    (lambda g, _: g.attrs.__setitem__("rice_k", 99), "rice_k"),
+@pytest.mark.parametrize("tinted, damage, message", [
+    (True, lambda g, _: g.attrs.__setitem__("n_entries", int(g.attrs["n_entries"]) + 1),
+     "remainder|closes"),
+    (True, lambda g, _: _rewrite(g, "unary", np.concatenate([g["unary"][()], [255]])), "unary"),
+    (True, lambda g, _: _rewrite(g, "unary", np.zeros_like(g["unary"][()])), "closes"),
+    (True, _key_past_the_nodes, "past the"),
+    (True, lambda g, _: g.attrs.__setitem__("rice_k", 99), "rice_k"),
+    (True, lambda g, _: _rewrite(g, "scale8", np.full(g["scale8"].shape, 0x7C, np.uint8)),
+     "scale8: entry 0 is not finite"),
+    (True, lambda g, _: _rewrite(g, "scale8", g["scale8"][()].astype(np.uint16)), "uint8"),
+    (True, lambda g, _: _rewrite(g, "tints", np.full(g["tints"].shape, np.inf, np.float16)),
+     "tints: the tint of point 0"),
+    (True, lambda g, _: _rewrite(g, "tints", g["tints"][:-1]), "tints"),
+    (True, lambda g, _: _rewrite(g, "scale8", g["scale8"][:-1]), "scale8"),
+    (False, lambda g, _: _rewrite(g, "rgb8", np.full(g["rgb8"].shape, 0x7C, np.uint8)),
+     "rgb8: entry 0 is not finite"),
+    (False, lambda g, _: _rewrite(g, "rgb8", g["rgb8"][()].astype(np.uint16)), "uint8"),
+    (False, _key_past_the_nodes, "past the"),
 ])  # fmt: skip
-def test_damaged_compact_store_is_one_line(levels, tmp_path, model, damage, message):
-    """``damage(group, nodes of the material)`` on a saved compact store."""
-    c = levels[-1]
+def test_damaged_compact_store_is_one_line(levels, tmp_path, model, tinted, damage, message):
+    """``damage(group, nodes of the material)`` on a saved compact store, tinted (schema 8)
+    or not (7)."""
+    c = levels[-1] if tinted else untinted(levels[-1])
     path = save_coded(c, tmp_path / "d.h5")
     with h5py.File(path, "r+") as f:
         damage(f["highlights"], c.n_points * c.patch**2 * len(c.lights) * len(c.views))

@@ -169,8 +169,12 @@ def _highlights_info(coded: Any, report: dict[str, Any]) -> dict[str, Any]:
     if h.lobes is not None:
         lit = int(np.count_nonzero((h.lobes[..., 5:] > 0).any(axis=2)))
         lobes = f"{lit} of {h.lobes.shape[0] * h.lobes.shape[1]} texels lit"
-    code = ("compact: 8-bit float corrections, Rice-coded nodes" if h.compact
-            else "binary16 corrections, 3-byte node keys")  # fmt: skip
+    if h.tints is not None:
+        code = "compact, tinted: an 8-bit float scale of each point's tint, Rice-coded nodes"
+    elif h.compact:
+        code = "compact: 8-bit float corrections, Rice-coded nodes"
+    else:
+        code = "binary16 corrections, 3-byte node keys"
     return {"highlights": {
         "entries": h.n_entries, "bytes_table4": report["bytes_highlights"], "code": code,
         "points_with_entries": f"{used} of {h.n_points}", "lobes": lobes,

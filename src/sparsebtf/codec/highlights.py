@@ -5,15 +5,18 @@ bytes of τ coefficients in every point (what the level is worth, even where a p
 stops earlier: ε, or a linear objective that drops what does not lower its error) — and the
 coder spends it on a *base* code (one of the
 call's τ, or τ/2 … τ/32 of the smallest) plus the nodes of the highlight store
-(:mod:`sparsebtf.learning.highlights`) whose correction (in E5M2) removes the most linear-RGB
-squared error, whichever pair errs least. Every level of a call chooses among the same bases,
+(:mod:`sparsebtf.learning.highlights`) whose correction (an E5M2 scale of the point's tint, or
+three E5M2 values untinted) removes the most linear-RGB squared error, whichever pair errs
+least. Every level of a call chooses among the same bases,
 and a larger budget keeps at least the same entries on each, so the material's linear error
 never grows with the level.
 
 One streaming pass over the points (memory: one point and the kept entries): the reference
 point and its decode at each base give the residual r = reference − decode at every node; a
-node's gain is ‖r‖² − ‖r − q(r)‖², q(r) its correction in E5M2 (what storing it removes; the
-store is compact, :mod:`sparsebtf.learning.entry_code`). Per base the largest gains over the
+node's gain is ‖r‖² − ‖r − q(r)‖², q(r) its correction as the store keeps it (what storing it
+removes; the store is compact, :mod:`sparsebtf.learning.entry_code`): s·t with t the point's
+tint (the principal direction of its residuals' colours) and s = E5M2(r·t/t·t), or E5M2(r)
+untinted. Per base the largest gains over the
 whole material are kept (at most what the largest budget can hold), their cumulative sums give
 each budget's error, a budget holds the most of them whose code fits it (the code's bytes grow
 with each entry, so a bisection finds it), and the level takes the best base.
@@ -32,9 +35,17 @@ from .._progress import bar as progress_bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
 from ..learning.cost import channel_storage
-from ..learning.entry_code import MIN_ENTRY_BYTES, compact_bytes, quantise
+from ..learning.entry_code import (
+    HEADER_BYTES,
+    MIN_ENTRY_BYTES,
+    compact_bytes,
+    quantise,
+    tint,
+    tint_scales,
+    tinted,
+)
 from ..learning.highlights import Highlights
-from ..learning.lobes import LOBE_BYTES, fit_lobes, lobe_amplitudes, unit_lobes_at
+from ..learning.lobes import LOBE_BYTES, fit_lobes, lobe_amplitudes16, unit_lobes_at
 from ..model import CodedBTF, Model
 from ..points.grid import PatchGrid
 from ..runtime.dense import DecodedBTF
@@ -87,8 +98,8 @@ class _TopGains:
         self.floor = 0.0
 
     def add(self, gain: np.ndarray, point: int, rgb: np.ndarray) -> None:
-        """One point's nodes: ``gain`` (n,) and ``rgb`` (n, 3), node i's key being i; nodes
-        whose gain is not positive never pay."""
+        """One point's nodes: ``gain`` (n,) and their corrections ``rgb`` (n, 3), or scales
+        (n,), node i's key being i; nodes whose gain is not positive never pay."""
         if not self.cap:
             return
         keep = gain > max(self.floor, 0.0)
@@ -111,26 +122,37 @@ class _TopGains:
         self.parts, self.size = [(g, p, k, v)], g.size
 
     def sorted(self) -> tuple[np.ndarray, ...]:
-        """Gains (decreasing), points, keys, rgb of the kept entries."""
+        """Gains (decreasing), points, keys, corrections (or scales) of the kept entries."""
         if not self.parts:
             return (np.zeros(0), np.zeros(0, np.int32), np.zeros(0, np.uint32),
-                    np.zeros((0, 3), np.float16))  # fmt: skip
+                    np.zeros(0, np.float16))  # fmt: skip
         self._cut()
         g, p, k, v = self.parts[0]
         order = np.lexsort((k, p, -g))
         return g[order], p[order], k[order], v[order]
 
 
-def _node_gains(ref: np.ndarray, dec: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
-    """Per node of one point ((p, p, L, V, 3) arrays): the gain of storing the E5M2
-    correction, the correction (float16), and the point's squared error."""
-    r = (ref.astype(np.float64) - dec).reshape(-1, 3)
-    c = quantise(r)
-    # where the decoder's clamp max(decode + c, 0) differs from decode + c the gain is higher
-    # still; the lower figure is kept (it is the one the budget is judged by)
-    left = np.square(r - c.astype(np.float64)).sum(axis=1)
-    sq = np.square(r).sum(axis=1)
-    return sq - left, c, float(sq.sum())
+def _node_gains(ref: np.ndarray, dec: np.ndarray, tints: bool
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float]:  # fmt: skip
+    """Per node of one point ((p, p, L, V, 3) arrays): the gain of storing its correction,
+    what the store keeps of it (``tints``: the E5M2 scale (n,) along the point's tint, which
+    comes third; else the E5M2 correction (n, 3)), both float16, and the point's squared
+    error."""
+    ref64 = ref.astype(np.float64).reshape(-1, 3)
+    dec64 = np.asarray(dec, dtype=np.float64).reshape(-1, 3)
+    r = ref64 - dec64
+    if tints:
+        t = tint(r)
+        kept = tint_scales(r, t)
+        c = tinted(kept, np.broadcast_to(t, r.shape))
+    else:
+        t, kept = None, quantise(r)
+        c = kept
+    # the errors the decoders leave: every decoded value is clamped at 0 (a tinted correction
+    # can push a channel below it, and the clamp takes that back)
+    sq = np.square(ref64 - np.maximum(dec64, 0.0)).sum(axis=1)
+    left = np.square(ref64 - np.maximum(dec64 + c.astype(np.float64), 0.0)).sum(axis=1)
+    return sq - left, kept, t, float(sq.sum())
 
 
 def _lobe_pass(ref: np.ndarray, pilot: np.ndarray, wi: np.ndarray, wo: np.ndarray,
@@ -148,26 +170,29 @@ def _with_lobes(ref: np.ndarray, dec: np.ndarray, g: np.ndarray) -> tuple[np.nda
     float16."""
     t = g.shape[0]
     r = (ref.astype(np.float64) - dec).reshape(t, -1, 3)
-    amp = lobe_amplitudes(g, r).astype(np.float16)
+    amp = lobe_amplitudes16(g, r)
     lobe = g[..., None] * amp.astype(np.float64)[:, None, :]
     return (dec + lobe.reshape(dec.shape)), amp
 
 
-def _store_bytes(glob: np.ndarray, n: int, lobes: bool) -> int:
+def _store_bytes(glob: np.ndarray, n: int, lobes: bool, tints: int) -> int:
     """Bytes of the entries of the first ``n`` global keys ``glob`` (any order) in a compact
-    store (none at all when nothing is stored)."""
-    return compact_bytes(np.sort(glob[:n])) if n or lobes else 0
+    store, tinted in ``tints`` points (none at all when nothing is stored; no tints without
+    entries)."""
+    if not n:
+        return HEADER_BYTES if lobes else 0
+    return compact_bytes(np.sort(glob[:n]), tints)
 
 
-def _most_entries(glob: np.ndarray, room: int, lobes: bool) -> int:
+def _most_entries(glob: np.ndarray, room: int, lobes: bool, tints: int) -> int:
     """The most leading entries of ``glob`` whose store fits ``room`` bytes (the code grows
     with each entry: bisection); −1 when not even the store without entries fits."""
-    if room < _store_bytes(glob, 0, lobes):
+    if room < _store_bytes(glob, 0, lobes, tints):
         return -1
     lo, hi = 0, min(glob.size, max(0, room) // MIN_ENTRY_BYTES)
     while lo < hi:
         mid = (lo + hi + 1) // 2
-        if _store_bytes(glob, mid, lobes) <= room:
+        if _store_bytes(glob, mid, lobes, tints) <= room:
             lo = mid
         else:
             hi = mid - 1
@@ -182,12 +207,14 @@ def choose_highlights(
     progress: bool | None = None,
     lobes: bool = True,
     lobe_iters: int = 20,
+    tints: bool = True,
 ) -> list[CodedBTF]:
     """Each of ``levels`` re-spent at its own bytes on the best of ``levels`` + ``bases`` (all
-    coded from ``btf`` in one call) plus highlight entries, and with ``lobes`` per-texel
-    highlight lobes where they pay (module docstring). Returns one coded material per level:
-    the chosen base's codes with its store; ``params["highlights"]`` records the base τ, the
-    entries, whether it has lobes, the budget and the squared error the choice was judged by."""
+    coded from ``btf`` in one call) plus highlight entries (``tints``: tinted, else three
+    E5M2 values each), and with ``lobes`` per-texel highlight lobes where they pay (module
+    docstring). Returns one coded material per level: the chosen base's codes with its store;
+    ``params["highlights"]`` records the base τ, the entries, whether it has lobes, the budget
+    and the squared error the choice was judged by."""
     cands = list(levels) + list(bases)
     budgets = [level_budget(c) for c in levels]
     own = [_material_bytes(c, model) for c in cands]
@@ -198,8 +225,10 @@ def choose_highlights(
     variants = [(i, v) for v in ((False, True) if lobes else (False,)) for i in range(len(cands))]
     slot = {iv: j for j, iv in enumerate(variants)}
     extra = {False: 0, True: n_pts * p * p * LOBE_BYTES}
-    caps = [max(0, (max(budgets) - own[i] - extra[v]) // MIN_ENTRY_BYTES) for i, v in variants]
-    check_allocation(2 * sum(caps) * 18, f"{btf.label}: the highlight candidates "
+    per_entry = MIN_ENTRY_BYTES if tints else 3  # the fewest bytes an entry costs
+    caps = [max(0, (max(budgets) - own[i] - extra[v]) // per_entry) for i, v in variants]
+    entry_mem = 17 if tints else 22  # gain, point, key and what the store keeps
+    check_allocation(2 * sum(caps) * entry_mem, f"{btf.label}: the highlight candidates "
                      f"({2 * sum(caps):,d} entries)", BTFInputError)  # fmt: skip
     tops = [_TopGains(cap) for cap in caps]
     sse = np.zeros(len(variants))
@@ -207,6 +236,7 @@ def choose_highlights(
     pilot = int(np.argmin(own))  # the smallest code: its residual shows the whole highlight
     shapes = np.zeros((n_pts, p * p, 5), np.float16)
     amps = np.zeros((len(cands), n_pts, p * p, 3), np.float16) if lobes else None
+    point_tints = np.ones((len(variants), n_pts, 3), np.float16)
     wi = np.repeat(btf.lights.xyz, len(btf.views), axis=0)
     wo = np.tile(btf.views.xyz, (len(btf.lights), 1))
     grid = PatchGrid(btf.height, btf.width, p)
@@ -225,18 +255,21 @@ def choose_highlights(
                 j = slot[i, v]
                 if v:
                     dec, amps[i, point] = _with_lobes(ref, dec.astype(np.float64), g)
-                gain, corr, s_ = _node_gains(ref, dec)
+                gain, kept, t, s_ = _node_gains(ref, dec, tints)
+                if t is not None:
+                    point_tints[j, point] = t
                 sse[j] += s_
-                tops[j].add(gain, point, corr)
+                tops[j].add(gain, point, kept)
         bar.update(1)
     bar.close()
     ranked = [t.sorted() for t in tops]
     globs = [pts * np.int64(nodes) + keys for _, pts, keys, _ in ranked]  # the code's keys
+    n_tints = n_pts if tints else 0
     out = []
     for lv, budget in zip(levels, budgets, strict=True):
         best: tuple[float, int, int] | None = None
         for j, ((i, v), (g_, *_)) in enumerate(zip(variants, ranked, strict=True)):
-            n = _most_entries(globs[j], budget - own[i] - extra[v], v)
+            n = _most_entries(globs[j], budget - own[i] - extra[v], v, n_tints)
             if n < 0:
                 continue
             left = sse[j] - float(g_[:n].sum())
@@ -245,8 +278,11 @@ def choose_highlights(
         assert best is not None  # the level's own codes fit its budget
         left, j, n = best
         i, v = variants[j]
-        _, pts, keys, rgb = ranked[j]
-        store = Highlights.from_nodes(pts[:n], keys[:n], rgb[:n], n_pts)
+        _, pts, keys, kept = ranked[j]
+        if tints and n:
+            store = Highlights.from_tinted(pts[:n], keys[:n], kept[:n], point_tints[j], n_pts)
+        else:
+            store = Highlights.from_nodes(pts[:n], keys[:n], kept[:n].reshape(n, 3), n_pts)
         if v:
             store = dataclasses.replace(
                 store, lobes=np.concatenate([shapes, amps[i]], axis=2))  # type: ignore[index]

@@ -67,7 +67,10 @@ def coded_mse_std(coded: CodedBTF) -> float:
 
 def _log_rgb(rec: BTF, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray]:
     """(linear RGB, clamped log RGB ln(max(x, 0) + ε)) of a tile of a reconstruction."""
-    if isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv":
+    # the log values straight from the code, where the code is all there is (a highlight
+    # store's corrections are linear: such a material is read as its decoders read it)
+    if (isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv"
+            and rec.coded.highlight_store is None):
         z = rec.read_standardised(rows, cols, slice(None), slice(None))
         yuv = rec.coded.stats.invert(z)
         # One (n, 3) × (3, 3) GEMM, not one per (row, col, light) slab; single-threaded: two
@@ -172,7 +175,9 @@ def score_many(
             "top_error_share": (float(np.sum(worst[j], dtype=np.float64)) / sums[j, 0]
                                 if sums[j, 0] > 0 else 0.0),
         }  # fmt: skip
-        if isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv":
+        # the codes' own error (Parseval) is the material's only where nothing is added to it
+        if (isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv"
+                and rec.coded.highlight_store is None):
             res["mse_std"] = coded_mse_std(rec.coded)
         out.append(res)
     return out

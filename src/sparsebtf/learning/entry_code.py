@@ -14,9 +14,15 @@ coded at the bytes they need rather than at a coefficient's.
   vector operations (the zeros of the first delimit the entries; the second is k bits each).
   The point counts follow from the keys, so none is stored.
 
+* **Tinted corrections**: one E5M2 scale an entry along its point's tint t (three binary16,
+  :data:`TINT_BYTES` a point), c = s·t. A metal's highlight has the metal's colour, so the
+  residuals of a point's highlight nodes nearly share one direction in RGB (the tint is the
+  principal one, :func:`tint`) and one byte carries what three did.
+
 Bytes of a store of n entries (:func:`compact_bytes`): ⌈U/8⌉ + ⌈n·k/8⌉ + 3n +
-:data:`HEADER_BYTES`, U = Σ_j (d_j >> k) + n. At UBO2014 size that is 4.3–5.2 bytes an entry
-(a gap of 400–60,000 nodes) against 9 for a binary16 entry with a 3-byte location.
+:data:`HEADER_BYTES`, U = Σ_j (d_j >> k) + n; tinted, n instead of 3n and 6 bytes a point. At
+UBO2014 size that is 4.3–5.2 bytes an entry (a gap of 400–60,000 nodes; 2.3–3.2 tinted)
+against 9 for a binary16 entry with a 3-byte location.
 """
 
 from __future__ import annotations
@@ -26,20 +32,27 @@ import numpy as np
 __all__ = [
     "HEADER_BYTES",
     "MIN_ENTRY_BYTES",
+    "TINT_BYTES",
     "compact_bytes",
     "from_e5m2",
     "on_e5m2_grid",
     "pack_keys",
     "quantise",
     "rice_parameter",
+    "tint",
+    "tint_scales",
+    "tinted",
     "to_e5m2",
     "unpack_keys",
 ]
 
 #: The entry count (uint32) and the Rice parameter (uint8).
 HEADER_BYTES = 5
-#: The fewest bytes an entry can cost: three E5M2 values (its gap's bits come on top).
-MIN_ENTRY_BYTES = 3
+#: The fewest bytes an entry can cost: one E5M2 scale of a tinted store (its gap's bits come
+#: on top; three E5M2 values in an untinted one).
+MIN_ENTRY_BYTES = 1
+#: Bytes of a point's tint: three binary16 values.
+TINT_BYTES = 6
 _E5M2_MAX = 0x7B  # the largest finite magnitude byte (57,344)
 
 
@@ -72,6 +85,34 @@ def on_e5m2_grid(x: np.ndarray) -> bool:
     return bool(np.all((h.view(np.uint16) & 0xFF) == 0) and np.all(np.isfinite(h)))
 
 
+def tint(r: np.ndarray) -> np.ndarray:
+    """The tint of residuals ``r`` (n, 3): the principal direction of their RGB scatter rᵀr
+    (the line through 0 that leaves the least squared error), scaled so its largest
+    component is 1 and its sum is ≥ 0, as (3,) float16; (1, 1, 1) where ``r`` is all zero."""
+    r = np.asarray(r, dtype=np.float64).reshape(-1, 3)
+    scatter = r.T @ r
+    if not np.any(scatter):
+        return np.ones(3, dtype=np.float16)
+    t = np.linalg.eigh(scatter)[1][:, -1]
+    t = t / t[np.argmax(np.abs(t))]
+    return (t if t.sum() >= 0 else -t).astype(np.float16)
+
+
+def tint_scales(r: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """The E5M2 scales (n,) float16 of residuals ``r`` (n, 3) along the tint ``t`` (3,):
+    ``quantise(r·t / t·t)``, the nearest multiple of t on the grid (within its rounding)."""
+    t64 = np.asarray(t, dtype=np.float64)
+    return quantise(np.asarray(r, dtype=np.float64).reshape(-1, 3) @ t64 / (t64 @ t64))
+
+
+def tinted(scales: np.ndarray, tints: np.ndarray) -> np.ndarray:
+    """The corrections of a tinted store: ``scales`` (n,) times each entry's tint ``tints``
+    (n, 3), in float32, rounded to (n, 3) float16 — what every decoder reads."""
+    s = np.asarray(scales, dtype=np.float16).astype(np.float32)
+    return (s[:, None] * np.asarray(tints, dtype=np.float16).astype(np.float32)).astype(
+        np.float16)
+
+
 def _gaps(keys: np.ndarray) -> np.ndarray:
     """d_j = key_j − key_{j−1} − 1 of increasing int64 ``keys`` (the first: its key)."""
     k = np.asarray(keys, dtype=np.int64)
@@ -93,14 +134,16 @@ def rice_parameter(gaps: np.ndarray) -> int:
     return int(np.argmin(costs))
 
 
-def compact_bytes(keys: np.ndarray) -> int:
+def compact_bytes(keys: np.ndarray, tints: int = 0) -> int:
     """Bytes of a compact store of entries at the increasing global keys ``keys`` (module
-    docstring: bit streams, three E5M2 values each, the header)."""
+    docstring: bit streams, three E5M2 values each, the header); with ``tints`` points
+    tinted, one E5M2 scale each and :data:`TINT_BYTES` a point."""
     d = _gaps(keys)
+    values = (1 if tints else 3) * d.size + TINT_BYTES * tints
     if not d.size:
-        return HEADER_BYTES
+        return HEADER_BYTES + values
     u, r = _bits(d, rice_parameter(d))
-    return -(-u // 8) + -(-r // 8) + MIN_ENTRY_BYTES * d.size + HEADER_BYTES
+    return -(-u // 8) + -(-r // 8) + values + HEADER_BYTES
 
 
 def pack_keys(keys: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:

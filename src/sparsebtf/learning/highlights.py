@@ -17,12 +17,13 @@ Layout (:class:`Highlights`): entries grouped by data point (release order), per
 their key ``((i1·p + i2)·L + light)·V + view`` (i1, i2: the texel's row and column in the
 point's p×p patch; L lights, V views), so a decoder finds a node by a binary search in its
 point's range ``offsets[point] : offsets[point + 1]``. A store whose corrections all lie on
-the E5M2 grid (the encoder's) is **compact**: coded as :mod:`sparsebtf.learning.entry_code`
-codes it (Rice-coded gaps between nodes, one byte a channel; 4.3–5.2 bytes an entry at
-UBO2014 size). Any other store costs :func:`entry_bytes` an entry by Table 4's rule for a
-coefficient (``learning/cost.py``): its key as a location (3 bytes for the p²·L·V ≤ 2^24
-nodes of a UBO2014 point, else 4) and three binary16 values; each point a 32-bit count
-(:data:`POINT_BYTES`).
+the E5M2 grid is **compact**: coded as :mod:`sparsebtf.learning.entry_code` codes it
+(Rice-coded gaps between nodes, one byte a channel; 4.3–5.2 bytes an entry at UBO2014 size).
+A **tinted** store (the encoder's) is compact with one E5M2 scale an entry along a tint per
+point (:meth:`Highlights.from_tinted`; 2.3–3.2 bytes an entry). Any other store costs
+:func:`entry_bytes` an entry by Table 4's rule for a coefficient (``learning/cost.py``): its
+key as a location (3 bytes for the p²·L·V ≤ 2^24 nodes of a UBO2014 point, else 4) and three
+binary16 values; each point a 32-bit count (:data:`POINT_BYTES`).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import numpy as np
 
 from ..errors import BTFInputError
 from .cost import VALUE_BYTES, location_width
-from .entry_code import compact_bytes, on_e5m2_grid
+from .entry_code import compact_bytes, from_e5m2, on_e5m2_grid, tinted, to_e5m2
 from .lobes import LOBE_BYTES, LOBE_PARAMS, lobe_values
 
 __all__ = [
@@ -86,12 +87,17 @@ class Highlights:
     rgb : (N, 3) float16, the linear-RGB correction (reference − decode) of each node.
     lobes : (P, p², 8) float16 or None, a highlight lobe per texel (texel i1·p + i2 of its
         point; :mod:`sparsebtf.learning.lobes`), added at the query's directions.
+    tints : (P, 3) float16 or None, a tinted store's tint per point; then ``rgb`` is
+        :func:`~sparsebtf.learning.entry_code.tinted` of ``scales`` (E5M2 values, (N,)
+        float16) and each entry's tint (made by :meth:`from_tinted`).
     """
 
     offsets: np.ndarray
     keys: np.ndarray
     rgb: np.ndarray
     lobes: np.ndarray | None = None
+    tints: np.ndarray | None = None
+    scales: np.ndarray | None = None
 
     @cached_property
     def entry_points(self) -> np.ndarray:
@@ -114,9 +120,10 @@ class Highlights:
 
     @cached_property
     def compact(self) -> bool:
-        """Whether every correction is an E5M2 value: the store is then written and counted in
-        the compact code (:mod:`~sparsebtf.learning.entry_code`); binary16 entries else."""
-        return on_e5m2_grid(self.rgb)
+        """Whether the store is tinted or every correction is an E5M2 value: it is then written
+        and counted in the compact code (:mod:`~sparsebtf.learning.entry_code`); binary16
+        entries else."""
+        return self.tints is not None or on_e5m2_grid(self.rgb)
 
     def global_keys(self, nodes_per_point: int) -> np.ndarray:
         """(N,) int64 ``point · nodes_per_point + key``, increasing (the compact code's)."""
@@ -137,7 +144,9 @@ class Highlights:
             return 0
         lobes = 0 if self.lobes is None else self.n_points * patch * patch * LOBE_BYTES
         if self.compact:
-            return compact_bytes(self.global_keys(patch * patch * n_lights * n_views)) + lobes
+            tints = 0 if self.tints is None else self.n_points
+            return compact_bytes(self.global_keys(patch * patch * n_lights * n_views),
+                                 tints) + lobes  # fmt: skip
         return (self.n_entries * entry_bytes(patch, n_lights, n_views)
                 + self.n_points * POINT_BYTES + lobes)  # fmt: skip
 
@@ -150,24 +159,50 @@ class Highlights:
     def from_nodes(cls, points: np.ndarray, keys: np.ndarray, rgb: np.ndarray,
                    n_points: int) -> Highlights:  # fmt: skip
         """Entries given in any order as (point, key, rgb); sorted here, checked unique."""
-        points = np.asarray(points, dtype=np.int64)
-        keys = np.asarray(keys, dtype=np.int64)
-        order = np.lexsort((keys, points))
-        points, keys = points[order], keys[order]
-        if points.size and (points[0] < 0 or points[-1] >= n_points):
-            raise BTFInputError(f"highlight points must lie in [0, {n_points})")
-        same = (np.diff(points) == 0) & (np.diff(keys) == 0)
-        if same.any():
-            i = int(np.flatnonzero(same)[0])
-            raise BTFInputError(f"highlight node {keys[i]} of point {points[i]} given twice")
-        offsets = offsets_from_counts(np.bincount(points, minlength=n_points))
+        offsets, k, order = _sorted_entries(points, keys, n_points)
         rgb16 = np.asarray(rgb)[order].astype(np.float16)
-        return cls(offsets, keys.astype(np.uint32), np.ascontiguousarray(rgb16))
+        return cls(offsets, k, np.ascontiguousarray(rgb16))
+
+    @classmethod
+    def from_tinted(cls, points: np.ndarray, keys: np.ndarray, scales: np.ndarray,
+                    tints: np.ndarray, n_points: int) -> Highlights:  # fmt: skip
+        """A tinted store of entries given in any order as (point, key, scale) — scales
+        rounded to E5M2 — and the points' ``tints`` (P, 3); sorted here, checked unique."""
+        offsets, k, order = _sorted_entries(points, keys, n_points)
+        s = from_e5m2(to_e5m2(np.asarray(scales)[order]))
+        t = np.ascontiguousarray(np.asarray(tints, dtype=np.float16))
+        if t.shape != (n_points, 3):
+            raise BTFInputError(f"tints has shape {t.shape}, expected ({n_points}, 3)")
+        rgb = tinted(s, t[np.repeat(np.arange(n_points), np.diff(offsets))])
+        return cls(offsets, k, rgb, tints=t, scales=s)
 
     def check(self, n_points: int, patch: int, n_lights: int, n_views: int,
               where: str) -> None:  # fmt: skip
         """One line naming ``where`` and the field if the store does not fit a material of
         ``n_points`` points of ``patch``² texels, ``n_lights`` × ``n_views`` directions."""
+        self._check_entries(n_points, patch, n_lights, n_views, where)
+        if self.tints is not None:
+            t, s = self.tints, self.scales
+            if t.shape != (n_points, 3) or s is None or s.shape != (self.n_entries,):
+                raise BTFInputError(f"{where}: tints {t.shape} and scales "
+                                    f"{None if s is None else s.shape} do not match "
+                                    f"({n_points}, 3) and ({self.n_entries},)")  # fmt: skip
+            if not np.all(np.isfinite(t)):
+                i = int(np.flatnonzero(~np.isfinite(t).all(axis=1))[0])
+                raise BTFInputError(f"{where}: tint of point {i} is not finite")
+        if self.lobes is not None:
+            lb = self.lobes
+            if lb.shape != (n_points, patch * patch, LOBE_PARAMS):
+                raise BTFInputError(f"{where}: lobes has shape {lb.shape}, expected "
+                                    f"({n_points}, {patch * patch}, {LOBE_PARAMS})")  # fmt: skip
+            bad = ~np.isfinite(lb).all(axis=2) | (lb[..., 5:] < 0).any(axis=2)
+            if bad.any():
+                pt, tx = (int(x[0]) for x in np.nonzero(bad))
+                raise BTFInputError(f"{where}: lobe of point {pt}, texel {tx} is not finite or "
+                                    "has a negative amplitude")  # fmt: skip
+
+    def _check_entries(self, n_points: int, patch: int, n_lights: int, n_views: int,
+                       where: str) -> None:  # fmt: skip
         o, k, v = self.offsets, self.keys, self.rgb
         if o.ndim != 1 or o.shape[0] != n_points + 1:
             raise BTFInputError(f"{where}: offsets has shape {o.shape}, expected "
@@ -191,17 +226,24 @@ class Highlights:
         if not np.all(np.isfinite(v)):
             i = int(np.flatnonzero(~np.isfinite(v).all(axis=1))[0])
             raise BTFInputError(f"{where}: rgb entry {i} is not finite")
-        if self.lobes is not None:
-            lb = self.lobes
-            if lb.shape != (n_points, patch * patch, LOBE_PARAMS):
-                raise BTFInputError(f"{where}: lobes has shape {lb.shape}, expected "
-                                    f"({n_points}, {patch * patch}, {LOBE_PARAMS})")  # fmt: skip
-            bad = ~np.isfinite(lb).all(axis=2) | (lb[..., 5:] < 0).any(axis=2)
-            if bad.any():
-                pt, tx = (int(x[0]) for x in np.nonzero(bad))
-                raise BTFInputError(f"{where}: lobe of point {pt}, texel {tx} is not finite or "
-                                    "has a negative amplitude")  # fmt: skip
 
+
+def _sorted_entries(points: np.ndarray, keys: np.ndarray,
+                    n_points: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:  # fmt: skip
+    """Offsets, keys (uint32) and the order of entries given in any order as (point, key),
+    sorted by point then key; checked unique and inside the points."""
+    points = np.asarray(points, dtype=np.int64)
+    keys = np.asarray(keys, dtype=np.int64)
+    order = np.lexsort((keys, points))
+    points, keys = points[order], keys[order]
+    if points.size and (points[0] < 0 or points[-1] >= n_points):
+        raise BTFInputError(f"highlight points must lie in [0, {n_points})")
+    same = (np.diff(points) == 0) & (np.diff(keys) == 0)
+    if same.any():
+        i = int(np.flatnonzero(same)[0])
+        raise BTFInputError(f"highlight node {keys[i]} of point {points[i]} given twice")
+    offsets = offsets_from_counts(np.bincount(points, minlength=n_points))
+    return offsets, keys.astype(np.uint32), order
 
 def node_values(h: Highlights, points: np.ndarray, keys: np.ndarray) -> np.ndarray:
     """The corrections at nodes (``points``, ``keys``) of any equal shapes: (..., 3) float32,

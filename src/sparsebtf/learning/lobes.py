@@ -36,6 +36,7 @@ __all__ = [
     "NV_FLOOR",
     "fit_lobes",
     "lobe_amplitudes",
+    "lobe_amplitudes16",
     "lobe_frame",
     "lobe_values",
     "unit_lobes",
@@ -185,6 +186,14 @@ def lobe_amplitudes(g: np.ndarray, r: np.ndarray) -> np.ndarray:
     return np.maximum(gr / np.where(gg > 0, gg, 1.0)[:, None], 0.0) * (gg > 0)[:, None]
 
 
+def lobe_amplitudes16(g: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """:func:`lobe_amplitudes` as stored: binary16, at most its largest finite value (a lobe
+    narrower than the directions' spacing can ask for more; the clipped amplitude lies between
+    0 and the best one, so the lobe still lowers the texel's error)."""
+    big = float(np.finfo(np.float16).max)
+    return np.minimum(lobe_amplitudes(g, r), big).astype(np.float16)
+
+
 def _sse(g: np.ndarray, r: np.ndarray) -> np.ndarray:
     """Per texel, the squared error left by the best amplitudes: ‖r‖² − Σ_c max(gᵀr_c, 0)²/gᵀg."""
     gg = np.einsum("tp,tp->t", g, g)
@@ -269,5 +278,5 @@ def fit_lobes(r: np.ndarray, wi: np.ndarray, wo: np.ndarray, iters: int = 25) ->
         lam = np.where(ok, lam / 3, lam * 4)
     shape16 = theta.astype(np.float16)
     g = shapes(shape16.astype(np.float64))
-    amp = lobe_amplitudes(g, r).astype(np.float16)
+    amp = lobe_amplitudes16(g, r)
     return np.concatenate([shape16, amp], axis=1)

@@ -212,7 +212,7 @@ def _file_params(coded: CodedBTF) -> dict:
 def write_coded(f: h5py.File, coded: CodedBTF, params: dict, schema: int) -> None:
     """The content of a coded file into the open, empty HDF5 file ``f`` (see
     :func:`save_coded`; also used to measure the stored size without a file). A material
-    with a highlight store is schema 5, 6 with lobes, 7 compact (:mod:`.highlight_file`):
+    with a highlight store is schema 5, 6 with lobes, 7 compact, 8 tinted (:mod:`.highlight_file`):
     schema 3 and the store."""
     store = coded.highlight_store
     if store is not None and schema != CODED_SCHEMA_VERSION:
