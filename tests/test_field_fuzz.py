@@ -1,6 +1,6 @@
 """Every attribute a reader relies on is required and checked against the data (issue 47,
 item 2): the named cases one by one, and an exhaustive field fuzz (every dataset and attribute
-of schema-3/4/5/6/7 coded files and a model of several training levels, deleted, −1, 2^40, NaN, one
+of schema-3 to 8 coded files and a model of several training levels, deleted, −1, 2^40, NaN, one
 element fewer or more) that finds no accepted file whose output a damaged field changed."""
 
 from __future__ import annotations

@@ -95,6 +95,59 @@ def test_store_pays_on_highlights_and_levels_are_nested(levels, glossy, model):
     assert errs[0] < 0.8 * sse(plain[0], ref)
 
 
+def tinted_btf(seed: int = 4) -> ArrayBTF:
+    """``smooth_btf`` with copper highlights: at a few (texel, light, view) nodes, 5–50 times
+    one colour added (a metal's highlight takes the metal's colour)."""
+    b = smooth_btf(seed)
+    data = np.array(b.to_array())
+    rng = np.random.default_rng(seed)
+    hit = rng.random(data.shape[:4]) < 0.02
+    amp = rng.uniform(5, 50, (int(hit.sum()), 1))
+    data[hit] += (amp * np.array([0.95, 0.64, 0.54])).astype(np.float32)
+    return ArrayBTF(data, b.lights, b.views, name="copper")
+
+
+def test_tinted_entries_buy_more_on_one_colour_highlights(model):
+    """One byte an entry instead of three: where the highlights share a colour the tinted
+    store holds more entries at a level's bytes and errs less; a level takes whichever kind
+    errs less, so allowing tints never costs error; the judged error is the decoders'."""
+    btf = tinted_btf()
+    ref = np.asarray(btf.to_array(), np.float64)
+    taus = [dict(zip("YUV", t, strict=True)) for t in LEVELS]
+    coded = encode_levels(btf, model, taus + base_taus(taus), eps=0.0, progress=False,
+                          allow_below_training=True)  # fmt: skip
+    plain, bases = coded[: len(LEVELS)], coded[len(LEVELS):]
+    both = choose_highlights(btf, plain, bases, model, progress=False, lobes=False)
+    rgb = choose_highlights(btf, plain, bases, model, progress=False, lobes=False, tints=False)
+    gains = []
+    for b, r in zip(both, rgb, strict=True):
+        rec = b.params["highlights"]
+        assert rec["tinted"] == (b.highlights.tints is not None)
+        assert r.highlights.tints is None and not r.params["highlights"]["tinted"]
+        assert sse(b, ref) <= sse(r, ref) * (1 + 1e-6)
+        assert sse(b, ref) == pytest.approx(rec["sse"], rel=1e-4)
+        for c in (b, r):
+            assert (storage_report(c, model, stored=False)["bytes_table4_material"]
+                    <= c.params["highlights"]["budget_bytes"])  # fmt: skip
+        if rec["tinted"]:
+            assert rec["entries"] > r.params["highlights"]["entries"]
+            gains.append(sse(r, ref) / sse(b, ref))
+    assert gains and max(gains) > 2  # the low levels: far more of the highlight stored
+
+
+def test_scores_read_the_store(levels, glossy):
+    """``bench quality`` scores a material with a store as its decoders read it (the codes'
+    log values alone miss the corrections)."""
+    from sparsebtf.evaluation.scoring import score_many
+
+    c = levels[-1]
+    ref = np.maximum(np.asarray(glossy.to_array(), np.float64), 0)
+    (got,) = score_many(glossy, [DecodedBTF(c)], ssim_images=0, progress=False)
+    want = np.square(np.asarray(DecodedBTF(c).to_array(), np.float64) - ref).mean()
+    assert got["mse_rgb"] == pytest.approx(want, rel=1e-5)
+    assert "mse_std" not in got
+
+
 def lobe_btf(seed: int = 5) -> ArrayBTF:
     """``smooth_btf`` plus one glossy lobe per texel (random facet, α 0.15–0.4, amplitude
     0.5–2): the highlight a grooved metal puts on every texel."""

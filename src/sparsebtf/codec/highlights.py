@@ -14,12 +14,14 @@ never grows with the level.
 One streaming pass over the points (memory: one point and the kept entries): the reference
 point and its decode at each base give the residual r = reference − decode at every node; a
 node's gain is ‖r‖² − ‖r − q(r)‖², q(r) its correction as the store keeps it (what storing it
-removes; the store is compact, :mod:`sparsebtf.learning.entry_code`): s·t with t the point's
-tint (the principal direction of its residuals' colours) and s = E5M2(r·t/t·t), or E5M2(r)
-untinted. Per base the largest gains over the
-whole material are kept (at most what the largest budget can hold), their cumulative sums give
-each budget's error, a budget holds the most of them whose code fits it (the code's bytes grow
-with each entry, so a bisection finds it), and the level takes the best base.
+removes; the store is compact, :mod:`sparsebtf.learning.entry_code`): E5M2(r), three bytes,
+or in a tinted store s·t with t the point's tint (the principal direction of its residuals'
+colours) and s = E5M2(r·t/t·t), one byte — a level takes the kind that errs less at its
+bytes (tinted where a point's highlights share a colour, as a metal's do). Per base and kind
+the largest gains over the whole material are kept (at most what the largest budget can
+hold), their cumulative sums give each budget's error, a budget holds the most of them whose
+code fits it (the code's bytes grow with each entry, so a bisection finds it), and the level
+takes the best base and kind.
 """
 
 from __future__ import annotations
@@ -210,26 +212,31 @@ def choose_highlights(
     tints: bool = True,
 ) -> list[CodedBTF]:
     """Each of ``levels`` re-spent at its own bytes on the best of ``levels`` + ``bases`` (all
-    coded from ``btf`` in one call) plus highlight entries (``tints``: tinted, else three
-    E5M2 values each), and with ``lobes`` per-texel highlight lobes where they pay (module
-    docstring). Returns one coded material per level: the chosen base's codes with its store;
-    ``params["highlights"]`` records the base τ, the entries, whether it has lobes, the budget
-    and the squared error the choice was judged by."""
+    coded from ``btf`` in one call) plus highlight entries — three E5M2 values each, or with
+    ``tints`` also tinted ones, whichever errs less — and with ``lobes`` per-texel highlight
+    lobes where they pay (module docstring). Returns one coded material per level: the chosen
+    base's codes with its store; ``params["highlights"]`` records the base τ, the entries,
+    whether it has lobes and is tinted, the budget and the squared error the choice was
+    judged by."""
     cands = list(levels) + list(bases)
     budgets = [level_budget(c) for c in levels]
     own = [_material_bytes(c, model) for c in cands]
     n_pts = levels[0].n_points
     p = levels[0].patch
     nodes = p * p * len(levels[0].lights) * len(levels[0].views)
-    # variants: (candidate, with lobes); a variant's cap is what the largest budget holds
-    variants = [(i, v) for v in ((False, True) if lobes else (False,)) for i in range(len(cands))]
-    slot = {iv: j for j, iv in enumerate(variants)}
+    # variants: (candidate, with lobes, tinted); a variant's cap is what the largest budget
+    # holds at the fewest bytes an entry costs (1 tinted, 3 not)
+    with_lobes = (False, True) if lobes else (False,)
+    kinds = (False, True) if tints else (False,)
+    variants = [(i, v, t) for t in kinds for v in with_lobes for i in range(len(cands))]
+    slot = {ivt: j for j, ivt in enumerate(variants)}
     extra = {False: 0, True: n_pts * p * p * LOBE_BYTES}
-    per_entry = MIN_ENTRY_BYTES if tints else 3  # the fewest bytes an entry costs
-    caps = [max(0, (max(budgets) - own[i] - extra[v]) // per_entry) for i, v in variants]
-    entry_mem = 17 if tints else 22  # gain, point, key and what the store keeps
-    check_allocation(2 * sum(caps) * entry_mem, f"{btf.label}: the highlight candidates "
-                     f"({2 * sum(caps):,d} entries)", BTFInputError)  # fmt: skip
+    caps = [max(0, (max(budgets) - own[i] - extra[v]) // (MIN_ENTRY_BYTES if t else 3))
+            for i, v, t in variants]  # fmt: skip
+    # a kept entry: gain (8 bytes), point, key (4 each), what the store keeps (1 or 6)
+    mem = sum(2 * c * (17 if t else 22) for c, (_, _, t) in zip(caps, variants, strict=True))
+    check_allocation(mem, f"{btf.label}: the highlight candidates ({2 * sum(caps):,d} "
+                     "entries)", BTFInputError)  # fmt: skip
     tops = [_TopGains(cap) for cap in caps]
     sse = np.zeros(len(variants))
     decoders = [DecodedBTF(dataclasses.replace(c, highlights=None)) for c in cands]
@@ -251,25 +258,25 @@ def choose_highlights(
             g = unit_lobes_at(shapes[point].astype(np.float64), wi, wo)
         for i, d in enumerate(decoders):
             dec = first if i == pilot else d.read(rows, cols, slice(None), slice(None))
-            for v in (False, True) if lobes else (False,):
-                j = slot[i, v]
+            for v in with_lobes:
                 if v:
                     dec, amps[i, point] = _with_lobes(ref, dec.astype(np.float64), g)
-                gain, kept, t, s_ = _node_gains(ref, dec, tints)
-                if t is not None:
-                    point_tints[j, point] = t
-                sse[j] += s_
-                tops[j].add(gain, point, kept)
+                for kind in kinds:
+                    j = slot[i, v, kind]
+                    gain, kept, t, s_ = _node_gains(ref, dec, kind)
+                    if t is not None:
+                        point_tints[j, point] = t
+                    sse[j] += s_
+                    tops[j].add(gain, point, kept)
         bar.update(1)
     bar.close()
     ranked = [t.sorted() for t in tops]
     globs = [pts * np.int64(nodes) + keys for _, pts, keys, _ in ranked]  # the code's keys
-    n_tints = n_pts if tints else 0
     out = []
     for lv, budget in zip(levels, budgets, strict=True):
         best: tuple[float, int, int] | None = None
-        for j, ((i, v), (g_, *_)) in enumerate(zip(variants, ranked, strict=True)):
-            n = _most_entries(globs[j], budget - own[i] - extra[v], v, n_tints)
+        for j, ((i, v, t), (g_, *_)) in enumerate(zip(variants, ranked, strict=True)):
+            n = _most_entries(globs[j], budget - own[i] - extra[v], v, n_pts if t else 0)
             if n < 0:
                 continue
             left = sse[j] - float(g_[:n].sum())
@@ -277,9 +284,9 @@ def choose_highlights(
                 best = (left, j, n)
         assert best is not None  # the level's own codes fit its budget
         left, j, n = best
-        i, v = variants[j]
+        i, v, t = variants[j]
         _, pts, keys, kept = ranked[j]
-        if tints and n:
+        if t and n:
             store = Highlights.from_tinted(pts[:n], keys[:n], kept[:n], point_tints[j], n_pts)
         else:
             store = Highlights.from_nodes(pts[:n], keys[:n], kept[:n].reshape(n, 3), n_pts)
@@ -290,7 +297,8 @@ def choose_highlights(
         params: dict[str, Any] = {
             **base.params,
             "highlights": {
-                "entries": int(n), "lobes": bool(v), "budget_bytes": int(budget),
+                "entries": int(n), "lobes": bool(v), "tinted": bool(t and n),
+                "budget_bytes": int(budget),
                 "base_tau": {ch: int(x) for ch, x in base.coded_tau.items()},
                 "level_tau": {ch: int(x) for ch, x in lv.coded_tau.items()},
                 "sse": float(left),

@@ -1,8 +1,8 @@
 """Exhaustive field fuzzing: every dataset and every attribute of a schema-3 coded file, a
 schema-5 one (with a highlight store), a schema-6 one (a store with lobes), a schema-7 one
-(a compact store with lobes), a schema-4 (adaptive) coded file and a model of several
-training levels (τ_l), each damaged in
-each of a fixed set of ways, and the users' decode judged against the undamaged file's.
+(a compact store with lobes), a schema-8 one (a tinted compact store), a schema-4
+(adaptive) coded file and a model of several training levels (τ_l), each damaged in each of
+a fixed set of ways, and the users' decode judged against the undamaged file's.
 
 Unlike the random semantic fuzz (:mod:`.semantic`), nothing here knows the format's rules:
 the oracle is the output itself. A case is
@@ -40,18 +40,20 @@ __all__ = [
 
 #: The seed files, in report order: a coded file (schema 3), the same with a highlight store
 #: (schema 5), with a store and lobes (schema 6), with a compact store and lobes (schema 7),
-#: an adaptive one (schema 4), the model of
-#: several training levels they are coded with.
-FIELD_KINDS = ("coded3", "coded5", "coded6", "coded7", "coded4", "model")
+#: with a tinted compact store (schema 8), an adaptive one (schema 4), the model of several
+#: training levels they are coded with.
+FIELD_KINDS = ("coded3", "coded5", "coded6", "coded7", "coded8", "coded4", "model")
 #: The damage done to a field: deleted, one value set to −1, 2^40 or NaN (a scalar: the
 #: value), one element fewer or more along the first axis (a scalar: two copies of it).
 FIELD_MUTATIONS = ("delete", "minus_one", "huge", "nan", "shorter", "longer")
 FIELD_OUTCOMES = ("rejected", "unchanged", "silent_wrong", "traceback", "legal_change")
 #: (dataset, mutation) pairs that give a file the format allows: a log-domain mean or bound
 #: of −1 (ln of 0.37) is a valid statistic, so a different output is the right one.
-#: So is a highlight correction of −1, and a lobe's first parameter (ω_x) of −1.
+#: So is a highlight correction of −1, a tint's red of −1, and a lobe's first parameter (ω_x)
+#: of −1.
 LEGAL_EDITS = frozenset({("stats/mean", "minus_one"), ("stats/bound", "minus_one"),
-                         ("highlights/rgb", "minus_one"), ("highlights/lobes", "minus_one")})
+                         ("highlights/rgb", "minus_one"), ("highlights/lobes", "minus_one"),
+                         ("highlights/tints", "minus_one")})
 
 _VALUES = {"minus_one": -1, "huge": 2**40, "nan": np.nan}
 #: The seed file of each kind, in the corpus folder.
@@ -96,6 +98,7 @@ def build_field_corpus(folder: str | os.PathLike[str]) -> dict[str, Any]:
                d / FIELD_FILES["coded6"])  # fmt: skip
     save_coded(replace(coded, highlights=replace(_store(coded, compact=True), lobes=_lobes(coded))),
                d / FIELD_FILES["coded7"])  # fmt: skip
+    save_coded(replace(coded, highlights=_store(coded, tinted=True)), d / FIELD_FILES["coded8"])
     adaptive = encode_adaptive(_smooth(6), model, (8, 3, 3), target_bytes=600, progress=False)
     save_coded(adaptive, d / FIELD_FILES["coded4"])
     corpus: dict[str, Any] = {"dir": d}
@@ -104,9 +107,10 @@ def build_field_corpus(folder: str | os.PathLike[str]) -> dict[str, Any]:
     return corpus
 
 
-def _store(coded: Any, compact: bool = False) -> Any:
+def _store(coded: Any, compact: bool = False, tinted: bool = False) -> Any:
     """A highlight store at a fifth of each point's nodes (seeded); ``compact``: its
-    corrections on the E5M2 grid (written in the compact code)."""
+    corrections on the E5M2 grid (written in the compact code); ``tinted``: a scale an entry
+    along a tint a point (the tinted compact code)."""
     from ..learning.entry_code import quantise
     from ..learning.highlights import Highlights
 
@@ -115,6 +119,9 @@ def _store(coded: Any, compact: bool = False) -> Any:
     keys = [rng.choice(per, per // 5, replace=False) for _ in range(coded.n_points)]
     pts = np.repeat(np.arange(coded.n_points), per // 5)
     rgb = rng.normal(0, 0.3, (pts.size, 3))
+    if tinted:
+        tints = rng.uniform(0.3, 1.0, (coded.n_points, 3))
+        return Highlights.from_tinted(pts, np.concatenate(keys), rgb[:, 0], tints, coded.n_points)
     return Highlights.from_nodes(pts, np.concatenate(keys), quantise(rgb) if compact else rgb,
                                  coded.n_points)  # fmt: skip
 
