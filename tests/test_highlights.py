@@ -61,6 +61,17 @@ def levels(glossy, model):
                          allow_below_training=True)  # fmt: skip
 
 
+@pytest.fixture(scope="module")
+def tinted_level(model):
+    """A level whose store is tinted: the lowest level of ``tinted_btf`` (its highlights share
+    one colour)."""
+    coded = encode_levels(tinted_btf(), model, LEVELS, eps=0.0, highlights=True,
+                          progress=False, allow_below_training=True)  # fmt: skip
+    c = next(c for c in coded if c.params["highlights"]["tinted"])
+    assert c.highlights.tints is not None
+    return c
+
+
 def sse(coded, ref: np.ndarray) -> float:
     return float(np.square(np.asarray(DecodedBTF(coded).to_array(), np.float64) - ref).sum())
 
@@ -256,10 +267,10 @@ def untinted(c):
                                                                h.n_points), lobes=h.lobes))
 
 
-def test_file_round_trip_tinted_schema_8(levels, tmp_path, model):
-    c = levels[-1]
+def test_file_round_trip_tinted_schema_8(tinted_level, tmp_path, model):
+    c = tinted_level
     h = c.highlights
-    assert h.compact and h.tints is not None  # the encoder's store is tinted
+    assert h.compact and h.tints is not None
     path = save_coded(c, tmp_path / "g.h5")
     with h5py.File(path) as f:
         assert int(f.attrs["schema_version"]) == TINT_SCHEMA
@@ -303,19 +314,20 @@ def test_file_round_trip_compact_schema_7(levels, tmp_path, model):
                                                                len(c.views))  # fmt: skip
 
 
-def test_info_shows_the_store(levels, tmp_path, model, capsys):
+def test_info_shows_the_store(levels, tinted_level, tmp_path, model, capsys):
     import json
 
     from sparsebtf.cli.main import main
     from sparsebtf.storage import save_model
 
-    c = levels[-1]
-    path, mf = save_coded(c, tmp_path / "g.h5"), tmp_path / "m.h5"
+    mf = tmp_path / "m.h5"
     save_model(model, mf)
-    assert main(["info", str(path), "--model", str(mf), "--json"]) == 0
-    got = json.loads(capsys.readouterr().out)["highlights"]
-    assert got["entries"] == c.highlights.n_entries and got["code"].startswith("compact, tinted")
-    assert got["bytes_table4"] == storage_report(c, model)["bytes_highlights"]
+    for c, code in ((levels[-1], "compact: 8-bit"), (tinted_level, "compact, tinted")):
+        path = save_coded(c, tmp_path / "g.h5")
+        assert main(["info", str(path), "--model", str(mf), "--json"]) == 0
+        got = json.loads(capsys.readouterr().out)["highlights"]
+        assert got["entries"] == c.highlights.n_entries and got["code"].startswith(code)
+        assert got["bytes_table4"] == storage_report(c, model)["bytes_highlights"]
 
 
 def test_file_round_trip_schema_5(levels, tmp_path, model):
@@ -399,7 +411,8 @@ def test_no_store_stays_schema_3(model, tmp_path):
 
 
 def test_schema_2_cannot_hold_a_store(levels, tmp_path):
-    with pytest.raises(BTFInputError, match="written in schema 8"):
+    assert levels[0].highlights.tints is None  # three E5M2 values an entry: schema 7
+    with pytest.raises(BTFInputError, match=f"written in schema {COMPACT_SCHEMA}"):
         save_coded(levels[0], tmp_path / "x.h5", schema=2)
 
 
@@ -452,10 +465,11 @@ def test_damaged_store_is_one_line(levels, tmp_path, model, damage, message):
     (False, lambda g, _: _rewrite(g, "rgb8", g["rgb8"][()].astype(np.uint16)), "uint8"),
     (False, _key_past_the_nodes, "past the"),
 ])  # fmt: skip
-def test_damaged_compact_store_is_one_line(levels, tmp_path, model, tinted, damage, message):
+def test_damaged_compact_store_is_one_line(levels, tinted_level, tmp_path, model, tinted,
+                                           damage, message):  # fmt: skip
     """``damage(group, nodes of the material)`` on a saved compact store, tinted (schema 8)
     or not (7)."""
-    c = levels[-1] if tinted else untinted(levels[-1])
+    c = tinted_level if tinted else untinted(levels[-1])
     path = save_coded(c, tmp_path / "d.h5")
     with h5py.File(path, "r+") as f:
         damage(f["highlights"], c.n_points * c.patch**2 * len(c.lights) * len(c.views))
