@@ -261,10 +261,11 @@ def register(sub: Any) -> None:
     s.add_argument("--highlights", nargs="?", const="lobes", default=False,
                    choices=["lobes", "entries"],
                    help="with --tau: spend tau's bytes on the codes at tau or fewer "
-                   "coefficients plus linear-RGB corrections (8-bit floats) at the (texel, "
-                   "light, view) nodes where they remove the most error, and a glossy lobe per "
-                   "texel where it pays, whichever errs least (glossy materials; the file is "
-                   "schema 7, docs/format.md); '--highlights entries' skips the lobes (their "
+                   "coefficients plus linear-RGB corrections (8-bit floats, or one 8-bit "
+                   "scale of the data point's tint) at the (texel, light, view) nodes where "
+                   "they remove the most error, and a glossy lobe per texel where it pays, "
+                   "whichever errs least (glossy materials; the file is schema 7 or 8, "
+                   "docs/format.md); '--highlights entries' skips the lobes (their "
                    "fit takes seconds per data point)")
     s.add_argument("--batch", type=int, default=DEFAULTS.batch_size,
                    help="data points read and coded at a time (memory bound; default "
