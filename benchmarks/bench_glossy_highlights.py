@@ -80,7 +80,8 @@ def run_one(spec: str, model: Any, objective: str, offset: str, levels: list[int
             "mse_entries": _mse(e, ref), "entries_only": e.params["highlights"]["entries"],
             "bytes_highlights": _bytes(h, model),
             "mse_highlights": _mse(h, ref), "base_tau": list(rec["base_tau"].values()),
-            "entries": rec["entries"], "lobes": rec["lobes"],
+            "entries": rec["entries"], "lobes": rec["lobes"], "tinted": rec["tinted"],
+            "entries_only_tinted": e.params["highlights"]["tinted"],
         })  # fmt: skip
     out: dict[str, Any] = {
         "btf": spec, "texels": f"{btf.height}x{btf.width}", "objective": objective,
@@ -116,7 +117,8 @@ def _rows(data: dict[str, Any]) -> list[tuple[str, str]]:
                 f"budget {lv['budget']:,d} B; codes alone {lv['bytes']:,d} B: MSE "
                 f"{lv['mse']:.4g}; entries {lv['mse_entries']:.4g} ({lv['entries_only']:,d}); "
                 f"with lobes {lv['mse_highlights']:.4g} ({lv['bytes_highlights']:,d} B: base τ "
-                f"{'/'.join(map(str, lv['base_tau']))} + {lv['entries']:,d} entries"
+                f"{'/'.join(map(str, lv['base_tau']))} + {lv['entries']:,d} "
+                f"{'tinted ' if lv['tinted'] else ''}entries"
                 f"{' + lobes' if lv['lobes'] else ''})")))
         if "ratio_128_16_mse" in r:
             bar = "≤" if r["ratio_128_16_mse_highlights"] <= RATIO_BAR else ">"
