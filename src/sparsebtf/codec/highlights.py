@@ -89,9 +89,21 @@ def level_budget(coded: CodedBTF) -> int:
     return total
 
 
+#: A candidate buffer is cut back to its cap when it grows past this many times the cap.
+_GROWTH = 1.25
+
+
+def _candidate_bytes(cap: int, tinted: bool) -> int:
+    """Peak bytes of a :class:`_TopGains` of ``cap``: a full buffer (``_GROWTH`` × cap), its
+    concatenation when cut, and the cut; an entry's gain (float32), point, key (4 bytes each)
+    and what the store keeps (one byte tinted, six not)."""
+    return int((2 * _GROWTH + 1) * cap) * (13 if tinted else 18)
+
+
 class _TopGains:
     """The ``cap`` largest gains streamed in, with their nodes: a buffer cut back to ``cap``
-    when it doubles, so memory stays at 2 × cap entries."""
+    when it grows past ``_GROWTH`` × cap. Gains are kept in float32 (they rank the entries and
+    add up to a level's error: float32's 6e-8 is far below what decides a choice)."""
 
     def __init__(self, cap: int) -> None:
         self.cap = cap
@@ -108,11 +120,11 @@ class _TopGains:
         if not keep.any():
             return
         keys = np.flatnonzero(keep)
-        g = gain[keys]
+        g = gain[keys].astype(np.float32)
         self.parts.append((g, np.full(g.size, point, np.int32), keys.astype(np.uint32),
                            rgb[keys]))  # fmt: skip
         self.size += g.size
-        if self.size > 2 * self.cap:
+        if self.size > _GROWTH * self.cap:
             self._cut()
 
     def _cut(self) -> None:
@@ -126,7 +138,7 @@ class _TopGains:
     def sorted(self) -> tuple[np.ndarray, ...]:
         """Gains (decreasing), points, keys, corrections (or scales) of the kept entries."""
         if not self.parts:
-            return (np.zeros(0), np.zeros(0, np.int32), np.zeros(0, np.uint32),
+            return (np.zeros(0, np.float32), np.zeros(0, np.int32), np.zeros(0, np.uint32),
                     np.zeros(0, np.float16))  # fmt: skip
         self._cut()
         g, p, k, v = self.parts[0]
@@ -233,9 +245,8 @@ def choose_highlights(
     extra = {False: 0, True: n_pts * p * p * LOBE_BYTES}
     caps = [max(0, (max(budgets) - own[i] - extra[v]) // (MIN_ENTRY_BYTES if t else 3))
             for i, v, t in variants]  # fmt: skip
-    # a kept entry: gain (8 bytes), point, key (4 each), what the store keeps (1 or 6)
-    mem = sum(2 * c * (17 if t else 22) for c, (_, _, t) in zip(caps, variants, strict=True))
-    check_allocation(mem, f"{btf.label}: the highlight candidates ({2 * sum(caps):,d} "
+    mem = sum(_candidate_bytes(c, t) for c, (_, _, t) in zip(caps, variants, strict=True))
+    check_allocation(mem, f"{btf.label}: the highlight candidates (up to {sum(caps):,d} "
                      "entries)", BTFInputError)  # fmt: skip
     tops = [_TopGains(cap) for cap in caps]
     sse = np.zeros(len(variants))
@@ -279,7 +290,7 @@ def choose_highlights(
             n = _most_entries(globs[j], budget - own[i] - extra[v], v, n_pts if t else 0)
             if n < 0:
                 continue
-            left = sse[j] - float(g_[:n].sum())
+            left = sse[j] - float(g_[:n].sum(dtype=np.float64))
             if best is None or left < best[0]:
                 best = (left, j, n)
         assert best is not None  # the level's own codes fit its budget
