@@ -146,6 +146,20 @@ def test_tinted_entries_buy_more_on_one_colour_highlights(model):
     assert gains and max(gains) > 2  # the low levels: far more of the highlight stored
 
 
+def test_tinted_candidates_past_the_memory_budget_fall_back_with_a_warning(model, monkeypatch):
+    """Tinted candidates hold three times the entries: where only they do not fit the memory
+    budget, the store is coded with three-value entries and the user told how to allow them."""
+    import sparsebtf.codec.highlights as hl
+
+    monkeypatch.setattr(hl, "_candidate_bytes", lambda cap, tinted: 10**12 if tinted else 1)
+    btf = tinted_btf()
+    with pytest.warns(UserWarning, match="tinted highlight entries need .*SPARSEBTF_MAX_MEMORY_GB"):
+        out = encode_levels(btf, model, LEVELS[:1], eps=0.0, highlights="entries",
+                            progress=False, allow_below_training=True)  # fmt: skip
+    assert not out[0].params["highlights"]["tinted"] and out[0].highlights.tints is None
+    assert out[0].highlights.n_entries  # the store is still coded
+
+
 def test_scores_read_the_store(levels, glossy):
     """``bench quality`` scores a material with a store as its decoders read it (the codes'
     log values alone miss the corrections)."""

@@ -27,12 +27,14 @@ takes the best base and kind.
 from __future__ import annotations
 
 import dataclasses
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
 
-from .._limits import check_allocation
+from .._limits import ENV as MEMORY_ENV
+from .._limits import check_allocation, format_bytes, memory_budget
 from .._progress import bar as progress_bar
 from ..data.btf import BTF
 from ..errors import BTFInputError
@@ -226,7 +228,9 @@ def choose_highlights(
     """Each of ``levels`` re-spent at its own bytes on the best of ``levels`` + ``bases`` (all
     coded from ``btf`` in one call) plus highlight entries — three E5M2 values each, or with
     ``tints`` also tinted ones, whichever errs less — and with ``lobes`` per-texel highlight
-    lobes where they pay (module docstring). Returns one coded material per level: the chosen
+    lobes where they pay (module docstring; where the tinted candidates alone would pass the
+    memory budget, three-value entries only, with a warning). Returns one coded material per
+    level: the chosen
     base's codes with its store; ``params["highlights"]`` records the base τ, the entries,
     whether it has lobes and is tinted, the budget and the squared error the choice was
     judged by."""
@@ -239,15 +243,27 @@ def choose_highlights(
     # variants: (candidate, with lobes, tinted); a variant's cap is what the largest budget
     # holds at the fewest bytes an entry costs (1 tinted, 3 not)
     with_lobes = (False, True) if lobes else (False,)
-    kinds = (False, True) if tints else (False,)
-    variants = [(i, v, t) for t in kinds for v in with_lobes for i in range(len(cands))]
-    slot = {ivt: j for j, ivt in enumerate(variants)}
     extra = {False: 0, True: n_pts * p * p * LOBE_BYTES}
-    caps = [max(0, (max(budgets) - own[i] - extra[v]) // (MIN_ENTRY_BYTES if t else 3))
-            for i, v, t in variants]  # fmt: skip
-    mem = sum(_candidate_bytes(c, t) for c, (_, _, t) in zip(caps, variants, strict=True))
+
+    def plan(kinds: tuple[bool, ...]) -> tuple[list[tuple[int, bool, bool]], list[int], int]:
+        vs = [(i, v, t) for t in kinds for v in with_lobes for i in range(len(cands))]
+        cs = [max(0, (max(budgets) - own[i] - extra[v]) // (MIN_ENTRY_BYTES if t else 3))
+              for i, v, t in vs]  # fmt: skip
+        return vs, cs, sum(_candidate_bytes(c, t) for c, (_, _, t) in zip(cs, vs, strict=True))
+
+    variants, caps, mem = plan((False, True) if tints else (False,))
+    if tints and mem > memory_budget() >= plan((False,))[2]:
+        # tinted candidates hold three times the entries: where only they do not fit, the
+        # store is coded as before, and the user is told what would allow them
+        warnings.warn(f"{btf.label}: tinted highlight entries need {format_bytes(mem)} for "
+                      f"their candidates, above the memory budget of "
+                      f"{format_bytes(memory_budget())}; coding three-value entries only "
+                      f"(set ${MEMORY_ENV} to allow tinted ones)", stacklevel=2)  # fmt: skip
+        variants, caps, mem = plan((False,))
     check_allocation(mem, f"{btf.label}: the highlight candidates (up to {sum(caps):,d} "
                      "entries)", BTFInputError)  # fmt: skip
+    kinds = tuple(sorted({t for _, _, t in variants}))
+    slot = {ivt: j for j, ivt in enumerate(variants)}
     tops = [_TopGains(cap) for cap in caps]
     sse = np.zeros(len(variants))
     decoders = [DecodedBTF(dataclasses.replace(c, highlights=None)) for c in cands]
