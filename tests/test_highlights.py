@@ -72,6 +72,15 @@ def tinted_level(model):
     return c
 
 
+def coded_with_bases(btf, model) -> tuple[np.ndarray, list, list]:
+    """The reference values of ``btf``, its codes at ``LEVELS`` and at the bases below them
+    (one pass), as :func:`choose_highlights` takes them."""
+    taus = [dict(zip("YUV", t, strict=True)) for t in LEVELS]
+    coded = encode_levels(btf, model, taus + base_taus(taus), eps=0.0, progress=False,
+                          allow_below_training=True)  # fmt: skip
+    return np.asarray(btf.to_array(), np.float64), coded[: len(LEVELS)], coded[len(LEVELS):]
+
+
 def sse(coded, ref: np.ndarray) -> float:
     return float(np.square(np.asarray(DecodedBTF(coded).to_array(), np.float64) - ref).sum())
 
@@ -123,11 +132,7 @@ def test_tinted_entries_buy_more_on_one_colour_highlights(model):
     store holds more entries at a level's bytes and errs less; a level takes whichever kind
     errs less, so allowing tints never costs error; the judged error is the decoders'."""
     btf = tinted_btf()
-    ref = np.asarray(btf.to_array(), np.float64)
-    taus = [dict(zip("YUV", t, strict=True)) for t in LEVELS]
-    coded = encode_levels(btf, model, taus + base_taus(taus), eps=0.0, progress=False,
-                          allow_below_training=True)  # fmt: skip
-    plain, bases = coded[: len(LEVELS)], coded[len(LEVELS):]
+    ref, plain, bases = coded_with_bases(btf, model)
     both = choose_highlights(btf, plain, bases, model, progress=False, lobes=False)
     rgb = choose_highlights(btf, plain, bases, model, progress=False, lobes=False, tints=False)
     gains = []
@@ -190,11 +195,7 @@ def lobe_btf(seed: int = 5) -> ArrayBTF:
 
 def test_lobes_pay_on_a_lobe_material(model):
     btf = lobe_btf()
-    ref = np.asarray(btf.to_array(), np.float64)
-    taus = [dict(zip("YUV", t, strict=True)) for t in LEVELS]
-    coded = encode_levels(btf, model, taus + base_taus(taus), eps=0.0, progress=False,
-                          allow_below_training=True)  # fmt: skip
-    plain, bases = coded[: len(LEVELS)], coded[len(LEVELS):]
+    ref, plain, bases = coded_with_bases(btf, model)
     with_lobes = choose_highlights(btf, plain, bases, model, progress=False)
     entries_only = choose_highlights(btf, plain, bases, model, progress=False, lobes=False)
     top, other = with_lobes[-1], entries_only[-1]
