@@ -143,3 +143,31 @@ def readme_python_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProce
     r = subprocess.run([sys.executable, "-c", "\n".join(readme_python_api_blocks())], cwd=cwd,
                        capture_output=True, text=True, env=env, timeout=900)  # fmt: skip
     return cwd, r
+
+
+# ------------------------------------------------- coded stores of the highlight tests
+# (module scope, each on the requesting module's own ``model``)
+
+
+@pytest.fixture(scope="module")
+def levels(model):
+    """``glossy_btf`` coded at the highlight tests' levels with the store."""
+    from .highlight_materials import glossy_levels
+
+    return glossy_levels(model)
+
+
+@pytest.fixture(scope="module")
+def tinted_level(model):
+    """A level of ``tinted_btf`` whose store is tinted."""
+    from .highlight_materials import first_tinted_level
+
+    return first_tinted_level(model)
+
+
+@pytest.fixture(scope="module")
+def lobed(model):
+    """A coded material whose store has lobes and entries."""
+    from .highlight_materials import lobed_material
+
+    return lobed_material(model)

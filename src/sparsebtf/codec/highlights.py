@@ -148,16 +148,16 @@ class _TopGains:
         return g[order], p[order], k[order], v[order]
 
 
-def _node_gains(ref: np.ndarray, dec: np.ndarray, tints: bool
+def _node_gains(ref: np.ndarray, dec: np.ndarray, tinted_store: bool
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray | None, float]:  # fmt: skip
-    """Per node of one point ((p, p, L, V, 3) arrays): the gain of storing its correction,
-    what the store keeps of it (``tints``: the E5M2 scale (n,) along the point's tint, which
-    comes third; else the E5M2 correction (n, 3)), both float16, and the point's squared
-    error."""
+    """Per node of one point ((p, p, L, V, 3) arrays): the gain of storing its correction;
+    what the store keeps of it (``tinted_store``: the E5M2 scale (n,) along the point's
+    tint; else the E5M2 correction (n, 3)), float16; the tint (3,) or None; and the point's
+    squared error."""
     ref64 = ref.astype(np.float64).reshape(-1, 3)
     dec64 = np.asarray(dec, dtype=np.float64).reshape(-1, 3)
     r = ref64 - dec64
-    if tints:
+    if tinted_store:
         t = tint(r)
         kept = tint_scales(r, t)
         c = tinted(kept, np.broadcast_to(t, r.shape))
@@ -230,10 +230,9 @@ def choose_highlights(
     ``tints`` also tinted ones, whichever errs less — and with ``lobes`` per-texel highlight
     lobes where they pay (module docstring; where the tinted candidates alone would pass the
     memory budget, three-value entries only, with a warning). Returns one coded material per
-    level: the chosen
-    base's codes with its store; ``params["highlights"]`` records the base τ, the entries,
-    whether it has lobes and is tinted, the budget and the squared error the choice was
-    judged by."""
+    level: the chosen base's codes with its store; ``params["highlights"]`` records the base
+    τ, the entries, whether it has lobes and is tinted, the budget and the squared error the
+    choice was judged by."""
     cands = list(levels) + list(bases)
     budgets = [level_budget(c) for c in levels]
     own = [_material_bytes(c, model) for c in cands]
