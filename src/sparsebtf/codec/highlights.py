@@ -250,18 +250,21 @@ def choose_highlights(
               for i, v, t in vs]  # fmt: skip
         return vs, cs, sum(_candidate_bytes(c, t) for c, (_, _, t) in zip(cs, vs, strict=True))
 
-    variants, caps, mem = plan((False, True) if tints else (False,))
-    if tints and mem > memory_budget() >= plan((False,))[2]:
-        # tinted candidates hold three times the entries: where only they do not fit, the
-        # store is coded as before, and the user is told what would allow them
-        warnings.warn(f"{btf.label}: tinted highlight entries need {format_bytes(mem)} for "
-                      f"their candidates, above the memory budget of "
-                      f"{format_bytes(memory_budget())}; coding three-value entries only "
-                      f"(set ${MEMORY_ENV} to allow tinted ones)", stacklevel=2)  # fmt: skip
-        variants, caps, mem = plan((False,))
+    kinds = (False, True) if tints else (False,)
+    variants, caps, mem = plan(kinds)
+    budget_bytes = memory_budget()
+    if tints and mem > budget_bytes:
+        untinted = plan((False,))
+        if untinted[2] <= budget_bytes:
+            # tinted candidates hold three times the entries: where only they do not fit,
+            # the store is coded as before, and the user is told what would allow them
+            warnings.warn(f"{btf.label}: tinted highlight entries need {format_bytes(mem)} "
+                          f"for their candidates, above the memory budget of "
+                          f"{format_bytes(budget_bytes)}; coding three-value entries only "
+                          f"(set ${MEMORY_ENV} to allow tinted ones)", stacklevel=2)  # fmt: skip
+            kinds, (variants, caps, mem) = (False,), untinted
     check_allocation(mem, f"{btf.label}: the highlight candidates (up to {sum(caps):,d} "
                      "entries)", BTFInputError)  # fmt: skip
-    kinds = tuple(sorted({t for _, _, t in variants}))
     slot = {ivt: j for j, ivt in enumerate(variants)}
     tops = [_TopGains(cap) for cap in caps]
     sse = np.zeros(len(variants))

@@ -29,7 +29,7 @@ checks the two agree.
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 from skimage.metrics import structural_similarity
@@ -65,12 +65,17 @@ def coded_mse_std(coded: CodedBTF) -> float:
     return total / n
 
 
+def _log_codes_alone(rec: BTF) -> TypeGuard[DecodedBTF]:
+    """Whether ``rec`` decodes log-YUV codes and nothing else: its log values come straight
+    from the code, and the codes' own error (Parseval) is the material's (a highlight store's
+    corrections are linear, added after: such a material is read as its decoders read it)."""
+    return (isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv"
+            and rec.coded.highlight_store is None)
+
+
 def _log_rgb(rec: BTF, rows: slice, cols: slice) -> tuple[np.ndarray, np.ndarray]:
     """(linear RGB, clamped log RGB ln(max(x, 0) + ε)) of a tile of a reconstruction."""
-    # the log values straight from the code, where the code is all there is (a highlight
-    # store's corrections are linear: such a material is read as its decoders read it)
-    if (isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv"
-            and rec.coded.highlight_store is None):
+    if _log_codes_alone(rec):
         z = rec.read_standardised(rows, cols, slice(None), slice(None))
         yuv = rec.coded.stats.invert(z)
         # One (n, 3) × (3, 3) GEMM, not one per (row, col, light) slab; single-threaded: two
@@ -175,9 +180,7 @@ def score_many(
             "top_error_share": (float(np.sum(worst[j], dtype=np.float64)) / sums[j, 0]
                                 if sums[j, 0] > 0 else 0.0),
         }  # fmt: skip
-        # the codes' own error (Parseval) is the material's only where nothing is added to it
-        if (isinstance(rec, DecodedBTF) and rec.coded.stats.transform == "log_yuv"
-                and rec.coded.highlight_store is None):
+        if _log_codes_alone(rec):
             res["mse_std"] = coded_mse_std(rec.coded)
         out.append(res)
     return out

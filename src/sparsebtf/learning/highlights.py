@@ -48,6 +48,7 @@ __all__ = [
     "node_keys",
     "node_values",
     "offsets_from_counts",
+    "tinted_corrections",
 ]
 
 #: Bytes per data point: its entry count (uint32).
@@ -64,6 +65,15 @@ def entry_bytes(patch: int, n_lights: int, n_views: int) -> int:
 def offsets_from_counts(counts: np.ndarray) -> np.ndarray:
     """(P + 1,) int64 :attr:`Highlights.offsets` of the points' entry counts (P,)."""
     return np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64)
+
+
+def tinted_corrections(offsets: np.ndarray, scales: np.ndarray,
+                       tints: np.ndarray) -> np.ndarray:  # fmt: skip
+    """The corrections (N, 3) float16 of a tinted store: each entry's E5M2 ``scales`` (N,)
+    times its point's tint (``tints`` (P, 3); points by ``offsets``, as
+    :attr:`Highlights.offsets`), :func:`~sparsebtf.learning.entry_code.tinted`."""
+    points = np.repeat(np.arange(len(offsets) - 1), np.diff(offsets))
+    return tinted(scales, np.asarray(tints)[points])
 
 
 def node_keys(i1: np.ndarray, i2: np.ndarray, light: np.ndarray, view: np.ndarray,
@@ -173,8 +183,7 @@ class Highlights:
         t = np.ascontiguousarray(np.asarray(tints, dtype=np.float16))
         if t.shape != (n_points, 3):
             raise BTFInputError(f"tints has shape {t.shape}, expected ({n_points}, 3)")
-        rgb = tinted(s, t[np.repeat(np.arange(n_points), np.diff(offsets))])
-        return cls(offsets, k, rgb, tints=t, scales=s)
+        return cls(offsets, k, tinted_corrections(offsets, s, t), tints=t, scales=s)
 
     def check(self, n_points: int, patch: int, n_lights: int, n_views: int,
               where: str) -> None:  # fmt: skip
@@ -244,6 +253,7 @@ def _sorted_entries(points: np.ndarray, keys: np.ndarray,
         raise BTFInputError(f"highlight node {keys[i]} of point {points[i]} given twice")
     offsets = offsets_from_counts(np.bincount(points, minlength=n_points))
     return offsets, keys.astype(np.uint32), order
+
 
 def node_values(h: Highlights, points: np.ndarray, keys: np.ndarray) -> np.ndarray:
     """The corrections at nodes (``points``, ``keys``) of any equal shapes: (..., 3) float32,

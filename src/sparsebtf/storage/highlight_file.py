@@ -45,8 +45,8 @@ import numpy as np
 from .._h5check import checked_dataset, read_array, read_int_attr, read_str_attr, require
 from .._hdf5 import create_dataset, write_str_attr
 from ..errors import BTFInputError, FileFormatError
-from ..learning.entry_code import from_e5m2, pack_keys, tinted, to_e5m2, unpack_keys
-from ..learning.highlights import Highlights, offsets_from_counts
+from ..learning.entry_code import from_e5m2, pack_keys, to_e5m2, unpack_keys
+from ..learning.highlights import Highlights, offsets_from_counts, tinted_corrections
 from ..learning.lobes import LOBE_PARAMS
 
 __all__ = ["COMPACT_SCHEMA", "HIGHLIGHT_SCHEMA", "HIGHLIGHT_SCHEMAS", "LOBE_SCHEMA",
@@ -119,10 +119,11 @@ def read_highlights(f: h5py.File, where: str, n_points: int, patch: int, n_light
         if schema == TINT_SCHEMA:
             scales = _read_e5m2(g, "scale8", at, (n,))
             tints = read_array(g, "tints", at, "f", (n_points, 3)).astype(np.float16)
+            # before the corrections are derived from them (Highlights.check comes after)
             if not np.all(np.isfinite(tints)):
                 i = int(np.flatnonzero(~np.isfinite(tints).all(axis=1))[0])
                 raise FileFormatError(f"{at}/tints: the tint of point {i} is not finite")
-            rgb = tinted(scales, tints[np.repeat(np.arange(n_points), np.diff(offsets))])
+            rgb = tinted_corrections(offsets, scales, tints)
         else:
             rgb = _read_e5m2(g, "rgb8", at, (n, 3))
     else:
