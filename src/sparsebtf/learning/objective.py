@@ -28,27 +28,40 @@ objectives", docs/benchmarks.md §17).
 The rule, in two steps. (1) Per channel (:func:`judged_code_levels`): each candidate
 dictionary's coefficients in the log rule's order (decreasing |S_t|, the order a
 level-of-detail prefix reads), evaluated by E_c at the prefix lengths τ and ⌈τ/2⌉ of every
-level, and with ε > 0 also 1, 2, 4, … (the grid, :func:`prefix_grid`). At each level τ the
-code is the (dictionary, prefix length n <= τ) of least E_c; with ε > 0 the smallest n with
-E_c <= ε (then least error) when one exists. The log rule's codes come from the same
-projections. (2) Per point and level (:func:`joint_choice`): the joint error E of the three
-channels' residuals at once (E_c with every channel's δ) of the judged codes against the log
-rule's; the lower is kept, and in increasing τ a level keeps a lower level's codes where those
-have the lower E. So **no point's error in the objective is above the log rule's** at its
+level, and with ε > 0 also 1, 2, 4, … (the grid, :func:`prefix_grid`) — the coefficients of the
+point itself and of its **floored** copy (:meth:`ChannelError.floored`: every linear value
+below the point's floor f raised to f, f the automatic log offset's rule on the point, 1 % of
+its median positive value), where f is above the log offset ε. At each level τ the code is the
+(dictionary, target, prefix length n <= τ) of least E_c; with ε > 0 the smallest n with E_c <=
+ε (then least error) when one exists. The log rule's codes come from the same projections (of
+the point itself). (2) Per point and level (:func:`joint_choice`): the joint error E of the
+three channels' residuals at once (E_c with every channel's δ) of the judged codes against the
+log rule's; the lower is kept, and in increasing τ a level keeps a lower level's codes where
+those have the lower E. So **no point's error in the objective is above the log rule's** at its
 level, **nor above its error at a lower level** of the same call
 (:func:`~sparsebtf.codec.encode_levels`). The stored codes are then put in their
 level-of-detail order (:func:`~.lod_order.lod_orders`), which nests the levels again, per
-channel as well as jointly (issue 46): in increasing τ no point's joint E nor any channel's
-E_c is above a lower level's of the call (a level that would be keeps the best mix of its own
-and the lower level's channel codes). Separate calls are not nested: each judges the prefix
-lengths of its own levels, and a screened call ranks its candidates for its own τ.
+channel as well as jointly (issue 46): in increasing τ no point's joint E nor any channel's E_c
+is above a lower level's of the call (a level that would be keeps the best mix of its own and
+the lower level's channel codes). Separate calls are not nested: each judges the prefix lengths
+of its own levels, and a screened call ranks its candidates for its own τ.
 
-Cost per point and candidate dictionary (10×10 texels × 151 × 151, n = 2.28 M entries): the
-log rule's projection (1.47 GFLOP), one sparse reconstruction of τ_max coefficients split at
-the grid (at most a dense 1.47 GFLOP, a few percent of it at τ = 885), and per grid length
-one evaluation of E_c (~20 flops, one exp per value and R, G, B: ~140 M flops and 7 M exp; 2
-lengths per level at ε = 0); per point and level 2 × 3 sparse reconstructions and two joint
-evaluations. Measured: 5–8× the log rule's encode time per point (docs/benchmarks.md §17).
+Why the floored copy. Under a small ε (the release's 1e-5) a noisy dark value spans ln ε …
+ln(dark) in the log domain, several units, and that noise is in every coefficient's
+projection, the highlight's included: more coefficients buy little linear error. Values
+below f cost at most f² each in linear RGB if decoded at f, so projecting the floored copy
+gives up almost nothing and frees the coefficients for what a renderer sees. Measured on a
+captured bumpy copper at ε = 1e-5 (40×40, 4 spp, τ = 308 … 4,483; docs/benchmarks.md §17,
+"Floored targets"): the codes' linear MSE 0.147 / 0.127 at level 16 and 0.127 / 0.089 at
+level 128 without / with it. E_c is always measured against the true values.
+
+Cost per point and candidate dictionary (10×10 texels × 151 × 151, n = 2.28 M entries), per
+target (two where the floor is above ε): the log rule's projection (1.47 GFLOP), one sparse
+reconstruction of τ_max coefficients split at the grid (at most a dense 1.47 GFLOP, a few
+percent of it at τ = 885), and per grid length one evaluation of E_c (~20 flops, one exp per
+value and R, G, B: ~140 M flops and 7 M exp; 2 lengths per level at ε = 0); per point and level
+2 × 3 sparse reconstructions and two joint evaluations. Measured: 5–8× the log rule's encode
+time per point (docs/benchmarks.md §17).
 """
 
 from __future__ import annotations
@@ -122,6 +135,9 @@ class ChannelError:
     scale: np.ndarray
     bound: np.ndarray | None
     log_offset: float
+    #: the channel (0: Y, 1: U, 2: V) and its σ (L, V): what :meth:`floored` needs
+    channel: int = 0
+    std: np.ndarray | None = None
 
     @classmethod
     def for_batch(cls, objective: str, log_rgb: np.ndarray, std: np.ndarray,
@@ -133,7 +149,39 @@ class ChannelError:
         sd = np.broadcast_to(std, (*std.shape[:2], 3))[..., channel]
         scale = (sd[..., None] * YUV_TO_RGB[:, channel]).astype(np.float32)
         b = None if bound is None else np.asarray(bound, dtype=np.float32)
-        return cls(objective, log_rgb, scale, b, float(log_offset))
+        return cls(objective, log_rgb, scale, b, float(log_offset), int(channel),
+                   np.ascontiguousarray(sd, dtype=np.float32))  # fmt: skip
+
+    def floor(self, i: int) -> float:
+        """Point ``i``'s floor f: the automatic log offset's rule on the point's own values,
+        1 % of its median positive linear value
+        (:func:`~sparsebtf.points.statistics.offset_of_median`; ε where it has none)."""
+        from ..points.statistics import offset_of_median
+
+        v = np.exp(self.log_rgb[i])
+        v -= np.float32(self.log_offset)
+        pos = v[v > 0]
+        return offset_of_median(float(np.median(pos)) if pos.size else None)
+
+    def floored(self, i: int, x: np.ndarray, f: float | None = None) -> np.ndarray | None:
+        """Point ``i``'s standardised values ``x`` (p, p, L, V) with every linear value below
+        f (default its :meth:`floor`) raised to it (R, G, B apart), in this channel::
+
+            x + RGB_TO_YUV[c] · (ln(max(RGB, f) + ε) − ln(RGB + ε)) / σ_c
+
+        None where f is not above ε (nothing would change) or σ is not at hand."""
+        from ..colour import RGB_TO_YUV
+
+        f = self.floor(i) if f is None else f
+        if self.std is None or f <= self.log_offset:
+            return None
+        lr = self.log_rgb[i]
+        lift = np.maximum(lr, np.float32(math.log(f + self.log_offset)))
+        lift -= lr
+        dy = lift @ RGB_TO_YUV[self.channel].astype(np.float32)
+        dy /= self.std
+        dy += x
+        return dy.astype(x.dtype, copy=False)
 
     def _value(self, y: np.ndarray) -> np.ndarray:
         v = np.exp(y)
@@ -242,26 +290,33 @@ def judged_code_levels(
     mats = [[np.asarray(d[k], dtype=dtype) for d in dictionaries] for k in range(n_dict)]
     mats64 = [[np.asarray(d[k], dtype=np.float64) for d in dictionaries] for k in range(n_dict)]
 
-    def judge(ik: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(flat indices, values) of the tmax largest |S| and E_c at each grid length."""
+    def judge(ik: tuple[int, int]) -> list[Judged]:
+        """Per target (the point, then its floored copy where it has one): (flat indices,
+        values) of the tmax largest |S| and E_c at each grid length."""
         i, k = ik
-        s = project(x[i : i + 1], mats[k]).reshape(-1)
-        idx = topk_abs(s, tmax)
-        vals = s[idx]
-        loc = np.stack(np.unravel_index(idx, shape), axis=1)
         ref = error.reference(i)
-        delta = -x[i].astype(np.float64)  # decoded − true, decoded built up prefix by prefix
-        errs = np.full(len(grid), np.inf)
-        start = 0
-        for g, n in enumerate(grid):
-            n = min(n, idx.size)
-            if n > start:
-                delta += reconstruct_sparse(loc[start:n], vals[start:n].astype(np.float64),
-                                            mats64[k])  # fmt: skip
-                start = n
-            errs[g] = error(i, delta, ref)
-        return idx, vals, errs
+        out = []
+        for target in (x[i], error.floored(i, x[i], floors[i])):
+            if target is None:
+                continue
+            s = project(target[None], mats[k]).reshape(-1)
+            idx = topk_abs(s, tmax)
+            vals = s[idx]
+            loc = np.stack(np.unravel_index(idx, shape), axis=1)
+            delta = -x[i].astype(np.float64)  # decoded − true, built up prefix by prefix
+            errs = np.full(len(grid), np.inf)
+            start = 0
+            for g, n in enumerate(grid):
+                n = min(n, idx.size)
+                if n > start:
+                    delta += reconstruct_sparse(loc[start:n], vals[start:n].astype(np.float64),
+                                                mats64[k])  # fmt: skip
+                    start = n
+                errs[g] = error(i, delta, ref)
+            out.append((idx, vals, errs))
+        return out
 
+    floors = list(parallel_map(error.floor, range(b)))
     pairs = [(i, k) for k in range(n_dict) for i in range(b) if mask[i, k]]
     found = dict(zip(pairs, parallel_map(judge, pairs), strict=True))
     grid_a = np.asarray(grid)
@@ -270,47 +325,51 @@ def judged_code_levels(
     for tau in levels:  # the paper's rule: sparsest, then least error; ties: lower k
         best_log: list[tuple[tuple[int, float], int] | None] = [None] * b
         for i, k in pairs:
-            vals = found[i, k][1]
+            vals = found[i, k][0][1]
             n, e = rule_keys((vals.astype(np.float64) ** 2)[None, :], float(energy[i]), size,
                               tau, eps)  # fmt: skip
             key = (int(n[0]), float(e[0]))
             if best_log[i] is None or key < best_log[i][0]:  # type: ignore[index]
                 best_log[i] = (key, k)
-        chosen_log = [(c[1], c[0][0], c[0][1]) for c in best_log]  # type: ignore[index]
+        chosen_log = [(c[1], 0, c[0][0], c[0][1]) for c in best_log]  # type: ignore[index]
         logs.append(_assemble(found, chosen_log))
     out = []
     for tau in levels:
-        chosen: list[tuple[int, int, float]] = []
+        chosen: list[tuple[int, int, int, float]] = []
         for i in range(b):
-            best: tuple[tuple[int, float, float], tuple[int, int, float]] | None = None
+            best: tuple[tuple[int, float, float], tuple[int, int, int, float]] | None = None
             for k in range(n_dict):
                 if not mask[i, k]:
                     continue
-                idx, _, errs = found[i, k]
-                for g in np.flatnonzero(grid_a <= tau):
-                    n = min(int(grid_a[g]), idx.size)
-                    e = float(errs[g])
-                    # ε met: sparsest first; else (and at ε = 0) least error, then sparsest
-                    key = (0, n, e) if e <= eps else (1, e, n)
-                    if best is None or key < best[0]:
-                        best = (key, (k, n, e))
+                for t, (idx, _, errs) in enumerate(found[i, k]):
+                    for g in np.flatnonzero(grid_a <= tau):
+                        n = min(int(grid_a[g]), idx.size)
+                        e = float(errs[g])
+                        # ε met: sparsest first; else (and at ε = 0) least error, then sparsest
+                        key = (0, n, e) if e <= eps else (1, e, n)
+                        if best is None or key < best[0]:
+                            best = (key, (k, t, n, e))
             chosen.append(best[1])  # type: ignore[index]
         out.append(_assemble(found, chosen))
     return out, logs
 
 
-def _assemble(found: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]],
-              chosen: list[tuple[int, int, float]]) -> Codes:  # fmt: skip
-    """Codes of the points' chosen (dictionary, count, error), point i the i-th."""
+#: Per target of a (point, dictionary): flat indices, values, E_c at each grid length.
+Judged = tuple[np.ndarray, np.ndarray, np.ndarray]
+
+
+def _assemble(found: dict[tuple[int, int], list[Judged]],
+              chosen: list[tuple[int, int, int, float]]) -> Codes:  # fmt: skip
+    """Codes of the points' chosen (dictionary, target, count, error), point i the i-th."""
     b = len(chosen)
-    idx = [found[i, k][0][:n] for i, (k, n, _) in enumerate(chosen)]
-    vals = [found[i, k][1][:n] for i, (k, n, _) in enumerate(chosen)]
+    idx = [found[i, k][t][0][:n] for i, (k, t, n, _) in enumerate(chosen)]
+    vals = [found[i, k][t][1][:n] for i, (k, t, n, _) in enumerate(chosen)]
     return (
         np.array([c[0] for c in chosen], dtype=np.int64),
-        np.array([c[1] for c in chosen], dtype=np.int64),
+        np.array([c[2] for c in chosen], dtype=np.int64),
         np.concatenate(vals).astype(np.float32) if b else np.empty(0, np.float32),
         np.concatenate(idx).astype(np.int64) if b else np.empty(0, np.int64),
-        np.array([c[2] for c in chosen], dtype=np.float64),
+        np.array([c[3] for c in chosen], dtype=np.float64),
     )
 
 

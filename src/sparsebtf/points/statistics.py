@@ -65,6 +65,7 @@ __all__ = [
     "choose_log_offset",
     "combine_statistics",
     "gather_statistics",
+    "offset_of_median",
     "positive_median",
     "provisional_log_offset",
     "sampled_log_offset",
@@ -337,7 +338,7 @@ def choose_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
         return RELEASE_LOG_OFFSET
     if not isinstance(rule, str):
         return float(rule)
-    return _offset_of(positive_median(btf)[0])
+    return offset_of_median(positive_median(btf)[0])
 
 
 def provisional_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
@@ -348,7 +349,7 @@ def provisional_log_offset(btf: BTF, rule: LogOffset = "auto") -> float:
     rule = resolve_log_offset(rule)
     if rule != "auto":
         return choose_log_offset(btf, rule)
-    return _offset_of(positive_median(btf, rows=statistic_bands(btf)[0])[0])
+    return offset_of_median(positive_median(btf, rows=statistic_bands(btf)[0])[0])
 
 
 def sampled_log_offset(parts: Sequence[StatisticSums]) -> float:
@@ -357,10 +358,10 @@ def sampled_log_offset(parts: Sequence[StatisticSums]) -> float:
     if any(p.counts is None for p in parts):
         raise BTFInputError("statistic sums without the log offset's sample (sample=True)")
     counts = np.sum([p.counts for p in parts], axis=0)
-    return _offset_of(_median(counts, sum(p.seen for p in parts))[0])
+    return offset_of_median(_median(counts, sum(p.seen for p in parts))[0])
 
 
-def _offset_of(median: float | None) -> float:
+def offset_of_median(median: float | None) -> float:
     """The "auto" rule's offset for a median positive value (None: no positive value)."""
     if median is None:
         return RELEASE_LOG_OFFSET
