@@ -44,10 +44,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._semantic import stored_dtype
 from .._threads import parallel_map
 from .codes import SparseCodes
-from .objective import ChannelError, joint_sum64
+from .objective import ChannelError, joint_sum64, stored_precision
 from .tensor import reconstruct_sparse
 
 __all__ = [
@@ -59,7 +58,6 @@ __all__ = [
     "joint_walk",
     "lod_orders",
     "lod_stops",
-    "stored_precision",
     "walk_order",
     "walk_pool",
     "walk_stops",
@@ -96,14 +94,6 @@ def lod_stops(count: int, tau: int) -> np.ndarray:
     :data:`LOD_FRACTIONS` below ``count``, and ``count``."""
     stops = {math.ceil(f * tau - 1e-9) for f in LOD_FRACTIONS} | {int(count)}
     return np.asarray(sorted(s for s in stops if 0 < s <= count), dtype=np.int64)
-
-
-def stored_precision(values: np.ndarray) -> np.ndarray:
-    """``values`` rounded as a coded file stores them (binary16, or float32 when one
-    overflows it: :func:`~sparsebtf._semantic.stored_dtype`), as float32: the walk judges
-    the very values the file keeps."""
-    v = np.asarray(values, dtype=np.float32)
-    return v.astype(stored_dtype(v)).astype(np.float32)
 
 
 def walk_order(error: ChannelError, i: int, x: np.ndarray, loc: np.ndarray,

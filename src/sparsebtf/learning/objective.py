@@ -29,39 +29,40 @@ The rule, in two steps. (1) Per channel (:func:`judged_code_levels`): each candi
 dictionary's coefficients in the log rule's order (decreasing |S_t|, the order a
 level-of-detail prefix reads), evaluated by E_c at the prefix lengths τ and ⌈τ/2⌉ of every
 level, and with ε > 0 also 1, 2, 4, … (the grid, :func:`prefix_grid`) — the coefficients of the
-point itself and of its **floored** copy (:meth:`ChannelError.floored`: every linear value
-below the point's floor f raised to f, f the automatic log offset's rule on the point, 1 % of
-its median positive value), where f is above the log offset ε. At each level τ the code is the
-(dictionary, target, prefix length n <= τ) of least E_c; with ε > 0 the smallest n with E_c <=
-ε (then least error) when one exists. The log rule's codes come from the same projections (of
-the point itself). (2) Per point and level (:func:`joint_choice`): the joint error E of the
-three channels' residuals at once (E_c with every channel's δ) of the judged codes against the
-log rule's; the lower is kept, and in increasing τ a level keeps a lower level's codes where
-those have the lower E. So **no point's error in the objective is above the log rule's** at its
-level, **nor above its error at a lower level** of the same call
-(:func:`~sparsebtf.codec.encode_levels`). The stored codes are then put in their
-level-of-detail order (:func:`~.lod_order.lod_orders`), which nests the levels again, per
-channel as well as jointly (issue 46): in increasing τ no point's joint E nor any channel's E_c
-is above a lower level's of the call (a level that would be keeps the best mix of its own and
-the lower level's channel codes). Separate calls are not nested: each judges the prefix lengths
-of its own levels, and a screened call ranks its candidates for its own τ.
+point itself and of its **floored** copies (:meth:`ChannelError.floored`: every linear value
+below a floor raised to it; the floors f, 4f and 16f, :data:`FLOOR_STEPS`, f the automatic log
+offset's rule on the point, 1 % of its median positive value), those above the log offset ε. At
+each level τ the code is the (dictionary, target, prefix length n <= τ) of least E_c; with ε >
+0 the smallest n with E_c <= ε (then least error) when one exists. The log rule's codes come
+from the same projections (of the point itself). (2) Per point and level
+(:func:`joint_choice`): the joint error E of the three channels' residuals at once (E_c with
+every channel's δ) of the judged codes against the log rule's; the lower is kept, and in
+increasing τ a level keeps a lower level's codes where those have the lower E. So **no point's
+error in the objective is above the log rule's** at its level, **nor above its error at a lower
+level** of the same call (:func:`~sparsebtf.codec.encode_levels`). The stored codes are then
+put in their level-of-detail order (:func:`~.lod_order.lod_orders`), which nests the levels
+again, per channel as well as jointly (issue 46): in increasing τ no point's joint E nor any
+channel's E_c is above a lower level's of the call (a level that would be keeps the best mix of
+its own and the lower level's channel codes). Separate calls are not nested: each judges the
+prefix lengths of its own levels, and a screened call ranks its candidates for its own τ.
 
-Why the floored copy. Under a small ε (the release's 1e-5) a noisy dark value spans ln ε …
-ln(dark) in the log domain, several units, and that noise is in every coefficient's
-projection, the highlight's included: more coefficients buy little linear error. Values
-below f cost at most f² each in linear RGB if decoded at f, so projecting the floored copy
-gives up almost nothing and frees the coefficients for what a renderer sees. Measured on a
-captured bumpy copper at ε = 1e-5 (40×40, 4 spp, τ = 308 … 4,483; docs/benchmarks.md §17,
-"Floored targets"): the codes' linear MSE 0.147 / 0.127 at level 16 and 0.127 / 0.089 at
-level 128 without / with it. E_c is always measured against the true values.
+Why floored copies. Under a small ε (the release's 1e-5) a noisy dark value spans ln ε …
+ln(dark) in the log domain, several units, and that noise is in every coefficient's projection,
+the highlight's included: more coefficients buy little linear error. A value below a floor f
+costs at most f² in linear RGB if decoded at f, so projecting a floored copy gives up little
+and frees the coefficients for what a renderer sees; which floor leaves the least error is
+judged per point and channel, always against the true values. Measured on a captured bumpy
+copper at ε = 1e-5 (40×40, 4 spp, τ = 308 … 4,483; docs/benchmarks.md §17, "Floored targets"):
+the codes' linear MSE 0.147 → 0.121 at level 16 and 0.127 → 0.077 at level 128 (at the
+automatic offset, before them: 0.120 and 0.078).
 
 Cost per point and candidate dictionary (10×10 texels × 151 × 151, n = 2.28 M entries), per
-target (two where the floor is above ε): the log rule's projection (1.47 GFLOP), one sparse
-reconstruction of τ_max coefficients split at the grid (at most a dense 1.47 GFLOP, a few
-percent of it at τ = 885), and per grid length one evaluation of E_c (~20 flops, one exp per
-value and R, G, B: ~140 M flops and 7 M exp; 2 lengths per level at ε = 0); per point and level
-2 × 3 sparse reconstructions and two joint evaluations. Measured: 5–8× the log rule's encode
-time per point (docs/benchmarks.md §17).
+target (up to four: the point and its floored copies above ε): the log rule's projection (1.47
+GFLOP), one sparse reconstruction of τ_max coefficients split at the grid (at most a dense 1.47
+GFLOP, a few percent of it at τ = 885), and per grid length one evaluation of E_c (~20 flops,
+one exp per value and R, G, B: ~140 M flops and 7 M exp; 2 lengths per level at ε = 0); per
+point and level 2 × 3 sparse reconstructions and two joint evaluations. Measured: 5–8× the log
+rule's encode time per point (docs/benchmarks.md §17).
 """
 
 from __future__ import annotations
@@ -72,6 +73,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._semantic import stored_dtype
 from .._threads import parallel_map
 from ..errors import BTFInputError
 from .codes import SparseCodes, rule_keys, topk_abs
@@ -80,6 +82,7 @@ from .tensor import project, reconstruct_sparse
 __all__ = [
     "DISPLAY_A",
     "DISPLAY_GAMMA",
+    "FLOOR_STEPS",
     "OBJECTIVES",
     "ChannelError",
     "check_objective",
@@ -89,10 +92,15 @@ __all__ = [
     "judged_code_levels",
     "objective_params",
     "prefix_grid",
+    "stored_precision",
 ]
 
 #: One level's codes: membership, counts, values, flat indices, errors.
 Codes = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+#: The floored copies a point is also judged by: its floor (:meth:`ChannelError.floor`) times
+#: each (measured on a captured rough copper at ε = 1e-5, level 128's codes: 0.1269 without,
+#: 0.0907 with (1,), 0.0799 with (1, 8), 0.0774 with these; docs/benchmarks.md §17).
+FLOOR_STEPS = (1.0, 4.0, 16.0)
 #: The coding objectives: "log" (the paper's rule, default), "linear", "display".
 OBJECTIVES = ("log", "linear", "display")
 #: The paper's display mapping a·I^(1/γ) (:func:`sparsebtf.display.tone_map`).
@@ -257,6 +265,14 @@ def joint_error(errors: Sequence[ChannelError], i: int, residuals: Sequence[np.n
     return float(np.dot(flat, flat)) / flat.size
 
 
+def stored_precision(values: np.ndarray) -> np.ndarray:
+    """``values`` rounded as a coded file stores them (binary16, or float32 when one
+    overflows it: :func:`~sparsebtf._semantic.stored_dtype`), as float32: the walk judges
+    the very values the file keeps."""
+    v = np.asarray(values, dtype=np.float32)
+    return v.astype(stored_dtype(v)).astype(np.float32)
+
+
 def prefix_grid(levels: Sequence[int], eps: float = 0.0) -> list[int]:
     """The prefix lengths E_c is evaluated at (increasing, distinct): every level τ and its
     half ⌈τ/2⌉; with ε > 0 also 1, 2, 4, … below the largest level (the ε rule looks for the
@@ -296,7 +312,8 @@ def judged_code_levels(
         i, k = ik
         ref = error.reference(i)
         out = []
-        for target in (x[i], error.floored(i, x[i], floors[i])):
+        lifted = (error.floored(i, x[i], floors[i] * m) for m in FLOOR_STEPS)
+        for target in (x[i], *lifted):
             if target is None:
                 continue
             s = project(target[None], mats[k]).reshape(-1)
@@ -384,8 +401,9 @@ def joint_choice(
     :class:`ChannelError`; ``judged[c][j]``, ``log[c][j]`` its codes at level j by the
     objective's rule and by the paper's (:func:`~.coding.sparse_code_objective`);
     ``taus[c][j]`` its cap. Per point and level the joint error E (the objective's mean
-    squared error over values and R, G, B, with all three channels' residuals at once) of
-    the judged codes is compared with the log rule's, and the lower kept; then, in
+    squared error over values and R, G, B, with all three channels' residuals at once, the
+    values at the file's precision) of the judged codes is compared with the log rule's, and
+    the lower kept; then, in
     increasing τ (levels whose every channel's τ is at least the other's), a level whose E
     is above a lower level's keeps that level's codes. So no point's E is above the log
     rule's at its level, nor above its E at a lower level. Returns ``[c][j]`` codes, each
@@ -401,18 +419,23 @@ def joint_choice(
         loc, val = codes.point(i)
         k = int(codes.membership[i])
         mats = [np.asarray(d[k], dtype=np.float64) for d in dictionaries[c]]
-        return (reconstruct_sparse(loc, val.astype(np.float64), mats)
+        # at the file's precision: a floored copy's code can win by less than its rounding
+        return (reconstruct_sparse(loc, stored_precision(val).astype(np.float64), mats)
                 - x[c][i].astype(np.float64)).astype(np.float32)  # fmt: skip
 
     def joint(ji: tuple[int, int, int]) -> float:
         j, src, i = ji
         return joint_error(errors, i, [residual(c, j, src, i) for c in range(n_ch)])
 
-    # the log rule's code is the judged one where every channel has its dictionary and count
-    # (both are prefixes of the same order): judged once
-    same = np.array([[all(judged[c][j].membership[i] == log[c][j].membership[i]
-                          and judged[c][j].counts[i] == log[c][j].counts[i] for c in range(n_ch))
-                      for i in range(b)] for j in range(n_lv)])  # fmt: skip
+    # the log rule's code is the judged one where every channel has its dictionary, count
+    # and values (a floored copy's prefix has its own values): judged once
+    def same_code(j: int, i: int) -> bool:
+        return all(judged[c][j].membership[i] == log[c][j].membership[i]
+                   and all(np.array_equal(a, g) for a, g in zip(judged[c][j].point(i),
+                                                                log[c][j].point(i), strict=True))
+                   for c in range(n_ch))  # fmt: skip
+
+    same = np.array([[same_code(j, i) for i in range(b)] for j in range(n_lv)])
     jobs = [(j, src, i) for j in range(n_lv) for src in (0, 1) for i in range(b)
             if src == 0 or not same[j, i]]  # fmt: skip
     err = np.full((n_lv, 2, b), np.inf)
