@@ -93,4 +93,5 @@ def test_floored_targets_lower_the_linear_error_at_a_small_offset(model, monkeyp
     a = [_mse(c, btf) for c in with_floor]
     b = [_mse(c, btf) for c in without]
     assert a[1] <= a[0]  # nested
-    assert a[0] < 0.85 * b[0] and a[1] < 0.85 * b[1], (a, b)
+    # measured: 0.117 and 0.098 against 0.205 and 0.203
+    assert a[0] < 0.7 * b[0] and a[1] < 0.7 * b[1], (a, b)
