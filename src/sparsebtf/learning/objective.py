@@ -62,7 +62,8 @@ GFLOP), one sparse reconstruction of τ_max coefficients split at the grid (at m
 GFLOP, a few percent of it at τ = 885), and per grid length one evaluation of E_c (~20 flops,
 one exp per value and R, G, B: ~140 M flops and 7 M exp; 2 lengths per level at ε = 0); per
 point and level 2 × 3 sparse reconstructions and two joint evaluations. Measured: 5–8× the log
-rule's encode time per point (docs/benchmarks.md §17).
+rule's encode time per point with the point alone; the floored copies took the benchmark's
+glossy encodes to 1.4–2.6× that (docs/benchmarks.md §17).
 """
 
 from __future__ import annotations
@@ -267,8 +268,8 @@ def joint_error(errors: Sequence[ChannelError], i: int, residuals: Sequence[np.n
 
 def stored_precision(values: np.ndarray) -> np.ndarray:
     """``values`` rounded as a coded file stores them (binary16, or float32 when one
-    overflows it: :func:`~sparsebtf._semantic.stored_dtype`), as float32: the walk judges
-    the very values the file keeps."""
+    overflows it: :func:`~sparsebtf._semantic.stored_dtype`), as float32: the joint choice
+    and the level-of-detail walk judge the very values the file keeps."""
     v = np.asarray(values, dtype=np.float32)
     return v.astype(stored_dtype(v)).astype(np.float32)
 
@@ -307,8 +308,8 @@ def judged_code_levels(
     mats64 = [[np.asarray(d[k], dtype=np.float64) for d in dictionaries] for k in range(n_dict)]
 
     def judge(ik: tuple[int, int]) -> list[Judged]:
-        """Per target (the point, then its floored copy where it has one): (flat indices,
-        values) of the tmax largest |S| and E_c at each grid length."""
+        """Per target (the point, then its floored copies above ε): (flat indices, values)
+        of the tmax largest |S| and E_c at each grid length."""
         i, k = ik
         ref = error.reference(i)
         out = []
