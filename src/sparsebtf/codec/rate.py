@@ -23,7 +23,7 @@ from ..execution import Execution
 from ..learning.codes import RELEASE_TAU
 from ..learning.coding import screen_dictionaries, topk_abs
 from ..learning.cost import DICTIONARY_ENTRY_BYTES, location_width, raw_bytes
-from ..learning.objective import DISPLAY_A, DISPLAY_GAMMA, objective_params
+from ..learning.objective import DISPLAY_A, DISPLAY_GAMMA, FLOOR_STEPS, objective_params
 from ..learning.rate_control import ChannelCandidates, allocate, reference_counts
 from ..learning.tensor import project
 from ..model import CodedBTF, Model
@@ -169,8 +169,9 @@ class RateTargets:
     #: :meth:`check`, which keeps None where it changes nothing
     candidates: int | None = None
     #: the coding objective (:mod:`sparsebtf.learning.objective`): with "linear" or "display"
-    #: each point's dictionary is the one of least error in it at the reference count, and
-    #: the allocation spends on exact error curves (the file records weighting "exact")
+    #: each point's dictionary is the one of least error in it at the reference count (its
+    #: candidates the point's projections or a floored copy's, :func:`_floored_candidates`),
+    #: and the allocation spends on exact error curves (the file records weighting "exact")
     objective: str = "log"
 
     #: The fields that give a size target (the keywords of :func:`encode_to_size`).
@@ -310,8 +311,10 @@ class RateTargets:
                     return idx, s[idx]
 
                 res = dict(zip(pairs, parallel_map(task, pairs), strict=True))
-                losses = None if judge is None else _objective_losses(
-                    xc, res, pairs, [r[ch] for r in refs], mats[ch], judge[c])
+                losses = None
+                if judge is not None:
+                    res, losses = _floored_candidates(xc, res, pairs, [r[ch] for r in refs],
+                                                      mats[ch], nmax[ch], judge[c], dt)  # fmt: skip
                 picks = []
                 for i in range(xc.shape[0]):
                     ks = [k for k in range(n_k) if mask[i, k]]
@@ -419,24 +422,58 @@ def _objective_losses(
     """Per (point, dictionary) the objective's error (a
     :class:`~sparsebtf.learning.objective.ChannelError`) of its top ``counts[lv]``
     coefficients, per level: one sparse reconstruction per level."""
+    return dict(zip(pairs, parallel_map(
+        lambda ik: _prefix_losses(xc, ik[0], *res[ik], mats[ik[1]], counts, judge), pairs),
+        strict=True))  # fmt: skip
+
+
+def _prefix_losses(xc: np.ndarray, i: int, idx: np.ndarray, vals: np.ndarray,
+                   mats: list[np.ndarray], counts: list[int], judge: Any
+                   ) -> list[float]:  # fmt: skip
+    """The objective's error of point ``i`` coded by the first ``counts[lv]`` of ``(idx,
+    vals)`` (flat indices into the point, values) on the dictionary ``mats``, per level."""
     from ..learning.tensor import reconstruct_sparse
 
-    shape = xc.shape[1:]
+    loc = np.stack(np.unravel_index(idx, xc.shape[1:]), axis=1)
+    m64 = [m.astype(np.float64) for m in mats]
+    ref = judge.reference(i)
+    out = []
+    for r in counts:
+        n = min(r, idx.size)
+        rec = reconstruct_sparse(loc[:n], vals[:n].astype(np.float64), m64)
+        out.append(judge(i, rec - xc[i], ref))
+    return out
 
-    def task(ik: tuple[int, int]) -> list[float]:
-        i, k = ik
-        idx, vals = res[i, k]
-        loc = np.stack(np.unravel_index(idx, shape), axis=1)
-        m64 = [m.astype(np.float64) for m in mats[k]]
-        ref = judge.reference(i)
-        out = []
-        for r in counts:
-            n = min(r, idx.size)
-            rec = reconstruct_sparse(loc[:n], vals[:n].astype(np.float64), m64)
-            out.append(judge(i, rec - xc[i], ref))
-        return out
 
-    return dict(zip(pairs, parallel_map(task, pairs), strict=True))
+def _floored_candidates(
+    xc: np.ndarray, res: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+    pairs: list[tuple[int, int]], counts: list[int], mats: list[list[np.ndarray]], nmax: int,
+    judge: Any, dtype: type,
+) -> tuple[dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
+           dict[tuple[int, int], list[float]]]:  # fmt: skip
+    """Per (point, dictionary) the candidates of the point's own projection or of one of its
+    floored copies (:meth:`~sparsebtf.learning.objective.ChannelError.floored`, the floors
+    of :data:`~sparsebtf.learning.objective.FLOOR_STEPS`, as the fixed-τ rule judges them),
+    whichever has the least objective error summed over the reference ``counts``, with those
+    errors (:func:`_objective_losses`)."""
+    losses = _objective_losses(xc, res, pairs, counts, mats, judge)
+    floors = list(parallel_map(judge.floor, range(xc.shape[0])))
+
+    def lifted(ikm: tuple[int, int, float]) -> tuple[np.ndarray, np.ndarray, list[float]] | None:
+        i, k, m = ikm
+        target = judge.floored(i, xc[i], floors[i] * m)
+        if target is None:
+            return None
+        s = project(np.asarray(target, dtype=dtype)[None], mats[k]).reshape(-1)
+        idx = topk_abs(s, nmax)
+        return idx, s[idx], _prefix_losses(xc, i, idx, s[idx], mats[k], counts, judge)
+
+    jobs = [(i, k, m) for i, k in pairs for m in FLOOR_STEPS]
+    res, losses = dict(res), dict(losses)
+    for (i, k, _), got in zip(jobs, parallel_map(lifted, jobs), strict=True):
+        if got is not None and sum(got[2]) < sum(losses[i, k]):
+            res[i, k], losses[i, k] = (got[0], got[1]), got[2]
+    return res, losses
 
 
 def _walks(
