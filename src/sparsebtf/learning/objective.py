@@ -63,7 +63,7 @@ GFLOP, a few percent of it at τ = 885), and per grid length one evaluation of E
 one exp per value and R, G, B: ~140 M flops and 7 M exp; 2 lengths per level at ε = 0); per
 point and level 2 × 3 sparse reconstructions and two joint evaluations. Measured: 5–8× the log
 rule's encode time per point with the point alone; the floored copies took the benchmark's
-glossy encodes to 1.4–2.6× that (docs/benchmarks.md §17).
+glossy encodes to 1.0–2.6× that (docs/benchmarks.md §17).
 """
 
 from __future__ import annotations
