@@ -23,7 +23,7 @@ from ..execution import Execution
 from ..learning.codes import RELEASE_TAU
 from ..learning.coding import screen_dictionaries, topk_abs
 from ..learning.cost import DICTIONARY_ENTRY_BYTES, location_width, raw_bytes
-from ..learning.objective import DISPLAY_A, DISPLAY_GAMMA, FLOOR_STEPS, objective_params
+from ..learning.objective import DISPLAY_A, DISPLAY_GAMMA, objective_params
 from ..learning.rate_control import ChannelCandidates, allocate, reference_counts
 from ..learning.tensor import project
 from ..model import CodedBTF, Model
@@ -32,6 +32,7 @@ from ..points.preprocessing import Preprocessor, Standardization
 from .encode import batch_errors, check_model_objective, coded_btf, plan_candidates, rule_params
 from .jobs import Header, run_plan
 from .options import EncodeOptions
+from .rate_objective import floored_candidates, pool_walks
 
 __all__ = [
     "BUDGETS",
@@ -170,8 +171,9 @@ class RateTargets:
     candidates: int | None = None
     #: the coding objective (:mod:`sparsebtf.learning.objective`): with "linear" or "display"
     #: each point's dictionary is the one of least error in it at the reference count (its
-    #: candidates the point's projections or a floored copy's, :func:`_floored_candidates`),
-    #: and the allocation spends on exact error curves (the file records weighting "exact")
+    #: candidates the point's projections or a floored copy's,
+    #: :func:`~.rate_objective.floored_candidates`), and the allocation spends on exact error
+    #: curves (the file records weighting "exact")
     objective: str = "log"
 
     #: The fields that give a size target (the keywords of :func:`encode_to_size`).
@@ -313,7 +315,7 @@ class RateTargets:
                 res = dict(zip(pairs, parallel_map(task, pairs), strict=True))
                 losses = None
                 if judge is not None:
-                    res, losses = _floored_candidates(xc, res, pairs, [r[ch] for r in refs],
+                    res, losses = floored_candidates(xc, res, pairs, [r[ch] for r in refs],
                                                       mats[ch], nmax[ch], judge[c], dt)  # fmt: skip
                 picks = []
                 for i in range(xc.shape[0]):
@@ -332,8 +334,8 @@ class RateTargets:
                 # dictionary a larger target keeps a superset of a smaller one's coefficients;
                 # the objective's candidates: its level-of-detail order with exact error curves
                 pool = max(ncand[lv][ch] for lv in range(n_lv))
-                walks = None if judge is None else _walks(xc, res, picks, pool, mats[ch],
-                                                          judge[c])  # fmt: skip
+                walks = None if judge is None else pool_walks(xc, res, picks, pool, mats[ch],
+                                                              judge[c])  # fmt: skip
                 for i, lv, k in picks:
                     n = pool
                     d = parts[lv][ch]
@@ -412,87 +414,6 @@ class RateTargets:
             else:
                 out.append(build(int(target)))
         return out
-
-
-def _objective_losses(
-    xc: np.ndarray, res: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
-    pairs: list[tuple[int, int]], counts: list[int], mats: list[list[np.ndarray]],
-    judge: Any,
-) -> dict[tuple[int, int], list[float]]:  # fmt: skip
-    """Per (point, dictionary) the objective's error (a
-    :class:`~sparsebtf.learning.objective.ChannelError`) of its top ``counts[lv]``
-    coefficients, per level: one sparse reconstruction per level."""
-    return dict(zip(pairs, parallel_map(
-        lambda ik: _prefix_losses(xc, ik[0], *res[ik], mats[ik[1]], counts, judge), pairs),
-        strict=True))  # fmt: skip
-
-
-def _prefix_losses(xc: np.ndarray, i: int, idx: np.ndarray, vals: np.ndarray,
-                   mats: list[np.ndarray], counts: list[int], judge: Any
-                   ) -> list[float]:  # fmt: skip
-    """The objective's error of point ``i`` coded by the first ``counts[lv]`` of ``(idx,
-    vals)`` (flat indices into the point, values) on the dictionary ``mats``, per level."""
-    from ..learning.tensor import reconstruct_sparse
-
-    loc = np.stack(np.unravel_index(idx, xc.shape[1:]), axis=1)
-    m64 = [m.astype(np.float64) for m in mats]
-    ref = judge.reference(i)
-    out = []
-    for r in counts:
-        n = min(r, idx.size)
-        rec = reconstruct_sparse(loc[:n], vals[:n].astype(np.float64), m64)
-        out.append(judge(i, rec - xc[i], ref))
-    return out
-
-
-def _floored_candidates(
-    xc: np.ndarray, res: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
-    pairs: list[tuple[int, int]], counts: list[int], mats: list[list[np.ndarray]], nmax: int,
-    judge: Any, dtype: type,
-) -> tuple[dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
-           dict[tuple[int, int], list[float]]]:  # fmt: skip
-    """Per (point, dictionary) the candidates of the point's own projection or of one of its
-    floored copies (:meth:`~sparsebtf.learning.objective.ChannelError.floored`, the floors
-    of :data:`~sparsebtf.learning.objective.FLOOR_STEPS`, as the fixed-τ rule judges them),
-    whichever has the least objective error summed over the reference ``counts``, with those
-    errors (:func:`_objective_losses`)."""
-    losses = _objective_losses(xc, res, pairs, counts, mats, judge)
-    floors = list(parallel_map(judge.floor, range(xc.shape[0])))
-
-    def lifted(ikm: tuple[int, int, float]) -> tuple[np.ndarray, np.ndarray, list[float]] | None:
-        i, k, m = ikm
-        target = judge.floored(i, xc[i], floors[i] * m)
-        if target is None:
-            return None
-        s = project(np.asarray(target, dtype=dtype)[None], mats[k]).reshape(-1)
-        idx = topk_abs(s, nmax)
-        return idx, s[idx], _prefix_losses(xc, i, idx, s[idx], mats[k], counts, judge)
-
-    jobs = [(i, k, m) for i, k in pairs for m in FLOOR_STEPS]
-    res, losses = dict(res), dict(losses)
-    for (i, k, _), got in zip(jobs, parallel_map(lifted, jobs), strict=True):
-        if got is not None and sum(got[2]) < sum(losses[i, k]):
-            res[i, k], losses[i, k] = (got[0], got[1]), got[2]
-    return res, losses
-
-
-def _walks(
-    xc: np.ndarray, res: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]],
-    picks: list[tuple[int, int, int]], pool: int, mats: list[list[np.ndarray]], judge: Any,
-) -> dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]]:  # fmt: skip
-    """Per chosen (point, dictionary) of ``picks`` (point, level, dictionary) its first
-    ``pool`` candidates in the objective's level-of-detail order with their exact error
-    curve (:func:`~sparsebtf.learning.lod_order.walk_pool`)."""
-    from ..learning.lod_order import walk_pool
-
-    keys = sorted({(i, k) for i, _, k in picks})
-
-    def task(ik: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        i, k = ik
-        m64 = [m.astype(np.float64) for m in mats[k]]
-        return walk_pool(judge, i, xc[i], res[i, k][0], res[i, k][1], m64, pool)
-
-    return dict(zip(keys, parallel_map(task, keys), strict=True))
 
 
 def _table4_estimate(stored: int, header: Header | BTF, n_points: int, n_channels: int,

@@ -76,7 +76,9 @@ import numpy as np
 
 from .._semantic import stored_dtype
 from .._threads import parallel_map
+from ..colour import RGB_TO_YUV_F32
 from ..errors import BTFInputError
+from ..points.statistics import offset_of_median
 from .codes import SparseCodes, rule_keys, topk_abs
 from .tensor import project, reconstruct_sparse
 
@@ -165,8 +167,6 @@ class ChannelError:
         """Point ``i``'s floor f: the automatic log offset's rule on the point's own values,
         1 % of its median positive linear value
         (:func:`~sparsebtf.points.statistics.offset_of_median`; ε where it has none)."""
-        from ..points.statistics import offset_of_median
-
         v = np.exp(self.log_rgb[i])
         v -= np.float32(self.log_offset)
         pos = v[v > 0]
@@ -179,15 +179,13 @@ class ChannelError:
             x + RGB_TO_YUV[c] · (ln(max(RGB, f) + ε) − ln(RGB + ε)) / σ_c
 
         None where f is not above ε (nothing would change) or σ is not at hand."""
-        from ..colour import RGB_TO_YUV
-
         f = self.floor(i) if f is None else f
         if self.std is None or f <= self.log_offset:
             return None
         lr = self.log_rgb[i]
         lift = np.maximum(lr, np.float32(math.log(f + self.log_offset)))
         lift -= lr
-        dy = lift @ RGB_TO_YUV[self.channel].astype(np.float32)
+        dy = lift @ RGB_TO_YUV_F32[self.channel]
         dy /= self.std
         dy += x
         return dy.astype(x.dtype, copy=False)
